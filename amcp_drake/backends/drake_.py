@@ -1,0 +1,232 @@
+"""Drake backend: every optimisation problem as a ``pydrake.solvers.MathematicalProgram``.
+
+Conventions (design.md; DEVELOPERS.md engineering facts):
+
+* Clarabel is the default solver (accurate for LP, QP and SDP). Any Drake solver can be selected
+  by name (``solver="osqp"``); ``solver_options`` are passed to it.
+* Programs solved repeatedly (support LPs, tube MPC QP) are built once and their coefficients
+  updated with ``UpdateCoefficients``; no symbolic expression is built per step.
+* Every coefficient is checked for finiteness before it reaches Drake (Drake aborts the
+  interpreter with ``SystemExit`` on non-finite coefficients).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.sparse as sp
+from pydrake.solvers import (ClarabelSolver, ClpSolver, CsdpSolver, IpoptSolver, MathematicalProgram,
+                             OsqpSolver, ScsSolver, SolutionResult, SolverOptions)
+
+from ..status import SolveStatus
+from .base import GainResult, MPCSolution, ProjectionResult, SetUpdateResult, TubeMPCData
+
+#: Drake's SolutionResult -> canonical status.
+STATUS_MAP = {
+    SolutionResult.kSolutionFound: SolveStatus.OPTIMAL,
+    SolutionResult.kInfeasibleConstraints: SolveStatus.INFEASIBLE,
+    SolutionResult.kInfeasibleOrUnbounded: SolveStatus.INFEASIBLE,
+    SolutionResult.kUnbounded: SolveStatus.UNBOUNDED,
+    SolutionResult.kDualInfeasible: SolveStatus.UNBOUNDED,
+    SolutionResult.kIterationLimit: SolveStatus.INACCURATE,
+    SolutionResult.kSolverSpecificError: SolveStatus.ERROR,
+    SolutionResult.kInvalidInput: SolveStatus.ERROR,
+    SolutionResult.kSolutionResultNotSet: SolveStatus.ERROR,
+}
+
+#: Clarabel statuses (solver details) that Drake reports as success but that are not exact.
+_CLARABEL_INACCURATE = {"AlmostSolved", "AlmostPrimalInfeasible", "AlmostDualInfeasible"}
+
+SOLVERS = {
+    "clarabel": ClarabelSolver,
+    "osqp": OsqpSolver,
+    "scs": ScsSolver,
+    "clp": ClpSolver,
+    "csdp": CsdpSolver,
+    "ipopt": IpoptSolver,
+}
+
+
+def _finite(name: str, *arrays: np.ndarray) -> None:
+    for arr in arrays:
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"{name}: non-finite coefficient passed to Drake (it would abort the interpreter)")
+
+
+class _Solver:
+    """One Drake solver with options; ``status`` maps a result to the canonical status."""
+
+    def __init__(self, name: str, options: dict | None) -> None:
+        key = name.lower()
+        if key not in SOLVERS:
+            raise ValueError(f"solver {name!r} unknown to the Drake backend; choose one of {sorted(SOLVERS)}")
+        self.name = key
+        self.solver = SOLVERS[key]()
+        if not self.solver.available() or not self.solver.enabled():
+            raise ValueError(f"Drake solver {name!r} is not available or not enabled (license?)")
+        self.options = SolverOptions()
+        for opt, value in (options or {}).items():
+            self.options.SetOption(self.solver.solver_id(), opt, value)
+
+    def solve(self, prog: MathematicalProgram):
+        start = time.perf_counter()
+        result = self.solver.Solve(prog, None, self.options)
+        return result, time.perf_counter() - start
+
+    def status(self, result) -> SolveStatus:
+        status = STATUS_MAP.get(result.get_solution_result(), SolveStatus.ERROR)
+        if status is SolveStatus.OPTIMAL and self.name == "clarabel":
+            details = result.get_solver_details()
+            if getattr(details, "status", "Solved") in _CLARABEL_INACCURATE:
+                return SolveStatus.INACCURATE
+        return status
+
+
+class DrakeBackend:
+    """All problems of the algorithm with Drake's ``MathematicalProgram``.
+
+    Parameters
+    ----------
+    solver: Drake solver for the LPs and the tube QP ("clarabel" by default).
+    solver_options: options passed to that solver (e.g. ``{"tol_gap_abs": 1e-10}``).
+    sdp_solver: solver for the gain LMI (must support PSD cones: "clarabel", "scs" or "csdp").
+    """
+
+    name = "drake"
+
+    def __init__(self, solver: str = "clarabel", solver_options: dict | None = None,
+                 sdp_solver: str = "clarabel") -> None:
+        self._solver = _Solver(solver, solver_options)
+        self._sdp = _Solver(sdp_solver, None)
+        self.solver_name = self._solver.name
+
+    # -- offline: gain LMI for Assumption 8 and (16) -----------------------------------------
+    def robust_gain(self, A_vertices, B_vertices, Q, R, margin):
+        """maximise trace(S) s.t. for each vertex i (S = P⁻¹, Y = K S):
+
+        [[S, (A_i S + B_i Y)ᵀ, S Q^½, Yᵀ R^½], [A_i S + B_i Y, S, 0, 0], [Q^½ S, 0, I, 0],
+         [R^½ Y, 0, 0, I]] ⪰ margin·I,  S ⪰ margin·I.
+
+        By Schur complements this is A_cl(θ^i)ᵀ P A_cl(θ^i) − P + Q + KᵀRK ⪯ 0, eq. (16).
+        Built symbolically: it is solved once per design, never per step.
+        """
+        A_vertices = np.asarray(A_vertices, float)
+        B_vertices = np.asarray(B_vertices, float)
+        _finite("robust_gain", A_vertices, B_vertices, Q, R)
+        n, m = A_vertices.shape[1], B_vertices.shape[2]
+        Qh = _sqrtm_psd(Q)
+        Rh = _sqrtm_psd(R)
+        prog = MathematicalProgram()
+        S = prog.NewSymmetricContinuousVariables(n, "S")
+        Y = prog.NewContinuousVariables(m, n, "Y")
+        prog.AddPositiveSemidefiniteConstraint(S - margin * np.eye(n)).evaluator().set_description("S >= margin I")
+        for i, (Ai, Bi) in enumerate(zip(A_vertices, B_vertices)):
+            AS = Ai @ S + Bi @ Y
+            top = np.hstack([S, AS.T, S @ Qh, Y.T @ Rh])
+            second = np.hstack([AS, S, np.zeros((n, n)), np.zeros((n, m))])
+            third = np.hstack([Qh @ S, np.zeros((n, n)), np.eye(n), np.zeros((n, m))])
+            fourth = np.hstack([Rh @ Y, np.zeros((m, n)), np.zeros((m, n)), np.eye(m)])
+            M = np.vstack([top, second, third, fourth])
+            size = M.shape[0]
+            binding = prog.AddPositiveSemidefiniteConstraint(M - margin * np.eye(size))
+            binding.evaluator().set_description(f"(16) at vertex {i}")
+        prog.AddLinearCost(-np.trace(S))
+        result, _ = self._sdp.solve(prog)
+        status = self._sdp.status(result)
+        if status is not SolveStatus.OPTIMAL:
+            return GainResult(status, None, None)
+        S_val = result.GetSolution(S)
+        Y_val = result.GetSolution(Y)
+        S_val = 0.5 * (S_val + S_val.T)
+        P = np.linalg.inv(S_val)
+        K = Y_val @ P
+        return GainResult(status, K, 0.5 * (P + P.T))
+
+    # -- offline: support-function LPs ------------------------------------------------------
+    def support(self, H, h, directions):
+        """max{d·x | H x <= h} for each row d, one program with its cost updated per direction."""
+        H = np.asarray(H, float)
+        h = np.asarray(h, float)
+        directions = np.atleast_2d(np.asarray(directions, float))
+        _finite("support", H, h, directions)
+        n = H.shape[1]
+        prog = MathematicalProgram()
+        x = prog.NewContinuousVariables(n, "x")
+        prog.AddLinearConstraint(sp.csc_matrix(H), np.full(len(h), -np.inf), h, x).evaluator().set_description("H x <= h")
+        cost = prog.AddLinearCost(np.zeros(n), 0.0, x).evaluator()
+        values = np.empty(len(directions))
+        for i, d in enumerate(directions):
+            cost.UpdateCoefficients(-d, 0.0)
+            result, _ = self._solver.solve(prog)
+            status = self._solver.status(result)
+            if status is SolveStatus.OPTIMAL:
+                values[i] = float(d @ result.GetSolution(x))
+            elif status is SolveStatus.UNBOUNDED:
+                values[i] = np.inf
+            else:
+                values[i] = np.nan
+        return values
+
+    # -- online: fixed-complexity set-membership update, LP (9) ------------------------------
+    def set_update(self, H_theta, h_prev, H_data, h_data):
+        """LP (9) in its matrix (dual) form:
+
+        min 1ᵀh over h ∈ ℝ^q, Λ ∈ ℝ^{q×(q+r)}_{>=0}  s.t.  Λ H̃ = H_θ,  Λ h̃ <= h,
+        with H̃ = [H_θ; H_data], h̃ = [h_prev; h_data]. (The cvxpy backend solves the per-row
+        primal instead, so that the two backends cross-check each other.)
+        """
+        H_theta = np.asarray(H_theta, float)
+        H_tilde = np.vstack([H_theta, np.asarray(H_data, float)])
+        h_tilde = np.concatenate([np.asarray(h_prev, float), np.asarray(h_data, float)])
+        _finite("set_update", H_tilde, h_tilde)
+        q, p = H_theta.shape
+        r = H_tilde.shape[0]
+        prog = MathematicalProgram()
+        h = prog.NewContinuousVariables(q, "h")
+        Lam = prog.NewContinuousVariables(q, r, "Lambda")
+        lam_flat = Lam.reshape(-1)  # row-major: Lambda[i, j] at i*r + j
+        prog.AddBoundingBoxConstraint(0.0, np.inf, lam_flat).evaluator().set_description("(9) Lambda >= 0")
+        # Λ H̃ = H_θ: row i of Λ times H̃ equals row i of H_θ -> kron(I_q, H̃ᵀ) vec_row(Λ) = vec_row(H_θ)
+        A_eq = sp.kron(sp.eye(q), sp.csc_matrix(H_tilde.T), format="csc")
+        prog.AddLinearEqualityConstraint(A_eq, H_theta.reshape(-1), lam_flat).evaluator().set_description(
+            "(9) Lambda H_tilde = H_theta")
+        # Λ h̃ - h <= 0
+        A_in = sp.hstack([sp.kron(sp.eye(q), sp.csc_matrix(h_tilde[None, :])), -sp.eye(q)], format="csc")
+        prog.AddLinearConstraint(A_in, np.full(q, -np.inf), np.zeros(q), np.concatenate([lam_flat, h])
+                                 ).evaluator().set_description("(9) Lambda h_tilde <= h")
+        prog.AddLinearCost(np.ones(q), 0.0, h)
+        result, elapsed = self._solver.solve(prog)
+        status = self._solver.status(result)
+        if status is not SolveStatus.OPTIMAL:
+            return SetUpdateResult(status, None, None, elapsed)
+        return SetUpdateResult(status, result.GetSolution(h), result.GetSolution(Lam), elapsed)
+
+    # -- online: projection QP of (12) -------------------------------------------------------
+    def project(self, point, H, h):
+        """argmin ‖θ − point‖² s.t. H θ <= h (the projection Π of (12))."""
+        point = np.asarray(point, float)
+        H = np.asarray(H, float)
+        h = np.asarray(h, float)
+        _finite("project", point, H, h)
+        p = point.size
+        prog = MathematicalProgram()
+        theta = prog.NewContinuousVariables(p, "theta")
+        prog.AddLinearConstraint(H, np.full(len(h), -np.inf), h, theta).evaluator().set_description("(12) theta in set")
+        prog.AddQuadraticErrorCost(np.eye(p), point, theta)
+        result, elapsed = self._solver.solve(prog)
+        status = self._solver.status(result)
+        if status is not SolveStatus.OPTIMAL:
+            return ProjectionResult(status, None, elapsed)
+        return ProjectionResult(status, result.GetSolution(theta), elapsed)
+
+    # -- online: tube MPC QP (20) --------------------------------------------------------------
+    def tube_mpc(self, data: TubeMPCData):
+        from .drake_tube import DrakeTubeMPC
+
+        return DrakeTubeMPC(data, self._solver)
+
+
+def _sqrtm_psd(M: np.ndarray) -> np.ndarray:
+    vals, vecs = np.linalg.eigh(0.5 * (M + M.T))
+    return (vecs * np.sqrt(np.clip(vals, 0.0, None))) @ vecs.T

@@ -1,0 +1,221 @@
+"""The tube MPC QP (20) in Drake: constraints (15a)-(15d), terminal set, cost (17)-(18).
+
+The program is built once per controller with sparse matrix constraints. Each step updates:
+
+* the right-hand side of (15b) (it holds x_k),
+* the Λ-coefficients h_θk of (15c) (``LinearConstraint.UpdateCoefficients``),
+* the quadratic cost in v (``QuadraticCost.UpdateCoefficients``), condensed from (18) with θ̂_k.
+
+Decision vector y = [z (N+1)·n | α (N+1) | v N·m | Λ N·v·u·q], Λ ordered (l, j, i, r):
+Λ^j_{l|k}[i, r] sits at offset ((l·v + j)·u + i)·q + r.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.sparse as sp
+from pydrake.solvers import MathematicalProgram
+
+from ..status import SolveStatus
+from .base import MPCSolution, TubeMPCData
+
+
+class _Layout:
+    """Offsets of the blocks of the decision vector."""
+
+    def __init__(self, n: int, m: int, N: int, nv: int, u: int, q: int) -> None:
+        self.n, self.m, self.N, self.nv, self.u, self.q = n, m, N, nv, u, q
+        self.z0 = 0
+        self.a0 = (N + 1) * n
+        self.v0 = self.a0 + N + 1
+        self.L0 = self.v0 + N * m
+        self.size = self.L0 + N * nv * u * q
+
+    def z(self, l: int) -> slice:
+        return slice(self.z0 + l * self.n, self.z0 + (l + 1) * self.n)
+
+    def a(self, l: int) -> int:
+        return self.a0 + l
+
+    def v(self, l: int) -> slice:
+        return slice(self.v0 + l * self.m, self.v0 + (l + 1) * self.m)
+
+    def lam(self, l: int, j: int, i: int) -> slice:
+        start = self.L0 + ((l * self.nv + j) * self.u + i) * self.q
+        return slice(start, start + self.q)
+
+
+class DrakeTubeMPC:
+    """QP (20) built once; :meth:`solve` updates x_k, h_θk, θ̂_k and solves."""
+
+    def __init__(self, data: TubeMPCData, solver) -> None:
+        self.data = data
+        self._solver = solver
+        self._build(np.asarray(data.H_theta, float))
+
+    # -- construction ------------------------------------------------------------------------
+    def _build(self, H_theta: np.ndarray) -> None:
+        d = self.data
+        n, m = d.B0.shape
+        N = d.N
+        Xv = np.asarray(d.X0_vertices, float)
+        H_x = np.asarray(d.H_x, float)
+        nv, u = Xv.shape[0], H_x.shape[0]
+        q, p = H_theta.shape
+        self.H_theta = H_theta
+        lay = self.layout = _Layout(n, m, N, nv, u, q)
+        K = d.K
+        FGK = d.F + d.G @ K
+        Acl0 = d.A0 + d.B0 @ K
+        Acl_i = d.A + d.B @ K  # (p, n, n)
+
+        prog = self.prog = MathematicalProgram()
+        y = self.y = prog.NewContinuousVariables(lay.size, "y")
+
+        # (15a): (F+GK) z_l + G v_l + α_l f̄ <= 1
+        c = d.F.shape[0]
+        A15a = sp.lil_matrix((N * c, lay.size))
+        for l in range(N):
+            rows = slice(l * c, (l + 1) * c)
+            A15a[rows, lay.z(l)] = FGK
+            A15a[rows, lay.v(l)] = d.G
+            A15a[rows, lay.a(l)] = d.f_bar.reshape(-1, 1)
+        prog.AddLinearConstraint(A15a.tocsc(), np.full(N * c, -np.inf), np.ones(N * c), y
+                                 ).evaluator().set_description("(15a) state and input constraints")
+
+        # (15b): -H_x z_0 - α_0 1 <= -H_x x_k  (rhs updated per step)
+        A15b = sp.lil_matrix((u, lay.size))
+        A15b[:, lay.z(0)] = -H_x
+        A15b[:, lay.a(0)] = -np.ones((u, 1))
+        self._c15b = prog.AddLinearConstraint(A15b.tocsc(), np.full(u, -np.inf), np.zeros(u), y).evaluator()
+        self._c15b.set_description("(15b) x_k in X_0|k")
+
+        # (15c): Λ h_θ + H_x d^j_l - α_{l+1} 1 <= -w̄; d^j_l = Acl0 (z_l + α_l x^j) + B0 v_l - z_{l+1}
+        rows15c = N * nv * u
+        C = sp.lil_matrix((rows15c, lay.size))
+        HA = H_x @ Acl0
+        HB = H_x @ d.B0
+        for l in range(N):
+            for j in range(nv):
+                rows = slice((l * nv + j) * u, (l * nv + j + 1) * u)
+                C[rows, lay.z(l)] = HA
+                C[rows, lay.a(l)] = (HA @ Xv[j]).reshape(-1, 1)
+                C[rows, lay.v(l)] = HB
+                C[rows, lay.z(l + 1)] = -H_x
+                C[rows, lay.a(l + 1)] = -np.ones((u, 1))
+        self._C15c = C.tocsc()
+        self._rows15c = rows15c
+        self._ub15c = np.tile(-d.w_bar, N * nv)
+        A15c = self._matrix_15c(np.zeros(q))
+        self._c15c = prog.AddLinearConstraint(A15c, np.full(rows15c, -np.inf), self._ub15c, y).evaluator()
+        self._c15c.set_description("(15c) tube propagation with multipliers")
+
+        # (15d): H_x D^j_l = Λ^j_l H_θ, entry (i, i'): [H_x]_i (Acl_i' (z_l + α_l x^j) + B_i' v_l) - Λ[i,:] H_θ[:, i'] = 0
+        rows15d = N * nv * u * p
+        A15d = sp.lil_matrix((rows15d, lay.size))
+        for l in range(N):
+            for j in range(nv):
+                for i in range(u):
+                    for ip in range(p):
+                        row = ((l * nv + j) * u + i) * p + ip
+                        hx = H_x[i] @ Acl_i[ip]
+                        A15d[row, lay.z(l)] = hx
+                        A15d[row, lay.a(l)] = hx @ Xv[j]
+                        A15d[row, lay.v(l)] = H_x[i] @ d.B[ip]
+                        A15d[row, lay.lam(l, j, i)] = -H_theta[:, ip]
+        prog.AddLinearEqualityConstraint(A15d.tocsc(), np.zeros(rows15d), y
+                                         ).evaluator().set_description("(15d) H_x D = Lambda H_theta")
+
+        # terminal set: H_T z_N + h_T α_N <= 1
+        r = d.H_T.shape[0]
+        AT = sp.lil_matrix((r, lay.size))
+        AT[:, lay.z(N)] = d.H_T
+        AT[:, lay.a(N)] = np.asarray(d.h_T, float).reshape(-1, 1)
+        prog.AddLinearConstraint(AT.tocsc(), np.full(r, -np.inf), np.ones(r), y
+                                 ).evaluator().set_description("terminal set (z_N, alpha_N) in Xf")
+
+        # α >= 0 and Λ >= 0
+        prog.AddBoundingBoxConstraint(0.0, np.inf, y[lay.a0:lay.a0 + N + 1]).evaluator().set_description("alpha >= 0")
+        prog.AddBoundingBoxConstraint(0.0, np.inf, y[lay.L0:]).evaluator().set_description("Lambda >= 0")
+
+        # cost (17) in v only; coefficients set per step
+        self._v_vars = y[lay.v0:lay.L0]
+        self._cost = prog.AddQuadraticCost(np.eye(N * m), np.zeros(N * m), 0.0, self._v_vars, is_convex=True).evaluator()
+        self._cost.set_description("(17) certainty-equivalence cost")
+
+    def _matrix_15c(self, h_theta: np.ndarray) -> sp.csc_matrix:
+        lay = self.layout
+        lam_block = sp.kron(sp.eye(self._rows15c), sp.csr_matrix(h_theta[None, :]), format="csc")
+        left = self._C15c[:, : lay.L0]
+        return sp.hstack([left, lam_block], format="csc")
+
+    # -- cost (17)-(18), condensed ------------------------------------------------------------
+    def _cost_matrices(self, x: np.ndarray, theta_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """J = vᵀ H v + 2 xᵀ S v + xᵀ T x with x̂ from (18): x̂_{l+1} = A_cl(θ̂) x̂_l + B(θ̂) v_l."""
+        d = self.data
+        n, m, N = self.layout.n, self.layout.m, self.layout.N
+        A_hat = d.A0 + np.tensordot(theta_hat, d.A, axes=1)
+        B_hat = d.B0 + np.tensordot(theta_hat, d.B, axes=1)
+        Acl = A_hat + B_hat @ d.K
+        Phi = np.zeros(((N + 1) * n, n))
+        Gam = np.zeros(((N + 1) * n, N * m))
+        power = np.eye(n)
+        powers = [power]
+        for l in range(1, N + 1):
+            power = Acl @ power
+            powers.append(power)
+        for l in range(N + 1):
+            Phi[l * n:(l + 1) * n] = powers[l]
+            for i in range(l):
+                Gam[l * n:(l + 1) * n, i * m:(i + 1) * m] = powers[l - 1 - i] @ B_hat
+        Qbar = np.kron(np.eye(N + 1), d.Q)
+        Qbar[N * n:, N * n:] = d.P
+        Kbar = np.hstack([np.kron(np.eye(N), d.K), np.zeros((N * m, n))])
+        Rbar = np.kron(np.eye(N), d.R)
+        Mu_x = Kbar @ Phi
+        Mu_v = Kbar @ Gam + np.eye(N * m)
+        H = Gam.T @ Qbar @ Gam + Mu_v.T @ Rbar @ Mu_v
+        S = Phi.T @ Qbar @ Gam + Mu_x.T @ Rbar @ Mu_v
+        T = Phi.T @ Qbar @ Phi + Mu_x.T @ Rbar @ Mu_x
+        return 0.5 * (H + H.T), S.T @ x, float(x @ T @ x)
+
+    # -- solve ---------------------------------------------------------------------------------
+    def solve(self, x, h_theta, theta_hat, H_theta=None) -> MPCSolution:
+        """Solve (20) at x_k with Θ_k = {H_θ θ <= h_theta} and point estimate θ̂_k."""
+        start = time.perf_counter()
+        x = np.asarray(x, float)
+        h_theta = np.asarray(h_theta, float)
+        theta_hat = np.asarray(theta_hat, float)
+        for name, arr in (("x", x), ("h_theta", h_theta), ("theta_hat", theta_hat)):
+            if not np.all(np.isfinite(arr)):
+                return MPCSolution(SolveStatus.ERROR, None, None, None, None, None, detail=f"non-finite {name}")
+        if H_theta is not None and (np.shape(H_theta) != self.H_theta.shape or not np.array_equal(H_theta, self.H_theta)):
+            self._build(np.asarray(H_theta, float))
+        lay = self.layout
+        H_x = np.asarray(self.data.H_x, float)
+        self._c15b.set_bounds(np.full(lay.u, -np.inf), -H_x @ x)
+        self._c15c.UpdateCoefficients(self._matrix_15c(h_theta), np.full(self._rows15c, -np.inf), self._ub15c)
+        Hv, g, const = self._cost_matrices(x, theta_hat)
+        self._cost.UpdateCoefficients(2.0 * Hv, 2.0 * g, const, is_convex=True)
+        update_time = time.perf_counter() - start
+        result, solver_time = self._solver.solve(self.prog)
+        status = self._solver.status(result)
+        if status is not SolveStatus.OPTIMAL:
+            names: tuple[str, ...] = ()
+            try:
+                names = tuple(result.GetInfeasibleConstraintNames(self.prog, 1e-6))
+            except Exception:  # noqa: BLE001 - diagnostics only; a failed report must not hide the status
+                names = ()
+            return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names,
+                               detail=str(result.get_solution_result()))
+        yv = result.GetSolution(self.y)
+        N, n, m = lay.N, lay.n, lay.m
+        z = yv[: lay.a0].reshape(N + 1, n)
+        alpha = yv[lay.a0:lay.v0]
+        v = yv[lay.v0:lay.L0].reshape(N, m)
+        Lam = yv[lay.L0:].reshape(N, lay.nv, lay.u, lay.q)
+        vf = v.reshape(-1)
+        cost = float(vf @ Hv @ vf + 2 * g @ vf + const)
+        return MPCSolution(status, v, z, alpha, Lam, cost, solver_time, update_time)
