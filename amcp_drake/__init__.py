@@ -1,0 +1,53 @@
+"""amcp-drake: verification suite for the adaptive robust MPC of Lorenzen, Cannon & Allgöwer (2019).
+
+Public API (imports are lazy so that ``import amcp_drake`` and ``amcp --help`` stay fast; Drake and
+cvxpy are loaded only when a backend is used)::
+
+    import amcp_drake as amcp
+    problem = amcp.examples.lorenzen2019()
+    offline = amcp.design(problem, backend="drake")
+    ctrl = amcp.AdaptiveMPC(problem, offline, backend="drake")
+    traj = amcp.simulate(ctrl, x0=[2, 3], theta_star=[0.8, 0.2, -0.5], steps=50, disturbance="uniform")
+    cert = amcp.certify(traj)
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+__version__ = "0.1.0"
+
+_LAZY = {
+    "Problem": "amcp_drake.problem",
+    "DesignOptions": "amcp_drake.problem",
+    "Scenario": "amcp_drake.problem",
+    "ProblemSpec": "amcp_drake.problem",
+    "load_problem": "amcp_drake.problem_io",
+    "load_spec": "amcp_drake.problem_io",
+    "save_spec": "amcp_drake.problem_io",
+    "design": "amcp_drake.design",
+    "OfflineDesign": "amcp_drake.design",
+    "verify_design": "amcp_drake.design_checks",
+    "AdaptiveMPC": "amcp_drake.controller",
+    "OnlineOptions": "amcp_drake.controller",
+    "simulate": "amcp_drake.simulate",
+    "Trajectory": "amcp_drake.simulate",
+    "certify": "amcp_drake.certify",
+    "available_backends": "amcp_drake.backends",
+    "get_backend": "amcp_drake.backends",
+    "SolveStatus": "amcp_drake.status",
+}
+_SUBMODULES = {"examples", "errors", "polytope", "backends", "checks"}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    if name in _SUBMODULES:
+        return importlib.import_module(f"amcp_drake.{name}")
+    raise AttributeError(f"module 'amcp_drake' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(list(_LAZY) + list(_SUBMODULES) + ["__version__"])

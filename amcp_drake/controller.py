@@ -1,0 +1,212 @@
+"""The adaptive MPC online loop (spec §6, "Online", steps (i)-(iv)), backend-agnostic.
+
+At each k: (i) measure x_k; (ii) if k > 0 update Θ_k by (9) (or (7), or the moving window of
+Remark 4) and θ̂_k by the projected LMS (12); (iii) solve the tube MPC QP (20); (iv) apply
+u_k = K x_k + v*_{0|k} (21). Every optimisation problem is delegated to the backend.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import polytope
+from .backends import TubeMPCData, get_backend
+from .design import OfflineDesign
+from .errors import InconsistentDataError, ProblemError
+from .problem import Problem
+from .status import SolveStatus
+
+UPDATE_MODES = ("fixed", "exact", "window")
+PROJECTION_TARGETS = ("Theta", "Theta_k")
+
+
+@dataclass(frozen=True)
+class OnlineOptions:
+    """Online choices. ``update``: ``"fixed"`` = fixed-complexity LP (9) (default), ``"exact"`` =
+    intersection (7) with redundant rows removed, ``"window"`` = (9) over the last ``window``
+    data sets Δ (Remark 4). ``projection``: project θ̃ onto Θ (eq. (12)) or onto Θ_k (Remark 7)."""
+
+    update: str = "fixed"
+    window: int = 10
+    projection: str = "Theta"
+
+    def __post_init__(self) -> None:
+        if self.update not in UPDATE_MODES:
+            raise ProblemError("online.update", f"one of {UPDATE_MODES}", repr(self.update))
+        if isinstance(self.window, bool) or not isinstance(self.window, int) or self.window < 1:
+            raise ProblemError("online.window", "an integer >= 1", repr(self.window))
+        if self.projection not in PROJECTION_TARGETS:
+            raise ProblemError("online.projection", f"one of {PROJECTION_TARGETS}", repr(self.projection))
+
+
+@dataclass
+class StepRecord:
+    """Everything recorded at step k. Shapes as in :class:`~amcp_drake.backends.MPCSolution`;
+    ``H_theta`` (q_k, p), ``h_theta`` (q_k,) describe Θ_k; ``set_Lambda`` are the multipliers of (9)."""
+
+    k: int
+    x: np.ndarray
+    u: np.ndarray | None
+    status: SolveStatus
+    H_theta: np.ndarray
+    h_theta: np.ndarray
+    theta_hat: np.ndarray
+    theta_tilde: np.ndarray | None = None
+    v: np.ndarray | None = None
+    z: np.ndarray | None = None
+    alpha: np.ndarray | None = None
+    Lambda: np.ndarray | None = None
+    cost: float | None = None
+    set_status: SolveStatus = SolveStatus.NOT_RUN
+    set_Lambda: np.ndarray | None = None
+    projection_status: SolveStatus = SolveStatus.NOT_RUN
+    infeasible_constraints: tuple[str, ...] = ()
+    times: dict[str, float] = field(default_factory=dict)
+
+
+class AdaptiveMPC:
+    """Adaptive robust MPC of Lorenzen et al. (2019) with a chosen backend.
+
+    ``step(x)`` returns ``(u, record)``; ``u`` is None when the QP (20) was not solved to
+    optimality (the status is on the record: a solver failure is data, not an exception).
+    Raises InconsistentDataError when Θ_{k-1} ∩ Δ_k is empty.
+    """
+
+    def __init__(self, problem: Problem, design: OfflineDesign, backend="drake",
+                 options: OnlineOptions | None = None, **backend_options) -> None:
+        self.problem = problem
+        self.design = design
+        self.options = options or OnlineOptions()
+        self.backend = get_backend(backend, **backend_options)
+        self.data = TubeMPCData(
+            A0=problem.A0, B0=problem.B0, A=problem.A, B=problem.B, F=problem.F, G=problem.G, Q=problem.Q,
+            R=problem.R, N=problem.N, K=design.K, P=design.P, H_x=design.H_x, X0_vertices=design.X0_vertices,
+            w_bar=design.w_bar, f_bar=design.f_bar, H_T=design.H_T, h_T=design.h_T, H_theta=design.H_theta)
+        self.mpc = self.backend.tube_mpc(self.data)
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to k = 0: Θ_0 = {H_θ θ <= h_θ0}, θ̂_0 from the problem."""
+        self.k = 0
+        self.H_theta = np.array(self.design.H_theta)
+        self.h_theta = np.array(self.design.h_theta0)
+        self.theta_hat = np.array(self.problem.theta_hat0)
+        self._prev: tuple[np.ndarray, np.ndarray] | None = None
+        self._window: list[tuple[np.ndarray, np.ndarray]] = []
+
+    # -- (ii) set-membership update ------------------------------------------------------------
+    def _delta(self, x_prev, u_prev, x) -> tuple[np.ndarray, np.ndarray]:
+        """Δ_k of (6): {θ | −H_w D_{k−1} θ <= 1 + H_w d_k}, d_k = A0 x_{k−1} + B0 u_{k−1} − x_k."""
+        pr = self.problem
+        D = pr.regressor(x_prev, u_prev)
+        d = pr.A0 @ x_prev + pr.B0 @ u_prev - x
+        return -pr.H_w @ D, 1.0 + pr.H_w @ d
+
+    def _update_set(self, H_delta, h_delta, record: StepRecord) -> None:
+        opts = self.options
+        if opts.update == "exact":
+            H = np.vstack([self.H_theta, H_delta])
+            h = np.concatenate([self.h_theta, h_delta])
+            _, radius = polytope.chebyshev_center(H, h)
+            if radius == float("-inf"):
+                raise InconsistentDataError(self.k, "exact intersection (7) is infeasible")
+            keep = self._irredundant_rows(H, h)
+            self.H_theta, self.h_theta = H[keep], h[keep]
+            record.set_status = SolveStatus.OPTIMAL
+            return
+        if opts.update == "window":
+            self._window = ([(H_delta, h_delta)] + self._window)[: opts.window]
+            H_data = np.vstack([w[0] for w in self._window])
+            h_data = np.concatenate([w[1] for w in self._window])
+        else:
+            H_data, h_data = H_delta, h_delta
+        result = self.backend.set_update(self.design.H_theta, self.h_theta, H_data, h_data)
+        record.times["set_update"] = result.solve_time
+        record.set_status = result.status
+        if result.status is SolveStatus.OPTIMAL:
+            self.h_theta = np.asarray(result.h, float)
+            record.set_Lambda = result.Lambda
+            return
+        # confirm emptiness independently before declaring the data inconsistent
+        _, radius = polytope.chebyshev_center(np.vstack([self.design.H_theta, H_data]),
+                                              np.concatenate([self.h_theta, h_data]))
+        if radius == float("-inf"):
+            raise InconsistentDataError(self.k, f"LP (9) status {result.status.value}; scipy confirms the "
+                                                "intersection is empty")
+
+    def _irredundant_rows(self, H: np.ndarray, h: np.ndarray) -> np.ndarray:
+        """Rows of {H θ <= h} not implied by the others (support LPs of the backend)."""
+        keep = np.ones(len(h), dtype=bool)
+        for i in range(len(h)):
+            keep[i] = False
+            value = self.backend.support(H[keep], h[keep], H[i:i + 1])[0]
+            if not (value <= h[i] + 1e-9):
+                keep[i] = True
+        return keep
+
+    # -- (ii) projected LMS (12) -----------------------------------------------------------------
+    def _update_estimate(self, x_prev, u_prev, x, record: StepRecord) -> None:
+        pr = self.problem
+        D = pr.regressor(x_prev, u_prev)
+        x_pred = pr.A_of(self.theta_hat) @ x_prev + pr.B_of(self.theta_hat) @ u_prev
+        theta_tilde = self.theta_hat + self.design.mu * D.T @ (x - x_pred)
+        record.theta_tilde = theta_tilde
+        if self.options.projection == "Theta":
+            H, h = pr.H_theta, pr.h_theta
+        else:
+            H, h = self.H_theta, self.h_theta
+        if np.all(H @ theta_tilde <= h):
+            # the projection of a point of the set is the point itself: no QP needed
+            self.theta_hat = theta_tilde
+            record.projection_status = SolveStatus.OPTIMAL
+            return
+        result = self.backend.project(theta_tilde, H, h)
+        record.times["projection"] = result.solve_time
+        record.projection_status = result.status
+        if result.status is SolveStatus.OPTIMAL:
+            self.theta_hat = np.asarray(result.theta, float)
+
+    # -- one step --------------------------------------------------------------------------------
+    def step(self, x: np.ndarray) -> tuple[np.ndarray | None, StepRecord]:
+        """Steps (i)-(iv) at the measured state x_k."""
+        start = time.perf_counter()
+        x = np.asarray(x, float)
+        if x.shape != (self.problem.n,) or not np.all(np.isfinite(x)):
+            raise ProblemError("x", f"a finite state vector of length {self.problem.n}", f"{x!r}")
+        record = StepRecord(k=self.k, x=x, u=None, status=SolveStatus.NOT_RUN, H_theta=self.H_theta,
+                            h_theta=self.h_theta, theta_hat=self.theta_hat)
+        if self._prev is not None:
+            x_prev, u_prev = self._prev
+            t0 = time.perf_counter()
+            self._update_set(*self._delta(x_prev, u_prev, x), record)
+            record.times["set_update_total"] = time.perf_counter() - t0
+            if record.set_status is not SolveStatus.OPTIMAL:
+                record.status = record.set_status
+                record.times["total"] = time.perf_counter() - start
+                return None, record
+            t0 = time.perf_counter()
+            self._update_estimate(x_prev, u_prev, x, record)
+            record.times["lms_total"] = time.perf_counter() - t0
+            if record.projection_status is not SolveStatus.OPTIMAL:
+                record.status = record.projection_status
+                record.times["total"] = time.perf_counter() - start
+                return None, record
+        record.H_theta, record.h_theta, record.theta_hat = self.H_theta, self.h_theta, self.theta_hat
+        H_arg = self.H_theta if self.options.update == "exact" else None
+        sol = self.mpc.solve(x, self.h_theta, self.theta_hat, H_arg)
+        record.status = sol.status
+        record.times["qp_update"] = sol.update_time
+        record.times["solver"] = sol.solver_time
+        record.infeasible_constraints = sol.infeasible_constraints
+        u = None
+        if sol.status is SolveStatus.OPTIMAL:
+            record.v, record.z, record.alpha, record.Lambda, record.cost = sol.v, sol.z, sol.alpha, sol.Lambda, sol.cost
+            u = self.design.K @ x + sol.v[0]
+            record.u = u
+            self._prev = (x, u)
+        self.k += 1
+        record.times["total"] = time.perf_counter() - start
+        return u, record
