@@ -120,6 +120,9 @@ def design(problem: Problem, options: DesignOptions | None = None, backend="drak
     """
     options = (options or DesignOptions()).validate_for(problem)
     be = get_backend(backend)
+    # μ, eq. (11), first: it needs no solver and fails fast on a missing state box
+    mu_sup, region = regressor_bound(problem, options.mu_state_bound)
+    mu = options.mu_fraction / mu_sup
     theta_vertices = problem.theta_vertices()
     A_v = np.array([problem.A_of(t) for t in theta_vertices])
     B_v = np.array([problem.B_of(t) for t in theta_vertices])
@@ -160,10 +163,6 @@ def design(problem: Problem, options: DesignOptions | None = None, backend="drak
     else:
         A_z = np.zeros((problem.n, problem.n))
     H_T, h_T, iterations = terminal_set(FGK, f_bar, H_x, A_cl, A_z, w_bar, h_bar, be, options.terminal_max_iter)
-
-    # μ, eq. (11)
-    mu_sup, region = regressor_bound(problem, options.mu_state_bound)
-    mu = options.mu_fraction / mu_sup
 
     # fixed-complexity shape of (9)
     H_theta = problem.H_theta

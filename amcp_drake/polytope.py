@@ -22,6 +22,9 @@ from scipy.spatial import HalfspaceIntersection
 MEMBERSHIP_TOL = 1e-7
 #: Redundancy: a row is kept when the other rows allow exceeding it by more than this.
 REDUNDANCY_TOL = 1e-9
+#: A Chebyshev radius below -this means the set is empty (HiGHS feasibility is ~1e-7; a flat but
+#: non-empty set gives a radius of 0 up to round-off).
+EMPTY_RADIUS_TOL = 1e-9
 
 
 @dataclass(frozen=True)
@@ -93,7 +96,10 @@ def chebyshev_center(H: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, float]:
         return np.full(n, np.nan), float("inf")
     if res.status != 0:
         return np.full(n, np.nan), float("nan")
-    return np.asarray(res.x[:n]), float(res.x[-1])
+    radius = float(res.x[-1])
+    if radius < -EMPTY_RADIUS_TOL:  # the radius is a free variable: negative means no point fits
+        return np.full(n, np.nan), float("-inf")
+    return np.asarray(res.x[:n]), max(radius, 0.0)
 
 
 def contains(H: np.ndarray, h: np.ndarray, x: np.ndarray, tol: float = MEMBERSHIP_TOL) -> bool:

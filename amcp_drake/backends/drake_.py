@@ -38,6 +38,11 @@ STATUS_MAP = {
 #: Clarabel statuses (solver details) that Drake reports as success but that are not exact.
 _CLARABEL_INACCURATE = {"AlmostSolved", "AlmostPrimalInfeasible", "AlmostDualInfeasible"}
 
+#: Clarabel tolerances for the LPs (support, set update (9)). With the defaults (1e-8) the optimal
+#: offsets of (9) drift above h_{k-1} by up to 1.2e-7 on Example 1, which Lemma 3 forbids; with
+#: these the drift is about 1e-9 (measured on the 50-step Example 1 run).
+CLARABEL_LP_OPTIONS = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10}
+
 SOLVERS = {
     "clarabel": ClarabelSolver,
     "osqp": OsqpSolver,
@@ -98,6 +103,9 @@ class DrakeBackend:
     def __init__(self, solver: str = "clarabel", solver_options: dict | None = None,
                  sdp_solver: str = "clarabel") -> None:
         self._solver = _Solver(solver, solver_options)
+        lp_options = dict(CLARABEL_LP_OPTIONS) if solver.lower() == "clarabel" else {}
+        lp_options.update(solver_options or {})
+        self._lp = _Solver(solver, lp_options)
         self._sdp = _Solver(sdp_solver, None)
         self.solver_name = self._solver.name
 
@@ -120,8 +128,28 @@ class DrakeBackend:
         prog = MathematicalProgram()
         S = prog.NewSymmetricContinuousVariables(n, "S")
         Y = prog.NewContinuousVariables(m, n, "Y")
-        prog.AddPositiveSemidefiniteConstraint(S - margin * np.eye(n)).evaluator().set_description("S >= margin I")
+        with np.errstate(invalid="ignore"):  # numpy warns on object (symbolic) arrays; values are exact
+            S_margin = S - margin * np.eye(n)
+        prog.AddPositiveSemidefiniteConstraint(S_margin).evaluator().set_description("S >= margin I")
         for i, (Ai, Bi) in enumerate(zip(A_vertices, B_vertices)):
+            self._add_vertex_lmi(prog, i, Ai, Bi, S, Y, Qh, Rh, margin)
+        with np.errstate(invalid="ignore"):  # numpy warns on object (symbolic) arrays; values are exact
+            prog.AddLinearCost(-np.trace(S))
+        result, _ = self._sdp.solve(prog)
+        status = self._sdp.status(result)
+        if status is not SolveStatus.OPTIMAL:
+            return GainResult(status, None, None)
+        S_val = np.asarray(result.GetSolution(S), float).reshape(n, n)
+        Y_val = np.asarray(result.GetSolution(Y), float).reshape(m, n)
+        S_val = 0.5 * (S_val + S_val.T)
+        P = np.linalg.inv(S_val)
+        K = Y_val @ P
+        return GainResult(status, K, 0.5 * (P + P.T))
+
+    @staticmethod
+    def _add_vertex_lmi(prog, i, Ai, Bi, S, Y, Qh, Rh, margin) -> None:
+        n, m = Bi.shape
+        with np.errstate(invalid="ignore"):  # numpy warns on object (symbolic) arrays; values are exact
             AS = Ai @ S + Bi @ Y
             top = np.hstack([S, AS.T, S @ Qh, Y.T @ Rh])
             second = np.hstack([AS, S, np.zeros((n, n)), np.zeros((n, m))])
@@ -130,18 +158,7 @@ class DrakeBackend:
             M = np.vstack([top, second, third, fourth])
             size = M.shape[0]
             binding = prog.AddPositiveSemidefiniteConstraint(M - margin * np.eye(size))
-            binding.evaluator().set_description(f"(16) at vertex {i}")
-        prog.AddLinearCost(-np.trace(S))
-        result, _ = self._sdp.solve(prog)
-        status = self._sdp.status(result)
-        if status is not SolveStatus.OPTIMAL:
-            return GainResult(status, None, None)
-        S_val = result.GetSolution(S)
-        Y_val = result.GetSolution(Y)
-        S_val = 0.5 * (S_val + S_val.T)
-        P = np.linalg.inv(S_val)
-        K = Y_val @ P
-        return GainResult(status, K, 0.5 * (P + P.T))
+        binding.evaluator().set_description(f"(16) at vertex {i}")
 
     # -- offline: support-function LPs ------------------------------------------------------
     def support(self, H, h, directions):
@@ -158,8 +175,8 @@ class DrakeBackend:
         values = np.empty(len(directions))
         for i, d in enumerate(directions):
             cost.UpdateCoefficients(-d, 0.0)
-            result, _ = self._solver.solve(prog)
-            status = self._solver.status(result)
+            result, _ = self._lp.solve(prog)
+            status = self._lp.status(result)
             if status is SolveStatus.OPTIMAL:
                 values[i] = float(d @ result.GetSolution(x))
             elif status is SolveStatus.UNBOUNDED:
@@ -196,8 +213,8 @@ class DrakeBackend:
         prog.AddLinearConstraint(A_in, np.full(q, -np.inf), np.zeros(q), np.concatenate([lam_flat, h])
                                  ).evaluator().set_description("(9) Lambda h_tilde <= h")
         prog.AddLinearCost(np.ones(q), 0.0, h)
-        result, elapsed = self._solver.solve(prog)
-        status = self._solver.status(result)
+        result, elapsed = self._lp.solve(prog)
+        status = self._lp.status(result)
         if status is not SolveStatus.OPTIMAL:
             return SetUpdateResult(status, None, None, elapsed)
         return SetUpdateResult(status, result.GetSolution(h), result.GetSolution(Lam), elapsed)

@@ -1,0 +1,48 @@
+"""Shared fixtures: Example 1 (spec §9), its design and a closed-loop run, computed once per session."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from amcp_drake.examples import lorenzen2019_spec
+
+
+@pytest.fixture(scope="session")
+def example_spec():
+    return lorenzen2019_spec()
+
+
+@pytest.fixture(scope="session")
+def example_design(example_spec):
+    from amcp_drake.design import design
+
+    return design(example_spec.problem, example_spec.design, backend="drake")
+
+
+@pytest.fixture(scope="session")
+def example_run(example_spec, example_design):
+    """Example 1, 50 steps from x0 = [2, 3], uniform disturbance (seed 0), Drake backend."""
+    from amcp_drake.controller import AdaptiveMPC
+    from amcp_drake.simulate import simulate
+
+    sc = example_spec.scenario
+    ctrl = AdaptiveMPC(example_spec.problem, example_design, backend="drake")
+    return simulate(ctrl, sc.x0, sc.theta_star, 50, "uniform", seed=0,
+                    mu_state_bound=example_spec.design.mu_state_bound)
+
+
+def scalar_problem(**changes):
+    """A scalar system x+ = (0.5 + 0.2 θ) x + u + w, θ ∈ [-1, 1], |w| <= 0.1, |x| <= 5, |u| <= 2."""
+    from amcp_drake.problem import Problem
+
+    data = dict(A0=[[0.5]], B0=[[1.0]], A=[[[0.2]]], B=[[[0.0]]], H_w=[[10.0], [-10.0]],
+                H_theta=[[1.0], [-1.0]], h_theta=[1.0, 1.0], F=[[0.2], [-0.2], [0.0], [0.0]],
+                G=[[0.0], [0.0], [0.5], [-0.5]], Q=[[1.0]], R=[[1.0]], N=3, theta_hat0=[0.0], name="scalar")
+    data.update(changes)
+    return Problem(**data)
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(12345)

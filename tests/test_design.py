@@ -1,0 +1,96 @@
+"""Offline design (spec §4-§6, §5.1) on Example 1 and failure cases, checked against values from the
+spec (not from the code) and by the independent design checks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from amcp_drake.backends import available_backends, get_backend
+from amcp_drake.design import design, template_directions
+from amcp_drake.design_checks import verify_design
+from amcp_drake.errors import BackendNotFound, ProblemError, TerminalSetError
+from amcp_drake.problem import DesignOptions
+
+#: spec §9 [NUM]: maximising trace(P^-1) s.t. (16) at the 8 vertices gives these (3-4 digits printed)
+SPEC_K = np.array([[0.0176, -0.4152]])
+SPEC_P = np.array([[1.468, 0.208], [0.208, 1.733]])
+
+
+def test_example_1_gain_and_terminal_weight_match_the_spec(example_design):
+    np.testing.assert_allclose(example_design.K, SPEC_K, atol=2e-4)
+    np.testing.assert_allclose(example_design.P, SPEC_P, atol=2e-3)
+
+
+def test_example_1_design_passes_every_independent_check(example_spec, example_design):
+    checks = verify_design(example_spec.problem, example_design, example_spec.design.mu_state_bound)
+    assert {c.name for c in checks} >= {"terminal cost (16)", "Assumption 8", "X0 contractive", "X_f invariant",
+                                        "X_f in Z", "mu condition (11)", "X_f non-empty"}
+    failed = [(c.name, c.margin) for c in checks if not c.passed]
+    assert failed == []
+
+
+def test_example_1_mu_uses_the_box_of_src1(example_design):
+    # spec §9: in the box |x_i| <= 3 with |u| <= 1, sup ||D||_2^2 ≈ 0.140, so mu < 7.1
+    assert example_design.mu_sup == pytest.approx(0.140, abs=1e-3)
+    assert example_design.mu < 7.1
+    assert example_design.mu == pytest.approx(0.95 / example_design.mu_sup)
+
+
+def test_example_1_x0_and_terminal_set_sizes(example_design):
+    assert example_design.H_x.shape == (8, 2)
+    assert example_design.X0_vertices.shape == (8, 2)
+    assert 0 < example_design.lambda_bar < 1
+    assert len(example_design.H_T) > 10  # X_f^0 alone has 3 rows; the recursion adds the invariance rows
+
+
+def test_the_papers_rounded_K_and_P_violate_16_by_about_1e_minus_3(example_spec):
+    # spec §9: "With the printed (rounded) P and K, (16) is violated by about 1.4e-3 in the largest eigenvalue."
+    opts = DesignOptions(K=[[0.017, -0.41]], P=[[1.467, 0.207], [0.207, 1.731]], mu_state_bound=3.0)
+    d = design(example_spec.problem, opts)
+    check = {c.name: c for c in verify_design(example_spec.problem, d, 3.0)}["terminal cost (16)"]
+    assert check.status == "fail"
+    assert 5e-4 < -check.margin < 5e-3
+
+
+def test_tampered_designs_fail_the_right_check(example_spec, example_design):
+    from dataclasses import replace
+
+    pr = example_spec.problem
+    small_P = {c.name: c for c in verify_design(pr, replace(example_design, P=0.5 * example_design.P), 3.0)}
+    assert small_P["terminal cost (16)"].status == "fail"
+    assert small_P["X_f invariant"].status == "pass"
+    big_Xf = {c.name: c for c in verify_design(pr, replace(example_design, H_T=0.5 * example_design.H_T,
+                                                           h_T=0.5 * example_design.h_T), 3.0)}
+    assert big_Xf["X_f in Z"].status == "fail"
+    assert big_Xf["terminal cost (16)"].status == "pass"
+    big_mu = {c.name: c for c in verify_design(pr, replace(example_design, mu=10.0), 3.0)}
+    assert big_mu["mu condition (11)"].status == "fail"
+
+
+def test_terminal_set_empty_is_a_clear_error(example_spec):
+    # x2 >= -0.05 leaves no room for the disturbance-driven tube (alpha_inf f_bar >= 1, spec §5.1)
+    pr = example_spec.problem.with_changes(F=[[0.0, -20.0], [0.0, 0.0], [0.0, 0.0]])
+    with pytest.raises(TerminalSetError, match="empty"):
+        design(pr, DesignOptions(mu_state_bound=3.0))
+
+
+def test_unbounded_Z_without_a_state_box_for_mu_is_a_problem_error(example_spec):
+    with pytest.raises(ProblemError, match="design.mu_state_bound"):
+        design(example_spec.problem, DesignOptions())
+
+
+def test_template_directions_are_unit_and_symmetric():
+    for n, count in [(1, 2), (2, 8), (2, 6), (3, 6), (3, 12)]:
+        D = template_directions(n, count)
+        assert D.shape == (count, n)
+        np.testing.assert_allclose(np.linalg.norm(D, axis=1), 1.0)
+    with pytest.raises(ProblemError, match="x0_facets"):
+        template_directions(3, 4)
+
+
+def test_backend_registry_lists_installed_and_rejects_unknown():
+    assert "drake" in available_backends()
+    with pytest.raises(BackendNotFound, match="installed"):
+        get_backend("gurobi-magic")
+    assert get_backend("drake").name == "drake"

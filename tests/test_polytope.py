@@ -1,0 +1,69 @@
+"""Polytope helpers against values computed by hand."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from amcp_drake import polytope
+
+
+def test_vertices_of_a_box_are_its_corners():
+    H, h = polytope.box([-1.0, -2.0], [3.0, 4.0])
+    verts = polytope.vertices(H, h)
+    expected = {(-1.0, -2.0), (-1.0, 4.0), (3.0, -2.0), (3.0, 4.0)}
+    assert {tuple(np.round(v, 9)) for v in verts} == expected
+
+
+def test_vertices_of_a_triangle_and_an_interval():
+    H = np.array([[-1.0, 0.0], [0.0, -1.0], [1.0, 1.0]])
+    h = np.array([0.0, 0.0, 1.0])
+    assert {tuple(np.round(v, 9) + 0.0) for v in polytope.vertices(H, h)} == {(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)}
+    np.testing.assert_allclose(sorted(polytope.vertices(np.array([[2.0], [-1.0]]), np.array([1.0, 3.0])).ravel()), [-3.0, 0.5])
+
+
+def test_vertices_refuse_unbounded_and_empty_sets():
+    with pytest.raises(ValueError):
+        polytope.vertices(np.array([[1.0, 0.0], [0.0, 1.0]]), np.array([1.0, 1.0]))
+    with pytest.raises(ValueError):
+        polytope.vertices(np.array([[1.0], [-1.0]]), np.array([-1.0, -1.0]))
+
+
+def test_support_function_and_unbounded_direction():
+    H, h = polytope.box([-1.0, -2.0], [3.0, 4.0])
+    assert polytope.support(H, h, np.array([1.0, 1.0])).value == pytest.approx(7.0)
+    assert polytope.support(H, h, np.array([-2.0, 0.5])).value == pytest.approx(4.0)
+    half = polytope.support(np.array([[1.0, 0.0]]), np.array([1.0]), np.array([0.0, 1.0]))
+    assert half.status == "unbounded" and half.value == np.inf
+
+
+def test_boundedness():
+    H, h = polytope.box([0.0], [1.0])
+    assert polytope.is_bounded(H, h)
+    assert not polytope.is_bounded(np.array([[1.0, 0.0], [-1.0, 0.0]]), np.array([1.0, 1.0]))
+
+
+def test_chebyshev_centre_of_a_rectangle():
+    H, h = polytope.box([0.0, 0.0], [4.0, 2.0])
+    centre, radius = polytope.chebyshev_center(H, h)
+    assert radius == pytest.approx(1.0)
+    assert centre[1] == pytest.approx(1.0)
+    assert 1.0 - 1e-9 <= centre[0] <= 3.0 + 1e-9
+    _, empty = polytope.chebyshev_center(np.array([[1.0], [-1.0]]), np.array([-1.0, -1.0]))
+    assert empty == -np.inf
+
+
+def test_redundant_rows_are_removed_and_facets_kept():
+    H = np.array([[1.0, 0], [-1.0, 0], [0, 1.0], [0, -1.0], [1.0, 1.0], [2.0, 0.0]])
+    h = np.array([1.0, 1, 1, 1, 5.0, 2.0])  # x+y <= 5 is redundant, 2x <= 2 duplicates x <= 1
+    Hr, hr = polytope.remove_redundant(H, h)
+    assert len(hr) == 4
+    rows = {tuple(np.round(np.r_[a, b], 9)) for a, b in zip(Hr, hr)}
+    assert rows == {(1.0, 0.0, 1.0), (-1.0, 0.0, 1.0), (0.0, 1.0, 1.0), (0.0, -1.0, 1.0)}
+
+
+def test_membership_margin():
+    H, h = polytope.box([-1.0], [1.0])
+    assert polytope.max_violation(H, h, np.array([0.25])) == pytest.approx(-0.75)
+    assert polytope.contains(H, h, np.array([1.0]))
+    assert not polytope.contains(H, h, np.array([1.001]))
