@@ -1,0 +1,103 @@
+"""Cross-backend comparison (issue 4): agreement on Example 1 and on 20 random scenarios, and proof
+that `compare` catches a disagreement (an injected perturbation, a loose solver)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from amcp_drake.backends import available_backends
+from amcp_drake.compare import TOLERANCES, lockstep
+from amcp_drake.problem import ProblemSpec, Scenario
+
+pytestmark = pytest.mark.skipif("cvxpy" not in available_backends(), reason="cvxpy backend not installed")
+
+
+def _scenario_spec(spec, x0, theta_star, seed, steps=6):
+    return ProblemSpec(spec.problem, spec.design, Scenario(x0=x0, theta_star=theta_star, steps=steps,
+                                                            disturbance="uniform", seed=seed))
+
+
+def test_lockstep_agrees_on_example_1(example_spec):
+    comp = lockstep(example_spec, steps=20, seed=0)
+    assert comp.agree, [d.to_dict() for d in comp.disagreements()][:5]
+    worst = comp.worst()
+    for quantity in ("u", "v", "cost", "h_theta", "theta_hat"):
+        assert quantity in worst
+        assert worst[quantity].difference <= worst[quantity].tolerance
+    assert len(comp.statuses) == 21 and all(a == b == "optimal" for _, a, b in comp.statuses)
+
+
+def test_both_backends_agree_on_20_random_scenarios(example_spec):
+    rng = np.random.default_rng(2024)
+    count_optimal = 0
+    for i in range(20):
+        theta_star = rng.uniform(-1, 1, size=3)
+        if i % 4 == 0:
+            theta_star = np.sign(theta_star)  # a vertex of Θ
+        x0 = rng.uniform([-2.5, -0.3], [2.5, 3.0])
+        comp = lockstep(_scenario_spec(example_spec, x0, theta_star, seed=i), steps=6, seed=i)
+        assert comp.agree, (i, x0, theta_star, [d.to_dict() for d in comp.disagreements()][:3])
+        count_optimal += sum(a == "optimal" for _, a, _b in comp.statuses)
+    assert count_optimal >= 100  # most steps were solved (not 20 agreeing infeasible starts)
+
+
+def test_an_injected_perturbation_is_caught_with_quantity_and_step(example_spec, monkeypatch):
+    from amcp_reference import tube_mpc
+
+    solver_cls = next(obj for obj in vars(tube_mpc).values()
+                      if isinstance(obj, type) and hasattr(obj, "solve") and obj.__module__ == tube_mpc.__name__)
+    original = solver_cls.solve
+    calls = {"n": 0}
+
+    def perturbed(self, *args, **kwargs):
+        sol = original(self, *args, **kwargs)
+        calls["n"] += 1
+        if calls["n"] == 4 and sol.v is not None:  # step 3
+            return dataclasses.replace(sol, v=sol.v + 1e-3)
+        return sol
+
+    monkeypatch.setattr(solver_cls, "solve", perturbed)
+    comp = lockstep(example_spec, steps=6, seed=0)
+    assert not comp.agree
+    first = min(comp.disagreements(), key=lambda d: d.step)
+    assert first.step == 3 and first.quantity in ("u", "v")
+    assert {d.quantity for d in comp.disagreements() if d.step == 3} >= {"u", "v"}
+
+
+def test_cli_compare_exits_0_and_writes_every_difference(tmp_path):
+    from amcp_drake.cli import main
+
+    out = tmp_path / "cmp.json"
+    result = CliRunner().invoke(main, ["compare", "--steps", "8", "--quiet", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "backends agree" in result.output
+    data = json.loads(out.read_text())
+    assert data["agree"] is True
+    assert {d["quantity"] for d in data["differences"]} >= {"u", "v", "cost", "h_theta", "theta_hat"}
+    assert data["tolerances"]["v"] == {"abs": TOLERANCES["v"][0], "rel": TOLERANCES["v"][1]}
+
+
+def test_cli_compare_with_a_loose_solver_exits_1_and_names_quantity_and_step(tmp_path):
+    from amcp_drake.cli import main
+
+    result = CliRunner().invoke(main, ["compare", "--steps", "6", "--quiet", "--cvxpy-solver", "OSQP",
+                                       "--out", str(tmp_path / "c.json")])
+    assert result.exit_code == 1, result.output
+    assert "DISAGREE" in result.output
+    assert "at step" in result.output
+
+
+def test_cli_compare_bad_problem_file_exits_2(tmp_path):
+    from amcp_drake.cli import main
+
+    bad = tmp_path / "bad.json"
+    bad.write_text("{")
+    result = CliRunner().invoke(main, ["compare", str(bad), "--out", str(tmp_path / "c.json")])
+    assert result.exit_code == 2
+    assert "valid JSON" in result.output
+    assert not (tmp_path / "c.json").exists()
