@@ -141,6 +141,8 @@ def design(problem: Problem, options: DesignOptions | None = None, backend="drak
         K, P, source = gain.K, gain.P, "lmi"
     A_cl = closed_loop_vertices(problem, K, theta_vertices)
     _require_stable(A_cl)
+    if source == "lmi":
+        _require_terminal_cost(problem, K, P, A_cl)
 
     # X0: template outer approximation of the minimal RPI set
     H_x = _x0(problem, A_cl, be, options)
@@ -182,6 +184,14 @@ def _require_stable(A_cl: np.ndarray) -> None:
     radius = max(float(np.max(np.abs(np.linalg.eigvals(Ak)))) for Ak in A_cl)
     if radius >= 1.0:
         raise DesignError(f"Assumption 8 fails: spectral radius of A_cl at a vertex of Theta is {radius:.4f} >= 1")
+
+
+def _require_terminal_cost(problem: Problem, K: np.ndarray, P: np.ndarray, A_cl: np.ndarray) -> None:
+    """Re-check (16) by eigenvalues: an SDP solver may call a solution of tolerance size optimal."""
+    worst = max(float(np.max(np.linalg.eigvalsh(Ak.T @ P @ Ak + problem.Q + K.T @ problem.R @ K - P))) for Ak in A_cl)
+    if worst > 0.0:
+        raise DesignError(f"gain LMI (16): the solver's K, P violate (16) by {worst:.3e} (largest eigenvalue); "
+                          "the robust LMI is (nearly) infeasible for the vertices of Theta (Assumption 8)")
 
 
 def _require_finite_support(name: str, values: np.ndarray) -> None:

@@ -1,0 +1,172 @@
+"""The cvxpy backend: status map, solve wrapper and :class:`CvxpyBackend`.
+
+Conventions (design.md):
+
+* Clarabel is the default solver (LP, QP and SDP); any installed cvxpy solver can be chosen by
+  name, with ``solver_options`` passed to ``Problem.solve``.
+* Problems solved repeatedly are DPP problems built once per shape; each call only sets
+  ``Parameter.value`` and re-solves (cvxpy then skips canonicalisation).
+* A solver failure is data: ``cvxpy.error.SolverError`` never propagates, it becomes
+  :attr:`SolveStatus.ERROR`.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from collections import OrderedDict
+from typing import Any, Callable
+
+import cvxpy as cp
+import cvxpy.settings as cps
+import numpy as np
+
+from amcp_drake.backends.base import ProjectionResult, SetUpdateResult, TubeMPCData
+from amcp_drake.status import SolveStatus
+
+#: cvxpy status string -> canonical status (cvxpy.settings). Inaccurate certificates of
+#: infeasibility / unboundedness count as such (no solution is returned either way);
+#: ``user_limit`` (iteration or time limit) is reported as inaccurate, as Drake's kIterationLimit.
+STATUS_MAP: dict[str, SolveStatus] = {
+    cps.OPTIMAL: SolveStatus.OPTIMAL,
+    cps.OPTIMAL_INACCURATE: SolveStatus.INACCURATE,
+    cps.INFEASIBLE: SolveStatus.INFEASIBLE,
+    cps.INFEASIBLE_INACCURATE: SolveStatus.INFEASIBLE,
+    cps.UNBOUNDED: SolveStatus.UNBOUNDED,
+    cps.UNBOUNDED_INACCURATE: SolveStatus.UNBOUNDED,
+    cps.INFEASIBLE_OR_UNBOUNDED: SolveStatus.INFEASIBLE,
+    cps.USER_LIMIT: SolveStatus.INACCURATE,
+    cps.SOLVER_ERROR: SolveStatus.ERROR,
+}
+
+#: Number of parametrised problems kept per kind (support LP, LP (9), projection QP); shapes
+#: change rarely (redundancy removal, moving window), so a small LRU cache suffices.
+CACHE_SIZE = 32
+
+
+def map_status(status: str | None) -> SolveStatus:
+    """Canonical status of a cvxpy status string (unknown or None -> ERROR)."""
+    return STATUS_MAP.get(status, SolveStatus.ERROR) if status is not None else SolveStatus.ERROR
+
+
+def all_finite(*arrays: Any) -> bool:
+    """True when every entry of every array is finite."""
+    return all(np.all(np.isfinite(np.asarray(a, float))) for a in arrays)
+
+
+class SolverCall:
+    """A cvxpy solver name plus options; :meth:`solve` never raises ``SolverError``."""
+
+    def __init__(self, solver: str, options: dict | None) -> None:
+        name = str(solver).upper()
+        if name not in cp.installed_solvers():
+            raise ValueError(f"solver {solver!r} is not installed for cvxpy; installed: {cp.installed_solvers()}")
+        self.name = name
+        self.options = dict(options or {})
+
+    def solve(self, problem: cp.Problem) -> tuple[SolveStatus, float, str]:
+        """Solve ``problem``; return (canonical status, solver time in s, detail).
+
+        The solver time is ``problem.solver_stats.solve_time`` when the solver reports it, else
+        the wall time of ``Problem.solve`` (which then includes cvxpy's parameter application).
+        """
+        start = time.perf_counter()
+        try:
+            with warnings.catch_warnings():
+                # cvxpy warns "Solution may be inaccurate"; the status already says so
+                warnings.filterwarnings("ignore", message="Solution may be inaccurate", category=UserWarning)
+                problem.solve(solver=self.name, **self.options)
+        except cp.error.SolverError as exc:
+            return SolveStatus.ERROR, time.perf_counter() - start, f"SolverError: {exc}"
+        wall = time.perf_counter() - start
+        stats = problem.solver_stats
+        elapsed = stats.solve_time if stats is not None and stats.solve_time is not None else wall
+        return map_status(problem.status), float(elapsed), str(problem.status)
+
+
+class ProblemCache:
+    """LRU cache of parametrised problems keyed by shape; ``build(key)`` makes a missing one."""
+
+    def __init__(self, build: Callable[[tuple], Any], size: int = CACHE_SIZE) -> None:
+        self._build = build
+        self._size = size
+        self._items: OrderedDict[tuple, Any] = OrderedDict()
+
+    def get(self, key: tuple) -> Any:
+        if key in self._items:
+            self._items.move_to_end(key)
+            return self._items[key]
+        item = self._build(key)
+        self._items[key] = item
+        if len(self._items) > self._size:
+            self._items.popitem(last=False)
+        return item
+
+
+class CvxpyBackend:
+    """All problems of the algorithm with cvxpy (protocol :class:`amcp_drake.backends.base.Backend`).
+
+    Parameters
+    ----------
+    solver: cvxpy solver name for every problem ("CLARABEL" by default; the gain LMI needs a
+        solver with PSD cones: CLARABEL, SCS or MOSEK).
+    solver_options: keyword arguments passed to ``Problem.solve`` (e.g. ``{"tol_gap_abs": 1e-10}``).
+    """
+
+    name = "cvxpy"
+
+    def __init__(self, solver: str = "CLARABEL", solver_options: dict | None = None) -> None:
+        from .offline import SupportLP
+        from .online import ProjectionQP, SetUpdateLP
+
+        self._call = SolverCall(solver, solver_options)
+        self.solver_name = self._call.name
+        self._support = ProblemCache(SupportLP)
+        self._set_update = ProblemCache(SetUpdateLP)
+        self._project = ProblemCache(ProjectionQP)
+
+    # -- offline -----------------------------------------------------------------------------
+    def robust_gain(self, A_vertices, B_vertices, Q, R, margin):
+        """Gain LMI for Assumption 8 and (16); see :func:`amcp_reference.offline.robust_gain`."""
+        from .offline import robust_gain
+
+        return robust_gain(self._call, A_vertices, B_vertices, Q, R, margin)
+
+    def support(self, H, h, directions):
+        """max{d·x | H x <= h} per row d: +inf when unbounded, nan when infeasible or failed."""
+        H = np.atleast_2d(np.asarray(H, float))
+        h = np.asarray(h, float).reshape(-1)
+        directions = np.atleast_2d(np.asarray(directions, float))
+        if len(directions) == 0 or directions.shape[1] == 0:
+            return np.full(len(directions), np.nan)
+        if not all_finite(H, h, directions) or H.shape != (len(h), directions.shape[1]):
+            return np.full(len(directions), np.nan)
+        return self._support.get(H.shape).solve(self._call, H, h, directions)
+
+    # -- online ------------------------------------------------------------------------------
+    def set_update(self, H_theta, h_prev, H_data, h_data):
+        """LP (9) in per-row primal form; see :class:`amcp_reference.online.SetUpdateLP`."""
+        H_theta = np.atleast_2d(np.asarray(H_theta, float))
+        H_data = np.atleast_2d(np.asarray(H_data, float))
+        h_prev = np.asarray(h_prev, float).reshape(-1)
+        h_data = np.asarray(h_data, float).reshape(-1)
+        q, p = H_theta.shape
+        if (not all_finite(H_theta, H_data, h_prev, h_data) or h_prev.shape != (q,)
+                or H_data.shape != (len(h_data), p)):
+            return SetUpdateResult(SolveStatus.ERROR, None, None)
+        return self._set_update.get((q, len(h_data), p)).solve(self._call, H_theta, h_prev, H_data, h_data)
+
+    def project(self, point, H, h):
+        """argmin ‖θ − point‖² s.t. H θ <= h, the projection of (12)."""
+        point = np.asarray(point, float).reshape(-1)
+        H = np.atleast_2d(np.asarray(H, float))
+        h = np.asarray(h, float).reshape(-1)
+        if not all_finite(point, H, h) or H.shape != (len(h), len(point)):
+            return ProjectionResult(SolveStatus.ERROR, None)
+        return self._project.get(H.shape).solve(self._call, point, H, h)
+
+    def tube_mpc(self, data: TubeMPCData):
+        """Build the tube MPC QP (20) once; see :class:`amcp_reference.tube_mpc.CvxpyTubeMPC`."""
+        from .tube_mpc import CvxpyTubeMPC
+
+        return CvxpyTubeMPC(data, self._call)

@@ -1,0 +1,263 @@
+"""The tube MPC QP (20) in cvxpy: constraints (15a)-(15d), terminal set, cost (17)-(18).
+
+One DPP problem is built per controller (and rebuilt only when the number of rows of H_θk
+changes). Parameters, set at every step:
+
+* ``x_k`` (n,): the measured state, in (15b) and x̂_0 = x_k of (18);
+* ``h_theta`` (q,), ``H_theta`` (q, p): Θ_k of (15c)-(15d);
+* ``A_cl_hat`` = A(θ̂_k) + B(θ̂_k) K (n, n), ``B_hat`` = B(θ̂_k) (n, m): the dynamics (18).
+
+The nominal trajectory x̂ of (18) is kept as a variable with equality constraints (the Drake
+backend condenses it into a quadratic in v instead), so the two backends cross-check the cost.
+The tube constraints are written per prediction step l, vectorised over the vertices x^j of X0
+by the vertex matrix X_l = [x^1_l, ..., x^v_l] = z_l 1ᵀ + α_l [x^1, ..., x^v] (n, v).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import cvxpy as cp
+import numpy as np
+
+from amcp_drake.backends.base import MPCSolution, TubeMPCData
+from amcp_drake.status import SolveStatus
+
+from .offline import sqrtm_psd
+
+#: Constraint groups, named as in the Drake backend so that reports read the same.
+GROUP_15A = "(15a) state and input constraints"
+GROUP_15B = "(15b) x_k in X_0|k"
+GROUP_15C = "(15c) tube propagation with multipliers"
+GROUP_15D = "(15d) H_x D = Lambda H_theta"
+GROUP_TERMINAL = "terminal set (z_N, alpha_N) in Xf"
+GROUPS = (GROUP_15A, GROUP_15B, GROUP_15C, GROUP_15D, GROUP_TERMINAL)
+
+#: A group of the elastic (diagnostic) problem is reported as violated when its slack exceeds
+#: this; Clarabel's default feasibility tolerance is 1e-8, so 1e-6 is well above round-off.
+ELASTIC_SLACK_TOL = 1e-6
+
+
+@dataclass
+class _Formulation:
+    """Variables, parameters and constraint groups of one built problem."""
+
+    problem: cp.Problem
+    params: dict[str, cp.Parameter]
+    z: cp.Variable
+    alpha: cp.Variable
+    v: cp.Variable
+    Lambda: list[cp.Variable]
+    groups: dict[str, list[cp.Constraint]] = field(default_factory=dict)
+    slacks: dict[str, cp.Variable] = field(default_factory=dict)
+
+
+def _row(vec: np.ndarray) -> np.ndarray:
+    return np.asarray(vec, float).reshape(1, -1)
+
+
+def _col(vec: np.ndarray) -> np.ndarray:
+    return np.asarray(vec, float).reshape(-1, 1)
+
+
+def formulate(data: TubeMPCData, q: int, elastic: bool = False) -> _Formulation:
+    """Build the QP (20) for H_θ with q rows.
+
+    With ``elastic=True`` every constraint group g gets a scalar slack s_g >= 0 on its right-hand
+    side (|lhs − rhs| <= s_g for the equalities (15d)) and the objective is Σ_g s_g: this
+    problem is always feasible, and the groups with positive slack are those that cannot hold
+    together (a diagnostic for infeasible steps).
+    """
+    A0, B0 = np.asarray(data.A0, float), np.asarray(data.B0, float)
+    A, B = np.asarray(data.A, float), np.asarray(data.B, float)
+    F, G, K = np.asarray(data.F, float), np.asarray(data.G, float), np.asarray(data.K, float)
+    H_x, Xv = np.asarray(data.H_x, float), np.asarray(data.X0_vertices, float)
+    w_bar, f_bar = np.asarray(data.w_bar, float), np.asarray(data.f_bar, float)
+    H_T, h_T = np.asarray(data.H_T, float), np.asarray(data.h_T, float)
+    n, m = B0.shape
+    p = A.shape[0]
+    N = int(data.N)
+    nv, u, c = Xv.shape[0], H_x.shape[0], F.shape[0]
+
+    params = {
+        "x_k": cp.Parameter(n, name="x_k"),
+        "h_theta": cp.Parameter(q, name="h_theta"),
+        "H_theta": cp.Parameter((q, p), name="H_theta"),
+    }
+    z = cp.Variable((n, N + 1), name="z")          # column l: tube centre z_l|k
+    alpha = cp.Variable(N + 1, nonneg=True, name="alpha")  # α_l|k >= 0
+    v = cp.Variable((m, N), name="v")               # column l: v_l|k
+    # Λ^j_l for all j stacked: rows (j, i) j-major, i.e. row j·u + i is row i of Λ^j_l
+    Lam = [cp.Variable((nv * u, q), nonneg=True, name=f"Lambda_{l}") for l in range(N)]
+    slacks = {g: cp.Variable(nonneg=True, name=f"slack {g}") for g in GROUPS} if elastic else {}
+
+    def s(group: str):
+        return slacks[group] if elastic else 0.0
+
+    groups: dict[str, list[cp.Constraint]] = {g: [] for g in GROUPS}
+    ones_v = np.ones((1, nv))
+    FGK = F + G @ K
+
+    # (15a): (F + G K) z_l + G v_l + α_l f̄ <= 1, l = 0..N-1 (all l at once, columns)
+    alpha_row = cp.reshape(alpha[:N], (1, N), order="F")
+    groups[GROUP_15A].append(FGK @ z[:, :N] + G @ v + _col(f_bar) @ alpha_row <= 1.0 + s(GROUP_15A))
+
+    # (15b): −H_x z_0 − α_0 1 <= −H_x x_k
+    groups[GROUP_15B].append(-H_x @ z[:, 0] - alpha[0] <= -H_x @ params["x_k"] + s(GROUP_15B))
+
+    for l in range(N):
+        # vertices of X_l|k (14): x^j_l = z_l + α_l x^j, inputs u^j_l = K x^j_l + v_l
+        X_l = cp.reshape(z[:, l], (n, 1), order="F") @ ones_v + alpha[l] * Xv.T   # (n, nv)
+        U_l = K @ X_l + cp.reshape(v[:, l], (m, 1), order="F") @ ones_v              # (m, nv)
+        # d^j_l = A0 x^j_l + B0 u^j_l − z_{l+1}
+        d_l = A0 @ X_l + B0 @ U_l - cp.reshape(z[:, l + 1], (n, 1), order="F") @ ones_v
+        # column j of this (u, nv) matrix is Λ^j_l h_θk
+        lam_h = cp.reshape(Lam[l] @ params["h_theta"], (u, nv), order="F")
+        # (15c): Λ^j_l h_θk + H_x d^j_l − α_{l+1} 1 <= −w̄, for all j (columns)
+        groups[GROUP_15C].append(lam_h + H_x @ d_l - np.ones((u, 1)) @ cp.reshape(alpha[l + 1], (1, 1), order="F")
+                                 <= -_col(w_bar) @ ones_v + s(GROUP_15C))
+        # (15d): H_x D^j_l = Λ^j_l H_θk; column i' of D^j_l is A_i' x^j_l + B_i' u^j_l
+        lam_H = Lam[l] @ params["H_theta"]  # (nv·u, p)
+        for ip in range(p):
+            lhs = H_x @ (A[ip] @ X_l + B[ip] @ U_l)                          # (u, nv): entry (i, j)
+            rhs = cp.reshape(lam_H[:, ip], (u, nv), order="F")               # (u, nv): Λ^j_l[i] H_θ[:, i']
+            if elastic:
+                groups[GROUP_15D].append(cp.abs(lhs - rhs) <= s(GROUP_15D))
+            else:
+                groups[GROUP_15D].append(lhs == rhs)
+
+    # terminal set X_f: H_T z_N + h_T α_N <= 1 (α_N >= 0 is the variable's domain)
+    groups[GROUP_TERMINAL].append(H_T @ z[:, N] + alpha[N] * h_T <= 1.0 + s(GROUP_TERMINAL))
+
+    constraints = [con for g in GROUPS for con in groups[g]]
+    if elastic:
+        objective = cp.Minimize(cp.sum(cp.hstack(list(slacks.values()))))
+    else:
+        # cost (17) with the nominal prediction (18) as equality-constrained variables
+        params["A_cl_hat"] = cp.Parameter((n, n), name="A_cl_hat")
+        params["B_hat"] = cp.Parameter((n, m), name="B_hat")
+        x_hat = cp.Variable((n, N + 1), name="x_hat")
+        constraints += [
+            x_hat[:, 0] == params["x_k"],
+            x_hat[:, 1:] == params["A_cl_hat"] @ x_hat[:, :N] + params["B_hat"] @ v,
+        ]
+        Qh, Rh, Ph = (sqrtm_psd(np.asarray(M, float)) for M in (data.Q, data.R, data.P))
+        u_hat = K @ x_hat[:, :N] + v  # û_l = K x̂_l + v_l
+        objective = cp.Minimize(cp.sum_squares(Qh @ x_hat[:, :N]) + cp.sum_squares(Rh @ u_hat)
+                                + cp.sum_squares(Ph @ x_hat[:, N]))
+    problem = cp.Problem(objective, constraints)
+    return _Formulation(problem, params, z, alpha, v, Lam, groups, slacks)
+
+
+def nominal_cost(data: TubeMPCData, x: np.ndarray, theta_hat: np.ndarray, v: np.ndarray) -> float:
+    """J_N of (17) for inputs v (N, m), rolling out (18) in numpy (constant term included)."""
+    A_hat = data.A0 + np.tensordot(theta_hat, data.A, axes=1)
+    B_hat = data.B0 + np.tensordot(theta_hat, data.B, axes=1)
+    x_hat = np.asarray(x, float)
+    cost = 0.0
+    for l in range(int(data.N)):
+        u_hat = data.K @ x_hat + v[l]
+        cost += float(x_hat @ data.Q @ x_hat + u_hat @ data.R @ u_hat)
+        x_hat = A_hat @ x_hat + B_hat @ u_hat
+    return cost + float(x_hat @ data.P @ x_hat)
+
+
+class CvxpyTubeMPC:
+    """QP (20) built once; :meth:`solve` sets x_k, Θ_k, θ̂_k and re-solves the same problem."""
+
+    def __init__(self, data: TubeMPCData, call) -> None:
+        self.data = data
+        self._call = call
+        self._elastic: _Formulation | None = None
+        self._build(np.asarray(data.H_theta, float))
+
+    def _build(self, H_theta: np.ndarray) -> None:
+        """Formulate (20) for this number of rows of H_θ and canonicalise it now (DPP), so the
+        one-off cost of cvxpy's compilation is paid here and not inside the first solve."""
+        self.q = H_theta.shape[0]
+        self.H_theta = H_theta
+        self.form = formulate(self.data, self.q)
+        self._elastic = None
+        n, p = self.data.B0.shape[0], self.data.A.shape[0]
+        self._set_parameters(self.form, np.zeros(n), np.ones(self.q), np.zeros(p))
+        try:
+            self.form.problem.get_problem_data(self._call.name, enforce_dpp=True)
+        except cp.error.SolverError:
+            pass  # the solver cannot take this problem: ``solve`` reports it as a status
+
+    @property
+    def problem(self) -> cp.Problem:
+        """The cvxpy problem (20) currently in use (DPP)."""
+        return self.form.problem
+
+    def _set_parameters(self, form: _Formulation, x, h_theta, theta_hat) -> None:
+        d = self.data
+        form.params["x_k"].value = x
+        form.params["h_theta"].value = h_theta
+        form.params["H_theta"].value = self.H_theta
+        if "A_cl_hat" in form.params:
+            A_hat = d.A0 + np.tensordot(theta_hat, d.A, axes=1)
+            B_hat = d.B0 + np.tensordot(theta_hat, d.B, axes=1)
+            form.params["A_cl_hat"].value = A_hat + B_hat @ d.K
+            form.params["B_hat"].value = B_hat
+
+    def solve(self, x, h_theta, theta_hat, H_theta=None) -> MPCSolution:
+        """Solve (20) at x_k with Θ_k = {H_θ θ <= h_theta} and the point estimate θ̂_k.
+
+        ``H_theta`` replaces the shape of Θ_k: same number of rows -> parameter update only;
+        a different number of rows -> the problem is rebuilt.
+        """
+        start = time.perf_counter()
+        x = np.asarray(x, float).reshape(-1)
+        h_theta = np.asarray(h_theta, float).reshape(-1)
+        theta_hat = np.asarray(theta_hat, float).reshape(-1)
+        arrays = {"x": x, "h_theta": h_theta, "theta_hat": theta_hat}
+        if H_theta is not None:
+            arrays["H_theta"] = np.asarray(H_theta, float)
+        for name, arr in arrays.items():
+            if not np.all(np.isfinite(arr)):
+                return MPCSolution(SolveStatus.ERROR, None, None, None, None, None, detail=f"non-finite {name}")
+        n, p = self.data.B0.shape[0], self.data.A.shape[0]
+        q = self.q if H_theta is None else (arrays["H_theta"].shape[0] if arrays["H_theta"].ndim == 2 else -1)
+        expected = {"x": (n,), "h_theta": (q,), "theta_hat": (p,)}
+        if H_theta is not None:
+            expected["H_theta"] = (q, p)
+        for name, shape in expected.items():
+            if arrays[name].shape != shape:
+                return MPCSolution(SolveStatus.ERROR, None, None, None, None, None,
+                                   detail=f"{name} has shape {arrays[name].shape}, expected {shape}")
+        if H_theta is not None:
+            if q != self.q:
+                self._build(arrays["H_theta"])  # new number of rows: new problem
+            else:
+                self.H_theta = arrays["H_theta"]  # same shape: parameter update only
+        self._set_parameters(self.form, x, h_theta, theta_hat)
+        update_time = time.perf_counter() - start
+        status, solver_time, detail = self._call.solve(self.form.problem)
+        if status is not SolveStatus.OPTIMAL:
+            names = self._diagnose(x, h_theta, theta_hat) if status is SolveStatus.INFEASIBLE else ()
+            return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names, detail=detail)
+        f = self.form
+        N = int(self.data.N)
+        nv, u = np.shape(self.data.X0_vertices)[0], np.shape(self.data.H_x)[0]
+        v = np.asarray(f.v.value, float).T.copy()           # (N, m)
+        z = np.asarray(f.z.value, float).T.copy()           # (N+1, n)
+        alpha = np.asarray(f.alpha.value, float).copy()     # (N+1,)
+        Lam = np.stack([np.asarray(L.value, float).reshape(nv, u, self.q) for L in f.Lambda])  # (N, nv, u, q)
+        cost = nominal_cost(self.data, x, theta_hat, v)
+        return MPCSolution(status, v, z, alpha, Lam, cost, solver_time, update_time, detail=detail)
+
+    def _diagnose(self, x, h_theta, theta_hat) -> tuple[str, ...]:
+        """Groups relaxed by the elastic problem (minimum total slack); empty if it fails."""
+        try:
+            if self._elastic is None:
+                self._elastic = formulate(self.data, self.q, elastic=True)
+            form = self._elastic
+            self._set_parameters(form, x, h_theta, theta_hat)
+            status, _, _ = self._call.solve(form.problem)
+        except Exception:  # noqa: BLE001 - diagnostics only; must not hide the status of (20)
+            return ()
+        if status is not SolveStatus.OPTIMAL:
+            return ()
+        return tuple(g for g in GROUPS if float(form.slacks[g].value) > ELASTIC_SLACK_TOL)
