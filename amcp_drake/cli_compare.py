@@ -18,7 +18,7 @@ from .cli_common import EXIT_FAIL, EXIT_OK, bad_input_exits_2, example_option, l
 @click.option("--mode", type=click.Choice(["lockstep", "independent"]), default="lockstep", show_default=True)
 @click.option("--drake-solver", default="clarabel", show_default=True, help="Drake solver (clarabel, osqp, scs, ...).")
 @click.option("--cvxpy-solver", default="CLARABEL", show_default=True, help="cvxpy solver (CLARABEL, OSQP, SCS, ...).")
-@click.option("--update", type=click.Choice(["fixed", "exact", "window"]), default="fixed", show_default=True)
+@click.option("--update", type=click.Choice(["fixed", "exact", "window", "none"]), default="fixed", show_default=True)
 @click.option("--out", "out_file", type=click.Path(), default="amcp-out/compare.json", show_default=True,
               help="JSON file with every difference.")
 @click.option("--quiet", is_flag=True, help="Only the summary, no per-step table.")

@@ -17,8 +17,8 @@ from .cli_common import EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, e
 @click.option("--steps", type=int, default=None, help="Number of steps (default: the problem's scenario).")
 @click.option("--seed", type=int, default=None, help="Disturbance seed (default: the scenario's).")
 @click.option("--disturbance", type=click.Choice(["uniform", "vertices", "zero"]), default=None)
-@click.option("--update", type=click.Choice(["fixed", "exact", "window"]), default="fixed", show_default=True,
-              help="Parameter-set update: (9), (7), or (9) over a moving window (Remark 4).")
+@click.option("--update", type=click.Choice(["fixed", "exact", "window", "none"]), default="fixed", show_default=True,
+              help="Parameter-set update: (9), (7), (9) over a moving window (Remark 4), or none (robust baseline).")
 @click.option("--window", type=int, default=10, show_default=True)
 @click.option("--projection", type=click.Choice(["Theta", "Theta_k"]), default="Theta", show_default=True,
               help="Project the LMS estimate onto Θ (12) or Θ_k (Remark 7).")

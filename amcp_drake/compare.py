@@ -150,14 +150,19 @@ def _compare_sets(a: OfflineDesign, b: OfflineDesign) -> list[Difference]:
 
 
 def lockstep(spec: ProblemSpec, steps: int, seed: int, backends=("drake", "cvxpy"), options: OnlineOptions | None = None,
-             backend_options: tuple[dict, dict] = ({}, {}), progress: bool = False) -> Comparison:
-    """Lockstep comparison (module docstring)."""
+             backend_options: tuple[dict, dict] = ({}, {}), progress: bool = False,
+             compare_offline: bool = True) -> Comparison:
+    """Lockstep comparison (module docstring); with ``compare_offline`` the designs too."""
     pr, sc = spec.problem, spec.scenario
-    d = design(pr, spec.design, backends[0])
+    comp = Comparison("lockstep", (backends[0], backends[1]))
+    if compare_offline:
+        design_diffs, (d, _) = compare_designs(spec, backends)
+        comp.differences += design_diffs
+    else:
+        d = design(pr, spec.design, backends[0])
     ctrl_a = AdaptiveMPC(pr, d, backends[0], options, **backend_options[0])
     ctrl_b = AdaptiveMPC(pr, d, backends[1], options, **backend_options[1])
     W = disturbance_sequence(pr, sc.disturbance, steps, seed)
-    comp = Comparison("lockstep", (backends[0], backends[1]))
     x = np.asarray(sc.x0, float)
     iterator = range(steps + 1)
     if progress:

@@ -19,7 +19,7 @@ from .errors import InconsistentDataError, ProblemError
 from .problem import Problem
 from .status import SolveStatus
 
-UPDATE_MODES = ("fixed", "exact", "window")
+UPDATE_MODES = ("fixed", "exact", "window", "none")
 PROJECTION_TARGETS = ("Theta", "Theta_k")
 
 
@@ -27,7 +27,8 @@ PROJECTION_TARGETS = ("Theta", "Theta_k")
 class OnlineOptions:
     """Online choices. ``update``: ``"fixed"`` = fixed-complexity LP (9) (default), ``"exact"`` =
     intersection (7) with redundant rows removed, ``"window"`` = (9) over the last ``window``
-    data sets Δ (Remark 4). ``projection``: project θ̃ onto Θ (eq. (12)) or onto Θ_k (Remark 7)."""
+    data sets Δ (Remark 4), ``"none"`` = the robust (non-adaptive) baseline: Θ_k ≡ Θ0 and θ̂_k ≡ θ̂0.
+    ``projection``: project θ̃ onto Θ (eq. (12)) or onto Θ_k (Remark 7)."""
 
     update: str = "fixed"
     window: int = 10
@@ -164,6 +165,11 @@ class AdaptiveMPC:
             record.projection_status = SolveStatus.OPTIMAL
             return
         result = self.backend.project(theta_tilde, H, h)
+        if result.status is not SolveStatus.OPTIMAL and self.options.projection == "Theta_k":
+            # Θ_k can be a single point that round-off in (9) leaves empty by ~1e-9 (θ* pinned at a
+            # vertex by vertex disturbances; found by the property suite): the QP is then infeasible.
+            # Projecting onto Θ ⊇ Θ_k instead is (12) itself, so Lemma 5 still holds (Remark 7).
+            result = self.backend.project(theta_tilde, pr.H_theta, pr.h_theta)
         record.times["projection"] = result.solve_time
         record.projection_status = result.status
         if result.status is SolveStatus.OPTIMAL:
@@ -178,7 +184,7 @@ class AdaptiveMPC:
             raise ProblemError("x", f"a finite state vector of length {self.problem.n}", f"{x!r}")
         record = StepRecord(k=self.k, x=x, u=None, status=SolveStatus.NOT_RUN, H_theta=self.H_theta,
                             h_theta=self.h_theta, theta_hat=self.theta_hat)
-        if self._prev is not None:
+        if self._prev is not None and self.options.update != "none":
             x_prev, u_prev = self._prev
             t0 = time.perf_counter()
             self._update_set(*self._delta(x_prev, u_prev, x), record)

@@ -176,3 +176,13 @@ def test_trajectory_round_trip(tmp_path, example_run):
     np.testing.assert_array_equal(back.records[7].Lambda, example_run.records[7].Lambda)
     assert back.records[7].status is SolveStatus.OPTIMAL
     assert back.design.to_dict() == example_run.design.to_dict()
+
+
+def test_robust_baseline_keeps_theta_and_the_estimate_fixed(example_spec, example_design):
+    sc = example_spec.scenario
+    ctrl = AdaptiveMPC(example_spec.problem, example_design, options=OnlineOptions(update="none"))
+    traj = simulate(ctrl, sc.x0, sc.theta_star, 8, "uniform", seed=0)
+    assert traj.all_solved
+    for r in traj.records:
+        np.testing.assert_array_equal(r.h_theta, example_design.h_theta0)
+        np.testing.assert_array_equal(r.theta_hat, example_spec.problem.theta_hat0)

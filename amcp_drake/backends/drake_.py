@@ -106,6 +106,7 @@ class DrakeBackend:
         lp_options = dict(CLARABEL_LP_OPTIONS) if solver.lower() == "clarabel" else {}
         lp_options.update(solver_options or {})
         self._lp = _Solver(solver, lp_options)
+        self._lp_fallback = _Solver("clp", None) if solver.lower() == "clarabel" else None
         self._sdp = _Solver(sdp_solver, None)
         self.solver_name = self._solver.name
 
@@ -215,6 +216,14 @@ class DrakeBackend:
         prog.AddLinearCost(np.ones(q), 0.0, h)
         result, elapsed = self._lp.solve(prog)
         status = self._lp.status(result)
+        if status is not SolveStatus.OPTIMAL and self._lp_fallback is not None:
+            # Θ_{k-1} ∩ Δ_k with empty interior (θ* pinned at a vertex by vertex disturbances) makes
+            # this LP degenerate: its dual optimal face is unbounded and Clarabel (interior point)
+            # then ends in NumericalError, AlmostSolved or even a false "unbounded" (found by the
+            # property suite). The simplex method of CLP is exact on degenerate LPs.
+            result, extra = self._lp_fallback.solve(prog)
+            status = self._lp_fallback.status(result)
+            elapsed += extra
         if status is not SolveStatus.OPTIMAL:
             return SetUpdateResult(status, None, None, elapsed)
         return SetUpdateResult(status, result.GetSolution(h), result.GetSolution(Lam), elapsed)
