@@ -21,6 +21,19 @@ from .status import SolveStatus
 
 UPDATE_MODES = ("fixed", "exact", "window", "none")
 PROJECTION_TARGETS = ("Theta", "Theta_k")
+#: Rows of Δ_k are scaled to unit norm before the update: near x = 0 the raw rows −H_w D_{k−1} are of
+#: order ‖x_{k−1}‖, and the LP solvers' absolute tolerances then allow errors of order tol/‖row‖ in θ
+#: (found by the property suite: the per-row LP (9) excluded θ* by 1e-2 with rows of norm ~1e-3).
+#: Rows shorter than this carry nothing floating point can resolve (1 + H_w d_k is computed with an
+#: absolute error ~1e-16, i.e. ~1e-10 after scaling) and are dropped, which can only enlarge Θ_k.
+DELTA_ROW_MIN_NORM = 1e-6
+#: Numerical margin added to every (unit) row of Δ_k, in θ units: with vertex disturbances θ* lies on
+#: the boundary of every Δ_k, and Θ_k collapses onto θ* (a point, found by the property suite). The
+#: LP (9) is then degenerate and interior-point and simplex solvers alike return offsets that are
+#: wrong by 1e-8..1e-2 or a false "infeasible". With the margin, Θ_k always contains Θ ∩ B_ε(θ*) (a
+#: set with interior), Δ_k ⊆ Δ_k^ε keeps Lemma 3 exact, and a disturbance outside W by more than
+#: this distance is still reported as inconsistent data.
+DELTA_MARGIN = 1e-6
 
 
 @dataclass(frozen=True)
@@ -100,11 +113,15 @@ class AdaptiveMPC:
 
     # -- (ii) set-membership update ------------------------------------------------------------
     def _delta(self, x_prev, u_prev, x) -> tuple[np.ndarray, np.ndarray]:
-        """Δ_k of (6): {θ | −H_w D_{k−1} θ <= 1 + H_w d_k}, d_k = A0 x_{k−1} + B0 u_{k−1} − x_k."""
+        """Δ_k of (6): {θ | −H_w D_{k−1} θ <= 1 + H_w d_k}, d_k = A0 x_{k−1} + B0 u_{k−1} − x_k, rows
+        scaled to unit norm (see DELTA_ROW_MIN_NORM)."""
         pr = self.problem
         D = pr.regressor(x_prev, u_prev)
         d = pr.A0 @ x_prev + pr.B0 @ u_prev - x
-        return -pr.H_w @ D, 1.0 + pr.H_w @ d
+        H, h = -pr.H_w @ D, 1.0 + pr.H_w @ d
+        norms = np.linalg.norm(H, axis=1)
+        keep = norms >= DELTA_ROW_MIN_NORM
+        return H[keep] / norms[keep, None], h[keep] / norms[keep] + DELTA_MARGIN
 
     def _update_set(self, H_delta, h_delta, record: StepRecord) -> None:
         opts = self.options

@@ -89,7 +89,8 @@ class TubeMPCData:
 class MPCSolution:
     """Solution of (20): ``v`` (N, m), ``z`` (N+1, n), ``alpha`` (N+1,), ``Lambda`` (N, v, u, q),
     ``cost`` = J_N of (17) (including the constant term), times in seconds. Arrays are None when
-    no solution is present (see :data:`~amcp_drake.status.SOLUTION_PRESENT`)."""
+    no solution is present (see :data:`~amcp_drake.status.SOLUTION_PRESENT`). ``Lambda`` is also
+    None for the vertex form of (5b) (``formulation="vertex"``), which has no multipliers."""
 
     status: SolveStatus
     v: np.ndarray | None

@@ -39,6 +39,9 @@ STATUS_MAP: dict[str, SolveStatus] = {
     cps.SOLVER_ERROR: SolveStatus.ERROR,
 }
 
+#: Formulations of the tube MPC QP (20): "plain" = (15a)-(15d) with Λ, "vertex" = (5b) at Θ_k's vertices.
+FORMULATIONS = ("plain", "vertex")
+
 #: Number of parametrised problems kept per kind (support LP, LP (9), projection QP); shapes
 #: change rarely (redundancy removal, moving window), so a small LRU cache suffices.
 CACHE_SIZE = 32
@@ -111,14 +114,21 @@ class CvxpyBackend:
     solver: cvxpy solver name for every problem ("CLARABEL" by default; the gain LMI needs a
         solver with PSD cones: CLARABEL, SCS or MOSEK).
     solver_options: keyword arguments passed to ``Problem.solve`` (e.g. ``{"tol_gap_abs": 1e-10}``).
+    formulation: tube MPC QP (20) with the multipliers Λ of (15c)-(15d) ("plain", the reference
+        and default) or with (5b) at the vertices of Θ_k ("vertex", same optimum, no Λ:
+        ``MPCSolution.Lambda`` is None; see :mod:`amcp_reference.tube_vertex`).
     """
 
     name = "cvxpy"
 
-    def __init__(self, solver: str = "CLARABEL", solver_options: dict | None = None) -> None:
+    def __init__(self, solver: str = "CLARABEL", solver_options: dict | None = None,
+                 formulation: str = "plain") -> None:
         from .offline import SupportLP
         from .online import ProjectionQP, SetUpdateLP
 
+        if formulation not in FORMULATIONS:
+            raise ValueError(f"formulation {formulation!r} unknown to the cvxpy backend; choose one of {FORMULATIONS}")
+        self.formulation = formulation
         self._call = SolverCall(solver, solver_options)
         self.solver_name = self._call.name
         self._support = ProblemCache(SupportLP)
@@ -166,7 +176,12 @@ class CvxpyBackend:
         return self._project.get(H.shape).solve(self._call, point, H, h)
 
     def tube_mpc(self, data: TubeMPCData):
-        """Build the tube MPC QP (20) once; see :class:`amcp_reference.tube_mpc.CvxpyTubeMPC`."""
+        """Build the tube MPC QP (20) once; see :class:`amcp_reference.tube_mpc.CvxpyTubeMPC`
+        (plain) and :class:`amcp_reference.tube_vertex.CvxpyVertexTubeMPC` (vertex)."""
+        if self.formulation == "vertex":
+            from .tube_vertex import CvxpyVertexTubeMPC
+
+            return CvxpyVertexTubeMPC(data, self._call)
         from .tube_mpc import CvxpyTubeMPC
 
         return CvxpyTubeMPC(data, self._call)

@@ -1,0 +1,247 @@
+"""The tube MPC QP (20) in Drake, vertex form of (5b): ``DrakeBackend(formulation="vertex")``.
+
+Same optimum as the plain (15a)-(15d) of :mod:`.drake_tube` (see :mod:`.vertex_form` for the
+argument: the proof of Proposition 9 read backwards), without the multipliers Λ:
+
+* (15a), (15b), the terminal set, α >= 0 and the cost (17)-(18) are those of the plain form;
+* (15c)-(15d) are replaced by the N·u·S rows of :mod:`.vertex_form`, one block of u rows per
+  prediction step l and vertex θ^s of Θ_k, with the coefficient of α_l maximised over the
+  vertices x^j of X0 (exact because α_l >= 0).
+
+The vertices of Θ_k are enumerated at every step (their number S changes when Θ_k degenerates).
+The program is built once: each step replaces the matrix and bounds of the one tube-row
+constraint with ``LinearConstraint.UpdateCoefficients`` (Drake allows the number of rows to
+change), so no symbolic expression is built per step. The sparsity pattern of the rows depends
+only on S and is cached.
+
+Decision vector y = [z (N+1)·n | α (N+1) | v N·m]. :class:`~.base.MPCSolution` has
+``Lambda=None``: this form has no multipliers (certificates of (15c)-(15d) need the plain form).
+When the vertices cannot be enumerated (more than ``vertex_form.MAX_COMBINATIONS`` bases and a
+flat Θ_k), the step is solved by the plain form instead, and ``detail`` says so. Clarabel runs
+with :data:`~.vertex_form.CLARABEL_OPTIONS` (no iterative refinement); a step that ends
+``AlmostSolved`` is solved again with the user's settings.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.sparse as sp
+from pydrake.solvers import MathematicalProgram
+
+from ..status import SolveStatus
+from .base import MPCSolution, TubeMPCData
+from .vertex_form import CLARABEL_OPTIONS, VertexEnumerationError, theta_vertices
+
+TUBE_ROWS = "(5b) tube propagation at the vertices of Theta_k (vertex form of (15c)-(15d))"
+
+
+class CondensedCost:
+    """Cost (17)-(18) as a quadratic in v: J = vᵀ H v + 2 gᵀ v + c, with x̂_{l+1} = A_cl(θ̂) x̂_l + B(θ̂) v_l.
+
+    The block matrices Q̄ = diag(Q, ..., Q, P), K̄ and R̄ are formed once; per step only the
+    powers of A_cl(θ̂_k) change.
+    """
+
+    def __init__(self, data: TubeMPCData) -> None:
+        self.data = data
+        n, m = np.shape(data.B0)
+        N = int(data.N)
+        self.n, self.m, self.N = n, m, N
+        Qbar = np.kron(np.eye(N + 1), data.Q)
+        Qbar[N * n:, N * n:] = data.P
+        self.Qbar = Qbar
+        self.Kbar = np.hstack([np.kron(np.eye(N), data.K), np.zeros((N * m, n))])
+        self.Rbar = np.kron(np.eye(N), data.R)
+        lag = np.arange(N + 1)[:, None] - 1 - np.arange(N)[None, :]   # l − 1 − i
+        self._lag = np.where(lag >= 0, lag, N)                         # index N: zero block
+
+    def matrices(self, x: np.ndarray, theta_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        d, n, m, N = self.data, self.n, self.m, self.N
+        B_hat = d.B0 + np.tensordot(theta_hat, d.B, axes=1)
+        A_cl = d.A0 + np.tensordot(theta_hat, d.A, axes=1) + B_hat @ d.K
+        powers = np.empty((N + 1, n, n))
+        powers[0] = np.eye(n)
+        for l in range(1, N + 1):
+            powers[l] = A_cl @ powers[l - 1]
+        Phi = powers.reshape((N + 1) * n, n)
+        PB = np.zeros((N + 1, n, m))
+        PB[:N] = powers[:N] @ B_hat
+        Gam = PB[self._lag].transpose(0, 2, 1, 3).reshape((N + 1) * n, N * m)
+        Mu_x = self.Kbar @ Phi
+        Mu_v = self.Kbar @ Gam + np.eye(N * m)
+        QG = self.Qbar @ Gam
+        RMv = self.Rbar @ Mu_v
+        H = Gam.T @ QG + Mu_v.T @ RMv
+        S = Phi.T @ QG + Mu_x.T @ RMv
+        T = Phi.T @ self.Qbar @ Phi + Mu_x.T @ self.Rbar @ Mu_x
+        return 0.5 * (H + H.T), S.T @ x, float(x @ T @ x)
+
+
+class DrakeVertexTubeMPC:
+    """QP (20) in vertex form, built once; :meth:`solve` updates x_k, the rows of Θ_k's vertices, θ̂_k."""
+
+    formulation = "vertex"
+
+    def __init__(self, data: TubeMPCData, solver, solver_options: dict | None = None) -> None:
+        """``solver``: the backend's ``_Solver``; with Clarabel, a copy with
+        :data:`~.vertex_form.CLARABEL_OPTIONS` under the user's ``solver_options`` is used."""
+        self.data = data
+        self._plain_solver = solver
+        if solver.name == "clarabel":
+            from .drake_ import _Solver
+
+            solver = _Solver("clarabel", {**CLARABEL_OPTIONS, **(solver_options or {})})
+        self._solver = solver
+        self._plain = None  # the plain form, built only if a step needs the fallback
+        self._cost_model = CondensedCost(data)
+        self._patterns: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._build()
+
+    # -- construction ------------------------------------------------------------------------
+    def _build(self) -> None:
+        d = self.data
+        n, m = np.shape(d.B0)
+        N = int(d.N)
+        H_x = np.asarray(d.H_x, float)
+        u = H_x.shape[0]
+        self.n, self.m, self.N, self.u = n, m, N, u
+        self.a0 = (N + 1) * n
+        self.v0 = self.a0 + N + 1
+        self.size = self.v0 + N * m
+        a0, v0, size = self.a0, self.v0, self.size
+        self.H_x = H_x
+        self.Xv = np.asarray(d.X0_vertices, float)
+        self.Acl0 = d.A0 + d.B0 @ d.K
+        self.Acl_i = d.A + d.B @ d.K        # (p, n, n)
+        self.w_bar = np.asarray(d.w_bar, float)
+
+        prog = self.prog = MathematicalProgram()
+        y = self.y = prog.NewContinuousVariables(size, "y")
+
+        # (15a): (F+GK) z_l + G v_l + α_l f̄ <= 1
+        c = d.F.shape[0]
+        FGK = d.F + d.G @ d.K
+        A15a = sp.lil_matrix((N * c, size))
+        for l in range(N):
+            rows = slice(l * c, (l + 1) * c)
+            A15a[rows, l * n:(l + 1) * n] = FGK
+            A15a[rows, v0 + l * m:v0 + (l + 1) * m] = d.G
+            A15a[rows, a0 + l] = np.asarray(d.f_bar, float).reshape(-1, 1)
+        prog.AddLinearConstraint(A15a.tocsc(), np.full(N * c, -np.inf), np.ones(N * c), y
+                                 ).evaluator().set_description("(15a) state and input constraints")
+
+        # (15b): -H_x z_0 - α_0 1 <= -H_x x_k  (bounds updated per step)
+        A15b = sp.lil_matrix((u, size))
+        A15b[:, 0:n] = -H_x
+        A15b[:, a0] = -np.ones((u, 1))
+        self._c15b = prog.AddLinearConstraint(A15b.tocsc(), np.full(u, -np.inf), np.zeros(u), y).evaluator()
+        self._c15b.set_description("(15b) x_k in X_0|k")
+
+        # (5b) at the vertices of Θ_k: matrix replaced per step (placeholder: one void row)
+        self._tube = prog.AddLinearConstraint(sp.csc_matrix((1, size)), np.array([-np.inf]), np.array([np.inf]),
+                                              y).evaluator()
+        self._tube.set_description(TUBE_ROWS)
+
+        # terminal set: H_T z_N + h_T α_N <= 1
+        r = d.H_T.shape[0]
+        AT = sp.lil_matrix((r, size))
+        AT[:, N * n:(N + 1) * n] = d.H_T
+        AT[:, a0 + N] = np.asarray(d.h_T, float).reshape(-1, 1)
+        prog.AddLinearConstraint(AT.tocsc(), np.full(r, -np.inf), np.ones(r), y
+                                 ).evaluator().set_description("terminal set (z_N, alpha_N) in Xf")
+
+        prog.AddBoundingBoxConstraint(0.0, np.inf, y[a0:v0]).evaluator().set_description("alpha >= 0")
+
+        self._cost = prog.AddQuadraticCost(np.eye(N * m), np.zeros(N * m), 0.0, y[v0:], is_convex=True).evaluator()
+        self._cost.set_description("(17) certainty-equivalence cost")
+
+    def _pattern(self, S: int) -> tuple[np.ndarray, np.ndarray]:
+        """CSR indices and indptr of the N·S·u tube rows; row (l, s, i) has the columns
+        z_l, z_{l+1} (contiguous), α_l, α_{l+1}, v_l, in increasing order."""
+        if S not in self._patterns:
+            n, m, N, u, a0, v0 = self.n, self.m, self.N, self.u, self.a0, self.v0
+            width = 2 * n + 2 + m
+            per_l = np.array([np.concatenate([np.arange(l * n, (l + 2) * n), [a0 + l, a0 + l + 1],
+                                              np.arange(v0 + l * m, v0 + (l + 1) * m)]) for l in range(N)])
+            indices = np.repeat(per_l[:, None, :], S * u, axis=1).reshape(-1).astype(np.int32)
+            indptr = np.arange(0, N * S * u * width + 1, width, dtype=np.int32)
+            self._patterns[S] = (indices, indptr)
+        return self._patterns[S]
+
+    def tube_rows(self, vertices: np.ndarray) -> tuple[sp.csc_matrix, np.ndarray]:
+        """Matrix (N·S·u, size) and upper bound of the vertex-form rows for Θ_k's vertices (S, p)."""
+        S = len(vertices)
+        n, m, N, u = self.n, self.m, self.N, self.u
+        A_cl = self.Acl0 + np.tensordot(vertices, self.Acl_i, axes=1)                 # (S, n, n)
+        B_s = self.data.B0 + np.tensordot(vertices, self.data.B, axes=1)              # (S, n, m)
+        HA = self.H_x @ A_cl                                                          # (S, u, n)
+        HB = self.H_x @ B_s                                                           # (S, u, m)
+        c_alpha = np.max(HA @ self.Xv.T, axis=2)                                      # (S, u)
+        block = np.concatenate([HA, np.broadcast_to(-self.H_x, (S, u, n)), c_alpha[..., None],
+                                np.full((S, u, 1), -1.0), HB], axis=2)              # (S, u, width)
+        data = np.broadcast_to(block, (N,) + block.shape).reshape(-1)
+        indices, indptr = self._pattern(S)
+        A = sp.csr_matrix((data, indices, indptr), shape=(N * S * u, self.size)).tocsc()
+        return A, np.tile(-self.w_bar, N * S)
+
+    # -- solve ---------------------------------------------------------------------------------
+    def solve(self, x, h_theta, theta_hat, H_theta=None) -> MPCSolution:
+        """Solve (20) at x_k with Θ_k = {H_θ θ <= h_theta} and point estimate θ̂_k."""
+        start = time.perf_counter()
+        x = np.asarray(x, float)
+        h_theta = np.asarray(h_theta, float)
+        theta_hat = np.asarray(theta_hat, float)
+        H = np.asarray(self.data.H_theta if H_theta is None else H_theta, float)
+        for name, arr in (("x", x), ("h_theta", h_theta), ("theta_hat", theta_hat), ("H_theta", H)):
+            if not np.all(np.isfinite(arr)):
+                return MPCSolution(SolveStatus.ERROR, None, None, None, None, None, detail=f"non-finite {name}")
+        try:
+            vertices = theta_vertices(H, h_theta)
+        except VertexEnumerationError as exc:
+            return self._solve_plain(x, h_theta, theta_hat, H_theta, str(exc))
+        A, ub = self.tube_rows(vertices)
+        self._tube.UpdateCoefficients(A, np.full(len(ub), -np.inf), ub)
+        self._c15b.set_bounds(np.full(self.u, -np.inf), -self.H_x @ x)
+        Hv, g, const = self._cost_model.matrices(x, theta_hat)
+        self._cost.UpdateCoefficients(2.0 * Hv, 2.0 * g, const, is_convex=True)
+        update_time = time.perf_counter() - start
+        result, solver_time = self._solver.solve(self.prog)
+        status = self._solver.status(result)
+        detail = f"vertex form, {len(vertices)} vertices of Theta_k"
+        if status is SolveStatus.INACCURATE and self._solver is not self._plain_solver:
+            # near-degenerate steps (states at the edge of the feasible set, tight tolerances) can end
+            # AlmostSolved without iterative refinement: solve again with the user's settings
+            result, extra = self._plain_solver.solve(self.prog)
+            status = self._plain_solver.status(result)
+            solver_time += extra
+            detail += "; re-solved with iterative refinement"
+        if status is not SolveStatus.OPTIMAL:
+            names: tuple[str, ...] = ()
+            try:
+                names = tuple(result.GetInfeasibleConstraintNames(self.prog, 1e-6))
+            except Exception:  # noqa: BLE001 - diagnostics only; a failed report must not hide the status
+                names = ()
+            return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names,
+                               detail=f"{result.get_solution_result()}; {detail}")
+        yv = result.GetSolution(self.y)
+        N, n, m = self.N, self.n, self.m
+        z = yv[: self.a0].reshape(N + 1, n)
+        alpha = yv[self.a0:self.v0]
+        v = yv[self.v0:].reshape(N, m)
+        vf = v.reshape(-1)
+        cost = float(vf @ Hv @ vf + 2 * g @ vf + const)
+        return MPCSolution(status, v, z, alpha, None, cost, solver_time, update_time, detail=detail)
+
+    def _solve_plain(self, x, h_theta, theta_hat, H_theta, reason: str) -> MPCSolution:
+        """Fallback for a step whose Θ_k vertices cannot be enumerated: the plain form (15)."""
+        from dataclasses import replace
+
+        from .drake_tube import DrakeTubeMPC
+
+        if self._plain is None:
+            H0 = self.data.H_theta if H_theta is None else H_theta
+            self._plain = DrakeTubeMPC(replace(self.data, H_theta=np.asarray(H0, float)), self._plain_solver)
+        sol = self._plain.solve(x, h_theta, theta_hat, H_theta)
+        return replace(sol, detail=f"plain form (15) fallback: {reason}; {sol.detail}".rstrip("; "))

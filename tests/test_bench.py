@@ -1,0 +1,101 @@
+"""``amcp bench`` (issue 8): runs in quick mode and writes valid JSON with the expected keys and a
+PNG. No timing assertions: the machine is shared and noisy; only the shape of the output is tested."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from amcp_drake.cli import main
+
+STAT_KEYS = {"median", "p90", "mean", "max", "n"}
+TIME_NAMES = {"set_update", "set_update_solver", "lms", "qp_update", "solver", "total"}
+
+
+@pytest.fixture(scope="module")
+def quick_result(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    result = CliRunner().invoke(main, ["bench", "--quick", "--steps", "3", "--scaling-steps", "1", "--out", str(out)])
+    assert result.exit_code == 0, result.output + repr(result.exception)
+    return out, result.output, json.loads((out / "bench.json").read_text())
+
+
+def test_quick_bench_writes_json_and_png(quick_result):
+    out, output, data = quick_result
+    assert data["format"] == "amcp-bench" and data["version"] == 1
+    assert {"created", "machine", "settings", "time_keys", "reference_ms", "example", "scaling", "target",
+            "elapsed_s"} <= set(data)
+    assert data["settings"]["quick"] is True and data["settings"]["steps"] == 3
+    assert data["reference_ms"]["paper"]["median_solver"] == 68.0
+    png = (out / "bench.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "Example 1, ms per step" in output and "bench.json" in output
+
+
+def test_example_runs_cover_both_backends_formulations_and_x0_sizes(quick_result):
+    _, _, data = quick_result
+    runs = data["example"]["runs"]
+    assert {(r["backend"], r["formulation"], r["x0_facets"]) for r in runs} == {
+        (b, f, x) for b in ("drake", "cvxpy") for f in ("plain", "vertex") for x in (4, 8)}
+    for r in runs:
+        assert r["status"] == "completed"
+        assert set(r["times_ms"]) == TIME_NAMES
+        for stats in r["times_ms"].values():
+            assert set(stats) == STAT_KEYS and stats["n"] == 3
+            assert stats["median"] >= 0 and stats["p90"] >= 0
+        if r["formulation"] == "vertex":
+            assert r["max_abs_dv_vs_plain"] is not None and np.isfinite(r["max_abs_dv_vs_plain"])
+        else:
+            assert r["max_abs_dv_vs_plain"] is None
+    kinds = {(q["kind"], q["x0_facets"]) for q in data["example"]["ratios"]}
+    assert kinds == {(k, x) for k in ("plain/vertex", "cvxpy/drake") for x in (4, 8)}
+    assert all(q["total"] > 0 and q["solver"] > 0 for q in data["example"]["ratios"])
+
+
+def test_target_block_reports_the_drake_vertex_median_without_judging_speed(quick_result):
+    _, _, data = quick_result
+    target = data["target"]
+    assert target["target_ms"] == 7.0 and target["cvxpy_target_ratio"] == 2.0
+    assert target["drake_ms"] > 0 and isinstance(target["met"], bool)
+    assert target["cvxpy_over_drake"] > 0 and isinstance(target["cvxpy_met"], bool)
+
+
+def test_scaling_sweeps_cover_N_p_and_facets(quick_result):
+    _, _, data = quick_result
+    scaling = data["scaling"]
+    assert set(scaling) == {"N", "p", "x0_facets"}
+    assert sorted({r["N"] for r in scaling["N"]}) == [5, 20]
+    assert sorted({r["p"] for r in scaling["p"]}) == [1, 3]
+    assert sorted({r["x0_facets"] for r in scaling["x0_facets"]}) == [4, 8]
+    for rows in scaling.values():
+        for r in rows:
+            assert r["status"] == "completed" and set(r["times_ms"]) == TIME_NAMES
+
+
+def test_only_one_backend_and_formulation(tmp_path):
+    result = CliRunner().invoke(main, ["bench", "--quick", "--only", "example", "--steps", "2", "--backend", "drake",
+                                       "--formulation", "vertex", "--no-plot", "--out", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    data = json.loads((tmp_path / "bench.json").read_text())
+    assert data["scaling"] is None and not (tmp_path / "bench.png").exists()
+    assert {(r["backend"], r["formulation"]) for r in data["example"]["runs"]} == {("drake", "vertex")}
+    assert data["example"]["ratios"] == [] and data["target"]["cvxpy_ms"] is None
+
+
+def test_bad_step_count_exits_2(tmp_path):
+    result = CliRunner().invoke(main, ["bench", "--steps", "0", "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "--steps" in result.output
+
+
+def test_help_does_not_import_the_solvers():
+    code = ("import sys; from click.testing import CliRunner; from amcp_drake.cli import main; "
+            "r = CliRunner().invoke(main, ['bench', '--help']); assert r.exit_code == 0, r.output; "
+            "assert '--quick' in r.output; "
+            "print(sorted(m for m in ('pydrake', 'cvxpy', 'matplotlib', 'amcp_drake.bench') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"

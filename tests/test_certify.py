@@ -1,0 +1,439 @@
+"""Certificates (issue 6): an honest run passes every claim; each tampering fails exactly the claims
+that logically depend on the tampered quantity, and every other claim still passes.
+
+The claims are not independent: Theorem 14 (iii) (x_k, u_k) ∈ Z, for instance, *follows* from the
+tube claims, so a state outside Z must also break a tube claim. Each tampering below is chosen to
+be as surgical as the mathematics allows, and its docstring says why each expected claim fails.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import jsonschema
+import numpy as np
+import pytest
+
+from amcp_drake.certify import certify, schema
+from amcp_drake.certify_checks import theta_vertices
+from amcp_drake.errors import TrajectoryError
+from amcp_drake.examples import lorenzen2019_spec
+from amcp_drake.simulate import Trajectory
+from amcp_drake.status import SolveStatus
+
+STEPS = 8
+ROOT = Path(__file__).resolve().parents[1]
+
+#: Every claim id, in report order (docs/certificate.md lists the same ids).
+ALL_IDS = [
+    "design.terminal_cost_16", "design.assumption_8", "design.x0_contractive", "design.x0_robustly_invariant",
+    "design.w_bar_f_bar_recomputed", "design.x_f_non_empty", "design.x_f_invariant", "design.x_f_in_z",
+    "design.mu_condition_11", "design.x0_vertices",
+    "theta_star_in_Theta", "w_in_W", "model_consistent", "control_law", "mu_precondition",
+    "recursive_feasibility", "theta_star_in_Theta_k", "theta_hat_in_Theta", "state_input_constraints",
+    "Theta0_contains_Theta", "Theta_k_nested", "Theta_k_lower_inclusion",
+    "lms_update", "lemma5",
+    "tube_contains_state", "tube_contains_next_state", "tube_propagation", "tube_constraints", "tube_alpha_nonneg",
+    "terminal_set", "multipliers_nonneg", "multipliers_15c", "multipliers_15d",
+]
+
+
+@pytest.fixture(scope="module")
+def spec():
+    return lorenzen2019_spec()
+
+
+@pytest.fixture(scope="module")
+def controller(spec):
+    from amcp_drake.controller import AdaptiveMPC
+    from amcp_drake.design import design
+
+    return AdaptiveMPC(spec.problem, design(spec.problem, spec.design, backend="drake"), backend="drake")
+
+
+@pytest.fixture(scope="module")
+def recorded(spec, controller) -> dict:
+    """An 8-step run of Example 1 (seed 0), as the JSON dict of its trajectory file."""
+    from amcp_drake.simulate import simulate
+
+    sc = spec.scenario
+    traj = simulate(controller, sc.x0, sc.theta_star, STEPS, "uniform", seed=0,
+                    mu_state_bound=spec.design.mu_state_bound)
+    assert traj.stop_reason == "completed" and len(traj.records) == STEPS + 1
+    return json.loads(json.dumps(traj.to_dict()))
+
+
+def fresh(recorded: dict) -> Trajectory:
+    """An independent copy of the recorded trajectory (through its file format)."""
+    return Trajectory.from_dict(json.loads(json.dumps(recorded)))
+
+
+@pytest.fixture(scope="module")
+def baseline(recorded, spec):
+    return certify(fresh(recorded), spec)
+
+
+def assert_fails_exactly(cert, expected: set[str]) -> None:
+    failed = set(cert.ids("fail"))
+    assert failed == expected, f"failed {sorted(failed)}, expected {sorted(expected)}"
+    assert cert.ids("not_run") == [], cert.ids("not_run")
+    assert set(cert.ids("pass")) == set(ALL_IDS) - expected
+    assert cert.verdict == "fail" and not cert.passed
+
+
+# -- the honest run -----------------------------------------------------------------------------
+def test_untampered_run_passes_every_claim(baseline):
+    assert baseline.ids() == ALL_IDS
+    assert baseline.ids("fail") == [] and baseline.ids("not_run") == []
+    assert baseline.passed and baseline.verdict == "pass"
+    # the margins are real numbers with the documented meaning, not placeholders
+    assert baseline.claim("lemma5").margin > 0
+    assert baseline.claim("theta_star_in_Theta_k").margin == pytest.approx(0.2, abs=1e-6)  # 1 − θ*_1 (θ*_1 = 0.8)
+    assert baseline.claim("state_input_constraints").margin > 0
+    assert abs(baseline.claim("multipliers_15d").margin) < 1e-9
+    for c in baseline.claims:
+        assert c.tolerance >= 0 and c.margin >= -c.tolerance
+
+
+def test_figures_show_learning(baseline):
+    f = baseline.figures
+    assert f["final_state_norm"] < 0.5 * f["initial_state_norm"]
+    assert f["theta_width_final"][0] < f["theta_width_initial"][0]  # Θ_k shrinks in θ1
+    assert f["theta_hat_error_final"] < f["theta_hat_error_initial"]
+    assert len(baseline.series["lemma5_lhs"]) == STEPS
+
+
+def test_certificate_json_validates_against_schema(baseline):
+    data = json.loads(json.dumps(baseline.to_dict(), allow_nan=False))
+    jsonschema.Draft202012Validator.check_schema(schema())
+    jsonschema.validate(data, schema())
+    assert [c["id"] for c in data["claims"]] == ALL_IDS
+    # the schema is not vacuous: it rejects a verdict that disagrees with `passed` and unknown statuses
+    bad = json.loads(json.dumps(data))
+    bad["passed"] = False
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate(bad, schema())
+    bad = json.loads(json.dumps(data))
+    bad["claims"][0]["status"] = "probably"
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate(bad, schema())
+
+
+# -- tampering ------------------------------------------------------------------------------------
+def test_theta_star_moved_outside_theta_k(recorded, spec):
+    """θ* moved to a point of Θ outside Θ_T, with w_k recomputed so that the states still follow (1).
+
+    Expected: θ* ∈ Θ_k fails, and w_k ∈ W fails: Θ_T contains Θ ∩ Δ_1 ∩ ... ∩ Δ_T (Lemma 3, whose
+    inclusions still hold), so a θ outside Θ_T lies outside some Δ_k, i.e. its implied w_(k-1) ∉ W.
+    Lemma 5 still holds: its proof needs only θ* ∈ Θ, (1), (12) and μ‖D‖² <= 1, not w ∈ W.
+    """
+    tr = fresh(recorded)
+    pr, T = tr.problem, STEPS
+    moved = np.array([0.2, 0.2, -0.5])
+    last = tr.records[-1]
+    assert np.all(pr.H_theta @ moved <= pr.h_theta) and np.max(last.H_theta @ moved - last.h_theta) > 0.1
+    tr.theta_star = moved
+    tr.w = np.array([tr.x[k + 1] - pr.A_of(moved) @ tr.x[k] - pr.B_of(moved) @ tr.u[k] for k in range(T)])
+    cert = certify(tr, spec)
+    assert_fails_exactly(cert, {"theta_star_in_Theta_k", "w_in_W"})
+    assert cert.claim("theta_star_in_Theta_k").data["worst_step"] >= 1
+
+
+def test_theta_k_shrunk_away_from_theta_star(recorded, spec):
+    """The last set estimate Θ_T cut below θ*_1 (h row θ1 <= 0.75 < 0.8).
+
+    Expected: θ* ∈ Θ_k fails at k = T, and the Lemma 3 inclusion Θ_(T-1) ∩ Δ_T ⊆ Θ_T fails (θ* lies in
+    the left side, as the untouched data show). A smaller Θ_T still satisfies every tube claim.
+    """
+    tr = fresh(recorded)
+    h = tr.records[-1].h_theta.copy()
+    assert tr.records[-1].H_theta[0].tolist() == [1.0, 0.0, 0.0]
+    h[0] = 0.75
+    tr.records[-1].h_theta = h
+    cert = certify(tr, spec)
+    assert_fails_exactly(cert, {"theta_star_in_Theta_k", "Theta_k_lower_inclusion"})
+    assert cert.claim("theta_star_in_Theta_k").data["worst_step"] == STEPS
+    assert cert.claim("theta_star_in_Theta_k").margin == pytest.approx(-0.05, abs=1e-9)
+    assert cert.claim("Theta_k_lower_inclusion").data["worst_step"] == STEPS
+
+
+def test_state_pushed_outside_z(recorded, spec):
+    """x_T pushed to x2 = x2 − 0.6 < −0.3 (outside Z), with u_T = K x_T + v_0|T kept consistent (21).
+
+    Expected, each forced by the others holding:
+    * (x_k, u_k) ∈ Z fails at T (the tampering);
+    * x_T ∈ X_0|T fails: X_0|T satisfies (15a), so it lies in x2 >= −0.3;
+    * x_T ∈ X_1|T-1 fails for the same reason (X_1|T-1 satisfies (15a) at l = 1);
+    * the states no longer follow (1) with the recorded w_(T-1) ∈ W;
+    * θ̂_T no longer follows (12): the LMS step uses x_T.
+    Θ_(T-1) ∩ Δ_T is then empty, so the Lemma 3 inclusion holds vacuously (reported in its detail).
+    """
+    tr = fresh(recorded)
+    T, last = STEPS, tr.records[-1]
+    x = tr.x[T].copy()
+    x[1] -= 0.6
+    assert x[1] < -0.3 and np.max(np.abs(x)) <= spec.design.mu_state_bound
+    tr.x[T] = x
+    last.x = x.copy()
+    last.u = tr.design.K @ x + last.v[0]
+    cert = certify(tr, spec)
+    assert_fails_exactly(cert, {"state_input_constraints", "tube_contains_state", "tube_contains_next_state",
+                                "model_consistent", "lms_update"})
+    z_claim = cert.claim("state_input_constraints")
+    assert z_claim.data["worst_step"] == T
+    assert z_claim.margin == pytest.approx(1.0 + x[1] / 0.3, abs=1e-9)  # row x2 >= −0.3 is −x2/0.3 <= 1
+    assert cert.claim("Theta_k_lower_inclusion").data["empty_steps"] == [T]
+
+
+def test_negative_multiplier_is_caught_only_by_the_sign_check(recorded, spec):
+    """Λ^0_(0|3)[0, 0] made negative, with the same amount taken from Λ[0, 1] (rows +e1 and −e1 of H_θ).
+
+    Then Λ H_θ is unchanged, so (15d) still holds, and Λ h_θ only decreases, so (15c) still holds:
+    without Λ >= 0 this Λ would "prove" a false bound (the pitfall of design.md). Exactly Λ >= 0 fails.
+    """
+    tr = fresh(recorded)
+    rec = tr.records[3]
+    assert rec.H_theta[0].tolist() == [1.0, 0.0, 0.0] and rec.H_theta[1].tolist() == [-1.0, 0.0, 0.0]
+    lam = rec.Lambda.copy()
+    shift = lam[0, 0, 0, 0] + 0.3
+    lam[0, 0, 0, 0] -= shift
+    lam[0, 0, 0, 1] -= shift
+    rec.Lambda = lam
+    cert = certify(tr, spec)
+    assert_fails_exactly(cert, {"multipliers_nonneg"})
+    assert cert.claim("multipliers_nonneg").data["worst_step"] == 3
+    assert cert.claim("multipliers_nonneg").margin <= -0.3 + 1e-12
+
+
+def test_negative_multiplier_alone_also_breaks_15d(recorded, spec):
+    """Λ^0_(0|3)[0, 0] := −0.3 alone changes Λ H_θ, so (15d) fails too; (15c) holds (h_θ,0 > 0: Λ h shrinks)."""
+    tr = fresh(recorded)
+    rec = tr.records[3]
+    assert rec.h_theta[0] > 0
+    lam = rec.Lambda.copy()
+    lam[0, 0, 0, 0] = -0.3
+    rec.Lambda = lam
+    assert_fails_exactly(certify(tr, spec), {"multipliers_nonneg", "multipliers_15d"})
+
+
+def test_theta_hat_moved_breaks_lemma5(recorded, spec):
+    """θ̂_T moved (inside Θ) to [−0.9, −0.9, 0.9], far from θ*: the term (1/μ)‖θ̂_T − θ*‖² of Lemma 5
+    alone exceeds the right side at m = T−1, so Lemma 5 fails; θ̂_T no longer follows (12) either
+    (Lemma 5 is a consequence of (12)). Nothing else uses θ̂_T."""
+    tr = fresh(recorded)
+    moved = np.array([-0.9, -0.9, 0.9])
+    mu = tr.design.mu
+    rhs = np.sum((tr.records[0].theta_hat - tr.theta_star) ** 2) / mu + np.sum(tr.w ** 2)
+    assert np.sum((moved - tr.theta_star) ** 2) / mu > rhs  # the tampering must break the inequality
+    tr.records[-1].theta_hat = moved
+    cert = certify(tr, spec)
+    assert_fails_exactly(cert, {"lemma5", "lms_update"})
+    assert cert.claim("lemma5").data["worst_step"] == STEPS - 1
+    assert cert.claim("lms_update").data["worst_step"] == STEPS
+
+
+def test_tube_no_longer_contains_state(recorded, spec):
+    """X_0|3 = {z_0} ⊕ α_0 X0 shrunk towards its vertex farthest from x_3 (z_0 shifted, α_0 scaled by 0.3),
+    with Λ_0|3 replaced by the same convex combinations of the recorded multipliers.
+
+    The new cross-section lies inside the old one and its vertices are convex combinations of the old
+    vertices, so (5b), (5c), (15c), (15d) and Λ >= 0 all still hold; only x_3 ∈ X_0|3 (15b) fails.
+    """
+    tr = fresh(recorded)
+    k, s = 3, 0.3
+    rec = tr.records[k]
+    X0v = np.asarray(tr.design.X0_vertices)
+    verts = rec.z[0] + rec.alpha[0] * X0v
+    far = int(np.argmax(np.linalg.norm(verts - tr.x[k], axis=1)))
+    z, alpha, lam = rec.z.copy(), rec.alpha.copy(), rec.Lambda.copy()
+    z[0] = (1 - s) * verts[far] + s * rec.z[0]
+    alpha[0] = s * rec.alpha[0]
+    lam[0] = (1 - s) * rec.Lambda[0, far][None] + s * rec.Lambda[0]
+    rec.z, rec.alpha, rec.Lambda = z, alpha, lam
+    cert = certify(tr, spec)
+    assert_fails_exactly(cert, {"tube_contains_state"})
+    assert cert.claim("tube_contains_state").data["worst_step"] == k
+
+
+def test_failed_qp_fails_recursive_feasibility(recorded, spec):
+    """A run whose QP failed at step 5 (the loop stops there, as simulate does): exactly recursive
+    feasibility fails; steps 0-4 are still checked and pass."""
+    tr = fresh(recorded)
+    k = 5
+    tr.records = tr.records[:k + 1]
+    rec = tr.records[k]
+    rec.status = SolveStatus.INFEASIBLE
+    rec.u = rec.v = rec.z = rec.alpha = rec.Lambda = rec.cost = None
+    tr.x, tr.u, tr.w = tr.x[:k + 1], tr.u[:k], tr.w[:k]
+    tr.stop_reason = f"step {k}: status infeasible"
+    cert = certify(tr, spec)
+    assert_fails_exactly(cert, {"recursive_feasibility"})
+    feas = cert.claim("recursive_feasibility")
+    assert feas.data["worst_step"] == k and feas.margin == -1.0
+
+
+def test_infeasible_start_fails_and_never_passes(spec, controller):
+    """A real run that is infeasible at k = 0 (x0 violates x2 >= −0.3): recursive feasibility fails, the
+    claims about steps that never happened are not run, and the verdict is fail."""
+    from amcp_drake.simulate import simulate
+
+    traj = simulate(controller, [0.0, -1.0], spec.scenario.theta_star, 3, "uniform", seed=0,
+                    mu_state_bound=spec.design.mu_state_bound)
+    assert len(traj.records) == 1 and traj.records[0].status is not SolveStatus.OPTIMAL
+    cert = certify(traj, spec)
+    assert cert.claim("recursive_feasibility").status == "fail"
+    assert {"w_in_W", "lemma5", "tube_propagation", "multipliers_15c"} <= set(cert.ids("not_run"))
+    assert cert.verdict == "fail" and not cert.passed
+
+
+def test_not_run_is_not_a_pass(recorded):
+    """Without the μ box (Z is unbounded in x) the (11) design check cannot run: the verdict is
+    'incomplete', not 'pass', although no claim failed."""
+    tr = fresh(recorded)
+    tr.mu_state_bound = None
+    cert = certify(tr)  # no problem spec either
+    assert cert.ids("fail") == []
+    assert cert.ids("not_run") == ["design.mu_condition_11"]
+    assert cert.claim("design.mu_condition_11").margin is None
+    assert cert.verdict == "incomplete" and not cert.passed
+    assert cert.to_dict()["passed"] is False
+
+
+# -- malformed input ---------------------------------------------------------------------------------
+@pytest.mark.parametrize("tamper, message", [
+    (lambda d: d["records"][2].update(Lambda=[[0.0]]), r"records\[2\]\.Lambda has shape"),
+    (lambda d: d["x"][3].__setitem__(0, float("nan")), r"x has NaN"),
+    (lambda d: d["records"][4]["x"].__setitem__(1, 9.0), r"records\[4\]\.x differs from x\[4\]"),
+    (lambda d: d.update(u=d["u"][:-2]), r"x has shape \(9, 2\); expected \(7, 2\)"),
+    (lambda d: d["records"][1].update(k=7), r"records\[1\]\.k = 7"),
+], ids=["Lambda-shape", "nan-state", "duplicate-mismatch", "missing-inputs", "step-index"])
+def test_malformed_trajectory_raises(recorded, tamper, message):
+    data = json.loads(json.dumps(recorded))
+    tamper(data)
+    with pytest.raises(TrajectoryError, match=message):
+        certify(Trajectory.from_dict(data))
+
+
+def test_problem_spec_must_match_the_trajectory(recorded, spec):
+    other = spec.problem.with_changes(R=[[2.0]])
+    from amcp_drake.problem import ProblemSpec
+
+    with pytest.raises(TrajectoryError, match="different problem"):
+        certify(fresh(recorded), ProblemSpec(other, spec.design, spec.scenario))
+
+
+# -- helpers and independence ------------------------------------------------------------------------
+def test_theta_vertices_of_flat_sets():
+    """Flat Θ_k (exact update with disturbances at vertices of W) are enumerated in their affine hull."""
+    H = np.vstack([np.eye(3), -np.eye(3)])
+    square = theta_vertices(H, np.array([1, 1, 0.5, 1, 1, -0.5]))
+    assert sorted(map(tuple, np.round(square, 12))) == [(-1, -1, 0.5), (-1, 1, 0.5), (1, -1, 0.5), (1, 1, 0.5)]
+    segment = theta_vertices(H, np.array([0.2, 1, 0.5, -0.2, 1, -0.5]))
+    assert sorted(map(tuple, np.round(segment, 12))) == [(0.2, -1, 0.5), (0.2, 1, 0.5)]
+    point = theta_vertices(H, np.array([0.2, 0.1, 0.5, -0.2, -0.1, -0.5]))
+    np.testing.assert_allclose(point, [[0.2, 0.1, 0.5]], atol=1e-12)
+    assert theta_vertices(H, np.array([0.2, 0.1, 0.5, -0.3, -0.1, -0.5])) is None  # empty
+
+
+def test_certify_runs_without_any_backend(recorded, tmp_path):
+    """The certificate never uses the backend that ran the loop: it passes with Drake and cvxpy made
+    unimportable."""
+    path = fresh(recorded).save(tmp_path / "t.json.gz")
+    code = (
+        "import sys\n"
+        "sys.modules['pydrake'] = None\nsys.modules['cvxpy'] = None\n"
+        "from amcp_drake.simulate import Trajectory\nfrom amcp_drake.certify import certify\n"
+        f"c = certify(Trajectory.load({str(path)!r}))\n"
+        "assert not any(m.startswith(('pydrake', 'cvxpy')) and sys.modules[m] for m in sys.modules)\n"
+        "print(c.verdict)\n"
+    )
+    env_path = f"{ROOT}:{ROOT / 'reference'}:{ROOT / 'properties'}"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                         env={**os.environ, "PYTHONPATH": env_path})
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "pass"
+
+
+def test_a_loose_solver_is_not_trusted(spec):
+    """SCS (first-order, default accuracy ~1e-4) reports every step as optimal; the certificate does
+    not take its word: the recomputed residuals violate the tube and multiplier claims by more than
+    QP_TOL, and the verdict is fail although recursive feasibility (the solver's own status) passes."""
+    from amcp_drake.controller import AdaptiveMPC
+    from amcp_drake.design import design
+    from amcp_drake.simulate import simulate
+
+    ctrl = AdaptiveMPC(spec.problem, design(spec.problem, spec.design, backend="drake"), backend="drake", solver="scs")
+    sc = spec.scenario
+    traj = simulate(ctrl, sc.x0, sc.theta_star, 5, "uniform", seed=0, mu_state_bound=spec.design.mu_state_bound)
+    assert traj.all_solved  # the solver claims success everywhere
+    cert = certify(traj, spec)
+    assert cert.claim("recursive_feasibility").status == "pass"
+    failed = set(cert.ids("fail"))
+    assert {"tube_propagation", "multipliers_15c"} <= failed, sorted(failed)
+    assert cert.verdict == "fail"
+
+
+def test_robust_baseline_is_not_certified_for_the_adaptive_claims(spec):
+    """Update mode 'none' (Θ_k ≡ Θ_0, θ̂_k ≡ θ̂0) makes no claim about (12) or Lemma 5: those are not
+    run (so the verdict is incomplete, not pass); its Theorem 14 and tube claims are checked and hold."""
+    from amcp_drake.controller import AdaptiveMPC, OnlineOptions
+    from amcp_drake.design import design
+    from amcp_drake.simulate import simulate
+
+    ctrl = AdaptiveMPC(spec.problem, design(spec.problem, spec.design, backend="drake"), backend="drake",
+                       options=OnlineOptions(update="none"))
+    sc = spec.scenario
+    traj = simulate(ctrl, sc.x0, sc.theta_star, 5, "uniform", seed=0, mu_state_bound=spec.design.mu_state_bound)
+    cert = certify(traj, spec)
+    assert cert.ids("fail") == []
+    assert cert.ids("not_run") == ["mu_precondition", "lms_update", "lemma5"]
+    assert "robust baseline" in cert.claim("lemma5").detail
+    assert cert.claim("Theta_k_nested").status == "pass" and cert.claim("tube_propagation").status == "pass"
+    assert cert.verdict == "incomplete"
+
+
+# -- known answers: the vectorised checks against plain loops -----------------------------------------
+def test_propagation_margin_matches_a_brute_force_loop(recorded, spec, baseline):
+    """tube_propagation's worst margin equals a plain loop over l, vertices of X_(l|k), Θ_k and W."""
+    from amcp_drake import polytope
+
+    tr = fresh(recorded)
+    pr, d = tr.problem, tr.design
+    X0v = polytope.vertices(d.H_x, np.ones(len(d.H_x)))
+    W_v = pr.w_vertices()
+    worst = {}
+    for rec in tr.records:
+        theta_v = polytope.vertices(rec.H_theta, rec.h_theta)
+        margin = np.inf
+        for l in range(pr.N):
+            for xv in X0v:
+                x = rec.z[l] + rec.alpha[l] * xv
+                u = d.K @ x + rec.v[l]
+                for th in theta_v:
+                    for w in W_v:
+                        image = pr.A_of(th) @ x + pr.B_of(th) @ u + w
+                        margin = min(margin, rec.alpha[l + 1] - np.max(d.H_x @ (image - rec.z[l + 1])))
+        worst[rec.k] = margin
+    claim = baseline.claim("tube_propagation")
+    assert dict((k, v) for k, v in claim.data["per_step"]) == pytest.approx(worst, abs=1e-12)
+    assert claim.margin == pytest.approx(min(worst.values()), abs=1e-12)
+
+
+def test_lemma5_series_matches_direct_sums(recorded, baseline):
+    """Both sides of Lemma 5 at every m equal the sums written out term by term."""
+    tr = fresh(recorded)
+    pr, mu, star = tr.problem, tr.design.mu, tr.theta_star
+    hats = [r.theta_hat for r in tr.records]
+    lhs, rhs = [], []
+    for m in range(STEPS):
+        x_tilde = [pr.A_of(star) @ tr.x[k] + pr.B_of(star) @ tr.u[k]
+                   - (pr.A_of(hats[k]) @ tr.x[k] + pr.B_of(hats[k]) @ tr.u[k]) for k in range(m + 1)]
+        lhs.append(np.sum((hats[m + 1] - star) ** 2) / mu + sum(float(v @ v) for v in x_tilde))
+        rhs.append(np.sum((hats[0] - star) ** 2) / mu + sum(float(tr.w[k] @ tr.w[k]) for k in range(m + 1)))
+    assert baseline.series["lemma5_lhs"] == pytest.approx(lhs, abs=1e-12)
+    assert baseline.series["lemma5_rhs"] == pytest.approx(rhs, abs=1e-12)
+    assert baseline.claim("lemma5").margin == pytest.approx(min(np.array(rhs) - np.array(lhs)), abs=1e-12)

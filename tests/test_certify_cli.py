@@ -1,0 +1,282 @@
+"""``amcp certify``: exit codes 0 / 1 / 2, the files written (atomically), schema validity, bad input."""
+
+from __future__ import annotations
+
+import gzip
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import jsonschema
+import pytest
+from click.testing import CliRunner
+
+from amcp_drake.certify import schema
+from amcp_drake.cli import main
+from amcp_drake.examples import lorenzen2019_spec
+from amcp_drake.problem_io import save_spec, spec_to_dict
+from amcp_drake.report import OUTPUT_FILES
+
+ROOT = Path(__file__).resolve().parents[1]
+STEPS = 6
+
+
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory) -> dict:
+    """A 6-step Example 1 run saved as trajectory.json.gz (and its dict for tampered copies)."""
+    from amcp_drake.controller import AdaptiveMPC
+    from amcp_drake.design import design
+    from amcp_drake.simulate import simulate
+
+    spec = lorenzen2019_spec()
+    ctrl = AdaptiveMPC(spec.problem, design(spec.problem, spec.design, backend="drake"), backend="drake")
+    sc = spec.scenario
+    traj = simulate(ctrl, sc.x0, sc.theta_star, STEPS, "uniform", seed=0, mu_state_bound=spec.design.mu_state_bound)
+    folder = tmp_path_factory.mktemp("saved")
+    return {"path": traj.save(folder / "trajectory.json.gz"), "dict": json.loads(json.dumps(traj.to_dict()))}
+
+
+def invoke(*args: str):
+    return CliRunner().invoke(main, ["certify", *map(str, args)], catch_exceptions=False)
+
+
+def written(out: Path, others: tuple[str, ...] = ()) -> dict:
+    """The bundle in ``out``: asserts exactly the three files (plus ``others``), returns certificate.json
+    validated against the schema."""
+    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES + others)
+    data = json.loads((out / "certificate.json").read_text())
+    jsonschema.validate(data, schema())
+    assert (out / "report.html").read_text().startswith("<!DOCTYPE html>")
+    with gzip.open(out / "trajectory.json.gz", "rt") as handle:
+        assert json.load(handle)["format"] == "amcp-trajectory"
+    return data
+
+
+def no_leftovers(folder: Path) -> None:
+    """No hidden staging directory anywhere below ``folder``."""
+    assert [p for p in folder.rglob(".*")] == []
+
+
+def write_trajectory(data: dict, path: Path) -> Path:
+    path.write_text(json.dumps(data))
+    return path
+
+
+# -- exit 0 ------------------------------------------------------------------------------------------
+def test_default_run_certifies_example_1(tmp_path):
+    """No options but --out: Example 1, its scenario (50 steps, seed 0), Drake; every claim holds."""
+    out = tmp_path / "out"
+    result = invoke("--out", out)
+    assert result.exit_code == 0, result.output
+    data = written(out)
+    assert data["verdict"] == "pass" and data["passed"] is True
+    run = data["run"]
+    assert (run["steps"], run["seed"], run["backend"]) == (50, 0, "drake")
+    assert run["x0"] == [2.0, 3.0] and run["theta_star"] == [0.8, 0.2, -0.5]
+    assert "CERTIFIED: all 33 claims hold" in result.stdout
+    for claim in data["claims"]:
+        assert claim["id"] in result.stdout
+    no_leftovers(tmp_path)
+
+
+def test_saved_trajectory_is_rechecked_without_running(saved, tmp_path, monkeypatch):
+    import amcp_drake.simulate
+
+    monkeypatch.setattr(amcp_drake.simulate, "simulate", lambda *a, **k: pytest.fail("the loop was run again"))
+    out = tmp_path / "out"
+    result = invoke("--trajectory", saved["path"], "--out", out)
+    assert result.exit_code == 0, result.output
+    data = written(out)
+    assert data["run"]["steps"] == STEPS and data["verdict"] == "pass"
+
+
+def test_second_run_replaces_the_bundle(saved, tmp_path):
+    out = tmp_path / "out"
+    assert invoke("--trajectory", saved["path"], "--out", out).exit_code == 0
+    first = json.loads((out / "certificate.json").read_text())["created"]
+    (out / "certificate.json").write_text("{}")  # a stale file must be replaced, not kept
+    assert invoke("--trajectory", saved["path"], "--out", out).exit_code == 0
+    assert json.loads((out / "certificate.json").read_text())["created"] >= first
+    written(out)
+    no_leftovers(tmp_path)
+
+
+def test_other_files_in_out_are_kept(saved, tmp_path):
+    """`amcp compare` writes amcp-out/compare.json by default: certifying into the same folder keeps it."""
+    out = tmp_path / "amcp-out"
+    out.mkdir()
+    (out / "compare.json").write_text('{"mine": true}')
+    assert invoke("--trajectory", saved["path"], "--out", out).exit_code == 0
+    written(out, others=("compare.json",))
+    assert json.loads((out / "compare.json").read_text()) == {"mine": True}
+    no_leftovers(tmp_path)
+
+
+# -- exit 1 ------------------------------------------------------------------------------------------
+def test_failed_claim_exits_1_and_writes_the_bundle(saved, tmp_path):
+    """A trajectory whose multiplier Λ^0_(0|2)[0,0] was made negative (Λ H_θ kept): exit 1, the
+    bundle is still written, and it says which claim failed."""
+    data = json.loads(json.dumps(saved["dict"]))
+    lam = data["records"][2]["Lambda"]
+    shift = lam[0][0][0][0] + 0.25
+    lam[0][0][0][0] -= shift
+    lam[0][0][0][1] -= shift
+    path = write_trajectory(data, tmp_path / "tampered.json")
+    out = tmp_path / "out"
+    result = invoke("--trajectory", path, "--out", out)
+    assert result.exit_code == 1, result.output
+    cert = written(out)
+    assert cert["verdict"] == "fail"
+    assert [c["id"] for c in cert["claims"] if c["status"] == "fail"] == ["multipliers_nonneg"]
+    assert "NOT CERTIFIED: 1 claim(s) failed: multipliers_nonneg" in result.stdout
+    assert "CERTIFIED: all" not in result.stdout
+
+
+def test_claim_not_run_exits_1_and_never_says_pass(saved, tmp_path):
+    """A run of a problem that is not a built-in example and records no μ box: the (11) check cannot
+    run. The verdict is 'incomplete', the exit code 1, and nothing claims the run is certified."""
+    data = json.loads(json.dumps(saved["dict"]))
+    data["problem"]["cost"]["R"] = [[0.999]]  # no longer Example 1 (and (16) still holds: R smaller)
+    data["problem"]["name"] = "example1-variant"
+    data["mu_state_bound"] = None
+    path = write_trajectory(data, tmp_path / "variant.json")
+    out = tmp_path / "out"
+    result = invoke("--trajectory", path, "--out", out)
+    assert result.exit_code == 1, result.output
+    cert = written(out)
+    assert cert["verdict"] == "incomplete" and cert["passed"] is False
+    assert [c["id"] for c in cert["claims"] if c["status"] != "pass"] == ["design.mu_condition_11"]
+    assert "NOT CERTIFIED (incomplete)" in result.stdout and "CERTIFIED: all" not in result.stdout
+
+
+def test_infeasible_scenario_exits_1(tmp_path):
+    """A problem file whose scenario starts outside Z: the QP fails at k = 0, recursive feasibility fails."""
+    spec = lorenzen2019_spec()
+    data = spec_to_dict(spec)
+    data["scenario"]["x0"] = [0.0, -1.0]
+    problem = tmp_path / "infeasible.json"
+    problem.write_text(json.dumps(data))
+    out = tmp_path / "out"
+    result = invoke(problem, "--steps", 3, "--out", out)
+    assert result.exit_code == 1, result.output
+    cert = written(out)
+    feasibility = next(c for c in cert["claims"] if c["id"] == "recursive_feasibility")
+    assert feasibility["status"] == "fail" and feasibility["worst_step"] == 0
+
+
+# -- exit 2 ------------------------------------------------------------------------------------------
+def _bad_inputs(tmp: Path, saved: dict) -> dict[str, tuple[list[str], str]]:
+    malformed = tmp / "malformed.json"
+    malformed.write_text('{"format": "amcp-trajectory", "version": 1, ')
+    not_traj = tmp / "problem-as-trajectory.json"
+    save_spec(lorenzen2019_spec(), not_traj)
+    bad_shape = json.loads(json.dumps(saved["dict"]))
+    bad_shape["records"][1]["Lambda"] = [[1.0]]
+    shape_file = write_trajectory(bad_shape, tmp / "bad-shape.json")
+    bad_problem = tmp / "bad-problem.json"
+    bad_problem.write_text("[1, 2")
+    no_scenario = spec_to_dict(lorenzen2019_spec())
+    del no_scenario["scenario"]
+    no_scenario_file = tmp / "no-scenario.json"
+    no_scenario_file.write_text(json.dumps(no_scenario))
+    other = spec_to_dict(lorenzen2019_spec())
+    other["cost"]["R"] = [[2.0]]
+    other_file = tmp / "other.json"
+    other_file.write_text(json.dumps(other))
+    a_file = tmp / "a-file"
+    a_file.write_text("x")
+    traj = str(saved["path"])
+    return {
+        "missing-trajectory": (["--trajectory", str(tmp / "nope.json.gz")], "cannot be read"),
+        "malformed-json": (["--trajectory", str(malformed)], "cannot be read as JSON"),
+        "not-a-trajectory": (["--trajectory", str(not_traj)], "not a trajectory file"),
+        "bad-record-shape": (["--trajectory", str(shape_file)], r"records\[1\]\.Lambda has shape"),
+        "trajectory-of-other-problem": ([str(other_file), "--trajectory", traj], "different problem"),
+        "run-option-with-trajectory": (["--trajectory", traj, "--steps", "3"], "--steps"),
+        "missing-problem": ([str(tmp / "nope.json")], "readable problem file"),
+        "malformed-problem": ([str(bad_problem)], "valid JSON"),
+        "problem-without-scenario": ([str(no_scenario_file)], "scenario"),
+        "unknown-example": (["--example", "nope"], "lorenzen2019"),
+        "out-is-a-file": (["--trajectory", traj, "--out", str(a_file)], "is a file"),
+        "zero-steps": (["--steps", "0"], "0 is not in the range"),
+    }
+
+
+BAD = ["missing-trajectory", "malformed-json", "not-a-trajectory", "bad-record-shape", "trajectory-of-other-problem",
+       "run-option-with-trajectory", "missing-problem", "malformed-problem", "problem-without-scenario",
+       "unknown-example", "out-is-a-file", "zero-steps"]
+
+
+@pytest.mark.parametrize("case", BAD)
+def test_bad_input_exits_2_without_output(case, saved, tmp_path):
+    args, message = _bad_inputs(tmp_path, saved)[case]
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    if "--out" not in args:
+        args = [*args, "--out", str(tmp_path / "out")]
+    result = CliRunner().invoke(main, ["certify", *args])
+    assert result.exit_code == 2, result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit)
+    assert re.search(message, result.output), result.output
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before  # nothing written, nothing removed
+
+
+# -- atomic writing, lazy imports --------------------------------------------------------------------
+def test_interrupted_write_keeps_the_previous_bundle(saved, tmp_path, monkeypatch):
+    """A failure (here: Ctrl-C while rendering the report) leaves the previous bundle untouched and no
+    half-written directory behind."""
+    import amcp_drake.report
+
+    out = tmp_path / "out"
+    assert invoke("--trajectory", saved["path"], "--out", out).exit_code == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(amcp_drake.report, "render_report", interrupted)
+    result = CliRunner().invoke(main, ["certify", "--trajectory", str(saved["path"]), "--out", str(out)])
+    assert result.exit_code != 0
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    no_leftovers(tmp_path)
+    fresh_out = tmp_path / "fresh"
+    CliRunner().invoke(main, ["certify", "--trajectory", str(saved["path"]), "--out", str(fresh_out)])
+    assert not fresh_out.exists()
+    no_leftovers(tmp_path)
+
+
+def test_command_module_imports_no_backend_or_plotting():
+    code = ("import sys, amcp_drake.cli_certify, amcp_drake.certify\n"
+            "bad = [m for m in ('pydrake', 'cvxpy', 'matplotlib') if m in sys.modules]\n"
+            "assert not bad, bad\n")
+    env_path = f"{ROOT}:{ROOT / 'reference'}:{ROOT / 'properties'}"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                         env={**os.environ, "PYTHONPATH": env_path})
+    assert out.returncode == 0, out.stderr
+
+
+def test_interrupt_during_the_commit_still_completes_it(tmp_path, monkeypatch):
+    """Ctrl-C right after the first file was moved: the remaining files are still moved, then the
+    interrupt propagates; no mix of old and new files, no staging directory left."""
+    import amcp_drake.report as report
+
+    out = tmp_path / "out"
+    staging = out / ".certify-staging-test"
+    staging.mkdir(parents=True)
+    for name in OUTPUT_FILES:
+        (out / name).write_text("old")
+        (staging / name).write_text("new")
+    real_replace, moved = os.replace, []
+
+    def interrupted_once(src, dst):
+        real_replace(src, dst)
+        moved.append(dst)
+        if len(moved) == 1:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(report.os, "replace", interrupted_once)
+    with pytest.raises(KeyboardInterrupt):
+        report._commit(staging, out)
+    assert {p.name: p.read_text() for p in out.iterdir()} == {name: "new" for name in OUTPUT_FILES}
