@@ -216,12 +216,19 @@ def validate_trajectory(traj: Trajectory) -> None:
                 raise TrajectoryError(f"trajectory: {where}.u differs from u[{i}] (corrupt or edited file)")
         # the QP solution: required when the status says optimal, shape-checked whenever present
         # (a non-optimal status is a failed claim, recursive feasibility, not a malformed file)
-        solution = {"v": (N, m), "z": (N + 1, n), "alpha": (N + 1,), "Lambda": (N, v_count, u_rows, len(H))}
+        solution = {"v": (N, m), "z": (N + 1, n), "alpha": (N + 1,)}
+        if not has_no_multipliers(traj):
+            solution["Lambda"] = (N, v_count, u_rows, len(H))
         for name, shape in solution.items():
             if getattr(r, name) is not None or r.status is SolveStatus.OPTIMAL:
                 arr(f"{where}.{name}", getattr(r, name), shape)
         if r.u is not None:
             arr(f"{where}.u", r.u, (m,))
+
+
+def has_no_multipliers(traj: Trajectory) -> bool:
+    """True for runs of the vertex formulation (issue 8), whose QP has no Λ (records hold None)."""
+    return traj.meta.get("formulation") == "vertex"
 
 
 def _require_same_problem(traj: Trajectory, spec: ProblemSpec) -> None:
@@ -329,3 +336,8 @@ def _jsonable(value: Any) -> Any:
     if isinstance(value, (float, np.floating)):
         return float(value) if np.isfinite(value) else None
     return value
+
+
+from ._callable_module import make_module_callable as _make_callable  # noqa: E402
+
+_make_callable(__name__, certify)

@@ -58,7 +58,7 @@ class _TubeStep:
         self.z = np.asarray(r.z, float)
         self.alpha = np.asarray(r.alpha, float)
         self.v = np.asarray(r.v, float)
-        self.Lambda = np.asarray(r.Lambda, float)
+        self.Lambda = None if r.Lambda is None else np.asarray(r.Lambda, float)
         self.H_theta = np.asarray(r.H_theta, float)
         self.h_theta = np.asarray(r.h_theta, float)
         self.N = len(self.v)
@@ -130,7 +130,9 @@ def tube_checks(view: RunView) -> list[CheckResult]:
             lp_fallback.append(k)
         propagation[k] = _propagation_margin(view, s, theta_v, W_v, w_bar)
         terminal[k] = float(np.min(1.0 - d.H_T @ s.z[s.N] - d.h_T * s.alpha[s.N]))
-        # dual certificates (15c)-(15d) with the QP's vertex order
+        # dual certificates (15c)-(15d) with the QP's vertex order (the vertex formulation has no Λ)
+        if s.Lambda is None:
+            continue
         lam_nonneg[k] = float(np.min(s.Lambda))
         c_margin, d_margin = np.inf, np.inf
         for l in range(s.N):
@@ -149,7 +151,7 @@ def tube_checks(view: RunView) -> list[CheckResult]:
     prop_detail = "margin = min α_(l+1) − [H_x]_i(A(θ)x + B(θ)(Kx+v_l) + w − z_(l+1)) over l, vertices of X_(l|k), Θ_k, W"
     if lp_fallback:
         prop_detail += f"; Θ_k vertices not enumerable at steps {lp_fallback}: max over Θ_k by HiGHS LPs"
-    return [
+    checks = [
         step_check("tube_contains_state", GROUP_TUBE, "x_k ∈ X_0|k", "(5a), (15b): the tube starts at the measured state",
                    contains, QP_TOL, "margin = min_i (α_0 − [H_x]_i (x_k − z_0))", none),
         step_check("tube_contains_next_state", GROUP_TUBE, "x_(k+1) ∈ X_1|k",
@@ -165,6 +167,12 @@ def tube_checks(view: RunView) -> list[CheckResult]:
                    alpha_ok, QP_TOL, "margin = min_l α_(l|k)", none),
         step_check("terminal_set", GROUP_TUBE, "(z_N, α_N) ∈ X_f", "Assumption 11: the tube ends in the terminal set",
                    terminal, QP_TOL, "margin = min_r (1 − [H_T]_r z_N − [h_T]_r α_N)", none),
+    ]
+    if view.traj.meta.get("formulation") == "vertex":
+        # The vertex formulation enforces (5b) at the vertices of Θ_k without multipliers: there is no Λ
+        # to check. (5b) itself is still checked above by vertex enumeration (tube_propagation).
+        return checks
+    return checks + [
         step_check("multipliers_nonneg", GROUP_TUBE, "Λ >= 0", "Proposition 9: the multipliers Λ^j_(l|k) are non-negative",
                    lam_nonneg, QP_TOL, "margin = min entry of Λ", none),
         step_check("multipliers_15c", GROUP_TUBE, "(15c) residual",

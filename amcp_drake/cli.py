@@ -8,6 +8,7 @@ Exit codes (design.md): 0 all claims hold / backends agree; 1 a claim failed / b
 from __future__ import annotations
 
 import importlib
+import importlib.util
 
 import click
 

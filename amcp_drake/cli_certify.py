@@ -13,14 +13,15 @@ import sys
 
 import click
 
-from .cli_common import (EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, example_option, load_problem_spec,
-                         problem_argument)
+from .cli_common import (EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, example_option, formulation_option,
+                         load_problem_spec, problem_argument)
 
 
 @click.command("certify")
 @problem_argument
 @example_option
 @backend_option
+@formulation_option
 @click.option("--steps", type=click.IntRange(min=1), default=None,
               help="Closed-loop steps (default: the scenario's; 50 for Example 1).")
 @click.option("--seed", type=click.IntRange(min=0), default=None,
@@ -31,7 +32,7 @@ from .cli_common import (EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, 
               help="Re-check a saved trajectory (.json or .json.gz) instead of running the loop.")
 @click.pass_context
 @bad_input_exits_2
-def certify_cmd(ctx, problem_file, example, backend, steps, seed, out_dir, trajectory_file):
+def certify_cmd(ctx, problem_file, example, backend, formulation, steps, seed, out_dir, trajectory_file):
     """Run the adaptive MPC on PROBLEM (default: --example lorenzen2019, x0 = [2, 3],
     θ* = [0.8, 0.2, -0.5], 50 steps, uniform disturbance, seed 0), check every claim of the paper
     from the recorded data with numpy/scipy only, and write certificate.json, report.html and
@@ -59,7 +60,7 @@ def certify_cmd(ctx, problem_file, example, backend, steps, seed, out_dir, traje
             raise ProblemError("scenario", "a scenario (x0, theta_star, ...) in the problem file to run", "none",
                                "Add a \"scenario\" object, or pass --trajectory.")
         sc = spec.scenario
-        traj = _run(spec, backend, steps or sc.steps, sc.seed if seed is None else seed)
+        traj = _run(spec, backend, steps or sc.steps, sc.seed if seed is None else seed, formulation)
         if traj.stop_reason.startswith("inconsistent"):
             click.echo(f"warning: the run stopped: {traj.stop_reason}; certifying the partial trajectory", err=True)
     cert = certify(traj, spec)
@@ -68,7 +69,7 @@ def certify_cmd(ctx, problem_file, example, backend, steps, seed, out_dir, traje
     sys.exit(EXIT_OK if cert.passed else EXIT_FAIL)
 
 
-def _run(spec, backend: str, steps: int, seed: int):
+def _run(spec, backend: str, steps: int, seed: int, formulation: str = "plain"):
     """Offline design, then the closed loop with a progress bar (Drake/cvxpy imported only here)."""
     from .controller import AdaptiveMPC
     from .design import design
@@ -77,7 +78,7 @@ def _run(spec, backend: str, steps: int, seed: int):
 
     sc = spec.scenario
     offline = design(spec.problem, spec.design, backend=backend)
-    ctrl = AdaptiveMPC(spec.problem, offline, backend=backend)
+    ctrl = AdaptiveMPC(spec.problem, offline, backend=backend, formulation=formulation)
     try:
         return simulate(ctrl, sc.x0, sc.theta_star, steps, sc.disturbance, seed=seed, progress=True,
                         mu_state_bound=spec.design.mu_state_bound)

@@ -46,3 +46,7 @@ backend_option = click.option("--backend", type=click.Choice(["drake", "cvxpy"])
                               help="Optimisation backend.")
 problem_argument = click.argument("problem_file", metavar="[PROBLEM]", required=False, type=click.Path())
 example_option = click.option("--example", default=None, help="Built-in example (default: lorenzen2019).")
+
+formulation_option = click.option("--formulation", type=click.Choice(["plain", "vertex"]), default="plain",
+                                  show_default=True,
+                                  help="Tube QP: plain (15) with multipliers, or the exact vertex form (faster, issue 8).")

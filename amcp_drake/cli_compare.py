@@ -7,7 +7,7 @@ from collections import defaultdict
 
 import click
 
-from .cli_common import EXIT_FAIL, EXIT_OK, bad_input_exits_2, example_option, load_problem_spec, problem_argument
+from .cli_common import EXIT_FAIL, EXIT_OK, formulation_option, bad_input_exits_2, example_option, load_problem_spec, problem_argument
 
 
 @click.command("compare")
@@ -21,9 +21,10 @@ from .cli_common import EXIT_FAIL, EXIT_OK, bad_input_exits_2, example_option, l
 @click.option("--update", type=click.Choice(["fixed", "exact", "window", "none"]), default="fixed", show_default=True)
 @click.option("--out", "out_file", type=click.Path(), default="amcp-out/compare.json", show_default=True,
               help="JSON file with every difference.")
+@formulation_option
 @click.option("--quiet", is_flag=True, help="Only the summary, no per-step table.")
 @bad_input_exits_2
-def compare_cmd(problem_file, example, steps, seed, mode, drake_solver, cvxpy_solver, update, out_file, quiet):
+def compare_cmd(problem_file, example, steps, seed, mode, drake_solver, cvxpy_solver, update, out_file, formulation, quiet):
     """Compare u, v, cost, h_theta and theta_hat (and report z, alpha) of both backends per step."""
     from .compare import INFORMATIONAL, TOLERANCES, independent, lockstep
     from .controller import OnlineOptions
@@ -36,7 +37,8 @@ def compare_cmd(problem_file, example, steps, seed, mode, drake_solver, cvxpy_so
     steps = steps or spec.scenario.steps
     seed = spec.scenario.seed if seed is None else seed
     options = OnlineOptions(update=update)
-    backend_options = ({"solver": drake_solver}, {"solver": cvxpy_solver})
+    backend_options = ({"solver": drake_solver, "formulation": formulation},
+                       {"solver": cvxpy_solver, "formulation": formulation})
     run = lockstep if mode == "lockstep" else independent
     comp = run(spec, steps, seed, options=options, backend_options=backend_options)
 

@@ -7,13 +7,14 @@ import sys
 import click
 import numpy as np
 
-from .cli_common import EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, example_option, load_problem_spec, problem_argument
+from .cli_common import EXIT_FAIL, EXIT_OK, backend_option, formulation_option, bad_input_exits_2, example_option, load_problem_spec, problem_argument
 
 
 @click.command("run")
 @problem_argument
 @example_option
 @backend_option
+@formulation_option
 @click.option("--steps", type=int, default=None, help="Number of steps (default: the problem's scenario).")
 @click.option("--seed", type=int, default=None, help="Disturbance seed (default: the scenario's).")
 @click.option("--disturbance", type=click.Choice(["uniform", "vertices", "zero"]), default=None)
@@ -25,7 +26,7 @@ from .cli_common import EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, e
 @click.option("--every", type=int, default=1, show_default=True, help="Print every n-th step.")
 @click.option("--save", type=click.Path(), default=None, help="Save the trajectory (JSON, .gz allowed).")
 @bad_input_exits_2
-def run_cmd(problem_file, example, backend, steps, seed, disturbance, update, window, projection, every, save):
+def run_cmd(problem_file, example, backend, formulation, steps, seed, disturbance, update, window, projection, every, save):
     """Design, then run the adaptive MPC closed loop and print one line per step."""
     from .controller import AdaptiveMPC, OnlineOptions
     from .design import design
@@ -39,7 +40,8 @@ def run_cmd(problem_file, example, backend, steps, seed, disturbance, update, wi
         raise ProblemError("scenario", "a scenario in the problem file (x0, theta_star)", "none")
     pr = spec.problem
     d = design(pr, spec.design, backend=backend)
-    ctrl = AdaptiveMPC(pr, d, backend=backend, options=OnlineOptions(update=update, window=window, projection=projection))
+    ctrl = AdaptiveMPC(pr, d, backend=backend, options=OnlineOptions(update=update, window=window, projection=projection),
+                       formulation=formulation)
     traj = simulate(ctrl, sc.x0, sc.theta_star, steps or sc.steps, disturbance or sc.disturbance,
                     seed=sc.seed if seed is None else seed, progress=False, mu_state_bound=spec.design.mu_state_bound)
     click.echo(f"{pr.name}: x0 = {np.asarray(sc.x0).tolist()}, theta* = {np.asarray(sc.theta_star).tolist()}, "

@@ -360,3 +360,8 @@ def regressor_bound(problem: Problem, state_bound: float | None) -> tuple[float,
     if sup <= 0.0:
         raise ProblemError("system.A, system.B", "a regressor D(x,u) that is not identically zero on Z", "sup ‖D‖ = 0")
     return sup, region
+
+
+from ._callable_module import make_module_callable as _make_callable  # noqa: E402
+
+_make_callable(__name__, design)

@@ -213,7 +213,8 @@ def simulate(controller: AdaptiveMPC, x0, theta_star, steps: int, disturbance: s
                           backend=controller.backend.name, theta_star=theta_star, x=np.array(xs),
                           u=np.array(us).reshape(-1, problem.m), w=np.array(ws).reshape(-1, problem.n),
                           records=records, stop_reason=stop, mu_state_bound=mu_state_bound,
-                          meta={"disturbance": disturbance if isinstance(disturbance, str) else "array", "seed": seed})
+                          meta={"disturbance": disturbance if isinstance(disturbance, str) else "array", "seed": seed,
+                                "formulation": getattr(controller.backend, "formulation", "plain")})
 
     for k in iterator:
         try:
@@ -240,3 +241,8 @@ def simulate(controller: AdaptiveMPC, x0, theta_star, steps: int, disturbance: s
             exc.trajectory = _trajectory()
             raise
     return _trajectory()
+
+
+from ._callable_module import make_module_callable as _make_callable  # noqa: E402
+
+_make_callable(__name__, simulate)
