@@ -19,6 +19,7 @@ COMMANDS = {
     "certify": ("amcp_drake.cli_certify", "certify_cmd", "Certificate report: run, then check every claim independently."),
     "compare": ("amcp_drake.cli_compare", "compare_cmd", "Run the Drake and cvxpy backends side by side, step by step."),
     "verify": ("amcp_drake.cli_verify", "verify_cmd", "Run the hypothesis property suite (and mutants)."),
+    "campaign": ("amcp_drake.cli_campaign", "campaign_cmd", "Verification campaign of random problems on Dask, stored in SQLite."),
     "bench": ("amcp_drake.cli_bench", "bench_cmd", "Performance benchmarks (medians, ratios)."),
 }
 
