@@ -320,13 +320,25 @@ def state_input_constraints(view: RunView) -> CheckResult:
 
 
 # -- set membership: Lemma 3, (9), (10) -----------------------------------------------------------
+#: A row of Δ_k shorter than this is treated as the zero row (its direction carries no information).
+DELTA_ZERO_ROW = 1e-12
+
+
 def _delta(view: RunView, k: int) -> tuple[np.ndarray, np.ndarray]:
     """Δ_{k+1} of (6) from (x_k, u_k, x_{k+1}): {θ | −H_w D_k θ <= 1 + H_w d_{k+1}},
     d_{k+1} = A0 x_k + B0 u_k − x_{k+1}."""
     pr, tr = view.problem, view.traj
     D = pr.regressor(tr.x[k], tr.u[k])
     d = pr.A0 @ tr.x[k] + pr.B0 @ tr.u[k] - tr.x[k + 1]
-    return -pr.H_w @ D, 1.0 + pr.H_w @ d
+    H, h = -pr.H_w @ D, 1.0 + pr.H_w @ d
+    # Unit rows: the same set, but HiGHS' absolute tolerance (1e-7) on a row of norm 1e-3 would allow
+    # θ errors of 1e-4 (the 200-problem campaign found false failures of up to 2.7e-6 this way).
+    # A zero row 0·θ <= h is dropped when h >= 0 (it holds for every θ) and kept otherwise (empty set).
+    norms = np.linalg.norm(H, axis=1)
+    zero = norms <= DELTA_ZERO_ROW
+    keep = ~zero | (h < 0)
+    scale = np.where(zero, 1.0, norms)
+    return (H / scale[:, None])[keep], (h / scale)[keep]
 
 
 def prior_contains_theta(view: RunView) -> CheckResult:
@@ -383,7 +395,7 @@ def lower_inclusion(view: RunView) -> CheckResult:
         if k + 1 >= len(view.records):
             continue
         a, b = view.records[k], view.records[k + 1]
-        rows_H, rows_h = [a.H_theta], [a.h_theta]
+        rows_H, rows_h = list(polytope.normalize_rows(a.H_theta, a.h_theta))[:1], [polytope.normalize_rows(a.H_theta, a.h_theta)[1]]
         for j in range(k, max(k - window, -1), -1):
             Hd, hd = _delta(view, j)
             rows_H.append(Hd)

@@ -437,3 +437,26 @@ def test_lemma5_series_matches_direct_sums(recorded, baseline):
     assert baseline.series["lemma5_lhs"] == pytest.approx(lhs, abs=1e-12)
     assert baseline.series["lemma5_rhs"] == pytest.approx(rhs, abs=1e-12)
     assert baseline.claim("lemma5").margin == pytest.approx(min(np.array(rhs) - np.array(lhs)), abs=1e-12)
+
+
+def test_regression_campaign_0_126_lower_inclusion_with_short_delta_rows():
+    """The 200-problem campaign (seed 0, problem 126: vertex disturbances, Δ rows of norm 7e-3) once
+    failed Θ_k ∩ Δ_{k+1} ⊆ Θ_{k+1} by 2.7e-6 because the check's LPs ran on unnormalised rows."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from amcp_drake.certify import certify
+    from amcp_drake.problem_io import load_spec
+    from amcp_drake.simulate import Trajectory
+
+    data = Path(__file__).parent / "data"
+    traj = Trajectory.load(data / "campaign-0-126-trajectory.json.gz")
+    spec = load_spec(data / "campaign-0-126-problem.json")
+    claims = {c.name: c for c in certify(traj, spec).claims}
+    inclusion = claims["Θ_k ∩ Δ_{k+1} ⊆ Θ_{k+1}"]
+    assert inclusion.status == "pass", inclusion.margin
+    # and the check still has teeth on this run: cut Θ_{k+1} at the worst step by 1e-5 in every row
+    k = inclusion.data["worst_step"]
+    traj.records[k].h_theta = np.asarray(traj.records[k].h_theta) - 1e-5
+    assert {c.name: c for c in certify(traj, spec).claims}["Θ_k ∩ Δ_{k+1} ⊆ Θ_{k+1}"].status == "fail"
