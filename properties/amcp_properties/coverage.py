@@ -1,0 +1,124 @@
+"""Coverage of the generated runs: did the suite reach the interesting cases?
+
+For every run the suite records whether a constraint of Z was active (max_k max_i of
+F x_k + G u_k within :data:`ACTIVE_TOL` of 1), whether Θ_k shrank, how close θ* came to the
+boundary of Θ_k, and the generator's labels (Θ and W kind, θ* kind, x0 kind, disturbance, ...).
+Each feature is reported with ``hypothesis.event`` (see ``--hypothesis-show-statistics``) and
+collected by a :class:`CoverageRecorder`, whose summary the suite prints and writes as JSON
+(``AMCP_COVERAGE_FILE``) for ``amcp verify``.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter, defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from hypothesis import event
+
+#: A constraint row of Z is "active" when F x + G u >= 1 − ACTIVE_TOL at some step.
+ACTIVE_TOL = 1e-3
+#: Θ_k "shrank" when some offset decreased by more than this (LP accuracy is ~1e-9).
+SHRINK_TOL = 1e-6
+#: θ* is "on the boundary" of Θ_k when its distance to it is below this, "near" below NEAR_TOL.
+ON_BOUNDARY_TOL = 1e-6
+NEAR_TOL = 1e-2
+
+#: Coverage fractions reported per test (feature name -> description).
+FEATURES = {
+    "constraints_active": f"a row of Z active (F x + G u >= 1 - {ACTIVE_TOL:g})",
+    "theta_shrank": "Θ_k shrank below Θ_0",
+    "theta_star_on_boundary": f"θ* within {ON_BOUNDARY_TOL:g} of ∂Θ_k",
+    "theta_star_near_boundary": f"θ* within {NEAR_TOL:g} of ∂Θ_k",
+    "completed": "the run completed every step",
+}
+
+
+@dataclass
+class RunFeatures:
+    """What one closed-loop run covered."""
+
+    constraints_active: bool
+    max_constraint: float
+    theta_shrank: bool
+    theta_star_distance: float
+    completed: bool
+    labels: dict = field(default_factory=dict)
+
+    def flags(self) -> dict[str, bool]:
+        return {"constraints_active": self.constraints_active, "theta_shrank": self.theta_shrank,
+                "theta_star_on_boundary": self.theta_star_distance <= ON_BOUNDARY_TOL,
+                "theta_star_near_boundary": self.theta_star_distance <= NEAR_TOL,
+                "completed": self.completed}
+
+
+def features(traj, labels: dict | None = None) -> RunFeatures:
+    """The coverage features of a trajectory (numpy only)."""
+    pr = traj.problem
+    steps = len(traj.u)
+    if steps:
+        values = traj.x[:steps] @ pr.F.T + traj.u @ pr.G.T
+        max_constraint = float(np.max(values))
+    else:
+        max_constraint = float("nan")
+    h0 = np.asarray(traj.records[0].h_theta, float)
+    shrank = any(r.h_theta.shape == h0.shape and np.any(r.h_theta < h0 - SHRINK_TOL) for r in traj.records)
+    distance = np.inf
+    for r in traj.records:
+        norms = np.linalg.norm(r.H_theta, axis=1)
+        distance = min(distance, float(np.min((r.h_theta - r.H_theta @ traj.theta_star) / norms)))
+    return RunFeatures(constraints_active=bool(max_constraint >= 1.0 - ACTIVE_TOL), max_constraint=max_constraint,
+                       theta_shrank=bool(shrank), theta_star_distance=max(distance, 0.0),
+                       completed=traj.stop_reason == "completed", labels=dict(labels or {}))
+
+
+def _bucket(distance: float) -> str:
+    for limit in (ON_BOUNDARY_TOL, 1e-3, NEAR_TOL, 1e-1):
+        if distance <= limit:
+            return f"<= {limit:g}"
+    return "> 0.1"
+
+
+def emit_events(f: RunFeatures) -> None:
+    """Report the features as Hypothesis events (call inside a test)."""
+    event(f"Z active: {f.constraints_active}")
+    event(f"Theta_k shrank: {f.theta_shrank}")
+    event(f"theta* distance to boundary of Theta_k: {_bucket(f.theta_star_distance)}")
+    for key in ("Theta", "W", "theta_star", "x0", "disturbance"):
+        if key in f.labels:
+            event(f"{key}: {f.labels[key]}")
+
+
+class CoverageRecorder:
+    """Per-test counts of examples and covered features (one instance per pytest session)."""
+
+    def __init__(self) -> None:
+        self.examples: Counter[str] = Counter()
+        self.flags: dict[str, Counter[str]] = defaultdict(Counter)
+        self.labels: dict[str, Counter[str]] = defaultdict(Counter)
+
+    def record(self, test: str, f: RunFeatures) -> None:
+        self.examples[test] += 1
+        for name, value in f.flags().items():
+            self.flags[test][name] += int(value)
+        for key, value in f.labels.items():
+            self.labels[test][f"{key}={value}"] += 1
+
+    def count(self, test: str) -> None:
+        """Count an example of a test that has no closed-loop run (e.g. Assumption 11)."""
+        self.examples[test] += 1
+
+    def summary(self) -> dict[str, dict]:
+        """test -> {"examples": n, "fractions": {feature: fraction}, "labels": {label: count}}."""
+        out = {}
+        for test, n in self.examples.items():
+            fractions = {k: self.flags[test][k] / n for k in FEATURES} if self.flags.get(test) else {}
+            out[test] = {"examples": n, "fractions": fractions, "labels": dict(self.labels.get(test, {}))}
+        return out
+
+    def write_json(self, path: str | Path, extra: dict | None = None) -> None:
+        data = {"tests": self.summary(), "features": FEATURES}
+        data.update(extra or {})
+        Path(path).write_text(json.dumps(data, indent=1, sort_keys=True))
