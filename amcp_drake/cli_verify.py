@@ -35,6 +35,7 @@ CLAIMS = {
     "test_corollary16_state_converges_when_disturbance_vanishes": "Corollary 16 xk → 0",
     "test_finite_gain_l2_ratio_stays_bounded": "(22) finite ℓ2 gain",
     "test_backends_agree_in_lockstep": "Drake and cvxpy agree (lockstep)",
+    "test_claim_checks_catch_seeded_bug": "checks catch seeded bug",
 }
 FRACTIONS = (("constraints_active", "Z act"), ("theta_shrank", "Θ shr"), ("theta_star_on_boundary", "θ*∈∂"),
              ("theta_star_near_boundary", "θ*≈∂"))
@@ -59,19 +60,22 @@ def _results(junit: Path) -> dict[str, tuple[str, str]]:
 
 def _print_table(results: dict[str, tuple[str, str]], coverage: dict) -> None:
     tests = coverage.get("tests", {})
-    header = f"{'claim':40s} {'backend':8s} {'examples':>8s} " + " ".join(f"{h:>6s}" for _, h in FRACTIONS) + "  result"
+    header = f"{'claim':52s} {'backend':8s} {'examples':>8s} " + " ".join(f"{h:>6s}" for _, h in FRACTIONS) + "  result"
     click.echo(header)
     click.echo("-" * len(header))
     for test_id in sorted(results, key=lambda t: (list(CLAIMS).index(t.split("[")[0]) if t.split("[")[0] in CLAIMS
                                                   else 99, t)):
         name, _, backend = test_id.partition("[")
         backend = backend.rstrip("]")
+        label = CLAIMS.get(name, name)
+        if backend not in ("drake", "cvxpy"):  # parametrised by something else (a mutant)
+            label, backend = f"{label}: {backend}", "drake"
         data = tests.get(test_id, {})
         fr = data.get("fractions", {})
         cells = " ".join(f"{fr[k]:6.2f}" if k in fr else f"{'-':>6s}" for k, _ in FRACTIONS)
         outcome, message = results[test_id]
         tail = f"  ({message})" if outcome != "passed" and message else ""
-        click.echo(f"{CLAIMS.get(name, name)[:40]:40s} {backend:8s} {data.get('examples', 0):8d} {cells}  {outcome}{tail}")
+        click.echo(f"{label[:52]:52s} {backend:8s} {data.get('examples', 0):8d} {cells}  {outcome}{tail}")
     gen = coverage.get("distinct_rejection_rate")
     if gen is not None:
         click.echo(f"\ngenerator: {coverage.get('distinct_problems', 0)} distinct problems, "
