@@ -260,18 +260,24 @@ class DrakeBackend:
         h = np.asarray(h, float)
         _finite("project", point, H, h)
         p = point.size
+        # Solved in the coordinates y = (θ − point)/s, s = the largest distance of the point to a
+        # facet plane: the solver then sees data of order 1. In θ itself the objective ‖θ − θ̃‖²
+        # and the set can be tiny (θ̃ 1e-5 outside a Θ_k of width 2e-6), and Clarabel's absolute gap
+        # tolerance then left the projection off by up to 1.7e-6 (property suite, lockstep).
+        slack = h - H @ point
+        scale = float(np.max(np.abs(slack) / np.maximum(np.linalg.norm(H, axis=1), 1e-300)))
+        scale = scale if np.isfinite(scale) and scale > 0.0 else 1.0
         prog = MathematicalProgram()
-        theta = prog.NewContinuousVariables(p, "theta")
-        prog.AddLinearConstraint(H, np.full(len(h), -np.inf), h, theta).evaluator().set_description("(12) theta in set")
-        prog.AddQuadraticErrorCost(np.eye(p), point, theta)
-        # tight tolerances (as for the LPs): the objective ‖θ − θ̃‖² is tiny when θ̃ is just outside
-        # the set, and at the QP defaults (1e-8 absolute gap) the projection was off by 4e-6
-        # (found by the property suite's lockstep comparison; the exact answer was a clip)
+        y = prog.NewContinuousVariables(p, "y")
+        prog.AddLinearConstraint(H, np.full(len(h), -np.inf), slack / scale, y).evaluator().set_description(
+            "(12) theta in set")
+        prog.AddQuadraticErrorCost(np.eye(p), np.zeros(p), y)
+        # tight tolerances (as for the LPs): at the QP defaults the projection was off by 4e-6
         result, elapsed = self._lp.solve(prog)
         status = self._lp.status(result)
         if status is not SolveStatus.OPTIMAL:
             return ProjectionResult(status, None, elapsed)
-        return ProjectionResult(status, result.GetSolution(theta), elapsed)
+        return ProjectionResult(status, point + scale * result.GetSolution(y), elapsed)
 
     # -- online: tube MPC QP (20) --------------------------------------------------------------
     def tube_mpc(self, data: TubeMPCData):
