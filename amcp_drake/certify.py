@@ -179,7 +179,9 @@ def validate_trajectory(traj: Trajectory) -> None:
     arr("x", traj.x, (T + 1, n))
     arr("u", traj.u, (T, m))
     arr("w", traj.w, (T, n))
-    arr("theta_star", traj.theta_star, (p,))
+    star = arr("theta_star", traj.theta_star, None)
+    if star.shape not in ((p,), (T + 1, p)):
+        raise TrajectoryError(f"trajectory: theta_star has shape {star.shape}; expected ({p},) or ({T + 1}, {p})")
     arr("design.K", d.K, (m, n))
     H_x = arr("design.H_x", d.H_x, None)
     if H_x.ndim != 2 or H_x.shape[1] != n:
@@ -266,7 +268,7 @@ def _figures(view: RunView, lemma) -> tuple[dict[str, Any], dict[str, Any]]:
     hi = np.array([b[1] for b in boxes])
     widths = hi - lo
     diam = [b[2] for b in boxes]
-    err = [float(np.linalg.norm(r.theta_hat - tr.theta_star)) for r in view.records]
+    err = [float(np.linalg.norm(r.theta_hat - tr.theta_star_at(r.k))) for r in view.records]
     mu = view.design.mu
     mu_d2 = [float(mu * np.linalg.norm(view.problem.regressor(x, u), 2) ** 2) for _, x, u in view.inputs]
     figures = {
@@ -310,9 +312,15 @@ def _max(values) -> float | None:
 
 
 def _run_info(traj: Trajectory, state_bound: float | None) -> dict[str, Any]:
-    return {
+    opts = traj.options
+    extra: dict[str, Any] = {"d_theta": getattr(opts, "d_theta", 0.0), "pe_window": getattr(opts, "pe_window", None),
+                             "pe_level": getattr(opts, "pe_level", None),
+                             "cost": getattr(opts, "cost", "certainty_equivalence")}
+    if np.ndim(traj.theta_star) == 2:  # time-varying θ*_k (Section 4.1): "theta_star" is θ*_0
+        extra["theta_star_sequence"] = np.asarray(traj.theta_star).tolist()
+    return extra | {
         "backend": traj.backend, "steps": len(traj.u), "records": len(traj.records), "stop_reason": traj.stop_reason,
-        "x0": traj.x[0].tolist(), "theta_star": traj.theta_star.tolist(),
+        "x0": traj.x[0].tolist(), "theta_star": traj.theta_star_at(0).tolist(),
         "theta_hat0": traj.problem.theta_hat0.tolist(),
         "update": traj.options.update, "window": traj.options.window, "projection": traj.options.projection,
         "disturbance": traj.meta.get("disturbance"), "seed": traj.meta.get("seed"),

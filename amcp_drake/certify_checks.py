@@ -212,8 +212,10 @@ def theta_star_in_theta(view: RunView) -> CheckResult:
     """Assumption 1, eq. (3): θ* ∈ Θ. Margin: min_i (h_θ − H_θ θ*)_i / ‖[H_θ]_i‖."""
     pr = view.problem
     H, h = polytope.normalize_rows(pr.H_theta, pr.h_theta)
-    margin = float(np.min(h - H @ view.traj.theta_star))
-    return tag(judge("θ* ∈ Θ", "Assumption 1, (3): the true parameter lies in the prior set Θ", margin,
+    # time-varying θ*_k (Section 4.1, Assumption 17): every θ*_k must lie in Θ
+    stars = np.atleast_2d(view.traj.theta_star)
+    margin = float(np.min(h[None, :] - stars @ H.T))
+    return tag(judge("θ* ∈ Θ", "Assumption 1, (3) (Assumption 17 for a sequence θ*_k): the true parameter lies in the prior set Θ", margin,
                      MEMBERSHIP_TOL, "margin = min_i (h_θ − H_θ θ*)_i, unit rows"), "theta_star_in_Theta",
                GROUP_ASSUMPTIONS)
 
@@ -229,7 +231,7 @@ def disturbances_in_w(view: RunView) -> CheckResult:
 def model_consistency(view: RunView) -> CheckResult:
     """System (1): x_{k+1} = A(θ*) x_k + B(θ*) u_k + w_k. Margin: −‖residual‖_∞."""
     pr, tr = view.problem, view.traj
-    per = {k: -float(np.max(np.abs(tr.x[k + 1] - pr.step(tr.x[k], tr.u[k], tr.theta_star, tr.w[k]))))
+    per = {k: -float(np.max(np.abs(tr.x[k + 1] - pr.step(tr.x[k], tr.u[k], tr.theta_star_at(k), tr.w[k]))))
            for k in view.transitions}
     return step_check("model_consistent", GROUP_ASSUMPTIONS, "states follow (1)",
                       "(1): x_{k+1} = A(θ*)x_k + B(θ*)u_k + w_k for the recorded θ*, u_k and w_k", per, IDENTITY_TOL,
@@ -294,9 +296,12 @@ def theta_star_in_theta_k(view: RunView) -> CheckResult:
     per = {}
     for r in view.records:
         H, h = polytope.normalize_rows(r.H_theta, r.h_theta)
-        per[r.k] = float(np.min(h - H @ view.traj.theta_star))
-    return step_check("theta_star_in_Theta_k", GROUP_THEOREM, "θ* ∈ Θ_k",
-                      "Theorem 14 (ii), Lemma 3: the true parameter lies in every set estimate Θ_k", per, SET_LP_TOL,
+        per[r.k] = float(np.min(h - H @ view.traj.theta_star_at(r.k)))
+    claim = ("Proposition 19 (Section 4.1): the time-varying parameter θ*_k lies in Θ_k at every k"
+             if view.traj.time_varying else
+             "Theorem 14 (ii), Lemma 3: the true parameter lies in every set estimate Θ_k")
+    return step_check("theta_star_in_Theta_k", GROUP_THEOREM, "θ*_k ∈ Θ_k" if view.traj.time_varying else "θ* ∈ Θ_k",
+                      claim, per, SET_LP_TOL,
                       "margin = min_i (h_θk − H_θk θ*)_i with unit rows")
 
 
@@ -361,6 +366,9 @@ def nested_sets(view: RunView) -> CheckResult:
     Same shape H (fixed complexity (9)): h_{k+1} <= h_k componentwise. Otherwise: for every row
     i of Θ_k, max_{θ∈Θ_{k+1}} [H_k]_i θ <= [h_k]_i by vertices (or HiGHS LPs). Unit rows.
     """
+    d_theta = float(getattr(view.traj.options, "d_theta", 0.0))
+    if d_theta > 0:
+        return _dilated_nesting(view, d_theta)
     per = {}
     modes = set()
     for k in range(len(view.records) - 1):
@@ -377,6 +385,27 @@ def nested_sets(view: RunView) -> CheckResult:
     return step_check("Theta_k_nested", GROUP_SET, "Θ_{k+1} ⊆ Θ_k", "Lemma 3, (10) right: the set estimates are nested",
                       per, SET_LP_TOL, f"margin = min_i ([h_k]_i − max_{{Θ_(k+1)}} [H_k]_i θ), unit rows ({', '.join(sorted(modes))});"
                       " worst step = k+1", "fewer than two set estimates recorded")
+
+
+def _dilated_nesting(view: RunView, d_theta: float) -> CheckResult:
+    """Section 4.1 replacement of (10) right: with (25), Θ_{k+1} = D_1(Θ_k ∩ Δ_{k+1}) ∩ Θ ⊆ D_1(Θ_k) ∩ Θ_0,
+    i.e. on unit rows of the fixed shape h_{k+1} <= min(h_k + d_θ, h_0) componentwise (Θ_k are not nested)."""
+    per = {}
+    r0 = view.records[0]
+    _, h0 = polytope.normalize_rows(r0.H_theta, r0.h_theta)
+    for k in range(len(view.records) - 1):
+        a, b = view.records[k], view.records[k + 1]
+        if not (a.H_theta.shape == b.H_theta.shape and np.array_equal(a.H_theta, b.H_theta)):
+            per[k + 1] = float("nan")  # time-varying θ* is supported only with a fixed shape
+            continue
+        _, ha = polytope.normalize_rows(a.H_theta, a.h_theta)
+        _, hb = polytope.normalize_rows(b.H_theta, b.h_theta)
+        per[k + 1] = float(np.min(np.minimum(ha + d_theta, h0) - hb))
+    return step_check("Theta_k_nested", GROUP_SET, "Θ_{k+1} ⊆ D_1(Θ_k) ∩ Θ_0",
+                      f"Section 4.1, (25): the set estimates grow by at most d_θ = {d_theta:g} per step "
+                      "(they are not nested when θ* varies)", per, SET_LP_TOL,
+                      "margin = min_i (min([h_k]_i + d_θ, [h_0]_i) − [h_(k+1)]_i), unit rows; worst step = k+1",
+                      "fewer than two set estimates recorded")
 
 
 def lower_inclusion(view: RunView) -> CheckResult:
@@ -486,12 +515,12 @@ def lemma5_series(view: RunView) -> Lemma5Series:
     if M <= 0:
         empty = np.zeros(0)
         return Lemma5Series(empty, empty, empty, empty)
-    star = tr.theta_star
-    x_tilde_sq = np.array([float(np.sum((view.regressor(k) @ (star - view.records[k].theta_hat)) ** 2))
+    star = tr.theta_star_at  # θ*_k (constant unless time-varying, Section 4.1)
+    x_tilde_sq = np.array([float(np.sum((view.regressor(k) @ (star(k) - view.records[k].theta_hat)) ** 2))
                            for k in range(M)])
     w_sq = np.array([float(np.sum(tr.w[k] ** 2)) for k in range(M)])
-    est = np.array([float(np.sum((view.records[m + 1].theta_hat - star) ** 2)) for m in range(M)]) / mu
-    start = float(np.sum((view.records[0].theta_hat - star) ** 2)) / mu
+    est = np.array([float(np.sum((view.records[m + 1].theta_hat - star(m + 1)) ** 2)) for m in range(M)]) / mu
+    start = float(np.sum((view.records[0].theta_hat - star(0)) ** 2)) / mu
     return Lemma5Series(est + np.cumsum(x_tilde_sq), start + np.cumsum(w_sq), x_tilde_sq, w_sq)
 
 
@@ -499,6 +528,10 @@ def lemma5(view: RunView, series: Lemma5Series) -> CheckResult:
     """Lemma 5: (1/μ)‖θ̂_{m+1} − θ*‖² + Σ_{k<=m}‖x̃_{1|k}‖² <= (1/μ)‖θ̂_0 − θ*‖² + Σ_{k<=m}‖w_k‖² for every m."""
     if view.traj.options.update == NO_UPDATE:
         return _not_adaptive("lemma5", "Lemma 5 inequality", "Lemma 5: the ℓ2 bound of the point estimate")
+    if view.traj.time_varying:
+        return tag(not_run("Lemma 5 inequality", "Lemma 5: the ℓ2 bound of the point estimate",
+                           "not a claim of this run: θ* varies with k (Section 4.1 claims no ℓ2 bound for the LMS)"),
+                   "lemma5", GROUP_ESTIMATE)
     per = {m: float(series.rhs[m] - series.lhs[m]) for m in range(len(series.lhs))}
     return step_check("lemma5", GROUP_ESTIMATE, "Lemma 5 inequality",
                       "Lemma 5: (1/μ)‖θ̂_(m+1) − θ*‖² + Σ_(k<=m) ‖x̃_(1|k)‖² <= (1/μ)‖θ̂_0 − θ*‖² + Σ_(k<=m) ‖w_k‖², every m",

@@ -20,6 +20,8 @@ COMMANDS = {
     "compare": ("amcp_drake.cli_compare", "compare_cmd", "Run the Drake and cvxpy backends side by side, step by step."),
     "verify": ("amcp_drake.cli_verify", "verify_cmd", "Run the hypothesis property suite (and mutants)."),
     "campaign": ("amcp_drake.cli_campaign", "campaign_cmd", "Verification campaign of random problems on Dask, stored in SQLite."),
+    "baseline": ("amcp_drake.cli_baseline", "baseline_cmd", "Adaptive vs robust baseline: cost, tube size, feasible region."),
+    "pe-figure": ("amcp_drake.cli_pe", "pe_figure_cmd", "Proposition 23: diameter of Theta_k with and without PE (PNG + JSON)."),
     "bench": ("amcp_drake.cli_bench", "bench_cmd", "Performance benchmarks (medians, ratios)."),
 }
 

@@ -13,8 +13,8 @@ import sys
 
 import click
 
-from .cli_common import (EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, example_option, formulation_option,
-                         load_problem_spec, problem_argument)
+from .cli_common import (EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, section4_options, example_option,
+                         formulation_option, load_problem_spec, problem_argument, resolve_online)
 
 
 @click.command("certify")
@@ -30,9 +30,11 @@ from .cli_common import (EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, 
               help="Output directory (its other files are left alone).")
 @click.option("--trajectory", "trajectory_file", default=None, type=click.Path(),
               help="Re-check a saved trajectory (.json or .json.gz) instead of running the loop.")
+@section4_options
 @click.pass_context
 @bad_input_exits_2
-def certify_cmd(ctx, problem_file, example, backend, formulation, steps, seed, out_dir, trajectory_file):
+def certify_cmd(ctx, problem_file, example, backend, formulation, steps, seed, out_dir, trajectory_file, d_theta,
+                pe_window, pe_level, cost):
     """Run the adaptive MPC on PROBLEM (default: --example lorenzen2019, x0 = [2, 3],
     θ* = [0.8, 0.2, -0.5], 50 steps, uniform disturbance, seed 0), check every claim of the paper
     from the recorded data with numpy/scipy only, and write certificate.json, report.html and
@@ -48,7 +50,8 @@ def certify_cmd(ctx, problem_file, example, backend, formulation, steps, seed, o
     if trajectory_file is not None:
         from click.core import ParameterSource
 
-        given = [f"--{name}" for name in ("backend", "steps", "seed")
+        given = [f"--{name.replace('_', '-')}" for name in ("backend", "steps", "seed", "d_theta", "pe_window",
+                                                                  "pe_level", "cost")
                  if ctx.get_parameter_source(name) is ParameterSource.COMMANDLINE]
         if given:
             raise ProblemError(", ".join(given), "no run options together with --trajectory (the run is not repeated)",
@@ -60,7 +63,9 @@ def certify_cmd(ctx, problem_file, example, backend, formulation, steps, seed, o
             raise ProblemError("scenario", "a scenario (x0, theta_star, ...) in the problem file to run", "none",
                                "Add a \"scenario\" object, or pass --trajectory.")
         sc = spec.scenario
-        traj = _run(spec, backend, steps or sc.steps, sc.seed if seed is None else seed, formulation)
+        traj = _run(spec, backend, steps or sc.steps, sc.seed if seed is None else seed, formulation,
+                    resolve_online(spec, d_theta=d_theta, pe_window=pe_window, pe_level=pe_level,
+                                   cost=cost))
         if traj.stop_reason.startswith("inconsistent"):
             click.echo(f"warning: the run stopped: {traj.stop_reason}; certifying the partial trajectory", err=True)
     cert = certify(traj, spec)
@@ -69,7 +74,7 @@ def certify_cmd(ctx, problem_file, example, backend, formulation, steps, seed, o
     sys.exit(EXIT_OK if cert.passed else EXIT_FAIL)
 
 
-def _run(spec, backend: str, steps: int, seed: int, formulation: str = "plain"):
+def _run(spec, backend: str, steps: int, seed: int, formulation: str = "plain", options=None):
     """Offline design, then the closed loop with a progress bar (Drake/cvxpy imported only here)."""
     from .controller import AdaptiveMPC
     from .design import design
@@ -78,7 +83,7 @@ def _run(spec, backend: str, steps: int, seed: int, formulation: str = "plain"):
 
     sc = spec.scenario
     offline = design(spec.problem, spec.design, backend=backend)
-    ctrl = AdaptiveMPC(spec.problem, offline, backend=backend, formulation=formulation)
+    ctrl = AdaptiveMPC(spec.problem, offline, backend=backend, options=options, formulation=formulation)
     try:
         return simulate(ctrl, sc.x0, sc.theta_star, steps, sc.disturbance, seed=seed, progress=True,
                         mu_state_bound=spec.design.mu_state_bound)

@@ -50,3 +50,32 @@ example_option = click.option("--example", default=None, help="Built-in example 
 formulation_option = click.option("--formulation", type=click.Choice(["plain", "vertex"]), default="plain",
                                   show_default=True,
                                   help="Tube QP: plain (15) with multipliers, or the exact vertex form (faster, issue 8).")
+
+def section4_options(func):
+    """--d-theta, --pe, --pe-level, --cost (Section 4 extensions; defaults: the file's online section)."""
+    func = click.option("--cost", type=click.Choice(["certainty_equivalence", "minmax"]), default=None,
+                        help="Cost of (20): (17) with θ̂_k, or the min-max cost (19) (default: the file's online "
+                             "section, else certainty_equivalence). minmax needs --formulation plain.")(func)
+    func = click.option("--pe-level", "pe_level", type=click.FloatRange(min=0.0, min_open=True), default=None,
+                        help="PE level ρ (default: file, else 0.1).")(func)
+    func = click.option("--pe", "pe_window", type=click.IntRange(min=1), default=None,
+                        help="Enforce a persistently exciting input over windows of this length (spec §8, m = 1; "
+                             "default: the file's online section, else off). Needs --formulation plain.")(func)
+    return d_theta_option(func)
+
+
+d_theta_option = click.option("--d-theta", "d_theta", type=click.FloatRange(min=0.0), default=None,
+                              help="Rate bound d_θ of a time-varying θ* (Section 4.1; default: the problem file's "
+                                   "online section, else 0). Needs --formulation plain.")
+
+
+def resolve_online(spec, **given):
+    """OnlineOptions: the problem file's ``online`` section (or the defaults), with every option
+    given on the command line (not None) replacing its field."""
+    import dataclasses
+
+    from .controller import OnlineOptions
+
+    base = spec.online if spec.online is not None else OnlineOptions()
+    changes = {k: v for k, v in given.items() if v is not None}
+    return dataclasses.replace(base, **changes)

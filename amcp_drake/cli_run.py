@@ -7,7 +7,8 @@ import sys
 import click
 import numpy as np
 
-from .cli_common import EXIT_FAIL, EXIT_OK, backend_option, formulation_option, bad_input_exits_2, example_option, load_problem_spec, problem_argument
+from .cli_common import (EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, section4_options, example_option,
+                         formulation_option, load_problem_spec, problem_argument, resolve_online)
 
 
 @click.command("run")
@@ -18,17 +19,20 @@ from .cli_common import EXIT_FAIL, EXIT_OK, backend_option, formulation_option, 
 @click.option("--steps", type=int, default=None, help="Number of steps (default: the problem's scenario).")
 @click.option("--seed", type=int, default=None, help="Disturbance seed (default: the scenario's).")
 @click.option("--disturbance", type=click.Choice(["uniform", "vertices", "zero"]), default=None)
-@click.option("--update", type=click.Choice(["fixed", "exact", "window", "none"]), default="fixed", show_default=True,
-              help="Parameter-set update: (9), (7), (9) over a moving window (Remark 4), or none (robust baseline).")
-@click.option("--window", type=int, default=10, show_default=True)
-@click.option("--projection", type=click.Choice(["Theta", "Theta_k"]), default="Theta", show_default=True,
-              help="Project the LMS estimate onto Θ (12) or Θ_k (Remark 7).")
+@click.option("--update", type=click.Choice(["fixed", "exact", "window", "none"]), default=None,
+              help="Parameter-set update: (9), (7), (9) over a moving window (Remark 4), or none (robust baseline). "
+                   "Default: the problem file's online section, else fixed.")
+@click.option("--window", type=int, default=None, help="Window length for --update window (default 10).")
+@click.option("--projection", type=click.Choice(["Theta", "Theta_k"]), default=None,
+              help="Project the LMS estimate onto Θ (12) or Θ_k (Remark 7). Default: file, else Theta.")
+@section4_options
 @click.option("--every", type=int, default=1, show_default=True, help="Print every n-th step.")
 @click.option("--save", type=click.Path(), default=None, help="Save the trajectory (JSON, .gz allowed).")
 @bad_input_exits_2
-def run_cmd(problem_file, example, backend, formulation, steps, seed, disturbance, update, window, projection, every, save):
+def run_cmd(problem_file, example, backend, formulation, steps, seed, disturbance, update, window, projection, d_theta,
+            pe_window, pe_level, cost, every, save):
     """Design, then run the adaptive MPC closed loop and print one line per step."""
-    from .controller import AdaptiveMPC, OnlineOptions
+    from .controller import AdaptiveMPC
     from .design import design
     from .errors import ProblemError
     from .simulate import simulate
@@ -40,8 +44,10 @@ def run_cmd(problem_file, example, backend, formulation, steps, seed, disturbanc
         raise ProblemError("scenario", "a scenario in the problem file (x0, theta_star)", "none")
     pr = spec.problem
     d = design(pr, spec.design, backend=backend)
-    ctrl = AdaptiveMPC(pr, d, backend=backend, options=OnlineOptions(update=update, window=window, projection=projection),
-                       formulation=formulation)
+    options = resolve_online(spec, update=update, window=window, projection=projection, d_theta=d_theta,
+                             pe_window=pe_window, pe_level=pe_level, cost=cost)
+    update = options.update
+    ctrl = AdaptiveMPC(pr, d, backend=backend, options=options, formulation=formulation)
     traj = simulate(ctrl, sc.x0, sc.theta_star, steps or sc.steps, disturbance or sc.disturbance,
                     seed=sc.seed if seed is None else seed, progress=False, mu_state_bound=spec.design.mu_state_bound)
     click.echo(f"{pr.name}: x0 = {np.asarray(sc.x0).tolist()}, theta* = {np.asarray(sc.theta_star).tolist()}, "

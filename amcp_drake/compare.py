@@ -195,6 +195,7 @@ def _sync(target: AdaptiveMPC, source: AdaptiveMPC) -> None:
     target.theta_hat = np.array(source.theta_hat)
     target._prev = None if source._prev is None else (np.array(source._prev[0]), np.array(source._prev[1]))
     target._window = list(source._window)
+    target._u_hist = list(getattr(source, "_u_hist", []))
 
 
 def independent(spec: ProblemSpec, steps: int, seed: int, backends=("drake", "cvxpy"),

@@ -21,6 +21,7 @@ from .status import SolveStatus
 
 UPDATE_MODES = ("fixed", "exact", "window", "none")
 PROJECTION_TARGETS = ("Theta", "Theta_k")
+COSTS = ("certainty_equivalence", "minmax")
 #: Rows of Δ_k are scaled to unit norm before the update: near x = 0 the raw rows −H_w D_{k−1} are of
 #: order ‖x_{k−1}‖, and the LP solvers' absolute tolerances then allow errors of order tol/‖row‖ in θ
 #: (found by the property suite: the per-row LP (9) excluded θ* by 1e-2 with rows of norm ~1e-3).
@@ -41,11 +42,31 @@ class OnlineOptions:
     """Online choices. ``update``: ``"fixed"`` = fixed-complexity LP (9) (default), ``"exact"`` =
     intersection (7) with redundant rows removed, ``"window"`` = (9) over the last ``window``
     data sets Δ (Remark 4), ``"none"`` = the robust (non-adaptive) baseline: Θ_k ≡ Θ0 and θ̂_k ≡ θ̂0.
-    ``projection``: project θ̃ onto Θ (eq. (12)) or onto Θ_k (Remark 7)."""
+    ``projection``: project θ̃ onto Θ (eq. (12)) or onto Θ_k (Remark 7).
+
+    ``d_theta`` (Section 4.1, Assumption 17): rate bound ‖θ*_{k+1} − θ*_k‖ <= d_θ of a time-varying
+    parameter. With d_θ > 0 the update is (25) in fixed-complexity form, h_θk ← min(h_(9) + d_θ n,
+    h_θ0) with n_i = ‖[H_θ]_i‖, and the QP (20) uses the predicted sets (26) per stage,
+    Θ_{l|k} = {H_θ θ <= min(h_θk + l d_θ n, h_θ0)} in (28b). Supported for update "fixed", "window"
+    and "none" with the plain formulation (docs/decisions.md, "Section 4 extensions").
+
+    ``pe_window``, ``pe_level`` (Section 4.2, spec §8): when ``pe_window`` = P is set (m = 1 only), the
+    input is kept persistently exciting by Σ_{j=k−P+1}^{k} ū_j ū_jᵀ ⪰ ρ I (ρ = ``pe_level``) on the
+    stacked input ū_k = [u_k; …; u_{k−n}]: (20) is solved with K x_k + v_{0|k} <= u₋ and with
+    >= u₊ and the cheaper solution is applied; with no feasible one, (20) without the PE constraint
+    (recorded as ``pe_status = "fallback"``).
+
+    ``cost``: ``"certainty_equivalence"`` (17)-(18) with θ̂_k, or ``"minmax"``: the worst case over the
+    tube vertices (19), Σ_l max_j (‖x^j_l‖²_Q + ‖u^j_l‖²_R) + max_j ‖x^j_N‖²_P, in epigraph form
+    (Remark 13; plain formulation only)."""
 
     update: str = "fixed"
     window: int = 10
     projection: str = "Theta"
+    d_theta: float = 0.0
+    pe_window: int | None = None
+    pe_level: float = 0.1
+    cost: str = "certainty_equivalence"
 
     def __post_init__(self) -> None:
         if self.update not in UPDATE_MODES:
@@ -54,6 +75,22 @@ class OnlineOptions:
             raise ProblemError("online.window", "an integer >= 1", repr(self.window))
         if self.projection not in PROJECTION_TARGETS:
             raise ProblemError("online.projection", f"one of {PROJECTION_TARGETS}", repr(self.projection))
+        if isinstance(self.d_theta, bool) or not isinstance(self.d_theta, (int, float)) \
+                or not np.isfinite(self.d_theta) or self.d_theta < 0:
+            raise ProblemError("online.d_theta", "a finite number >= 0 (Assumption 17)", repr(self.d_theta))
+        object.__setattr__(self, "d_theta", float(self.d_theta))
+        if self.pe_window is not None and (isinstance(self.pe_window, bool) or not isinstance(self.pe_window, int)
+                                           or self.pe_window < 1):
+            raise ProblemError("online.pe_window", "None or an integer >= 1", repr(self.pe_window))
+        if isinstance(self.pe_level, bool) or not isinstance(self.pe_level, (int, float)) \
+                or not np.isfinite(self.pe_level) or self.pe_level <= 0:
+            raise ProblemError("online.pe_level", "a finite number > 0 (ρ of the PE constraint)", repr(self.pe_level))
+        object.__setattr__(self, "pe_level", float(self.pe_level))
+        if self.cost not in COSTS:
+            raise ProblemError("online.cost", f"one of {COSTS}", repr(self.cost))
+        if self.d_theta > 0 and self.update == "exact":
+            raise ProblemError("online.d_theta", "0 with update 'exact' (time-varying parameters need the "
+                               "fixed-shape update 'fixed' or 'window', Section 4.1)", repr(self.d_theta))
 
 
 @dataclass
@@ -76,6 +113,9 @@ class StepRecord:
     cost: float | None = None
     set_status: SolveStatus = SolveStatus.NOT_RUN
     set_Lambda: np.ndarray | None = None
+    h_theta_stages: np.ndarray | None = None
+    pe_status: str = "off"
+    pe_bounds: tuple | None = None
     projection_status: SolveStatus = SolveStatus.NOT_RUN
     infeasible_constraints: tuple[str, ...] = ()
     times: dict[str, float] = field(default_factory=dict)
@@ -98,8 +138,24 @@ class AdaptiveMPC:
         self.data = TubeMPCData(
             A0=problem.A0, B0=problem.B0, A=problem.A, B=problem.B, F=problem.F, G=problem.G, Q=problem.Q,
             R=problem.R, N=problem.N, K=design.K, P=design.P, H_x=design.H_x, X0_vertices=design.X0_vertices,
-            w_bar=design.w_bar, f_bar=design.f_bar, H_T=design.H_T, h_T=design.h_T, H_theta=design.H_theta)
+            w_bar=design.w_bar, f_bar=design.f_bar, H_T=design.H_T, h_T=design.h_T, H_theta=design.H_theta,
+            cost=self.options.cost)
+        if self.options.cost != "certainty_equivalence" and getattr(self.backend, "formulation", "plain") != "plain":
+            raise ProblemError("formulation", "'plain' (the min-max cost (19) needs formulation='plain')",
+                               repr(self.backend.formulation))
+        if self.options.d_theta > 0 and getattr(self.backend, "formulation", "plain") != "plain":
+            raise ProblemError("formulation", "'plain' (time-varying parameters need formulation='plain': the "
+                               "predicted sets (26) differ per stage)", repr(self.backend.formulation))
+        if self.options.pe_window is not None:
+            if problem.m != 1:
+                raise ProblemError("online.pe_window", "None for m > 1 (the PE constraint of spec §8 is for a "
+                                   "scalar input)", repr(self.options.pe_window))
+            if getattr(self.backend, "formulation", "plain") != "plain":
+                raise ProblemError("formulation", "'plain' (the PE constraint needs formulation='plain')",
+                                   repr(self.backend.formulation))
         self.mpc = self.backend.tube_mpc(self.data)
+        #: ‖[H_θ]_i‖: the dilation D_l of Section 4.1 on un-normalised rows (same set as on unit rows)
+        self._row_norms = np.linalg.norm(np.asarray(design.H_theta, float), axis=1)
         self.reset()
 
     def reset(self) -> None:
@@ -110,6 +166,7 @@ class AdaptiveMPC:
         self.theta_hat = np.array(self.problem.theta_hat0)
         self._prev: tuple[np.ndarray, np.ndarray] | None = None
         self._window: list[tuple[np.ndarray, np.ndarray]] = []
+        self._u_hist: list[float] = []
 
     # -- (ii) set-membership update ------------------------------------------------------------
     def _delta(self, x_prev, u_prev, x) -> tuple[np.ndarray, np.ndarray]:
@@ -138,14 +195,16 @@ class AdaptiveMPC:
         if opts.update == "window":
             self._window = ([(H_delta, h_delta)] + self._window)[: opts.window]
             H_data = np.vstack([w[0] for w in self._window])
-            h_data = np.concatenate([w[1] for w in self._window])
+            # time-varying θ* (Section 4.1): Δ_{k−i} holds θ*_{k−i−1}, so its unit rows are dilated
+            # by i·d_θ to hold θ*_{k−1} (the data of (9) must all contain the same point)
+            h_data = np.concatenate([w[1] + age * opts.d_theta for age, w in enumerate(self._window)])
         else:
             H_data, h_data = H_delta, h_delta
         result = self.backend.set_update(self.design.H_theta, self.h_theta, H_data, h_data)
         record.times["set_update"] = result.solve_time
         record.set_status = result.status
         if result.status is SolveStatus.OPTIMAL:
-            self.h_theta = np.asarray(result.h, float)
+            self.h_theta = self._dilate(np.asarray(result.h, float), 1)
             record.set_Lambda = result.Lambda
             return
         # confirm emptiness independently before declaring the data inconsistent
@@ -154,6 +213,22 @@ class AdaptiveMPC:
         if radius == float("-inf"):
             raise InconsistentDataError(self.k, f"LP (9) status {result.status.value}; scipy confirms the "
                                                 "intersection is empty")
+
+    def _dilate(self, h: np.ndarray, l: int) -> np.ndarray:
+        """min(h + l d_θ n, h_θ0), n_i = ‖[H_θ]_i‖: the fixed-shape form of D_l(·) ∩ Θ0 of (25)/(26).
+
+        For a row [H_θ]_i and ‖θ*_{k+l} − θ*_k‖ <= l d_θ, Cauchy-Schwarz gives [H_θ]_i θ*_{k+l} <=
+        [H_θ]_i θ*_k + l d_θ ‖[H_θ]_i‖, which is D_l on the normalised row. Intersecting with
+        Θ0 = {H_θ θ <= h_θ0} ⊇ Θ (same shape) is the row-wise min: this is (25) with Θ replaced by
+        its outer approximation Θ0 of the fixed shape (equal to Θ when H_θ is that of (3)).
+        """
+        if self.options.d_theta == 0.0 or l == 0:
+            return h
+        return np.minimum(h + l * self.options.d_theta * self._row_norms, np.asarray(self.design.h_theta0, float))
+
+    def stage_offsets(self, h: np.ndarray) -> np.ndarray:
+        """(N, q) offsets of the predicted sets (26): row l is h_{θ l|k} = min(h_θk + l d_θ n, h_θ0)."""
+        return np.stack([self._dilate(h, l) for l in range(self.problem.N)])
 
     def _irredundant_rows(self, H: np.ndarray, h: np.ndarray) -> np.ndarray:
         """Rows of {H θ <= h} not implied by the others (support LPs of the backend)."""
@@ -192,6 +267,34 @@ class AdaptiveMPC:
         if result.status is SolveStatus.OPTIMAL:
             self.theta_hat = np.asarray(result.theta, float)
 
+    # -- (iii) the QP (20), with the PE two-QP procedure of spec §8 when enabled -----------------
+    def _solve_qp(self, x, h_arg, H_arg, record: StepRecord):
+        opts = self.options
+        if opts.pe_window is None:
+            return self.mpc.solve(x, h_arg, self.theta_hat, H_arg)
+        from .excitation import pe_bounds, pe_quadratic
+
+        quad = pe_quadratic(np.array(self._u_hist), self.problem.n, opts.pe_window, opts.pe_level)
+        bounds = pe_bounds(quad)
+        if bounds is None:
+            record.pe_status = "inactive" if quad is None else "satisfied"
+            return self.mpc.solve(x, h_arg, self.theta_hat, H_arg)
+        best, best_b, spent = None, None, 0.0
+        for b in bounds:
+            sol = self.mpc.solve(x, h_arg, self.theta_hat, H_arg, u0_bounds=b)
+            spent += sol.solver_time
+            if sol.status is SolveStatus.OPTIMAL and (best is None or sol.cost < best.cost):
+                best, best_b = sol, b
+        record.times["pe_solver"] = spent
+        if best is not None:
+            record.pe_status = "enforced_necessary" if quad.necessary_only else "enforced"
+            record.pe_bounds = tuple(float(v) for v in best_b)
+            return best
+        # no input satisfies both (20) and the PE constraint: (20) alone (SRC-1's fallback; the PE
+        # constraint is not part of the recursive-feasibility argument)
+        record.pe_status = "fallback"
+        return self.mpc.solve(x, h_arg, self.theta_hat, H_arg)
+
     # -- one step --------------------------------------------------------------------------------
     def step(self, x: np.ndarray) -> tuple[np.ndarray | None, StepRecord]:
         """Steps (i)-(iv) at the measured state x_k."""
@@ -219,7 +322,10 @@ class AdaptiveMPC:
                 return None, record
         record.H_theta, record.h_theta, record.theta_hat = self.H_theta, self.h_theta, self.theta_hat
         H_arg = self.H_theta if self.options.update == "exact" else None
-        sol = self.mpc.solve(x, self.h_theta, self.theta_hat, H_arg)
+        h_arg = self.h_theta
+        if self.options.d_theta > 0:
+            h_arg = record.h_theta_stages = self.stage_offsets(self.h_theta)
+        sol = self._solve_qp(x, h_arg, H_arg, record)
         record.status = sol.status
         record.times["qp_update"] = sol.update_time
         record.times["solver"] = sol.solver_time
@@ -230,6 +336,7 @@ class AdaptiveMPC:
             u = self.design.K @ x + sol.v[0]
             record.u = u
             self._prev = (x, u)
+            self._u_hist.append(float(u[0]))
         self.k += 1
         record.times["total"] = time.perf_counter() - start
         return u, record

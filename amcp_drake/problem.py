@@ -259,11 +259,14 @@ class DesignOptions:
 
 @dataclass(frozen=True, eq=False)
 class ProblemSpec:
-    """Everything a problem file holds: the problem, design options and a default scenario."""
+    """Everything a problem file holds: the problem, design options, a default scenario and the
+    default online options (``online``: an :class:`~amcp_drake.controller.OnlineOptions`, or None
+    for the defaults; the CLIs start from it)."""
 
     problem: Problem
     design: DesignOptions = field(default_factory=DesignOptions)
     scenario: Scenario | None = None
+    online: Any = None
 
     def __post_init__(self) -> None:
         self.design.validate_for(self.problem)

@@ -11,7 +11,8 @@ Layout (format "amcp-problem", version 1)::
       "cost":   {"Q": [[..]], "R": [[..]], "N": 10},
       "theta_hat0": [..],
       "design":   {... DesignOptions fields, all optional ...},
-      "scenario": {"x0": [..], "theta_star": [..], "steps": 50, "disturbance": "uniform", "seed": 0}
+      "scenario": {"x0": [..], "theta_star": [..], "steps": 50, "disturbance": "uniform", "seed": 0},
+      "online":   {... OnlineOptions fields, all optional ...}   # optional (Section 4 extensions)
     }
 
 Files are written atomically (temporary file + rename), so a crash never leaves half a file.
@@ -77,7 +78,32 @@ def spec_from_dict(data: dict) -> ProblemSpec:
         if unknown:
             raise ProblemFileError("scenario", f"keys among {sorted(_SCENARIO_FIELDS)}", f"unknown keys {sorted(unknown)}")
         scenario = Scenario(**sc)
-    return ProblemSpec(problem=problem, design=design, scenario=scenario)
+    online = None
+    if data.get("online") is not None:
+        online = options_from_dict(data["online"], where="online")
+    return ProblemSpec(problem=problem, design=design, scenario=scenario, online=online)
+
+
+def options_from_dict(data: Any, where: str = "options"):
+    """:class:`~amcp_drake.controller.OnlineOptions` from a JSON object (unknown keys rejected)."""
+    from dataclasses import fields
+
+    from .controller import OnlineOptions
+
+    if not isinstance(data, dict):
+        raise ProblemFileError(where, "a JSON object", type(data).__name__)
+    names = {f.name for f in fields(OnlineOptions)}
+    unknown = set(data) - names
+    if unknown:
+        raise ProblemFileError(where, f"keys among {sorted(names)}", f"unknown keys {sorted(unknown)}")
+    return OnlineOptions(**data)
+
+
+def options_to_dict(options) -> dict:
+    """The JSON object of an :class:`~amcp_drake.controller.OnlineOptions` (all fields)."""
+    from dataclasses import asdict
+
+    return asdict(options)
 
 
 def spec_to_dict(spec: ProblemSpec) -> dict:
@@ -106,6 +132,8 @@ def spec_to_dict(spec: ProblemSpec) -> dict:
         sc = spec.scenario
         data["scenario"] = {"x0": np.asarray(sc.x0).tolist(), "theta_star": np.asarray(sc.theta_star).tolist(),
                             "steps": sc.steps, "disturbance": sc.disturbance, "seed": sc.seed}
+    if spec.online is not None:
+        data["online"] = options_to_dict(spec.online)
     return data
 
 
@@ -160,5 +188,6 @@ def write_text_atomic(text: str, path: str | os.PathLike) -> Path:
     return path
 
 
-__all__ = ["load_spec", "load_problem", "save_spec", "spec_from_dict", "spec_to_dict", "write_json_atomic",
+__all__ = ["load_spec", "load_problem", "save_spec", "spec_from_dict", "spec_to_dict", "options_from_dict",
+           "options_to_dict", "write_json_atomic",
            "write_text_atomic", "ProblemError"]

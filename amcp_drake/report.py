@@ -301,14 +301,14 @@ def _plot_projections(traj: Trajectory, cert: Certificate):
         if i == j:  # p = 1: intervals on a line
             for y, v, name in ((0.1, v0, "Θ_0"), (0.0, v1, f"Θ_{last.k}")):
                 ax.plot([v.min(), v.max()], [y, y], lw=4, label=name)
-            ax.plot(traj.theta_star[0], 0.05, "r*", ms=10, label="θ*")
+            ax.plot(traj.theta_star_at(last.k)[0], 0.05, "r*", ms=10, label="θ*")
             ax.set_yticks([])
         else:
             for v, name, style in ((v0, "Θ_0", "-"), (v1, f"Θ_{last.k}", "-")):
                 ring = _hull2d(v[:, [i, j]])
                 ax.fill(ring[:, 0], ring[:, 1], alpha=0.2)
                 ax.plot(ring[:, 0], ring[:, 1], style, lw=1.2, label=name)
-            ax.plot(traj.theta_star[i], traj.theta_star[j], "r*", ms=10, label="θ*")
+            ax.plot(traj.theta_star_at(last.k)[i], traj.theta_star_at(last.k)[j], "r*", ms=10, label="θ*")
             ax.plot(last.theta_hat[i], last.theta_hat[j], "kx", ms=8, label=f"θ̂_{last.k}")
             ax.set_xlabel(f"θ{i + 1}")
             ax.set_ylabel(f"θ{j + 1}")
@@ -325,7 +325,10 @@ def _plot_theta_hat(traj: Trajectory, cert: Certificate):
     ax = fig.add_subplot()
     for i in range(th.shape[1]):
         line, = ax.plot(s["k"], th[:, i], marker=".", label=f"θ̂{i + 1}")
-        ax.axhline(traj.theta_star[i], ls="--", lw=1, color=line.get_color())
+        if np.ndim(traj.theta_star) == 2:
+            ax.plot(range(len(traj.theta_star)), np.asarray(traj.theta_star)[:, i], ls="--", lw=1, color=line.get_color())
+        else:
+            ax.axhline(traj.theta_star[i], ls="--", lw=1, color=line.get_color())
     ax.set_xlabel("step k")
     ax.set_ylabel("parameter")
     ax.legend(fontsize="small", ncol=3)

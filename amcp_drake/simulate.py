@@ -21,12 +21,15 @@ from .controller import AdaptiveMPC, OnlineOptions, StepRecord
 from .design import OfflineDesign
 from .errors import InconsistentDataError, ProblemError, TrajectoryError
 from .problem import DISTURBANCE_KINDS, Problem
-from .problem_io import spec_from_dict, spec_to_dict, write_text_atomic
+from .problem_io import options_from_dict, options_to_dict, spec_from_dict, spec_to_dict, write_text_atomic
 from .problem import ProblemSpec
 from .status import SolveStatus
 
 TRAJECTORY_FORMAT = "amcp-trajectory"
 TRAJECTORY_VERSION = 1
+#: Slack on the rate bound of Assumption 17 when a θ* sequence is validated (round-off of a
+#: sequence generated at exactly the rate d_θ).
+THETA_RATE_TOL = 1e-12
 
 
 def disturbance_sequence(problem: Problem, kind: str | np.ndarray, steps: int, seed: int = 0) -> np.ndarray:
@@ -88,13 +91,25 @@ class Trajectory:
         return all(r.status is SolveStatus.OPTIMAL for r in self.records)
 
     # -- persistence ------------------------------------------------------------------------------
+    @property
+    def time_varying(self) -> bool:
+        """True when θ* was given as a sequence θ*_k (Section 4.1) that is not constant."""
+        seq = np.asarray(self.theta_star, float)
+        return seq.ndim == 2 and bool(np.any(seq != seq[0]))
+
+    def theta_star_at(self, k: int) -> np.ndarray:
+        """θ*_k: the constant θ*, or entry k of the sequence (the last entry past its end)."""
+        seq = np.asarray(self.theta_star, float)
+        if seq.ndim == 1:
+            return seq
+        return seq[min(k, len(seq) - 1)]
+
     def to_dict(self) -> dict[str, Any]:
         spec = ProblemSpec(self.problem)
         return {
             "format": TRAJECTORY_FORMAT, "version": TRAJECTORY_VERSION,
             "problem": spec_to_dict(spec), "design": self.design.to_dict(),
-            "options": {"update": self.options.update, "window": self.options.window,
-                        "projection": self.options.projection},
+            "options": options_to_dict(self.options),
             "backend": self.backend, "theta_star": self.theta_star.tolist(),
             "x": self.x.tolist(), "u": self.u.tolist(), "w": self.w.tolist(),
             "stop_reason": self.stop_reason, "mu_state_bound": self.mu_state_bound, "meta": self.meta,
@@ -133,7 +148,7 @@ class Trajectory:
         try:
             problem = spec_from_dict(data["problem"]).problem
             return cls(problem=problem, design=OfflineDesign.from_dict(data["design"]),
-                       options=OnlineOptions(**data["options"]), backend=data["backend"],
+                       options=options_from_dict(data["options"]), backend=data["backend"],
                        theta_star=np.asarray(data["theta_star"], float),
                        x=np.asarray(data["x"], float).reshape(-1, problem.n),
                        u=np.asarray(data["u"], float).reshape(-1, problem.m),
@@ -154,12 +169,14 @@ def _record_to_dict(r: StepRecord) -> dict[str, Any]:
         elif isinstance(value, SolveStatus):
             value = value.value
         elif isinstance(value, tuple):
-            value = list(value)
+            # ±inf (one-sided PE bounds) is not JSON: stored as None
+            value = [None if isinstance(v, float) and not np.isfinite(v) else v for v in value]
         out[f.name] = value
     return out
 
 
-_ARRAY_FIELDS = {"x", "u", "H_theta", "h_theta", "theta_hat", "theta_tilde", "v", "z", "alpha", "Lambda", "set_Lambda"}
+_ARRAY_FIELDS = {"x", "u", "H_theta", "h_theta", "theta_hat", "theta_tilde", "v", "z", "alpha", "Lambda", "set_Lambda",
+                 "h_theta_stages"}
 _STATUS_FIELDS = {"status", "set_status", "projection_status"}
 
 
@@ -175,6 +192,8 @@ def _record_from_dict(d: dict[str, Any]) -> StepRecord:
             value = SolveStatus(value)
         elif f.name == "infeasible_constraints":
             value = tuple(value)
+        elif f.name == "pe_bounds" and value is not None:
+            value = (float("-inf") if value[0] is None else value[0], float("inf") if value[1] is None else value[1])
         kwargs[f.name] = value
     return StepRecord(**kwargs)
 
@@ -182,6 +201,11 @@ def _record_from_dict(d: dict[str, Any]) -> StepRecord:
 def simulate(controller: AdaptiveMPC, x0, theta_star, steps: int, disturbance: str | np.ndarray = "uniform",
              seed: int = 0, progress: bool = False, mu_state_bound: float | None = None) -> Trajectory:
     """Run ``steps`` steps of the closed loop x_{k+1} = A(θ*)x_k + B(θ*)u_k + w_k under ``controller``.
+
+    ``theta_star`` is θ* (p,) or a sequence θ*_k of shape (steps, p) or (steps+1, p) (system (24),
+    Section 4.1): each θ*_k must lie in Θ and consecutive ones obey Assumption 17,
+    ‖θ*_{k+1} − θ*_k‖ <= d_θ of the controller's options (up to THETA_RATE_TOL). A (steps, p)
+    sequence is extended by θ*_steps = θ*_{steps−1}; the stored sequence has steps+1 rows.
 
     The run ends early, keeping the partial trajectory, when a step's status is not OPTIMAL.
     InconsistentDataError (Θ_{k-1} ∩ Δ_k empty) propagates with the partial trajectory attached
@@ -192,12 +216,25 @@ def simulate(controller: AdaptiveMPC, x0, theta_star, steps: int, disturbance: s
     if x.shape != (problem.n,) or not np.all(np.isfinite(x)):
         raise ProblemError("x0", f"a finite vector of length {problem.n}", f"{np.asarray(x0)!r}")
     theta_star = np.asarray(theta_star, float)
-    if theta_star.shape != (problem.p,) or not np.all(np.isfinite(theta_star)):
-        raise ProblemError("theta_star", f"a finite vector of length {problem.p}", f"{theta_star!r}")
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
         raise ProblemError("steps", "an integer >= 1", repr(steps))
-    if polytope.max_violation(problem.H_theta, problem.h_theta, theta_star) > 1e-9:
-        raise ProblemError("theta_star", "a point of Theta (Assumption 1)", f"{theta_star.tolist()}")
+    if theta_star.ndim == 2 and theta_star.shape == (steps, problem.p):
+        theta_star = np.vstack([theta_star, theta_star[-1:]])
+    if theta_star.shape not in ((problem.p,), (steps + 1, problem.p)) or not np.all(np.isfinite(theta_star)):
+        raise ProblemError("theta_star", f"a finite vector of length {problem.p} or a sequence of shape "
+                           f"({steps}, {problem.p}) / ({steps + 1}, {problem.p})", f"shape {theta_star.shape}")
+    for k, th in enumerate(np.atleast_2d(theta_star)):
+        if polytope.max_violation(problem.H_theta, problem.h_theta, th) > 1e-9:
+            raise ProblemError("theta_star" if theta_star.ndim == 1 else f"theta_star[{k}]",
+                               "a point of Theta (Assumption 1 / 17)", f"{th.tolist()}")
+    if theta_star.ndim == 2:
+        rates = np.linalg.norm(np.diff(theta_star, axis=0), axis=1)
+        d_theta = controller.options.d_theta
+        if rates.size and float(np.max(rates)) > d_theta + THETA_RATE_TOL:
+            k = int(np.argmax(rates))
+            raise ProblemError("theta_star", f"a sequence with ‖θ*_(k+1) − θ*_k‖ <= d_theta = {d_theta:g} "
+                               "(Assumption 17; set OnlineOptions(d_theta=...))",
+                               f"rate {rates[k]:.3g} at k = {k}")
     W = disturbance_sequence(problem, disturbance, steps, seed)
     controller.reset()
     xs, us, ws, records = [x], [], [], []
@@ -227,7 +264,7 @@ def simulate(controller: AdaptiveMPC, x0, theta_star, steps: int, disturbance: s
         if u is None:
             stop = f"step {k}: status {record.status.value}"
             break
-        x = problem.step(x, u, theta_star, W[k])
+        x = problem.step(x, u, theta_star if theta_star.ndim == 1 else theta_star[k], W[k])
         xs.append(x)
         us.append(u)
         ws.append(W[k])

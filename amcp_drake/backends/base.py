@@ -62,7 +62,9 @@ class TubeMPCData:
     * ``H_x`` (u, n): X0 = {x | H_x x <= 1}; ``X0_vertices`` (v, n): x^j of (14);
     * ``w_bar`` (u,), ``f_bar`` (c,): offline constants of Proposition 9;
     * ``H_T`` (r, n), ``h_T`` (r,): terminal set X_f = {(z, α) | H_T z + h_T α <= 1, α >= 0};
-    * ``H_theta`` (q, p): the shape of Θ_k in (15c)-(15d); constant while q is constant.
+    * ``H_theta`` (q, p): the shape of Θ_k in (15c)-(15d); constant while q is constant;
+    * ``cost``: ``"certainty_equivalence"`` (17)-(18) or ``"minmax"`` (19) in epigraph form
+      (Remark 13; plain formulation only).
     """
 
     A0: np.ndarray
@@ -83,6 +85,7 @@ class TubeMPCData:
     H_T: np.ndarray
     h_T: np.ndarray
     H_theta: np.ndarray
+    cost: str = "certainty_equivalence"
 
 
 @dataclass(frozen=True, eq=False)

@@ -22,6 +22,11 @@ from ..status import SolveStatus
 from .base import MPCSolution, TubeMPCData
 
 
+def _sqrtm(M: np.ndarray) -> np.ndarray:
+    vals, vecs = np.linalg.eigh(0.5 * (M + M.T))
+    return (vecs * np.sqrt(np.clip(vals, 0.0, None))) @ vecs.T
+
+
 class _Layout:
     """Offsets of the blocks of the decision vector."""
 
@@ -140,14 +145,64 @@ class DrakeTubeMPC:
         prog.AddBoundingBoxConstraint(0.0, np.inf, y[lay.a0:lay.a0 + N + 1]).evaluator().set_description("alpha >= 0")
         prog.AddBoundingBoxConstraint(0.0, np.inf, y[lay.L0:]).evaluator().set_description("Lambda >= 0")
 
-        # cost (17) in v only; coefficients set per step
+        # optional bound lo <= K x_k + v_0 <= hi on the first input (PE two-QP procedure, spec §8);
+        # inactive (±inf) unless ``solve`` gets ``u0_bounds``
+        self._c_u0 = prog.AddBoundingBoxConstraint(np.full(m, -np.inf), np.full(m, np.inf), y[lay.v(0)]).evaluator()
+        self._c_u0.set_description("PE bound on u_0|k")
+
         self._v_vars = y[lay.v0:lay.L0]
+        self._minmax = getattr(d, "cost", "certainty_equivalence") == "minmax"
+        if self._minmax:
+            self._add_minmax_cost(prog, y, Xv)
+            return
+        # cost (17) in v only; coefficients set per step
         self._cost = prog.AddQuadraticCost(np.eye(N * m), np.zeros(N * m), 0.0, self._v_vars, is_convex=True).evaluator()
         self._cost.set_description("(17) certainty-equivalence cost")
 
+    def _add_minmax_cost(self, prog, y, Xv) -> None:
+        """Min-max cost (19) in epigraph form: minimise Σ_{l=0}^{N} t_l with, for every vertex j,
+        t_l >= ‖x^j_l‖²_Q + ‖u^j_l‖²_R (l < N) and t_N >= ‖x^j_N‖²_P, x^j_l = z_l + α_l x^j,
+        u^j_l = K x^j_l + v_l. Each is a rotated Lorentz cone (t_l, 1, Q^½ x^j_l, R^½ u^j_l):
+        t_l·1 >= ‖·‖² (Drake's convention z0 z1 >= ‖z_2:‖², z0, z1 >= 0)."""
+        d, lay = self.data, self.layout
+        n, m, N = lay.n, lay.m, lay.N
+        t = self._t = prog.NewContinuousVariables(N + 1, "t")
+        base = y[:lay.L0]  # [z | α | v]
+        nb = lay.L0
+        Qh, Rh, Ph = (_sqrtm(np.asarray(M, float)) for M in (d.Q, d.R, d.P))
+        for l in range(N + 1):
+            for j, xj in enumerate(Xv):
+                # x^j_l = z_l + α_l x^j as a matrix on base
+                Ex = np.zeros((n, nb))
+                Ex[:, lay.z(l)] = np.eye(n)
+                Ex[:, lay.a(l)] = xj
+                if l < N:
+                    Eu = d.K @ Ex
+                    Eu[:, lay.v(l)] += np.eye(m)
+                    body = np.vstack([Qh @ Ex, Rh @ Eu])
+                else:
+                    body = Ph @ Ex
+                rows = body.shape[0] + 2
+                A = np.zeros((rows, nb + 1))
+                A[0, nb] = 1.0          # t_l
+                A[2:, :nb] = body
+                b = np.zeros(rows)
+                b[1] = 1.0
+                prog.AddRotatedLorentzConeConstraint(A, b, np.concatenate([base, [t[l]]])
+                                                     ).evaluator().set_description(f"(19) epigraph t_{l} vertex {j}")
+        prog.AddLinearCost(np.ones(N + 1), 0.0, t).evaluator().set_description("(19) min-max cost")
+
     def _matrix_15c(self, h_theta: np.ndarray) -> sp.csc_matrix:
+        """Constraint matrix of (15c) for offsets h_θk (q,), or of (28b) for per-stage offsets
+        h_{θ l|k} (N, q) of the predicted sets (26): the rows of stage l (ordered (l, j, i)) get
+        Λ^j_{l|k} h_{θ l|k}."""
         lay = self.layout
-        lam_block = sp.kron(sp.eye(self._rows15c), sp.csr_matrix(h_theta[None, :]), format="csc")
+        if h_theta.ndim == 1:
+            lam_block = sp.kron(sp.eye(self._rows15c), sp.csr_matrix(h_theta[None, :]), format="csc")
+        else:
+            per_stage = lay.nv * lay.u
+            lam_block = sp.block_diag([sp.kron(sp.eye(per_stage), sp.csr_matrix(h_l[None, :]))
+                                       for h_l in h_theta], format="csc")
         left = self._C15c[:, : lay.L0]
         return sp.hstack([left, lam_block], format="csc")
 
@@ -182,8 +237,12 @@ class DrakeTubeMPC:
         return 0.5 * (H + H.T), S.T @ x, float(x @ T @ x)
 
     # -- solve ---------------------------------------------------------------------------------
-    def solve(self, x, h_theta, theta_hat, H_theta=None) -> MPCSolution:
-        """Solve (20) at x_k with Θ_k = {H_θ θ <= h_theta} and point estimate θ̂_k."""
+    def solve(self, x, h_theta, theta_hat, H_theta=None, u0_bounds=None) -> MPCSolution:
+        """Solve (20) at x_k with Θ_k = {H_θ θ <= h_theta} and point estimate θ̂_k.
+
+        ``u0_bounds`` = (lo, hi) adds lo <= K x_k + v_{0|k} <= hi (±inf allowed), the PE
+        constraint of spec §8. ``h_theta`` may be (N, q): per-stage offsets of the predicted sets (26) (Section 4.1),
+        stage l of (15c)/(28b) then uses row l."""
         start = time.perf_counter()
         x = np.asarray(x, float)
         h_theta = np.asarray(h_theta, float)
@@ -191,14 +250,24 @@ class DrakeTubeMPC:
         for name, arr in (("x", x), ("h_theta", h_theta), ("theta_hat", theta_hat)):
             if not np.all(np.isfinite(arr)):
                 return MPCSolution(SolveStatus.ERROR, None, None, None, None, None, detail=f"non-finite {name}")
+        if h_theta.ndim == 2 and h_theta.shape != (self.data.N, self.H_theta.shape[0]):
+            return MPCSolution(SolveStatus.ERROR, None, None, None, None, None,
+                               detail=f"h_theta has shape {h_theta.shape}, expected (q,) or (N, q)")
         if H_theta is not None and (np.shape(H_theta) != self.H_theta.shape or not np.array_equal(H_theta, self.H_theta)):
             self._build(np.asarray(H_theta, float))
         lay = self.layout
         H_x = np.asarray(self.data.H_x, float)
         self._c15b.set_bounds(np.full(lay.u, -np.inf), -H_x @ x)
         self._c15c.UpdateCoefficients(self._matrix_15c(h_theta), np.full(self._rows15c, -np.inf), self._ub15c)
-        Hv, g, const = self._cost_matrices(x, theta_hat)
-        self._cost.UpdateCoefficients(2.0 * Hv, 2.0 * g, const, is_convex=True)
+        Kx = self.data.K @ x
+        if u0_bounds is None:
+            self._c_u0.set_bounds(np.full(lay.m, -np.inf), np.full(lay.m, np.inf))
+        else:
+            lo, hi = (np.broadcast_to(np.asarray(b, float), (lay.m,)) for b in u0_bounds)
+            self._c_u0.set_bounds(lo - Kx, hi - Kx)
+        if not self._minmax:
+            Hv, g, const = self._cost_matrices(x, theta_hat)
+            self._cost.UpdateCoefficients(2.0 * Hv, 2.0 * g, const, is_convex=True)
         update_time = time.perf_counter() - start
         result, solver_time = self._solver.solve(self.prog)
         status = self._solver.status(result)
@@ -217,5 +286,8 @@ class DrakeTubeMPC:
         v = yv[lay.v0:lay.L0].reshape(N, m)
         Lam = yv[lay.L0:].reshape(N, lay.nv, lay.u, lay.q)
         vf = v.reshape(-1)
-        cost = float(vf @ Hv @ vf + 2 * g @ vf + const)
+        if self._minmax:
+            cost = float(np.sum(result.GetSolution(self._t)))
+        else:
+            cost = float(vf @ Hv @ vf + 2 * g @ vf + const)
         return MPCSolution(status, v, z, alpha, Lam, cost, solver_time, update_time)

@@ -4,7 +4,9 @@ One DPP problem is built per controller (and rebuilt only when the number of row
 changes). Parameters, set at every step:
 
 * ``x_k`` (n,): the measured state, in (15b) and x̂_0 = x_k of (18);
-* ``h_theta`` (q,), ``H_theta`` (q, p): Θ_k of (15c)-(15d);
+* ``h_theta`` (N, q), ``H_theta`` (q, p): Θ_k of (15c)-(15d); row l of ``h_theta`` is the offset
+  used at stage l (all rows equal to h_θk, or the predicted sets (26) of Section 4.1);
+* ``u0_lo``, ``u0_hi`` (m,): only in the variant built with ``u0_bounds=True`` (PE, spec §8);
 * ``A_cl_hat`` = A(θ̂_k) + B(θ̂_k) K (n, n), ``B_hat`` = B(θ̂_k) (n, m): the dynamics (18).
 
 The nominal trajectory x̂ of (18) is kept as a variable with equality constraints (the Drake
@@ -37,6 +39,12 @@ GROUPS = (GROUP_15A, GROUP_15B, GROUP_15C, GROUP_15D, GROUP_TERMINAL)
 #: A group of the elastic (diagnostic) problem is reported as violated when its slack exceeds
 #: this; Clarabel's default feasibility tolerance is 1e-8, so 1e-6 is well above round-off.
 ELASTIC_SLACK_TOL = 1e-6
+#: Clarabel options for one retry of the min-max form (19) when the first solve ends "inaccurate"
+#: (AlmostSolved): measured on Example 1 (seed 0, step 12), Clarabel's equilibration stalls on the
+#: epigraph cones near the origin; without it the same problem solves to "optimal" and matches Drake.
+MINMAX_RETRY_OPTIONS = {"equilibrate_enable": False}
+#: Stand-in for an infinite side of ``u0_bounds`` (cvxpy parameters must be finite).
+U0_INF = 1e6
 
 
 @dataclass
@@ -61,7 +69,7 @@ def _col(vec: np.ndarray) -> np.ndarray:
     return np.asarray(vec, float).reshape(-1, 1)
 
 
-def formulate(data: TubeMPCData, q: int, elastic: bool = False) -> _Formulation:
+def formulate(data: TubeMPCData, q: int, elastic: bool = False, u0_bounds: bool = False) -> _Formulation:
     """Build the QP (20) for H_θ with q rows.
 
     With ``elastic=True`` every constraint group g gets a scalar slack s_g >= 0 on its right-hand
@@ -82,7 +90,7 @@ def formulate(data: TubeMPCData, q: int, elastic: bool = False) -> _Formulation:
 
     params = {
         "x_k": cp.Parameter(n, name="x_k"),
-        "h_theta": cp.Parameter(q, name="h_theta"),
+        "h_theta": cp.Parameter((N, q), name="h_theta"),
         "H_theta": cp.Parameter((q, p), name="H_theta"),
     }
     z = cp.Variable((n, N + 1), name="z")          # column l: tube centre z_l|k
@@ -113,7 +121,7 @@ def formulate(data: TubeMPCData, q: int, elastic: bool = False) -> _Formulation:
         # d^j_l = A0 x^j_l + B0 u^j_l − z_{l+1}
         d_l = A0 @ X_l + B0 @ U_l - cp.reshape(z[:, l + 1], (n, 1), order="F") @ ones_v
         # column j of this (u, nv) matrix is Λ^j_l h_θk
-        lam_h = cp.reshape(Lam[l] @ params["h_theta"], (u, nv), order="F")
+        lam_h = cp.reshape(Lam[l] @ params["h_theta"][l], (u, nv), order="F")
         # (15c): Λ^j_l h_θk + H_x d^j_l − α_{l+1} 1 <= −w̄, for all j (columns)
         groups[GROUP_15C].append(lam_h + H_x @ d_l - np.ones((u, 1)) @ cp.reshape(alpha[l + 1], (1, 1), order="F")
                                  <= -_col(w_bar) @ ones_v + s(GROUP_15C))
@@ -131,8 +139,29 @@ def formulate(data: TubeMPCData, q: int, elastic: bool = False) -> _Formulation:
     groups[GROUP_TERMINAL].append(H_T @ z[:, N] + alpha[N] * h_T <= 1.0 + s(GROUP_TERMINAL))
 
     constraints = [con for g in GROUPS for con in groups[g]]
+    if u0_bounds:
+        # PE two-QP procedure (spec §8): u0_lo <= K x_k + v_0|k <= u0_hi
+        params["u0_lo"] = cp.Parameter(m, name="u0_lo")
+        params["u0_hi"] = cp.Parameter(m, name="u0_hi")
+        u0 = K @ params["x_k"] + v[:, 0]
+        constraints += [u0 >= params["u0_lo"], u0 <= params["u0_hi"]]
     if elastic:
         objective = cp.Minimize(cp.sum(cp.hstack(list(slacks.values()))))
+    elif getattr(data, "cost", "certainty_equivalence") == "minmax":
+        # min-max cost (19), epigraph form: t_l >= ‖x^j_l‖²_Q + ‖u^j_l‖²_R for every vertex j (l < N),
+        # t_N >= ‖x^j_N‖²_P; vectorised over the vertex columns of X_l = z_l 1ᵀ + α_l [x^1 … x^v]
+        Qh, Rh, Ph = (sqrtm_psd(np.asarray(M, float)) for M in (data.Q, data.R, data.P))
+        t = cp.Variable(N + 1, name="t")
+        params["_t"] = t  # not a parameter: kept to read the cost back
+        for l in range(N + 1):
+            X_l = cp.reshape(z[:, l], (n, 1), order="F") @ ones_v + alpha[l] * Xv.T
+            if l < N:
+                U_l = K @ X_l + cp.reshape(v[:, l], (m, 1), order="F") @ ones_v
+                stage = cp.sum(cp.square(Qh @ X_l), axis=0) + cp.sum(cp.square(Rh @ U_l), axis=0)
+            else:
+                stage = cp.sum(cp.square(Ph @ X_l), axis=0)
+            constraints.append(stage <= t[l])
+        objective = cp.Minimize(cp.sum(t))
     else:
         # cost (17) with the nominal prediction (18) as equality-constrained variables
         params["A_cl_hat"] = cp.Parameter((n, n), name="A_cl_hat")
@@ -194,23 +223,30 @@ class CvxpyTubeMPC:
     def _set_parameters(self, form: _Formulation, x, h_theta, theta_hat) -> None:
         d = self.data
         form.params["x_k"].value = x
-        form.params["h_theta"].value = h_theta
+        h_theta = np.asarray(h_theta, float)
+        form.params["h_theta"].value = h_theta if h_theta.ndim == 2 else np.tile(h_theta, (int(d.N), 1))
         form.params["H_theta"].value = self.H_theta
-        if "A_cl_hat" in form.params:
+        if "A_cl_hat" in form.params and isinstance(form.params["A_cl_hat"], cp.Parameter):
             A_hat = d.A0 + np.tensordot(theta_hat, d.A, axes=1)
             B_hat = d.B0 + np.tensordot(theta_hat, d.B, axes=1)
             form.params["A_cl_hat"].value = A_hat + B_hat @ d.K
             form.params["B_hat"].value = B_hat
 
-    def solve(self, x, h_theta, theta_hat, H_theta=None) -> MPCSolution:
+    def solve(self, x, h_theta, theta_hat, H_theta=None, u0_bounds=None) -> MPCSolution:
         """Solve (20) at x_k with Θ_k = {H_θ θ <= h_theta} and the point estimate θ̂_k.
+
+        ``h_theta`` may be (N, q): per-stage offsets of the predicted sets (26) (Section 4.1).
+        ``u0_bounds`` = (lo, hi) adds lo <= K x_k + v_{0|k} <= hi (PE, spec §8); finite bounds
+        only on one side are allowed (the other ±inf), as in the Drake backend.
 
         ``H_theta`` replaces the shape of Θ_k: same number of rows -> parameter update only;
         a different number of rows -> the problem is rebuilt.
         """
         start = time.perf_counter()
         x = np.asarray(x, float).reshape(-1)
-        h_theta = np.asarray(h_theta, float).reshape(-1)
+        h_theta = np.asarray(h_theta, float)
+        if h_theta.ndim != 2:
+            h_theta = h_theta.reshape(-1)
         theta_hat = np.asarray(theta_hat, float).reshape(-1)
         arrays = {"x": x, "h_theta": h_theta, "theta_hat": theta_hat}
         if H_theta is not None:
@@ -220,7 +256,7 @@ class CvxpyTubeMPC:
                 return MPCSolution(SolveStatus.ERROR, None, None, None, None, None, detail=f"non-finite {name}")
         n, p = self.data.B0.shape[0], self.data.A.shape[0]
         q = self.q if H_theta is None else (arrays["H_theta"].shape[0] if arrays["H_theta"].ndim == 2 else -1)
-        expected = {"x": (n,), "h_theta": (q,), "theta_hat": (p,)}
+        expected = {"x": (n,), "h_theta": (q,) if h_theta.ndim == 1 else (int(self.data.N), q), "theta_hat": (p,)}
         if H_theta is not None:
             expected["H_theta"] = (q, p)
         for name, shape in expected.items():
@@ -232,21 +268,46 @@ class CvxpyTubeMPC:
                 self._build(arrays["H_theta"])  # new number of rows: new problem
             else:
                 self.H_theta = arrays["H_theta"]  # same shape: parameter update only
-        self._set_parameters(self.form, x, h_theta, theta_hat)
+        form = self.form
+        if u0_bounds is not None:
+            form = self._u0_form()
+            m = self.data.B0.shape[1]
+            lo, hi = (np.broadcast_to(np.asarray(b, float), (m,)).copy() for b in u0_bounds)
+            # cvxpy parameters must be finite: an infinite side is replaced by a bound that the
+            # input constraints of Z (or the horizon's feasibility) make inactive
+            form.params["u0_lo"].value = np.where(np.isfinite(lo), lo, -U0_INF)
+            form.params["u0_hi"].value = np.where(np.isfinite(hi), hi, U0_INF)
+        self._set_parameters(form, x, h_theta, theta_hat)
         update_time = time.perf_counter() - start
-        status, solver_time, detail = self._call.solve(self.form.problem)
+        status, solver_time, detail = self._call.solve(form.problem)
+        if status is SolveStatus.INACCURATE and "_t" in form.params and self._call.name == "CLARABEL":
+            from .backend import SolverCall
+
+            retry = SolverCall(self._call.name, {**self._call.options, **MINMAX_RETRY_OPTIONS})
+            status, extra, detail = retry.solve(form.problem)
+            solver_time += extra
+            detail = f"{detail} (min-max retry without equilibration)"
         if status is not SolveStatus.OPTIMAL:
             names = self._diagnose(x, h_theta, theta_hat) if status is SolveStatus.INFEASIBLE else ()
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names, detail=detail)
-        f = self.form
+        f = form
         N = int(self.data.N)
         nv, u = np.shape(self.data.X0_vertices)[0], np.shape(self.data.H_x)[0]
         v = np.asarray(f.v.value, float).T.copy()           # (N, m)
         z = np.asarray(f.z.value, float).T.copy()           # (N+1, n)
         alpha = np.asarray(f.alpha.value, float).copy()     # (N+1,)
         Lam = np.stack([np.asarray(L.value, float).reshape(nv, u, self.q) for L in f.Lambda])  # (N, nv, u, q)
-        cost = nominal_cost(self.data, x, theta_hat, v)
+        if "_t" in f.params:  # min-max cost (19): the optimal epigraph value
+            cost = float(np.sum(f.params["_t"].value))
+        else:
+            cost = nominal_cost(self.data, x, theta_hat, v)
         return MPCSolution(status, v, z, alpha, Lam, cost, solver_time, update_time, detail=detail)
+
+    def _u0_form(self) -> _Formulation:
+        """The variant of (20) with the first-input bounds, built on first use for this q."""
+        if getattr(self, "_u0", None) is None or self._u0[0] != self.q:
+            self._u0 = (self.q, formulate(self.data, self.q, u0_bounds=True))
+        return self._u0[1]
 
     def _diagnose(self, x, h_theta, theta_hat) -> tuple[str, ...]:
         """Groups relaxed by the elastic problem (minimum total slack); empty if it fails."""

@@ -1,0 +1,247 @@
+"""Section 4 extensions: PE (Section 4.2, spec §8), first-input bounds, the online section of problem
+files and the CLI options. Time-varying parameters are tested in properties/amcp_properties/test_time_varying.py."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from amcp_drake.controller import AdaptiveMPC, OnlineOptions
+from amcp_drake.excitation import (assumption20, pe_bounds, pe_measure, pe_quadratic, theta_diameter, xi_matrix)
+from amcp_drake.problem_io import spec_from_dict, spec_to_dict
+from amcp_drake.simulate import Trajectory, simulate
+from amcp_drake.status import SolveStatus
+
+#: eigenvalue round-off allowed when the quadratic form is compared with the window Gram
+EIG_TOL = 1e-9
+#: the QP's bound on u_0 may be violated by the solver's feasibility tolerance
+BOUND_TOL = 1e-7
+#: cost agreement of the two backends on the same bounded QP (as in compare.TOLERANCES for "cost")
+COST_RTOL = 1e-5
+
+
+def _window_gram(u_all, k, n, window):
+    def ubar(j):
+        return np.asarray(u_all[j - n:j + 1], float)[::-1]
+    return sum(np.outer(ubar(j), ubar(j)) for j in range(k - window + 1, k + 1))
+
+
+def test_pe_quadratic_matches_eigenvalues(rng):
+    """a u² + b u + c >= 0 ⇔ λ_min(Σ_window ū ūᵀ) >= ρ_used (spec §8 step 2), on random histories."""
+    n, window, checked = 2, 4, 0
+    for _ in range(300):
+        past = rng.normal(scale=rng.uniform(0.2, 2.0), size=window - 1 + n)
+        quad = pe_quadratic(past, n, window, 0.3)
+        if quad is None or quad.necessary_only:
+            continue
+        for u in rng.normal(scale=2.0, size=5):
+            lam = np.linalg.eigvalsh(_window_gram(np.append(past, u), len(past), n, window))[0]
+            q = quad.a * u * u + quad.b * u + quad.c
+            if abs(lam - quad.level) > 1e-6 and abs(q) > 1e-6:
+                assert (q >= 0) == (lam >= quad.level - EIG_TOL), (q, lam, quad)
+                checked += 1
+    assert checked > 200
+
+
+def test_pe_bounds_cases():
+    from amcp_drake.excitation import PEQuadratic
+
+    assert pe_bounds(None) is None
+    assert pe_bounds(PEQuadratic(1.0, 0.0, -0.25, (-0.5, 0.5))) == [(-np.inf, -0.5), (0.5, np.inf)]
+    assert pe_bounds(PEQuadratic(-1.0, 0.0, 0.25, (-0.5, 0.5))) == [(-0.5, 0.5)]
+    assert pe_bounds(PEQuadratic(1.0, 0.0, 1.0, None)) is None      # always satisfied
+    assert pe_bounds(PEQuadratic(-1.0, 0.0, -1.0, None)) == []      # never satisfied
+
+
+def test_assumption20(example_spec):
+    pr = example_spec.problem
+    holds, sv = assumption20(pr)
+    assert holds and len(sv) == pr.p
+    assert xi_matrix(pr).shape == (pr.p, pr.n * (pr.n + pr.m))
+    dependent = pr.with_changes(A=np.stack([pr.A[0], 2 * pr.A[0], pr.A[2]]), B=np.stack([pr.B[0], 2 * pr.B[0], pr.B[2]]))
+    assert not assumption20(dependent)[0]
+
+
+def test_pe_measure_direct(rng):
+    D = rng.normal(size=(7, 2, 3))
+    lo, hi = pe_measure(D, 3)
+    assert len(lo) == 5
+    ev = np.linalg.eigvalsh(sum(D[k].T @ D[k] for k in range(2, 5)))
+    assert lo[2] == pytest.approx(ev[0]) and hi[2] == pytest.approx(ev[-1])
+
+
+def test_theta_diameter_box():
+    H = np.vstack([np.eye(3), -np.eye(3)])
+    assert theta_diameter(H, np.ones(6)) == pytest.approx(2 * np.sqrt(3))
+
+
+@pytest.mark.parametrize("side", ["upper", "lower"])
+def test_u0_bounds_both_backends(example_spec, example_design, side):
+    """The optional first-input bound of the plain QP (20) holds and both backends agree on the cost."""
+    pr, d = example_spec.problem, example_design
+    x = np.array([0.5, 0.5])  # the unconstrained u_0 is interior to |u| <= 1 here
+    costs = []
+    for backend in ("drake", "cvxpy"):
+        ctrl = AdaptiveMPC(pr, d, backend=backend)
+        free = ctrl.mpc.solve(x, d.h_theta0, pr.theta_hat0)
+        u_free = float((d.K @ x + free.v[0])[0])
+        bounds = (-np.inf, u_free - 0.1) if side == "upper" else (u_free + 0.1, np.inf)
+        sol = ctrl.mpc.solve(x, d.h_theta0, pr.theta_hat0, u0_bounds=bounds)
+        assert sol.status is SolveStatus.OPTIMAL
+        u0 = float((d.K @ x + sol.v[0])[0])
+        assert bounds[0] - BOUND_TOL <= u0 <= bounds[1] + BOUND_TOL
+        assert sol.cost > free.cost  # the bound cuts off the unconstrained optimum
+        costs.append(sol.cost)
+        again = ctrl.mpc.solve(x, d.h_theta0, pr.theta_hat0)  # bounds are not sticky
+        assert again.cost == pytest.approx(free.cost, rel=1e-6)
+    assert costs[0] == pytest.approx(costs[1], rel=COST_RTOL)
+
+
+def test_pe_run_enforces_window_constraint(example_spec, example_design, tmp_path):
+    pr, sc = example_spec.problem, example_spec.scenario
+    window, level = 5, 0.2
+    ctrl = AdaptiveMPC(pr, example_design, options=OnlineOptions(update="fixed", pe_window=window, pe_level=level))
+    traj = simulate(ctrl, sc.x0, sc.theta_star, 25, "uniform", seed=2)
+    assert traj.stop_reason == "completed"
+    u = traj.u[:, 0]
+    enforced = 0
+    for r in traj.records[:-1]:
+        if r.pe_status != "enforced":
+            continue
+        quad = pe_quadratic(u[:r.k], pr.n, window, level)
+        lam = np.linalg.eigvalsh(_window_gram(u, r.k, pr.n, window))[0]
+        assert lam >= quad.level - 1e-6, (r.k, lam, quad.level)
+        lo, hi = r.pe_bounds
+        assert lo - BOUND_TOL <= u[r.k] <= hi + BOUND_TOL
+        enforced += 1
+    assert enforced > 5
+    # the PE records survive a save/load round trip (one-sided bounds hold ±inf)
+    path = traj.save(tmp_path / "t.json")
+    back = Trajectory.load(path)
+    assert [r.pe_bounds for r in back.records] == [r.pe_bounds for r in traj.records]
+    assert back.options == traj.options
+
+
+def test_pe_needs_scalar_input_and_plain(example_spec, example_design):
+    from amcp_drake.errors import ProblemError
+
+    with pytest.raises(ProblemError, match="plain"):
+        AdaptiveMPC(example_spec.problem, example_design, options=OnlineOptions(pe_window=3), formulation="vertex")
+    with pytest.raises(ProblemError):
+        OnlineOptions(pe_window=0)
+
+
+def test_online_section_round_trip(example_spec):
+    data = spec_to_dict(example_spec)
+    assert "online" not in data
+    data["online"] = {"update": "window", "window": 5, "d_theta": 0.01}
+    spec = spec_from_dict(data)
+    assert spec.online == OnlineOptions(update="window", window=5, d_theta=0.01)
+    assert spec_from_dict(spec_to_dict(spec)).online == spec.online
+    from amcp_drake.errors import ProblemFileError
+
+    data["online"] = {"bogus": 1}
+    with pytest.raises(ProblemFileError):
+        spec_from_dict(data)
+
+
+def test_cli_run_uses_file_online_section_and_d_theta(example_spec, tmp_path):
+    import json
+
+    from amcp_drake.cli import main
+
+    data = spec_to_dict(example_spec)
+    data["online"] = {"update": "none"}
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps(data))
+    res = CliRunner().invoke(main, ["run", str(path), "--steps", "3"])
+    assert res.exit_code == 0, res.output
+    assert "update none" in res.output
+    res = CliRunner().invoke(main, ["run", str(path), "--steps", "3", "--update", "fixed", "--d-theta", "0.01"])
+    assert res.exit_code == 0, res.output
+    assert "update fixed" in res.output
+    res = CliRunner().invoke(main, ["run", "--steps", "3", "--d-theta", "0.01", "--formulation", "vertex"])
+    assert res.exit_code == 2
+
+
+#: the epigraph value Σ t_l equals the recomputed (19) at the solver's accuracy
+MINMAX_RTOL = 1e-6
+
+
+def _minmax_value(data, z, alpha, v):
+    """(19) recomputed from (z, α, v): Σ_l max_j (‖x^j_l‖²_Q + ‖u^j_l‖²_R) + max_j ‖x^j_N‖²_P."""
+    N, total = data.N, 0.0
+    for l in range(N + 1):
+        X = z[l][None, :] + alpha[l] * np.asarray(data.X0_vertices)
+        if l < N:
+            U = X @ data.K.T + v[l]
+            vals = np.einsum("ji,ik,jk->j", X, data.Q, X) + np.einsum("ji,ik,jk->j", U, data.R, U)
+        else:
+            vals = np.einsum("ji,ik,jk->j", X, data.P, X)
+        total += float(np.max(vals))
+    return total
+
+
+@pytest.mark.parametrize("x", [[2.0, 3.0], [0.5, -0.2], [-3.0, 4.0]])
+def test_minmax_cost_both_backends(example_spec, example_design, x):
+    pr, d = example_spec.problem, example_design
+    x = np.asarray(x)
+    costs = []
+    for backend in ("drake", "cvxpy"):
+        ctrl = AdaptiveMPC(pr, d, backend=backend, options=OnlineOptions(cost="minmax"))
+        sol = ctrl.mpc.solve(x, d.h_theta0, pr.theta_hat0)
+        assert sol.status is SolveStatus.OPTIMAL
+        assert sol.cost == pytest.approx(_minmax_value(ctrl.data, sol.z, sol.alpha, sol.v), rel=MINMAX_RTOL)
+        costs.append(sol.cost)
+    assert costs[0] == pytest.approx(costs[1], rel=COST_RTOL)
+
+
+@pytest.mark.parametrize("backend", ["drake", "cvxpy"])
+def test_minmax_closed_loop_certifies(example_spec, example_design, backend):
+    """20 steps include the instance (seed 0, step 12) where cvxpy+Clarabel needed the retry."""
+    from amcp_drake.certify import certify
+
+    sc = example_spec.scenario
+    ctrl = AdaptiveMPC(example_spec.problem, example_design, backend=backend, options=OnlineOptions(cost="minmax"))
+    traj = simulate(ctrl, sc.x0, sc.theta_star, 20, "uniform", seed=0, mu_state_bound=example_spec.design.mu_state_bound)
+    assert traj.stop_reason == "completed"
+    cert = certify(traj, example_spec)
+    assert cert.passed, cert.ids("fail") + cert.ids("not_run")
+
+
+def test_example2_builtin_runs_with_drift():
+    """Example 2 (spec §9): built in, with its online section; the documented drifting θ*_k run keeps
+    θ*_k ∈ Θ_k, (x_k, u_k) ∈ Z and feasibility, and the PE constraint is enforced."""
+    from amcp_drake.design import design
+    from amcp_drake.examples import get_example, lorenzen2019_ex2_theta_star
+
+    spec = get_example("lorenzen2019_ex2")
+    assert spec.online == OnlineOptions(update="fixed", d_theta=0.01, pe_window=3, pe_level=0.8)
+    seq = lorenzen2019_ex2_theta_star(40)
+    assert np.max(np.linalg.norm(np.diff(seq, axis=0), axis=1)) <= spec.online.d_theta
+    pr, sc = spec.problem, spec.scenario
+    ctrl = AdaptiveMPC(pr, design(pr, spec.design), options=spec.online)
+    traj = simulate(ctrl, sc.x0, seq, 40, "uniform", seed=0)
+    assert traj.stop_reason == "completed"
+    assert min(float(np.min((r.h_theta - r.H_theta @ traj.theta_star_at(r.k)) / np.linalg.norm(r.H_theta, axis=1)))
+               for r in traj.records) >= -1e-7
+    assert max(pr.in_Z(x, u) for x, u in zip(traj.x, traj.u)) <= 1e-7
+    assert sum(r.pe_status == "enforced" for r in traj.records) > 20
+
+
+def test_cli_pe_figure_writes_png_and_json(tmp_path):
+    import json
+
+    from amcp_drake.cli import main
+
+    res = CliRunner().invoke(main, ["pe-figure", "--seeds", "1", "--steps", "12", "--pe-window", "3",
+                                    "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    data = json.loads((tmp_path / "pe_diameter.json").read_text())
+    assert (tmp_path / "pe_diameter.png").stat().st_size > 1000
+    for label in ("no_pe", "pe"):
+        d = data["runs"][label]["mean_diameter"]
+        assert len(d) == 13 and d[0] == pytest.approx(2 * np.sqrt(3))
+        assert all(b <= a + 1e-9 for a, b in zip(d, d[1:]))  # exact update (7): nested sets, non-increasing
+    assert data["assumption20"]["holds"]
