@@ -116,6 +116,9 @@ class StepRecord:
     h_theta_stages: np.ndarray | None = None
     pe_status: str = "off"
     pe_bounds: tuple | None = None
+    #: PE level enforced at this step (ρ, or the reduced attainable level; for
+    #: ``pe_status == "enforced_necessary"`` the level of the (1,1) condition Σ_window u_j² >= level)
+    pe_level: float | None = None
     projection_status: SolveStatus = SolveStatus.NOT_RUN
     infeasible_constraints: tuple[str, ...] = ()
     times: dict[str, float] = field(default_factory=dict)
@@ -289,6 +292,7 @@ class AdaptiveMPC:
         if best is not None:
             record.pe_status = "enforced_necessary" if quad.necessary_only else "enforced"
             record.pe_bounds = tuple(float(v) for v in best_b)
+            record.pe_level = float(quad.level)
             return best
         # no input satisfies both (20) and the PE constraint: (20) alone (SRC-1's fallback; the PE
         # constraint is not part of the recursive-feasibility argument)
