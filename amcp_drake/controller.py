@@ -116,9 +116,12 @@ class StepRecord:
     h_theta_stages: np.ndarray | None = None
     pe_status: str = "off"
     pe_bounds: tuple | None = None
-    #: PE level enforced at this step (ρ, or the reduced attainable level; for
-    #: ``pe_status == "enforced_necessary"`` the level of the (1,1) condition Σ_window u_j² >= level)
+    #: PE constraint enforced at this step (excitation.pe_quadratic): λ_min of the window Gram of the
+    #: stacked input [u_j; …; u_{j−pe_dim+1}] >= pe_level. pe_dim = n + 1 is spec §8's constraint
+    #: (status "enforced"); a smaller pe_dim is a rung of the ladder used while ρ is unattainable
+    #: ("enforced_partial", or "enforced_necessary" for pe_dim = 1: Σ_window u_j² >= pe_level).
     pe_level: float | None = None
+    pe_dim: int | None = None
     projection_status: SolveStatus = SolveStatus.NOT_RUN
     infeasible_constraints: tuple[str, ...] = ()
     times: dict[str, float] = field(default_factory=dict)
@@ -275,25 +278,41 @@ class AdaptiveMPC:
         opts = self.options
         if opts.pe_window is None:
             return self.mpc.solve(x, h_arg, self.theta_hat, H_arg)
-        from .excitation import pe_bounds, pe_quadratic
+        from .excitation import RETRY_LEVEL_FACTORS, pe_bounds, pe_quadratic, pe_quadratic_at
 
-        quad = pe_quadratic(np.array(self._u_hist), self.problem.n, opts.pe_window, opts.pe_level)
+        u_hist = np.array(self._u_hist)
+        quad = pe_quadratic(u_hist, self.problem.n, opts.pe_window, opts.pe_level)
         bounds = pe_bounds(quad)
         if bounds is None:
             record.pe_status = "inactive" if quad is None else "satisfied"
             return self.mpc.solve(x, h_arg, self.theta_hat, H_arg)
-        best, best_b, spent = None, None, 0.0
-        for b in bounds:
-            sol = self.mpc.solve(x, h_arg, self.theta_hat, H_arg, u0_bounds=b)
-            spent += sol.solver_time
-            if sol.status is SolveStatus.OPTIMAL and (best is None or sol.cost < best.cost):
-                best, best_b = sol, b
+        spent = 0.0
+        # the rung's level, then reduced levels (RETRY_LEVEL_FACTORS) when no input reaches it
+        for factor in (1.0,) + RETRY_LEVEL_FACTORS:
+            if factor != 1.0:
+                quad = pe_quadratic_at(u_hist, quad.dim, opts.pe_window, level * factor)
+                bounds = pe_bounds(quad)
+                if bounds is None:  # the reduced level holds for every input
+                    record.times["pe_solver"] = spent
+                    record.pe_status, record.pe_dim, record.pe_level = "satisfied", int(quad.dim), float(quad.level)
+                    return self.mpc.solve(x, h_arg, self.theta_hat, H_arg)
+            else:
+                level = quad.level
+            best, best_b = None, None
+            for b in bounds:
+                sol = self.mpc.solve(x, h_arg, self.theta_hat, H_arg, u0_bounds=b)
+                spent += sol.solver_time
+                if sol.status is SolveStatus.OPTIMAL and (best is None or sol.cost < best.cost):
+                    best, best_b = sol, b
+            if best is not None:
+                record.times["pe_solver"] = spent
+                record.pe_status = ("enforced" if quad.dim == self.problem.n + 1 else
+                                    "enforced_necessary" if quad.necessary_only else "enforced_partial")
+                record.pe_dim = int(quad.dim)
+                record.pe_bounds = tuple(float(v) for v in best_b)
+                record.pe_level = float(quad.level)
+                return best
         record.times["pe_solver"] = spent
-        if best is not None:
-            record.pe_status = "enforced_necessary" if quad.necessary_only else "enforced"
-            record.pe_bounds = tuple(float(v) for v in best_b)
-            record.pe_level = float(quad.level)
-            return best
         # no input satisfies both (20) and the PE constraint: (20) alone (SRC-1's fallback; the PE
         # constraint is not part of the recursive-feasibility argument)
         record.pe_status = "fallback"

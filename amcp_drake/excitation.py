@@ -22,11 +22,18 @@ from .problem import Problem
 
 #: Assumption 20: singular values of Ξ below this (relative to the largest) count as zero.
 RANK_TOL = 1e-10
-#: When the lower block of the window Gram has λ_min <= ρ(1 + LEVEL_MARGIN), the level is reduced to
-#: (1 − LEVEL_MARGIN)·λ_min so that S ≻ 0 with a margin (see :func:`pe_quadratic`).
+#: Ladder of levels (our decision, docs/decisions.md "Section 4 extensions"): the d-dimensional window
+#: constraint (stacked input of the last d inputs) targets ρ_d = ρ·LADDER_FACTOR^(n+1−d)/(1 − LEVEL_MARGIN),
+#: so that a constraint met at dimension d−1 makes dimension d attainable at the next step, and in
+#: steady state the full constraint is met at a level >= ρ.
+LADDER_FACTOR = 1.5
+#: A dimension counts as attainable when (1 − LEVEL_MARGIN)·λ_min(lower block) reaches its ladder level
+#: times ATTAINABLE_FRACTION; it is then enforced at min(ladder level, (1 − LEVEL_MARGIN)·λ_min(lower block)).
 LEVEL_MARGIN = 0.05
-#: Below this fraction of ρ a reduced level is useless; the necessary (1,1) condition is used.
-MIN_LEVEL_FRACTION = 1e-3
+ATTAINABLE_FRACTION = 0.5
+#: When neither QP with the PE bound is feasible, the same rung is retried at these fractions of its
+#: level before (20) is solved without PE (a single input may not reach the level, e.g. under |u| <= 1).
+RETRY_LEVEL_FACTORS = (0.5, 0.25, 0.125)
 #: |a| below this is treated as a = 0 (the constraint b u + c >= 0 is then linear in u_k).
 A_ZERO_TOL = 1e-12
 
@@ -59,7 +66,9 @@ def pe_measure(D: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass(frozen=True)
 class PEQuadratic:
-    """a u² + b u + c >= 0 ⇔ Σ_{window} ū ūᵀ ⪰ ρ I (S ≻ 0 assumed); ``roots`` (u₋, u₊) when real."""
+    """a u_k² + b u_k + c >= 0 ⇔ Σ_{j=k−P+1}^{k} ū⁽ᵈ⁾_j ū⁽ᵈ⁾_jᵀ ⪰ ``level``·I, with ū⁽ᵈ⁾_j =
+    [u_j; …; u_{j−d+1}] and d = ``dim`` (d = n + 1 is the constraint of spec §8); ``roots`` (u₋, u₊)
+    when real. ``necessary_only``: d = 1, i.e. Σ_window u_j² >= level."""
 
     a: float
     b: float
@@ -67,64 +76,86 @@ class PEQuadratic:
     roots: tuple[float, float] | None
     necessary_only: bool = False
     level: float = 0.0
+    dim: int = 0
+
+
+def stacked_gram(u: np.ndarray, k: int, dim: int, window: int) -> np.ndarray:
+    """Σ_{j=k−window+1}^{k} ū⁽ᵈ⁾_j ū⁽ᵈ⁾_jᵀ, ū⁽ᵈ⁾_j = [u_j; u_{j−1}; …; u_{j−d+1}] (m = 1); needs
+    u_{k−window−dim+2} … u_k, i.e. k >= window + dim − 2."""
+    u = np.asarray(u, float).reshape(-1)
+    G = np.zeros((dim, dim))
+    for j in range(k - window + 1, k + 1):
+        ub = u[j - dim + 1:j + 1][::-1]
+        G += np.outer(ub, ub)
+    return G
+
+
+def _quadratic(u_past: np.ndarray, k: int, dim: int, window: int, level: float) -> tuple[float, float, float]:
+    """a, b, c of the dim-dimensional window constraint at level ``level`` (spec §8 step 2), with
+    S = Ω₂₂ + r rᵀ ≻ 0 assumed (checked by the caller)."""
+    Omega = -level * np.eye(dim)
+    for j in range(k - window + 1, k):
+        uj = u_past[j - dim + 1:j + 1][::-1]
+        Omega += np.outer(uj, uj)
+    if dim == 1:
+        return 1.0, 0.0, float(Omega[0, 0])
+    r = u_past[k - dim + 1:k][::-1]  # [u_{k−1}; …; u_{k−d+1}]
+    w11, w21, W22 = Omega[0, 0], Omega[1:, 0], Omega[1:, 1:]
+    S = W22 + np.outer(r, r)
+    Si_r = np.linalg.solve(S, r)
+    Si_w = np.linalg.solve(S, w21)
+    return float(1.0 - r @ Si_r), float(-2.0 * r @ Si_w), float(w11 - w21 @ Si_w)
 
 
 def pe_quadratic(u_past: np.ndarray, n: int, window: int, level: float) -> PEQuadratic | None:
-    """The scalar PE constraint at step k (spec §8, steps 1-2).
+    """The scalar PE constraint at step k (spec §8, steps 1-2), with a ladder for when it is
+    unattainable.
 
-    ``u_past`` = [u_0, …, u_{k−1}] (m = 1). Needs u_{k−window+1−n} … u_{k−1}, i.e. at least
-    window − 1 + n past inputs; returns None otherwise (no constraint yet).
+    ``u_past`` = [u_0, …, u_{k−1}] (m = 1). The target is Σ_{j=k−P+1}^{k} ū_j ū_jᵀ ⪰ ρ I on the
+    stacked input ū_k = [u_k; …; u_{k−n}] (d = n + 1). Its lower-right block (the lagged inputs) does
+    not depend on u_k, so when that block's λ_min is below ρ no u_k reaches ρ (spec §8 assumes
+    S ≻ 0). That block is the (d−1)-dimensional window Gram of the previous step, so the constraint
+    of dimension d−1 met at step k−1 makes dimension d attainable at step k. The rule (a decision of
+    this project, docs/decisions.md "Section 4 extensions"): for d = n+1, n, …, 1 take the first
+    dimension whose lower block reaches ATTAINABLE_FRACTION of its ladder level
+    ρ_d = ρ·LADDER_FACTOR^(n+1−d)/(1 − LEVEL_MARGIN)
+    (after the (1 − LEVEL_MARGIN) safety factor) and enforce it at min(ρ_d, (1 − LEVEL_MARGIN)·λ_min);
+    d = 1 (Σ_window u_j² >= ρ_1) is always attainable. Starting from no excitation, the full
+    dimension is reached after n steps of met constraints.
 
-    When S = Ω₂₂ + r_k r_kᵀ is not positive definite, no u_k satisfies the window constraint (S is
-    its lower-right block and does not depend on u_k). The level is then lowered to the largest
-    attainable one, ρ_k = (1 − LEVEL_MARGIN) λ_min(lower block), and when that is negligible the
-    necessary (1,1) condition Σ_{j=k−P+1}^{k} u_j² >= ρ, i.e. u_k² + ω₁₁ >= 0, is returned
-    (``necessary_only``): both build up the excitation that makes the full level attainable in
-    later windows (a decision of this project, docs/decisions.md "Section 4 extensions"; spec §8
-    assumes S ≻ 0). ``level`` on the result is the level enforced.
+    Needs window − 1 + n past inputs; returns None before (no constraint yet).
     """
     u_past = np.asarray(u_past, float).reshape(-1)
     k = len(u_past)
     if k < window - 1 + n:
         return None
+    for dim in range(n + 1, 0, -1):
+        target = level * LADDER_FACTOR ** (n + 1 - dim) / (1.0 - LEVEL_MARGIN)
+        if dim > 1:
+            # lower block of the dim-dimensional Gram at k = (dim−1)-dimensional Gram at k−1
+            lam_lower = float(np.linalg.eigvalsh(stacked_gram(u_past, k - 1, dim - 1, window))[0])
+            attainable = (1.0 - LEVEL_MARGIN) * lam_lower
+            if attainable < ATTAINABLE_FRACTION * target:
+                continue
+            used = min(target, attainable)
+        else:
+            used = target
+        return pe_quadratic_at(u_past, dim, window, used)
+    raise AssertionError("unreachable: dimension 1 is always attainable")
 
-    def ubar(j: int) -> np.ndarray:  # [u_j; u_{j-1}; …; u_{j-n}] for j < k
-        return u_past[j - n:j + 1][::-1]
 
-    dim = n + 1
-    Omega = -level * np.eye(dim)
-    for j in range(k - window + 1, k):
-        uj = ubar(j)
-        Omega += np.outer(uj, uj)
-    r = u_past[k - n:k][::-1]  # [u_{k-1}; …; u_{k-n}]
-    w11, w21, W22 = Omega[0, 0], Omega[1:, 0], Omega[1:, 1:]
-    S = W22 + np.outer(r, r)
-    level_used = level
-    lam_lower = float(np.linalg.eigvalsh(S + level * np.eye(n))[0])  # λ_min of the lower block of the Gram
-    if lam_lower - level <= LEVEL_MARGIN * level:
-        # S ⋡ 0: the level ρ is unattainable at k whatever u_k. Enforce the largest attainable level
-        # ρ_k = (1 − LEVEL_MARGIN) λ_min(lower block) instead, or, when the lagged inputs carry no
-        # excitation at all, the necessary (1,1) condition Σ_window u_j² >= ρ.
-        level_used = (1.0 - LEVEL_MARGIN) * lam_lower
-        if level_used <= MIN_LEVEL_FRACTION * level:
-            c = float(w11)
-            roots = (-np.sqrt(-c), np.sqrt(-c)) if c < 0 else None
-            return PEQuadratic(1.0, 0.0, c, roots, necessary_only=True, level=level)
-        Omega = Omega + (level - level_used) * np.eye(dim)
-        w11, w21, W22 = Omega[0, 0], Omega[1:, 0], Omega[1:, 1:]
-        S = W22 + np.outer(r, r)
-    Si_r = np.linalg.solve(S, r)
-    Si_w = np.linalg.solve(S, w21)
-    a = float(1.0 - r @ Si_r)
-    b = float(-2.0 * r @ Si_w)
-    c = float(w11 - w21 @ Si_w)
+def pe_quadratic_at(u_past: np.ndarray, dim: int, window: int, level: float) -> PEQuadratic:
+    """The dim-dimensional window constraint at step k = len(u_past) and a given level (the caller
+    makes sure the level is attainable, i.e. S ≻ 0; lowering the level of an attainable one keeps it so)."""
+    u_past = np.asarray(u_past, float).reshape(-1)
+    a, b, c = _quadratic(u_past, len(u_past), dim, window, level)
     disc = b * b - 4 * a * c
     roots = None
     if abs(a) > A_ZERO_TOL and disc >= 0:
         s = np.sqrt(disc)
         r1, r2 = (-b - s) / (2 * a), (-b + s) / (2 * a)
         roots = (min(r1, r2), max(r1, r2))
-    return PEQuadratic(a, b, c, roots, level=level_used)
+    return PEQuadratic(a, b, c, roots, necessary_only=dim == 1, level=level, dim=dim)
 
 
 def pe_bounds(quad: PEQuadratic | None) -> list[tuple[float, float]] | None:

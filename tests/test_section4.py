@@ -21,27 +21,45 @@ BOUND_TOL = 1e-7
 COST_RTOL = 1e-5
 
 
-def _window_gram(u_all, k, n, window):
-    def ubar(j):
-        return np.asarray(u_all[j - n:j + 1], float)[::-1]
-    return sum(np.outer(ubar(j), ubar(j)) for j in range(k - window + 1, k + 1))
+def _window_gram(u_all, k, dim, window):
+    """Independent Σ_{j=k−window+1}^{k} ū ūᵀ with ū_j = [u_j; …; u_{j−dim+1}]."""
+    rows = [np.asarray(u_all[j - dim + 1:j + 1], float)[::-1] for j in range(k - window + 1, k + 1)]
+    return sum(np.outer(r, r) for r in rows)
 
 
 def test_pe_quadratic_matches_eigenvalues(rng):
-    """a u² + b u + c >= 0 ⇔ λ_min(Σ_window ū ūᵀ) >= ρ_used (spec §8 step 2), on random histories."""
-    n, window, checked = 2, 4, 0
-    for _ in range(300):
-        past = rng.normal(scale=rng.uniform(0.2, 2.0), size=window - 1 + n)
+    """a u² + b u + c >= 0 ⇔ λ_min(Σ_window ū⁽ᵈ⁾ ū⁽ᵈ⁾ᵀ) >= level (spec §8 step 2) for the rung d the
+    ladder picks, on random histories; every rung of the ladder is reached."""
+    n, window, checked, dims = 2, 4, 0, set()
+    for _ in range(400):
+        past = rng.normal(scale=rng.uniform(0.05, 2.0), size=window - 1 + n + int(rng.integers(0, 3)))
         quad = pe_quadratic(past, n, window, 0.3)
-        if quad is None or quad.necessary_only:
-            continue
+        dims.add(quad.dim)
         for u in rng.normal(scale=2.0, size=5):
-            lam = np.linalg.eigvalsh(_window_gram(np.append(past, u), len(past), n, window))[0]
+            lam = np.linalg.eigvalsh(_window_gram(np.append(past, u), len(past), quad.dim, window))[0]
             q = quad.a * u * u + quad.b * u + quad.c
             if abs(lam - quad.level) > 1e-6 and abs(q) > 1e-6:
                 assert (q >= 0) == (lam >= quad.level - EIG_TOL), (q, lam, quad)
                 checked += 1
     assert checked > 200
+    assert dims == {1, 2, 3}
+
+
+def test_pe_ladder_rung_is_attainable_and_climbs():
+    """A constraint met at rung d−1 makes rung d attainable at the next step (the lower block of the
+    d-dimensional Gram at k is the (d−1)-dimensional Gram at k−1): from zero excitation the full
+    dimension n + 1 is reached after n + 1 steps when every enforced bound is met with equality."""
+    n, window, level = 2, 4, 0.5
+    u = [0.0] * (window - 1 + n)
+    dims = []
+    for _ in range(8):
+        quad = pe_quadratic(np.array(u), n, window, level)
+        dims.append(quad.dim)
+        bounds = pe_bounds(quad)
+        u.append(0.0 if bounds is None else (bounds[-1][0] if np.isfinite(bounds[-1][0]) else bounds[-1][1]))
+    assert dims[:3] == [1, 2, 3] and set(dims[3:]) == {3}, dims
+    lam = np.linalg.eigvalsh(_window_gram(np.array(u), len(u) - 1, n + 1, window))[0]
+    assert lam >= level - 1e-9
 
 
 def test_pe_bounds_cases():
@@ -107,11 +125,13 @@ def test_pe_run_enforces_window_constraint(example_spec, example_design, tmp_pat
     u = traj.u[:, 0]
     enforced = 0
     for r in traj.records[:-1]:
-        if r.pe_status != "enforced":
+        if not r.pe_status.startswith("enforced"):
             continue
         quad = pe_quadratic(u[:r.k], pr.n, window, level)
-        lam = np.linalg.eigvalsh(_window_gram(u, r.k, pr.n, window))[0]
-        assert lam >= quad.level - 1e-6, (r.k, lam, quad.level)
+        assert (r.pe_dim, r.pe_level) == (quad.dim, quad.level)
+        assert (r.pe_status == "enforced") == (r.pe_dim == pr.n + 1)
+        lam = np.linalg.eigvalsh(_window_gram(u, r.k, r.pe_dim, window))[0]
+        assert lam >= r.pe_level - 1e-6, (r.k, lam, r.pe_level)
         lo, hi = r.pe_bounds
         assert lo - BOUND_TOL <= u[r.k] <= hi + BOUND_TOL
         enforced += 1
