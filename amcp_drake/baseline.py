@@ -7,8 +7,12 @@ same disturbance sequence:
 * **robust**: ``OnlineOptions(update="none")``, i.e. Θ_k ≡ Θ_0 and θ̂_k ≡ θ̂_0 (the non-adaptive
   homothetic tube MPC with the same tube, terminal set and cost).
 
-Measured per run: the closed-loop cost Σ_k (‖x_k‖²_Q + ‖u_k‖²_R) over the simulated steps, the
-mean tube size mean_k α_{0|k} (the scaling of X_{0|k} in (14)), and the feasible region of the QP
+Measured per run: the closed-loop cost Σ_k (‖x_k‖²_Q + ‖u_k‖²_R) over the simulated steps; the
+one-step uncertainty tube size s_k = max_i (max_{θ∈Θ_k} [H_x D(x_k, u_k)(θ − θ̂_k)]_i + w̄_i), the
+smallest scaling s with A(θ)x_k + B(θ)u_k + w ∈ x̂_{1|k} ⊕ s X0 for every θ ∈ Θ_k and w ∈ W
+(x̂_{1|k} the certainty-equivalence prediction (18); vertices of Θ_k), i.e. what the set estimate
+costs the tube at the applied input, mean over k; the mean of α_{0|k} returned by the QP
+(informational only: α is not in the cost (17), so it is not minimised); and the feasible region of the QP
 (20): the fraction of a grid of initial states x0 in a box for which 𝔻(x0, Θ_k) ≠ ∅, evaluated at
 the final Θ_T of the adaptive run and at Θ_0 = Θ. Because Θ_T ⊆ Θ (Lemma 3), the worst case
 max_{θ∈Θ_T} H_x D^j θ in (5b)/(15c) is row-wise at most that over Θ, so a tube feasible for Θ is
@@ -43,6 +47,7 @@ class RunMetrics:
 
     cost: float
     mean_alpha0: float
+    mean_one_step_tube: float
     completed: bool
     h_theta_final: np.ndarray
     H_theta_final: np.ndarray
@@ -65,6 +70,8 @@ class BaselineResult:
         rc = np.array([r.cost for r in self.robust])
         aa = np.array([r.mean_alpha0 for r in self.adaptive])
         ra = np.array([r.mean_alpha0 for r in self.robust])
+        at = np.array([r.mean_one_step_tube for r in self.adaptive])
+        rt = np.array([r.mean_one_step_tube for r in self.robust])
         fr = float(np.mean(self.feasible_robust))
         fa = np.array([float(np.mean(f)) for f in self.feasible_adaptive])
         return [
@@ -73,7 +80,10 @@ class BaselineResult:
             ("closed-loop cost Σ(‖x‖²_Q+‖u‖²_R), median", f"{np.median(ac):.3f}", f"{np.median(rc):.3f}"),
             ("closed-loop cost, mean", f"{np.mean(ac):.3f}", f"{np.mean(rc):.3f}"),
             ("cost ratio adaptive/robust per seed, median", f"{np.median(ac / rc):.4f}", "1"),
-            ("tube size mean_k α_{0|k}, median over seeds", f"{np.median(aa):.4f}", f"{np.median(ra):.4f}"),
+            ("one-step tube size mean_k s_k, median over seeds", f"{np.median(at):.4f}", f"{np.median(rt):.4f}"),
+            ("one-step tube size ratio adaptive/robust per seed, median", f"{np.median(at / rt):.4f}", "1"),
+            ("QP's α_{0|k}, mean over k, median over seeds (not minimised)", f"{np.median(aa):.4f}",
+             f"{np.median(ra):.4f}"),
             ("feasible fraction of the x0 grid (QP (20)), median", f"{np.median(fa):.4f}", f"{fr:.4f}"),
             ("feasible fraction, min over seeds", f"{np.min(fa):.4f}", f"{fr:.4f}"),
         ]
@@ -84,12 +94,29 @@ class BaselineResult:
         return "\n".join(lines)
 
 
+def one_step_tube(problem, design: OfflineDesign, x, u, H_theta, h_theta, theta_hat) -> float:
+    """s = max_i (max_{θ∈Θ_k} [H_x D(x, u)(θ − θ̂)]_i + w̄_i): the smallest s with every one-step
+    successor A(θ)x + B(θ)u + w (θ ∈ Θ_k, w ∈ W) in x̂_1 ⊕ s X0, X0 = {H_x x <= 1}, x̂_1 the prediction
+    with θ̂. Computed from the vertices of Θ_k (numpy/scipy only)."""
+    from .certify_checks import theta_vertices
+
+    verts = theta_vertices(H_theta, h_theta)
+    if verts is None or len(verts) == 0:
+        return float("nan")
+    D = problem.regressor(x, u)
+    spread = np.asarray(design.H_x, float) @ D @ (verts - np.asarray(theta_hat, float)).T  # (u, vertices)
+    return float(np.max(spread.max(axis=1) + np.asarray(design.w_bar, float)))
+
+
 def _metrics(traj, Q, R) -> RunMetrics:
     x, u = traj.x[: len(traj.u)], traj.u
     cost = float(np.einsum("ki,ij,kj->", x, Q, x) + np.einsum("ki,ij,kj->", u, R, u))
     alphas = [r.alpha[0] for r in traj.records if r.alpha is not None]
+    tubes = [one_step_tube(traj.problem, traj.design, traj.x[r.k], traj.u[r.k], r.H_theta, r.h_theta, r.theta_hat)
+             for r in traj.records if r.k < len(traj.u)]
     last = traj.records[-1]
     return RunMetrics(cost=cost, mean_alpha0=float(np.mean(alphas)) if alphas else float("nan"),
+                      mean_one_step_tube=float(np.mean(tubes)) if tubes else float("nan"),
                       completed=traj.stop_reason == "completed" and traj.all_solved,
                       h_theta_final=np.asarray(last.h_theta, float), H_theta_final=np.asarray(last.H_theta, float))
 
