@@ -69,7 +69,7 @@ class BenchSettings:
     steps: int = 50
     scaling_steps: int = 10
     seed: int = 0
-    only: str | None = None                      # None, "example" or "scaling"
+    only: str | None = None                      # None, "example", "scaling" or "section4"
     backends: tuple[str, ...] = ("drake", "cvxpy")
     formulations: tuple[str, ...] = ("plain", "vertex")
     example_facets: tuple[int, ...] = (4, 8)
@@ -305,11 +305,16 @@ def run_benchmarks(settings: BenchSettings | None = None,
                    progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
     """Run the selected benchmarks; return the JSON-ready result (format ``amcp-bench``)."""
     settings = settings or BenchSettings()
-    if settings.only not in (None, "example", "scaling"):
-        raise ValueError(f"only: expected None, 'example' or 'scaling', got {settings.only!r}")
+    if settings.only not in (None, "example", "scaling", "section4"):
+        raise ValueError(f"only: expected None, 'example', 'scaling' or 'section4', got {settings.only!r}")
     started = time.perf_counter()
     example = example_benchmark(settings, progress) if settings.only in (None, "example") else None
     scaling = scaling_benchmark(settings, progress) if settings.only in (None, "scaling") else None
+    section4 = None
+    if settings.only in (None, "section4"):
+        from .bench_section4 import section4_benchmark
+
+        section4 = section4_benchmark(settings.steps, settings.seed, settings.backends, progress)
     settings_dict = asdict(settings)
     settings_dict["gc_disabled_in_timed_loops"] = True
     return {
@@ -318,7 +323,7 @@ def run_benchmarks(settings: BenchSettings | None = None,
         "machine": machine_info(), "settings": settings_dict,
         "time_keys": {name: f"StepRecord.times[{key!r}]" for name, key in TIME_KEYS.items()},
         "reference_ms": {"paper": PAPER_MS, "target_drake_full_step": TARGET_MS},
-        "example": example, "scaling": scaling, "target": _target(example),
+        "example": example, "scaling": scaling, "section4": section4, "target": _target(example),
         "elapsed_s": time.perf_counter() - started,
     }
 
@@ -466,6 +471,10 @@ def format_summary(result: dict[str, Any]) -> str:
                 lines.append(f"  {axis} = {r[axis]:>3}  {r['backend']:6s} {r['formulation']:7s} "
                              f"{_fmt(r['times_ms']['total']['median'])} / {_fmt(r['times_ms']['solver']['median'])}"
                              + ("" if r["status"] == "completed" else f"  [{r['status']}]"))
+    if result.get("section4"):
+        from .bench_section4 import format_section4
+
+        lines.append(format_section4(result["section4"]))
     return "\n".join(lines)
 
 

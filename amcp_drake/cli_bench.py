@@ -13,8 +13,9 @@ from .cli_common import EXIT_BAD_INPUT, EXIT_OK, bad_input_exits_2
 @click.option("--quick", is_flag=True, help="Short runs and small sweeps (a minute or less; for CI and tests).")
 @click.option("--steps", type=int, default=None, help="Steps per Example 1 run (default 50, quick 10).")
 @click.option("--scaling-steps", type=int, default=None, help="Steps per sweep point (default 10, quick 3).")
-@click.option("--only", type=click.Choice(["example", "scaling"]), default=None,
-              help="Run only Example 1 or only the sweeps over N, p and the facets of X0.")
+@click.option("--only", type=click.Choice(["example", "scaling", "section4"]), default=None,
+              help="Run only Example 1, only the sweeps over N, p and the facets of X0, or only the Section 4 "
+                   "options (PE, min-max cost, time-varying parameters) against the CE cost.")
 @click.option("--backend", "backends", type=click.Choice(["drake", "cvxpy"]), multiple=True,
               help="Backend(s) to time (repeatable; default both).")
 @click.option("--formulation", "formulations", type=click.Choice(["plain", "vertex"]), multiple=True,

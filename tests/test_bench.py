@@ -99,3 +99,37 @@ def test_help_does_not_import_the_solvers():
             "print(sorted(m for m in ('pydrake', 'cvxpy', 'matplotlib', 'amcp_drake.bench') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_section4_rows_cover_every_option_and_backend(quick_result):
+    """The quick run includes the Section 4 table: every option on both backends, each run completed,
+    ratios relative to the CE reference of the same backend (which is exactly 1)."""
+    from amcp_drake.bench_section4 import CONFIGS
+
+    _, output, data = quick_result
+    rows = data["section4"]["rows"]
+    assert {(r["backend"], r["config"]) for r in rows} == {(b, c) for b in ("drake", "cvxpy") for c, _ in CONFIGS}
+    for r in rows:
+        assert r["status"] == "completed", r
+        assert r["qp_ms"]["n"] == 3 and r["qp_ms"]["median"] > 0
+        if r["config"] == CONFIGS[0][0]:
+            assert r["qp_median_ratio"] == 1.0
+    assert "Section 4 options" in output
+
+
+def test_qp_time_counts_every_pe_solve():
+    """With PE, the QP time of a step is every bounded solve, plus the final unbounded one only when
+    no bounded QP was applied (the applied one is already in pe_solver)."""
+    from amcp_drake.bench_section4 import qp_time
+    from amcp_drake.controller import StepRecord
+
+    from amcp_drake.status import SolveStatus
+
+    base = dict(k=1, x=np.zeros(2), u=np.zeros(1), status=SolveStatus.OPTIMAL, H_theta=np.eye(3), h_theta=np.ones(3),
+                theta_hat=np.zeros(3))
+    plain = StepRecord(**base, times={"solver": 0.02})
+    assert qp_time(plain) == 0.02
+    enforced = StepRecord(**base, times={"solver": 0.02, "pe_solver": 0.05}, pe_status="enforced")
+    assert qp_time(enforced) == 0.05
+    fallback = StepRecord(**base, times={"solver": 0.02, "pe_solver": 0.05}, pe_status="fallback")
+    assert qp_time(fallback) == pytest.approx(0.07)
