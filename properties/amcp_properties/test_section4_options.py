@@ -1,0 +1,241 @@
+"""Section 4 options (issue 7) on RANDOM systems, both backends: the min-max cost (19) (Remark 13),
+persistent excitation (spec §8) and time-varying parameters (Section 4.1, Proposition 19).
+
+Generators (:mod:`amcp_properties.section4`) reuse the suite's designed problems, θ* and
+boundary initial states; every check is numpy only against the recorded StepRecord contract.
+
+* min-max: every QP optimal (recursive feasibility), the tube constraints of 𝔻(x_k, Θ_k) re-checked
+  at the recorded decision (claims.recursive_feasibility), (x_k, u_k) ∈ Z, θ* ∈ Θ_k, and
+  record.cost = (19) evaluated from the recorded z, α, v (relative 1e-6).
+* PE (m = 1): runs complete with every QP optimal, (x, u) ∈ Z, λ_min of the realised window Gram
+  >= record.pe_level at "enforced" steps (dimension n + 1), Σ_window u_j² >= record.pe_level at
+  "enforced_necessary" steps (and the pe_dim Gram at "enforced_partial"), u_k within record.pe_bounds.
+* time-varying: θ*_k drifting at the full rate d_θ, reflected at the faces of Θ; θ*_k ∈ Θ_k
+  (Proposition 19), θ*_{k+l} ∈ Θ_{l|k} (record.h_theta_stages, (26)), (x, u) ∈ Z, every QP optimal.
+
+Negative controls (one test per option): a wrong cost formula and a tampered record.cost are
+rejected; a tampered pe_level (at steps where the constraint binds) and tampered pe_bounds are
+rejected; undilated predicted sets and a tampered Θ_k are rejected.
+
+Coverage per (option, backend) is printed with the suite's coverage table (labels) and asserted
+by test_section4_coverage_is_not_vacuous (thresholds MIN_COVERAGE, ci profile).
+
+Runtime (ci profile, 2-core machine shared with 2 other jobs, both backends, this file alone):
+see RUNTIME_NOTE below.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+from hypothesis import event, given, note, settings
+
+from . import claims, profiles, section4
+from .coverage import RunFeatures
+from .failures import require
+
+#: Set to print every example's claim margins (to measure tolerances).
+DEBUG_ENV = "AMCP_SECTION4_DEBUG"
+S = section4.sizes()
+MINMAX = section4.minmax_cases(steps=S.steps, max_N=S.max_N)
+PE = section4.pe_cases(steps=S.pe_steps, max_N=S.max_N)
+TIME_VARYING = section4.time_varying_cases(steps=S.steps, max_N=S.max_N)
+RUN = section4.RUNNER
+#: (option, backend) -> OptionCoverage, filled by the property tests, asserted at the end.
+STATS: dict[tuple[str, str], section4.OptionCoverage] = {}
+#: Minimum fractions of runs per option (ci and thorough): the properties are not vacuous.
+MIN_COVERAGE = {
+    "minmax": {"Z_active": 0.25, "alpha_positive": 0.75},
+    "pe": {"pe_enforced": 0.25, "pe_any_enforced": 0.5, "pe_binding": 0.25},
+    "time_varying": {"theta_near_boundary": 0.25, "dilation_needed": 0.2},
+}
+
+
+def examples(test):
+    return profiles.shared_seed(settings(max_examples=S.examples)(test))
+
+
+def _observe(case, traj, test, backend, coverage, option, flags):
+    """Coverage: the suite's recorder (labels carry the option's flags), events, and STATS."""
+    flags = dict(flags, completed=traj.stop_reason == "completed")
+    zmax = section4.z_margin(traj)
+    dist = section4.theta_distances(traj)
+    labels = dict(case.labels, **{k: str(bool(v)) for k, v in flags.items()})
+    f = RunFeatures(constraints_active=bool(zmax >= 1.0 - 1e-3), max_constraint=zmax,
+                    theta_shrank=any(np.any(r.h_theta < traj.records[0].h_theta - 1e-6) for r in traj.records),
+                    theta_star_distance=max(float(np.min(dist)), 0.0) if len(dist) else np.inf,
+                    completed=flags["completed"], labels=labels)
+    coverage.record(f"{test}[{backend}]", f)
+    STATS.setdefault((option, backend), section4.OptionCoverage()).add(flags)
+    for k, v in flags.items():
+        event(f"{option}: {k} = {bool(v)}")
+    pr = case.problem
+    note(f"case: n={pr.n} m={pr.m} p={pr.p} N={pr.N} options={case.options} labels={case.labels}")
+    note(f"x0={np.array2string(case.x0, precision=6)} run: {traj.stop_reason}, {len(traj.u)} steps")
+
+
+def _common(traj, test, backend, case, extra=()):
+    """The shared claims, then the option's own (``extra``) on the (possibly partial) run, and
+    only then "every QP optimal": a run that stops early is still checked on its recorded steps."""
+    results = [claims.constraints_satisfied(traj), section4.theta_star_in_theta_k(traj), *extra]
+    if os.environ.get(DEBUG_ENV):
+        print(f"[{test} {backend}] " + "; ".join(f"{r.name}: {r.margin}" for r in results))
+    for result in results:
+        require(result, test=test, backend=backend, case=case, traj=traj)
+    require(section4.all_qps_optimal(traj), test=test, backend=backend, case=case, traj=traj)
+    require(claims.recursive_feasibility(traj), test=test, backend=backend, case=case, traj=traj)
+
+
+# -- min-max cost (19) ---------------------------------------------------------------------------------
+
+
+@examples
+@given(case=MINMAX)
+def test_minmax_cost_closed_loop(case, backend, coverage):
+    """Cost (19): recursive feasibility, (x, u) ∈ Z, θ* ∈ Θ_k, record.cost = (19) by numpy."""
+    traj = RUN.run(case, backend)
+    alpha_pos = any(r.alpha is not None and np.max(r.alpha) > 1e-3 for r in traj.records)
+    _observe(case, traj, "test_minmax_cost_closed_loop", backend, coverage, "minmax",
+             {"Z_active": section4.z_margin(traj) > 1.0 - section4.ACTIVE_MARGIN, "alpha_positive": alpha_pos})
+    _common(traj, "section4_minmax", backend, case, [section4.minmax_cost_matches(traj)])
+
+
+def _mean_over_vertices(design, problem, z, alpha, v):
+    return section4.minmax_cost(design, problem, z, alpha, v, reduce=np.mean)
+
+
+def _sum_of_maxima_without_terminal(design, problem, z, alpha, v):
+    z = np.asarray(z, float)
+    return section4.minmax_cost(design, problem, z, alpha, v) - section4.minmax_cost(
+        design, problem, z[-1:], np.asarray(alpha, float)[-1:], np.zeros((0, problem.m)))
+
+
+@examples
+@given(case=MINMAX)
+def test_minmax_negative_controls(case, backend):
+    """The cost check rejects a wrong formula (mean instead of max over the tube vertices; terminal
+    term dropped) and a record.cost tampered by 1e-4 (relative)."""
+    traj = RUN.run(case, backend)
+    solved = [r for r in traj.records if r.cost is not None]
+    if not solved:
+        event("minmax negative control: no solved step")
+        return
+    assert not section4.minmax_cost_matches(traj, cost_of=lambda r: r.cost * (1 + 1e-4) + 1e-4).passed
+    if any(np.max(r.alpha) > 1e-3 for r in solved):
+        assert not section4.minmax_cost_matches(traj, formula=_mean_over_vertices).passed
+    if any(np.linalg.norm(r.z[-1]) + r.alpha[-1] > 1e-2 for r in solved):
+        assert not section4.minmax_cost_matches(traj, formula=_sum_of_maxima_without_terminal).passed
+
+
+# -- persistent excitation --------------------------------------------------------------------------------
+
+
+@examples
+@given(case=PE)
+def test_persistent_excitation_closed_loop(case, backend, coverage):
+    """PE (m = 1): recursive feasibility, (x, u) ∈ Z, the realised window Gram reaches
+    record.pe_level at enforced steps, u_k within record.pe_bounds."""
+    traj = RUN.run(case, backend)
+    statuses = {r.pe_status for r in traj.records}
+    _observe(case, traj, "test_persistent_excitation_closed_loop", backend, coverage, "pe",
+             {"pe_enforced": "enforced" in statuses,
+              "pe_any_enforced": any(s.startswith("enforced") for s in statuses),
+              "pe_necessary": "enforced_necessary" in statuses, "pe_fallback": "fallback" in statuses,
+              "pe_binding": section4.pe_binding_steps(traj) > 0,
+              "Z_active": section4.z_margin(traj) > 1.0 - section4.ACTIVE_MARGIN})
+    note(f"pe statuses: {[r.pe_status for r in traj.records]}")
+    _common(traj, "section4_pe", backend, case, [section4.pe_levels_met(traj), section4.pe_bounds_respected(traj)])
+
+
+def _moved_past_bound(traj, k):
+    """A copy of ``traj`` whose u_k is moved out of record.pe_bounds (past the finite bound it sits on)."""
+    r = traj.records[k]
+    lo, hi = r.pe_bounds
+    u = float(r.u[0])
+    delta = 0.05 * max(abs(u), 1e-3)
+    near_hi = np.isfinite(hi) and (not np.isfinite(lo) or abs(u - hi) <= abs(u - lo))
+    moved = hi + delta if near_hi else lo - delta
+    out = section4.tampered(traj, u=lambda rec: np.array([moved]) if rec.k == k else rec.u)
+    if k < len(traj.u):
+        out.u = traj.u.copy()
+        out.u[k] = moved
+    return out
+
+
+@examples
+@given(case=PE)
+def test_persistent_excitation_negative_controls(case, backend):
+    """The PE checks reject a pe_level raised by 1e-3 (relative) at steps where the constraint binds,
+    an input moved past its PE bound at a binding step, and bounds shifted to exclude the applied u_k."""
+    traj = RUN.run(case, backend)
+    rows = section4.pe_realised(traj)
+    binding = [row for row in rows if row[2] <= row[3] * (1 + section4.BINDING_REL) + 1e-12]
+    if binding:
+        raised = [(k, s, lam, level * (1 + 1e-3) + 1e-6) for k, s, lam, level in binding]
+        assert not section4.pe_levels_met(traj, realised=raised).passed
+        # the Gram uses the applied u_k: an input moved past its PE bound (out of the recorded
+        # interval, by 5 %) at a binding step is caught at one binding step at least
+        assert any(not section4.pe_levels_met(_moved_past_bound(traj, k)).passed for k, *_ in binding)
+    if any(r.pe_bounds is not None for r in traj.records):
+        def shifted(r):
+            if r.pe_bounds is None:
+                return None
+            u = float(r.u[0])
+            return (u + 1e-3, np.inf)
+        assert not section4.pe_bounds_respected(traj, bounds_of=shifted).passed
+
+
+# -- time-varying parameters ------------------------------------------------------------------------------
+
+
+@examples
+@given(case=TIME_VARYING)
+def test_time_varying_parameters_closed_loop(case, backend, coverage):
+    """d_θ > 0: θ*_k ∈ Θ_k (Proposition 19), θ*_{k+l} ∈ Θ_{l|k} (26), (x, u) ∈ Z, recursive feasibility."""
+    seq = case.theta_seq
+    rate = float(np.max(np.linalg.norm(np.diff(seq, axis=0), axis=1)))
+    prior = float(np.max(case.problem.H_theta @ seq.T - case.problem.h_theta[:, None]))
+    assert rate <= case.options.d_theta + 1e-12 and prior <= 1e-12, (rate, prior)  # the generator's contract
+    traj = RUN.run(case, backend)
+    dist = section4.theta_distances(traj)
+    _observe(case, traj, "test_time_varying_parameters_closed_loop", backend, coverage, "time_varying",
+             {"theta_near_boundary": len(dist) > 0 and float(np.min(dist)) <= section4.NEAR_BOUNDARY,
+              "dilation_needed": section4.future_leaves_theta_k(traj),
+              "Z_active": section4.z_margin(traj) > 1.0 - section4.ACTIVE_MARGIN})
+    _common(traj, "section4_time_varying", backend, case, [section4.predicted_sets_contain_future(traj)])
+
+
+@examples
+@given(case=TIME_VARYING)
+def test_time_varying_negative_controls(case, backend):
+    """The membership checks reject Θ_k shrunk just past θ*_k, and predicted sets without the
+    dilation (26) whenever θ* leaves Θ_k within the horizon (counted by the coverage test)."""
+    traj = RUN.run(case, backend)
+    if not traj.records:
+        return
+    dist = section4.theta_distances(traj)
+    k = int(np.argmin(dist))
+    H = np.asarray(traj.records[k].H_theta, float)
+    shift = (dist[k] + 1e-5) * np.linalg.norm(H, axis=1)
+    bad = section4.tampered(traj, h_theta=lambda r: r.h_theta - shift if r.k == k else r.h_theta)
+    assert not section4.theta_star_in_theta_k(bad).passed
+    if section4.future_leaves_theta_k(traj):
+        undilated = lambda r: np.tile(r.h_theta, (traj.problem.N, 1))  # noqa: E731
+        assert not section4.predicted_sets_contain_future(traj, stages_of=undilated).passed
+
+
+# -- coverage ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("option", sorted(MIN_COVERAGE))
+def test_section4_coverage_is_not_vacuous(option, backend):
+    """Runs after the property tests of the same backend (pytest groups the session-scoped backend
+    parameter): each option's generated runs reached the interesting cases."""
+    stats = STATS.get((option, backend))
+    if stats is None or stats.runs == 0:
+        pytest.skip(f"no {option} runs on {backend} in this session (property test deselected)")
+    print(f"section 4 coverage {option} [{backend}]: {stats.line()}")
+    low = {k: stats.fraction(k) for k, minimum in MIN_COVERAGE[option].items() if stats.fraction(k) < minimum}
+    assert not low, f"{option} [{backend}] coverage below minimum: {low} ({stats.line()})"
