@@ -20,8 +20,23 @@ rejected; undilated predicted sets and a tampered Θ_k are rejected.
 Coverage per (option, backend) is printed with the suite's coverage table (labels) and asserted
 by test_section4_coverage_is_not_vacuous (thresholds MIN_COVERAGE, ci profile).
 
-Runtime (ci profile, 2-core machine shared with 2 other jobs, both backends, this file alone):
-see RUNTIME_NOTE below.
+Runtime (ci profile: 24 examples per option and backend, 12-step runs, 18-step PE runs, N <= 6;
+2-core machine shared with 2 other jobs; both backends, this file alone): 54 s wall (pytest
+"52 s"), with the two min-max tests stopping at their first failing example (below). The
+negative controls reuse the runs (Section4Runner). Measured without the min-max failures
+(diagnostic runs of 30 examples per option): drake 6 s (min-max) + 8 s (PE) + 5 s (time-varying),
+cvxpy 10 s + 18 s + 6 s, i.e. about 55-70 s for the whole file once min-max runs all its examples.
+
+Coverage measured (ci, both backends alike): PE 24 runs: "enforced" reached in 96 %,
+"enforced_necessary" in 79 %, the PE constraint binding (λ_min = level) in 100 %, Z active
+(max(Fx+Gu) > 0.95) in 92 %, fallback 0 %. Time-varying 24 runs: θ*_k within 0.05 of ∂Θ_k in 88 %,
+θ*_{k+l} outside Θ_k itself (the dilation (26) needed) in 50 %, Z active in 92 %. Min-max: Z active
+and α > 0 in every run checked.
+
+Known failures (library, reported by this file; not hidden): the min-max QP ends with status
+optimal_inaccurate on many generated cases, Drake far more often (18 of 38 distinct cases in a
+diagnostic run; the cvxpy backend retries without equilibration) than cvxpy (1 of 30), so
+test_minmax_cost_closed_loop fails on both backends under the ci seed.
 """
 
 from __future__ import annotations
