@@ -73,13 +73,20 @@ class _Solver:
         self.solver = SOLVERS[key]()
         if not self.solver.available() or not self.solver.enabled():
             raise ValueError(f"Drake solver {name!r} is not available or not enabled (license?)")
-        self.options = SolverOptions()
-        for opt, value in (options or {}).items():
-            self.options.SetOption(self.solver.solver_id(), opt, value)
+        self.option_values = dict(options or {})
+        self.options = self._solver_options(self.option_values)
 
-    def solve(self, prog: MathematicalProgram):
+    def _solver_options(self, values: dict) -> SolverOptions:
+        opts = SolverOptions()
+        for opt, value in values.items():
+            opts.SetOption(self.solver.solver_id(), opt, value)
+        return opts
+
+    def solve(self, prog: MathematicalProgram, extra_options: dict | None = None):
+        """Solve ``prog``; ``extra_options`` override this solver's options for this call only."""
+        options = self.options if not extra_options else self._solver_options({**self.option_values, **extra_options})
         start = time.perf_counter()
-        result = self.solver.Solve(prog, None, self.options)
+        result = self.solver.Solve(prog, None, options)
         return result, time.perf_counter() - start
 
     def status(self, result) -> SolveStatus:

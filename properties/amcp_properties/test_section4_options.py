@@ -21,11 +21,8 @@ Coverage per (option, backend) is printed with the suite's coverage table (label
 by test_section4_coverage_is_not_vacuous (thresholds MIN_COVERAGE, ci profile).
 
 Runtime (ci profile: 24 examples per option and backend, 12-step runs, 18-step PE runs, N <= 6;
-2-core machine shared with 2 other jobs; both backends, this file alone): 54 s wall (pytest
-"52 s"), with the two min-max tests stopping at their first failing example (below). The
-negative controls reuse the runs (Section4Runner). Measured without the min-max failures
-(diagnostic runs of 30 examples per option): drake 6 s (min-max) + 8 s (PE) + 5 s (time-varying),
-cvxpy 10 s + 18 s + 6 s, i.e. about 55-70 s for the whole file once min-max runs all its examples.
+2-core machine; both backends, this file alone): 54 s (pytest), the negative controls reusing
+the runs (Section4Runner).
 
 Coverage measured (ci, both backends alike): PE 24 runs: "enforced" reached in 96 %,
 "enforced_necessary" in 79 %, the PE constraint binding (λ_min = level) in 100 %, Z active
@@ -33,10 +30,11 @@ Coverage measured (ci, both backends alike): PE 24 runs: "enforced" reached in 9
 θ*_{k+l} outside Θ_k itself (the dilation (26) needed) in 50 %, Z active in 92 %. Min-max: Z active
 and α > 0 in every run checked.
 
-Known failures (library, reported by this file; not hidden): the min-max QP ends with status
-optimal_inaccurate on many generated cases, Drake far more often (18 of 38 distinct cases in a
-diagnostic run; the cvxpy backend retries without equilibration) than cvxpy (1 of 30), so
-test_minmax_cost_closed_loop fails on both backends under the ci seed.
+Min-max history: with the first (rotated-cone) form of (19) the min-max QP ended
+"optimal_inaccurate" on 18 of 38 generated cases (Drake) and 1 of 30 (cvxpy), and
+test_minmax_cost_closed_loop failed on both backends (CI of stop 10). Fixed in the library (second-
+order-cone form and the Clarabel retry ladder, docs/decisions.md "Min–max cost (19)"), not here:
+the test's requirement (every QP optimal) is unchanged.
 """
 
 from __future__ import annotations

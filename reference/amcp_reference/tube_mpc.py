@@ -24,6 +24,7 @@ import cvxpy as cp
 import numpy as np
 
 from amcp_drake.backends.base import MPCSolution, TubeMPCData
+from amcp_drake.backends.clarabel_retry import CLARABEL_RETRY_LADDER, RETRIED, describe
 from amcp_drake.status import SolveStatus
 
 from .offline import sqrtm_psd
@@ -39,10 +40,6 @@ GROUPS = (GROUP_15A, GROUP_15B, GROUP_15C, GROUP_15D, GROUP_TERMINAL)
 #: A group of the elastic (diagnostic) problem is reported as violated when its slack exceeds
 #: this; Clarabel's default feasibility tolerance is 1e-8, so 1e-6 is well above round-off.
 ELASTIC_SLACK_TOL = 1e-6
-#: Clarabel options for one retry of the min-max form (19) when the first solve ends "inaccurate"
-#: (AlmostSolved): measured on Example 1 (seed 0, step 12), Clarabel's equilibration stalls on the
-#: epigraph cones near the origin; without it the same problem solves to "optimal" and matches Drake.
-MINMAX_RETRY_OPTIONS = {"equilibrate_enable": False}
 #: Stand-in for an infinite side of ``u0_bounds`` (cvxpy parameters must be finite).
 U0_INF = 1e6
 
@@ -148,20 +145,22 @@ def formulate(data: TubeMPCData, q: int, elastic: bool = False, u0_bounds: bool 
     if elastic:
         objective = cp.Minimize(cp.sum(cp.hstack(list(slacks.values()))))
     elif getattr(data, "cost", "certainty_equivalence") == "minmax":
-        # min-max cost (19), epigraph form: t_l >= ‖x^j_l‖²_Q + ‖u^j_l‖²_R for every vertex j (l < N),
-        # t_N >= ‖x^j_N‖²_P; vectorised over the vertex columns of X_l = z_l 1ᵀ + α_l [x^1 … x^v]
+        # min-max cost (19), epigraph form as in the Drake backend: s_l >= ‖(Q^½ x^j_l, R^½ u^j_l)‖ for
+        # every vertex j (l < N), s_N >= ‖P^½ x^j_N‖, minimise Σ s_l² (second-order cones, not
+        # t_l >= ‖·‖², whose rotated-cone form loses the slack to cancellation when the cost is small);
+        # vectorised over the vertex columns of X_l = z_l 1ᵀ + α_l [x^1 … x^v]
         Qh, Rh, Ph = (sqrtm_psd(np.asarray(M, float)) for M in (data.Q, data.R, data.P))
-        t = cp.Variable(N + 1, name="t")
-        params["_t"] = t  # not a parameter: kept to read the cost back
+        s_epi = cp.Variable(N + 1, name="s")
+        params["_s"] = s_epi  # not a parameter: kept to read the cost back
         for l in range(N + 1):
             X_l = cp.reshape(z[:, l], (n, 1), order="F") @ ones_v + alpha[l] * Xv.T
             if l < N:
                 U_l = K @ X_l + cp.reshape(v[:, l], (m, 1), order="F") @ ones_v
-                stage = cp.sum(cp.square(Qh @ X_l), axis=0) + cp.sum(cp.square(Rh @ U_l), axis=0)
+                body = cp.vstack([Qh @ X_l, Rh @ U_l])
             else:
-                stage = cp.sum(cp.square(Ph @ X_l), axis=0)
-            constraints.append(stage <= t[l])
-        objective = cp.Minimize(cp.sum(t))
+                body = Ph @ X_l
+            constraints.append(cp.norm(body, 2, axis=0) <= s_epi[l])
+        objective = cp.Minimize(cp.sum_squares(s_epi))
     else:
         # cost (17) with the nominal prediction (18) as equality-constrained variables
         params["A_cl_hat"] = cp.Parameter((n, n), name="A_cl_hat")
@@ -280,13 +279,18 @@ class CvxpyTubeMPC:
         self._set_parameters(form, x, h_theta, theta_hat)
         update_time = time.perf_counter() - start
         status, solver_time, detail = self._call.solve(form.problem)
-        if status is SolveStatus.INACCURATE and "_t" in form.params and self._call.name == "CLARABEL":
+        if status in RETRIED and self._call.name == "CLARABEL":
             from .backend import SolverCall
 
-            retry = SolverCall(self._call.name, {**self._call.options, **MINMAX_RETRY_OPTIONS})
-            status, extra, detail = retry.solve(form.problem)
-            solver_time += extra
-            detail = f"{detail} (min-max retry without equilibration)"
+            for rung, extra_options in enumerate(CLARABEL_RETRY_LADDER):
+                retry = SolverCall(self._call.name, {**self._call.options, **extra_options})
+                status, extra, detail = retry.solve(form.problem)
+                solver_time += extra
+                if status not in RETRIED:
+                    detail = f"{detail} ({describe(rung)})"
+                    break
+            else:
+                detail = f"{detail} after {len(CLARABEL_RETRY_LADDER)} Clarabel retries"
         if status is not SolveStatus.OPTIMAL:
             names = self._diagnose(x, h_theta, theta_hat) if status is SolveStatus.INFEASIBLE else ()
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names, detail=detail)
@@ -297,8 +301,8 @@ class CvxpyTubeMPC:
         z = np.asarray(f.z.value, float).T.copy()           # (N+1, n)
         alpha = np.asarray(f.alpha.value, float).copy()     # (N+1,)
         Lam = np.stack([np.asarray(L.value, float).reshape(nv, u, self.q) for L in f.Lambda])  # (N, nv, u, q)
-        if "_t" in f.params:  # min-max cost (19): the optimal epigraph value
-            cost = float(np.sum(f.params["_t"].value))
+        if "_s" in f.params:  # min-max cost (19): Σ s_l² at the optimal epigraph variables
+            cost = float(np.sum(np.asarray(f.params["_s"].value, float) ** 2))
         else:
             cost = nominal_cost(self.data, x, theta_hat, v)
         return MPCSolution(status, v, z, alpha, Lam, cost, solver_time, update_time, detail=detail)
