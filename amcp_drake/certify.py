@@ -11,7 +11,9 @@ backend that ran the loop):
 * Lemma 3 / (10): Θ ⊆ Θ_0, Θ_{k+1} ⊆ Θ_k, Θ_k ∩ Δ_{k+1} ⊆ Θ_{k+1};
 * (12) and Lemma 5: the projected LMS update and the Lemma 5 inequality for every m;
 * Proposition 9 at every solved step: tube containment by vertex enumeration, (5c), α >= 0,
-  the terminal set, and the multipliers Λ as dual certificates (Λ >= 0, (15c), (15d)).
+  the terminal set, and the multipliers Λ as dual certificates (Λ >= 0, (15c), (15d));
+* the recorded cost against (17) or (19) and, when the run enforces persistent excitation, the
+  PE window level and input bounds of spec §8 (:mod:`amcp_drake.certify_options`).
 
 Each claim is a :class:`~amcp_drake.checks.CheckResult` (margin, tolerance, worst step in
 ``data["worst_step"]``). :attr:`Certificate.passed` is True only when every claim passed: a claim
@@ -31,6 +33,7 @@ import numpy as np
 
 from . import __version__
 from .certify_checks import RunView, run_checks, tag
+from .certify_options import option_checks, pe_figure
 from .certify_tube import GROUP_DESIGN, tube_checks, x0_vertex_list
 from .checks import FAIL, NOT_RUN, PASS, CheckResult, not_run
 from .errors import TrajectoryError
@@ -130,7 +133,7 @@ def certify(traj: Trajectory, problem_spec: ProblemSpec | None = None) -> Certif
     claims = _design_claims(traj, state_bound)
     view = RunView(traj)
     run, lemma = run_checks(view, state_bound)
-    claims += run + tube_checks(view)
+    claims += run + tube_checks(view) + option_checks(view)
     figures, series = _figures(view, lemma)
     return Certificate(claims=claims, figures=figures, series=series, run=_run_info(traj, state_bound),
                        problem={"name": traj.problem.name, "n": traj.problem.n, "m": traj.problem.m,
@@ -286,6 +289,9 @@ def _figures(view: RunView, lemma) -> tuple[dict[str, Any], dict[str, Any]]:
         "median_solver_time_s": _median([r.times.get("solver") for r in view.records]),
         "max_solver_time_s": _max([r.times.get("solver") for r in view.records]),
     }
+    pe = pe_figure(view)
+    if pe is not None:
+        figures["persistent_excitation"] = pe
     series = {
         "k": [r.k for r in view.records],
         "x": tr.x.tolist(), "u": tr.u.tolist(), "w": tr.w.tolist(),
@@ -297,6 +303,8 @@ def _figures(view: RunView, lemma) -> tuple[dict[str, Any], dict[str, Any]]:
         "solver_time_s": [r.times.get("solver") for r in view.records],
         "step_time_s": [r.times.get("total") for r in view.records],
         "status": [r.status.value for r in view.records],
+        "cost": [r.cost for r in view.records],
+        "pe_status": [r.pe_status for r in view.records],
     }
     return figures, series
 

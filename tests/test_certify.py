@@ -39,6 +39,7 @@ ALL_IDS = [
     "lms_update", "lemma5",
     "tube_contains_state", "tube_contains_next_state", "tube_propagation", "tube_constraints", "tube_alpha_nonneg",
     "terminal_set", "multipliers_nonneg", "multipliers_15c", "multipliers_15d",
+    "cost_value",
 ]
 
 
@@ -169,7 +170,8 @@ def test_state_pushed_outside_z(recorded, spec):
     * x_T ∈ X_0|T fails: X_0|T satisfies (15a), so it lies in x2 >= −0.3;
     * x_T ∈ X_1|T-1 fails for the same reason (X_1|T-1 satisfies (15a) at l = 1);
     * the states no longer follow (1) with the recorded w_(T-1) ∈ W;
-    * θ̂_T no longer follows (12): the LMS step uses x_T.
+    * θ̂_T no longer follows (12): the LMS step uses x_T;
+    * the recorded cost of step T is no longer (17): the nominal prediction (18) starts at x_T.
     Θ_(T-1) ∩ Δ_T is then empty, so the Lemma 3 inclusion holds vacuously (reported in its detail).
     """
     tr = fresh(recorded)
@@ -182,7 +184,7 @@ def test_state_pushed_outside_z(recorded, spec):
     last.u = tr.design.K @ x + last.v[0]
     cert = certify(tr, spec)
     assert_fails_exactly(cert, {"state_input_constraints", "tube_contains_state", "tube_contains_next_state",
-                                "model_consistent", "lms_update"})
+                                "model_consistent", "lms_update", "cost_value"})
     z_claim = cert.claim("state_input_constraints")
     assert z_claim.data["worst_step"] == T
     assert z_claim.margin == pytest.approx(1.0 + x[1] / 0.3, abs=1e-9)  # row x2 >= −0.3 is −x2/0.3 <= 1
@@ -223,7 +225,8 @@ def test_negative_multiplier_alone_also_breaks_15d(recorded, spec):
 def test_theta_hat_moved_breaks_lemma5(recorded, spec):
     """θ̂_T moved (inside Θ) to [−0.9, −0.9, 0.9], far from θ*: the term (1/μ)‖θ̂_T − θ*‖² of Lemma 5
     alone exceeds the right side at m = T−1, so Lemma 5 fails; θ̂_T no longer follows (12) either
-    (Lemma 5 is a consequence of (12)). Nothing else uses θ̂_T."""
+    (Lemma 5 is a consequence of (12)); and the recorded cost of step T is no longer (17), whose
+    nominal prediction (18) uses θ̂_T. Nothing else uses θ̂_T."""
     tr = fresh(recorded)
     moved = np.array([-0.9, -0.9, 0.9])
     mu = tr.design.mu
@@ -231,8 +234,9 @@ def test_theta_hat_moved_breaks_lemma5(recorded, spec):
     assert np.sum((moved - tr.theta_star) ** 2) / mu > rhs  # the tampering must break the inequality
     tr.records[-1].theta_hat = moved
     cert = certify(tr, spec)
-    assert_fails_exactly(cert, {"lemma5", "lms_update"})
+    assert_fails_exactly(cert, {"lemma5", "lms_update", "cost_value"})
     assert cert.claim("lemma5").data["worst_step"] == STEPS - 1
+    assert cert.claim("cost_value").data["worst_step"] == STEPS
     assert cert.claim("lms_update").data["worst_step"] == STEPS
 
 
