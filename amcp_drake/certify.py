@@ -63,6 +63,12 @@ class Certificate:
     created: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds"))
 
     @property
+    def not_claimed(self) -> list[dict[str, str]]:
+        """Claims of the paper that this run's configuration does not make (id, name, reason): the
+        robust baseline makes no (12)/Lemma 5 claim, time-varying θ* no Lemma 5 claim."""
+        return list(self.run.get("not_claimed", []))
+
+    @property
     def passed(self) -> bool:
         """True only when every claim passed (``not_run`` is not a pass)."""
         return bool(self.claims) and all(c.status == PASS for c in self.claims)
@@ -135,7 +141,11 @@ def certify(traj: Trajectory, problem_spec: ProblemSpec | None = None) -> Certif
     run, lemma = run_checks(view, state_bound)
     claims += run + tube_checks(view) + option_checks(view)
     figures, series = _figures(view, lemma)
-    return Certificate(claims=claims, figures=figures, series=series, run=_run_info(traj, state_bound),
+    info = _run_info(traj, state_bound)
+    info["not_claimed"] = [{"id": c.data["id"], "name": c.name, "reason": c.detail}
+                           for c in claims if c.data.get("not_claimed")]
+    claims = [c for c in claims if not c.data.get("not_claimed")]
+    return Certificate(claims=claims, figures=figures, series=series, run=info,
                        problem={"name": traj.problem.name, "n": traj.problem.n, "m": traj.problem.m,
                                 "p": traj.problem.p, "N": traj.problem.N})
 

@@ -85,7 +85,7 @@ def _run(spec, backend: str, steps: int, seed: int, formulation: str = "plain", 
     offline = design(spec.problem, spec.design, backend=backend)
     ctrl = AdaptiveMPC(spec.problem, offline, backend=backend, options=options, formulation=formulation)
     try:
-        return simulate(ctrl, sc.x0, sc.theta_star, steps, sc.disturbance, seed=seed, progress=True,
+        return simulate(ctrl, sc.x0, sc.theta_star_for(steps), steps, sc.disturbance, seed=seed, progress=True,
                         mu_state_bound=spec.design.mu_state_bound)
     except InconsistentDataError as exc:
         return exc.trajectory
@@ -118,6 +118,8 @@ def _print(cert, out) -> None:
         step = c.data.get("worst_step")
         click.echo(f"{c.data['id']:32s} {c.status:8s} {margin:>11s} {c.tolerance:9.1e} "
                    f"{'' if step is None else step:>5}  {c.name}")
+    for c in cert.not_claimed:
+        click.echo(f"{c['id']:32s} {'-':8s} {'':>11s} {'':9s} {'':>5s}  not claimed for this run: {c['reason']}")
     click.echo("")
     counts = cert.counts()
     if cert.passed:

@@ -48,19 +48,21 @@ def run_cmd(problem_file, example, backend, formulation, steps, seed, disturbanc
                              pe_window=pe_window, pe_level=pe_level, cost=cost)
     update = options.update
     ctrl = AdaptiveMPC(pr, d, backend=backend, options=options, formulation=formulation)
-    traj = simulate(ctrl, sc.x0, sc.theta_star, steps or sc.steps, disturbance or sc.disturbance,
+    traj = simulate(ctrl, sc.x0, sc.theta_star_for(steps or sc.steps), steps or sc.steps, disturbance or sc.disturbance,
                     seed=sc.seed if seed is None else seed, progress=False, mu_state_bound=spec.design.mu_state_bound)
-    click.echo(f"{pr.name}: x0 = {np.asarray(sc.x0).tolist()}, theta* = {np.asarray(sc.theta_star).tolist()}, "
+    theta_text = (f"theta*_k sequence from {traj.theta_star_at(0).tolist()} (max step {sc.max_theta_rate():.3g})"
+                  if sc.time_varying else f"theta* = {np.asarray(sc.theta_star).tolist()}")
+    click.echo(f"{pr.name}: x0 = {np.asarray(sc.x0).tolist()}, {theta_text}, "
                f"{traj.steps} steps, disturbance {disturbance or sc.disturbance} (seed {sc.seed if seed is None else seed}), "
                f"backend {backend}, update {update}")
     click.echo(format_table(step_table(traj, every)))
     z_margin = max(pr.in_Z(x, u) for x, u in zip(traj.x, traj.u)) if traj.steps else float("nan")
-    theta_margin = max(float(np.max(r.H_theta @ sc.theta_star - r.h_theta)) for r in traj.records)
+    theta_margin = max(float(np.max(r.H_theta @ traj.theta_star_at(r.k) - r.h_theta)) for r in traj.records)
     solver = np.array([r.times.get("solver", np.nan) for r in traj.records])
     click.echo("")
     click.echo(f"QPs solved: {sum(r.status.value == 'optimal' for r in traj.records)}/{len(traj.records)}; "
                f"max_k (F x + G u - 1) = {z_margin:.4f} (<= 0: in Z); max_k (H θ* - h)_k = {theta_margin:.2e} "
-               f"(<= 0: θ* ∈ Θ_k); median QP solve {1e3 * np.nanmedian(solver):.1f} ms")
+               f"(<= 0: θ*_k ∈ Θ_k); median QP solve {1e3 * np.nanmedian(solver):.1f} ms")
     click.echo(f"stop: {traj.stop_reason}")
     if save:
         traj.save(save)

@@ -21,7 +21,7 @@ import numpy as np
 
 from .controller import AdaptiveMPC, OnlineOptions
 from .design import OfflineDesign, design
-from .problem import ProblemSpec
+from .problem import ProblemSpec, check_theta_rate
 from .simulate import disturbance_sequence
 
 #: quantity -> (absolute, relative) tolerance; a difference d passes when d <= abs + rel * scale.
@@ -34,6 +34,8 @@ TOLERANCES: dict[str, tuple[float, float]] = {
     "cost": (1e-5, 1e-6),
     "h_theta": (1e-6, 1e-6),
     "theta_hat": (1e-6, 1e-6),
+    # PE level enforced (spec §8): computed from the applied inputs, which agree to the u tolerance
+    "pe_level": (1e-5, 1e-5),
     # K, P solve an SDP whose objective trace(P⁻¹) is flat near the optimum: Clarabel at its default
     # tolerances fixes K to ~2e-5 in either stack (measured: 1.6e-5 between Drake and cvxpy on Example 1;
     # tighter Clarabel tolerances end in AlmostSolved). The rest of the design is compared with the
@@ -163,6 +165,8 @@ def lockstep(spec: ProblemSpec, steps: int, seed: int, backends=("drake", "cvxpy
     ctrl_a = AdaptiveMPC(pr, d, backends[0], options, **backend_options[0])
     ctrl_b = AdaptiveMPC(pr, d, backends[1], options, **backend_options[1])
     W = disturbance_sequence(pr, sc.disturbance, steps, seed)
+    theta = np.asarray(sc.theta_star_for(steps), float)
+    check_theta_rate(theta, ctrl_a.options.d_theta)
     x = np.asarray(sc.x0, float)
     iterator = range(steps + 1)
     if progress:
@@ -180,11 +184,23 @@ def lockstep(spec: ProblemSpec, steps: int, seed: int, backends=("drake", "cvxpy
             comp.notes.append(f"step {k}: statuses {ra.status.value} / {rb.status.value}; run ends")
             break
         comp.differences += [_diff("u", k, u_a, u_b), _diff("v", k, ra.v, rb.v), _diff("cost", k, ra.cost, rb.cost)]
+        if options is not None and options.pe_window is not None:
+            comp.differences += _pe_diffs(k, ra, rb)
         comp.informational += [_diff("z", k, ra.z, rb.z), _diff("alpha", k, ra.alpha, rb.alpha)]
         if k == steps:
             break
-        x = pr.step(x, u_a, sc.theta_star, W[k])
+        x = pr.step(x, u_a, theta[k] if theta.ndim == 2 else theta, W[k])
     return comp
+
+
+def _pe_diffs(k: int, ra, rb) -> list[Difference]:
+    """PE at step k (spec §8): the same status (which QP, which rung of the ladder) and level."""
+    same = ra.pe_status == rb.pe_status and ra.pe_dim == rb.pe_dim
+    out = [Difference("pe_status", k, 0.0 if same else 1.0, 0.0, 0.0, same)]
+    if ra.pe_level is not None or rb.pe_level is not None:
+        out.append(_diff("pe_level", k, -1.0 if ra.pe_level is None else ra.pe_level,
+                         -1.0 if rb.pe_level is None else rb.pe_level))
+    return out
 
 
 def _sync(target: AdaptiveMPC, source: AdaptiveMPC) -> None:
@@ -208,7 +224,7 @@ def independent(spec: ProblemSpec, steps: int, seed: int, backends=("drake", "cv
     design_diffs, designs = compare_designs(spec, backends)
     comp.differences += design_diffs
     W = disturbance_sequence(pr, sc.disturbance, steps, seed)
-    trajs = [simulate(AdaptiveMPC(pr, dsg, b, options, **bo), sc.x0, sc.theta_star, steps, W)
+    trajs = [simulate(AdaptiveMPC(pr, dsg, b, options, **bo), sc.x0, sc.theta_star_for(steps), steps, W)
              for dsg, b, bo in zip(designs, backends, backend_options)]
     ta, tb = trajs
     for k, (ra, rb) in enumerate(zip(ta.records, tb.records)):

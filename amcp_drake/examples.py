@@ -32,8 +32,8 @@ def lorenzen2019_ex2_spec() -> ProblemSpec:
     the choices (docs/decisions.md, "Section 4 extensions", Example 2) are: the same system, Θ, W, Z,
     cost, x0 and design as Example 1; online section update "fixed" (9), d_θ = 0.01, PE window
     P = n + 1 = 3 and level ρ = 0.8 (SRC-1's values), certainty-equivalence cost; scenario 100 steps.
-    The scenario holds a constant θ* (a problem file has no θ* sequence); the drifting θ*_k of the
-    documented experiment is :func:`lorenzen2019_ex2_theta_star`."""
+    The scenario holds the drifting θ*_0 … θ*_100 of :func:`lorenzen2019_ex2_theta_star` (a test
+    checks that the file and the function agree)."""
     with resources.as_file(resources.files("amcp_drake") / "data" / "lorenzen2019_ex2.json") as path:
         return load_spec(path)
 

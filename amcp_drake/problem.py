@@ -24,6 +24,9 @@ from .errors import ProblemError
 
 #: θ̂0 may lie this far outside Θ (rounding in a problem file) before it is rejected.
 THETA_HAT0_TOL = 1e-9
+#: Slack on the rate bound of Assumption 17 when a θ* sequence is validated (round-off of a
+#: sequence generated at exactly the rate d_θ).
+THETA_RATE_TOL = 1e-12
 
 
 @dataclass(frozen=True, eq=False)
@@ -173,6 +176,9 @@ def _require_bounded(field_name: str, H: np.ndarray, h: np.ndarray, what: str) -
 class Scenario:
     """A closed-loop experiment on a problem: initial state, true parameter, disturbance.
 
+    ``theta_star`` is a constant θ* (p,) or, for time-varying parameters (Section 4.1, system (24)),
+    a sequence θ*_0 … θ*_T of shape (T+1, p) (or (T, p): the last value is held) with T = ``steps``;
+    every θ*_k must lie in Θ, and a file's ``online.d_theta`` must bound its rate (Assumption 17).
     ``disturbance`` is one of ``"uniform"`` (i.i.d. uniform on W), ``"vertices"`` (i.i.d. on the
     vertices of W), ``"zero"``; an explicit sequence is passed to :func:`simulate` directly.
     """
@@ -183,20 +189,67 @@ class Scenario:
     disturbance: str = "uniform"
     seed: int = 0
 
+    @property
+    def time_varying(self) -> bool:
+        """True when ``theta_star`` is a sequence θ*_k."""
+        return np.ndim(self.theta_star) == 2
+
     def validate_for(self, problem: Problem) -> "Scenario":
-        """Check dimensions and θ* ∈ Θ against ``problem``; return self."""
+        """Check dimensions and θ* ∈ Θ (every θ*_k of a sequence) against ``problem``; return self."""
         x0 = as_vector("scenario.x0", self.x0, size=problem.n)
-        theta_star = as_vector("scenario.theta_star", self.theta_star, size=problem.p)
-        violation = polytope.max_violation(problem.H_theta, problem.h_theta, theta_star)
-        if violation > THETA_HAT0_TOL:
-            raise ProblemError("scenario.theta_star", "a point of Theta (Assumption 1)", f"outside by {violation:.3g}")
-        as_positive_int("scenario.steps", self.steps, 1)
+        steps = as_positive_int("scenario.steps", self.steps, 1)
+        raw = np.asarray(self.theta_star, dtype=object)
+        if raw.ndim == 2 and raw.shape[0] > 1:
+            theta_star = as_matrix("scenario.theta_star", self.theta_star, cols=problem.p)
+            if theta_star.shape[0] not in (steps, steps + 1):
+                raise ProblemError("scenario.theta_star", f"a vector of length {problem.p} or a sequence of "
+                                   f"{steps + 1} (or {steps}) rows θ*_0..θ*_T for steps = {steps}",
+                                   f"{theta_star.shape[0]} rows")
+            rows = [(f"scenario.theta_star[{k}]", th) for k, th in enumerate(theta_star)]
+        else:
+            theta_star = as_vector("scenario.theta_star", self.theta_star, size=problem.p)
+            rows = [("scenario.theta_star", theta_star)]
+        for name, th in rows:
+            violation = polytope.max_violation(problem.H_theta, problem.h_theta, th)
+            if violation > THETA_HAT0_TOL:
+                raise ProblemError(name, "a point of Theta (Assumption 1 / 17)", f"outside by {violation:.3g}")
         if self.disturbance not in DISTURBANCE_KINDS:
             raise ProblemError("scenario.disturbance", f"one of {sorted(DISTURBANCE_KINDS)}", repr(self.disturbance))
         as_positive_int("scenario.seed", self.seed, 0)
         object.__setattr__(self, "x0", x0)
         object.__setattr__(self, "theta_star", theta_star)
         return self
+
+    def max_theta_rate(self) -> float:
+        """max_k ‖θ*_(k+1) − θ*_k‖ (0 for a constant θ*)."""
+        if not self.time_varying or len(self.theta_star) < 2:
+            return 0.0
+        return float(np.max(np.linalg.norm(np.diff(self.theta_star, axis=0), axis=1)))
+
+    def theta_star_for(self, steps: int) -> np.ndarray:
+        """The θ* argument of :func:`~amcp_drake.simulate.simulate` for a run of ``steps`` steps: the
+        constant θ*, or the first steps+1 rows of the sequence (ProblemError when it is shorter)."""
+        if not self.time_varying:
+            return self.theta_star
+        rows = self.theta_star.shape[0]
+        if rows >= steps + 1:
+            return self.theta_star[: steps + 1]
+        if rows == steps:
+            return self.theta_star
+        raise ProblemError("steps", f"at most {rows} (scenario.theta_star is a sequence of {rows} rows)", str(steps))
+
+
+def check_theta_rate(theta_star: np.ndarray, d_theta: float, field: str = "theta_star") -> None:
+    """Assumption 17 for a sequence θ*_k (rows): ‖θ*_(k+1) − θ*_k‖ <= d_θ (ProblemError otherwise;
+    a constant θ* always passes)."""
+    theta_star = np.asarray(theta_star, float)
+    if theta_star.ndim != 2 or len(theta_star) < 2:
+        return
+    rates = np.linalg.norm(np.diff(theta_star, axis=0), axis=1)
+    if float(np.max(rates)) > d_theta + THETA_RATE_TOL:
+        k = int(np.argmax(rates))
+        raise ProblemError(field, f"a sequence with ‖θ*_(k+1) − θ*_k‖ <= d_theta = {d_theta:g} "
+                           "(Assumption 17; set the online option d_theta)", f"rate {rates[k]:.3g} at k = {k}")
 
 
 DISTURBANCE_KINDS = frozenset({"uniform", "vertices", "zero"})
@@ -272,3 +325,5 @@ class ProblemSpec:
         self.design.validate_for(self.problem)
         if self.scenario is not None:
             self.scenario.validate_for(self.problem)
+            d_theta = getattr(self.online, "d_theta", 0.0) if self.online is not None else 0.0
+            check_theta_rate(self.scenario.theta_star, d_theta, "scenario.theta_star")

@@ -20,16 +20,13 @@ from . import polytope
 from .controller import AdaptiveMPC, OnlineOptions, StepRecord
 from .design import OfflineDesign
 from .errors import InconsistentDataError, ProblemError, TrajectoryError
-from .problem import DISTURBANCE_KINDS, Problem
+from .problem import DISTURBANCE_KINDS, Problem, check_theta_rate
 from .problem_io import options_from_dict, options_to_dict, spec_from_dict, spec_to_dict, write_text_atomic
 from .problem import ProblemSpec
 from .status import SolveStatus
 
 TRAJECTORY_FORMAT = "amcp-trajectory"
 TRAJECTORY_VERSION = 1
-#: Slack on the rate bound of Assumption 17 when a θ* sequence is validated (round-off of a
-#: sequence generated at exactly the rate d_θ).
-THETA_RATE_TOL = 1e-12
 
 
 def disturbance_sequence(problem: Problem, kind: str | np.ndarray, steps: int, seed: int = 0) -> np.ndarray:
@@ -227,14 +224,7 @@ def simulate(controller: AdaptiveMPC, x0, theta_star, steps: int, disturbance: s
         if polytope.max_violation(problem.H_theta, problem.h_theta, th) > 1e-9:
             raise ProblemError("theta_star" if theta_star.ndim == 1 else f"theta_star[{k}]",
                                "a point of Theta (Assumption 1 / 17)", f"{th.tolist()}")
-    if theta_star.ndim == 2:
-        rates = np.linalg.norm(np.diff(theta_star, axis=0), axis=1)
-        d_theta = controller.options.d_theta
-        if rates.size and float(np.max(rates)) > d_theta + THETA_RATE_TOL:
-            k = int(np.argmax(rates))
-            raise ProblemError("theta_star", f"a sequence with ‖θ*_(k+1) − θ*_k‖ <= d_theta = {d_theta:g} "
-                               "(Assumption 17; set OnlineOptions(d_theta=...))",
-                               f"rate {rates[k]:.3g} at k = {k}")
+    check_theta_rate(theta_star, controller.options.d_theta)
     W = disturbance_sequence(problem, disturbance, steps, seed)
     controller.reset()
     xs, us, ws, records = [x], [], [], []

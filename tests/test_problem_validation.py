@@ -91,6 +91,10 @@ SCENARIOS = [
     (dict(theta_star=[5.0, 0.0]), "scenario.theta_star"),
     (dict(disturbance="gaussian"), "scenario.disturbance"),
     (dict(steps=0), "scenario.steps"),
+    # θ*_k sequences (Section 4.1): wrong length for steps, a row outside Θ (named by its index)
+    (dict(steps=3, theta_star=[[0.1, 0.1]] * 6), "scenario.theta_star"),
+    (dict(steps=2, theta_star=[[0.1, 0.1], [0.1, 0.1], [5.0, 0.1]]), r"scenario.theta_star\[2\]"),
+    (dict(steps=2, theta_star=[[0.1, 0.1, 0.1]] * 3), "scenario.theta_star"),
 ]
 
 
@@ -100,6 +104,30 @@ def test_malformed_scenario_is_rejected(changes, field):
     data.update(changes)
     with pytest.raises(ProblemError, match=field.replace(".", r"\.")):
         Scenario(**data).validate_for(Problem(**GOOD))
+
+
+def test_theta_star_sequence_is_accepted_and_cut_to_the_run_length():
+    seq = [[0.1, 0.1], [0.1, 0.11], [0.1, 0.12], [0.1, 0.13]]
+    sc = Scenario(x0=[1.0, 1.0], theta_star=seq, steps=3).validate_for(Problem(**GOOD))
+    assert sc.time_varying and sc.theta_star.shape == (4, 2)
+    assert sc.max_theta_rate() == pytest.approx(0.01)
+    np.testing.assert_array_equal(sc.theta_star_for(2), np.array(seq[:3]))
+    np.testing.assert_array_equal(sc.theta_star_for(3), np.array(seq))
+    with pytest.raises(ProblemError, match="steps"):
+        sc.theta_star_for(5)
+
+
+def test_theta_star_sequence_faster_than_d_theta_is_rejected():
+    """Assumption 17 in a problem spec: the file's online.d_theta must bound the sequence's steps."""
+    from amcp_drake.controller import OnlineOptions
+    from amcp_drake.problem import ProblemSpec
+
+    seq = [[0.1, 0.1], [0.1, 0.11], [0.1, 0.15]]
+    sc = Scenario(x0=[1.0, 1.0], theta_star=seq, steps=2)
+    with pytest.raises(ProblemError, match=r"scenario\.theta_star.*d_theta = 0\.01.*0\.04"):
+        ProblemSpec(Problem(**GOOD), scenario=sc, online=OnlineOptions(d_theta=0.01))
+    ProblemSpec(Problem(**GOOD), scenario=Scenario(x0=[1.0, 1.0], theta_star=seq, steps=2),
+                online=OnlineOptions(d_theta=0.04))
 
 
 DESIGNS = [

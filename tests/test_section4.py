@@ -238,9 +238,12 @@ def test_example2_builtin_runs_with_drift():
 
     spec = get_example("lorenzen2019_ex2")
     assert spec.online == OnlineOptions(update="fixed", d_theta=0.01, pe_window=3, pe_level=0.8)
-    seq = lorenzen2019_ex2_theta_star(40)
-    assert np.max(np.linalg.norm(np.diff(seq, axis=0), axis=1)) <= spec.online.d_theta
     pr, sc = spec.problem, spec.scenario
+    # the file holds the documented drift θ*_0..θ*_100, within the rate bound
+    np.testing.assert_allclose(sc.theta_star, lorenzen2019_ex2_theta_star(100), rtol=0, atol=1e-15)
+    assert sc.max_theta_rate() <= spec.online.d_theta
+    seq = sc.theta_star_for(40)
+    assert seq.shape == (41, 3) and seq[20, 0] < 0.8 - 0.1  # θ1 has drifted by step 20
     ctrl = AdaptiveMPC(pr, design(pr, spec.design), options=spec.online)
     traj = simulate(ctrl, sc.x0, seq, 40, "uniform", seed=0)
     assert traj.stop_reason == "completed"
@@ -265,3 +268,39 @@ def test_cli_pe_figure_writes_png_and_json(tmp_path):
         assert len(d) == 13 and d[0] == pytest.approx(2 * np.sqrt(3))
         assert all(b <= a + 1e-9 for a, b in zip(d, d[1:]))  # exact update (7): nested sets, non-increasing
     assert data["assumption20"]["holds"]
+
+
+def test_cli_certify_and_compare_example2_with_its_drifting_theta_star(tmp_path):
+    """Example 2 from the CLI: the problem file's θ*_k sequence, d_θ and PE options reach `certify`
+    and `compare`. The certificate checks θ*_k ∈ Θ_k and the PE claims, lists Lemma 5 as not claimed
+    (Section 4.1), and passes; the two backends agree step by step, PE status included."""
+    import json
+
+    from amcp_drake.cli import main
+
+    out = tmp_path / "cert"
+    res = CliRunner().invoke(main, ["certify", "--example", "lorenzen2019_ex2", "--steps", "25", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    cert = json.loads((out / "certificate.json").read_text())
+    assert cert["verdict"] == "pass"
+    run = cert["run"]
+    assert len(run["theta_star_sequence"]) == 26 and run["d_theta"] == 0.01 and run["pe_window"] == 3
+    assert run["theta_star_sequence"][25][0] < run["theta_star_sequence"][0][0] - 0.05  # it drifts
+    assert [c["id"] for c in run["not_claimed"]] == ["lemma5"]
+    statuses = {c["id"]: c["status"] for c in cert["claims"]}
+    assert statuses["theta_star_in_Theta_k"] == statuses["pe_level"] == statuses["pe_bounds"] == "pass"
+    assert "not claimed for this run" in res.output
+
+    cmp_file = tmp_path / "cmp.json"
+    res = CliRunner().invoke(main, ["compare", "--example", "lorenzen2019_ex2", "--steps", "12", "--quiet",
+                                    "--out", str(cmp_file)])
+    assert res.exit_code == 0, res.output
+    data = json.loads(cmp_file.read_text())
+    assert data["agree"] is True
+    assert {"pe_status", "pe_level"} <= {d["quantity"] for d in data["differences"]}
+
+    # a run longer than the file's θ* sequence is refused with the field named, before any output
+    res = CliRunner().invoke(main, ["certify", "--example", "lorenzen2019_ex2", "--steps", "150",
+                                    "--out", str(tmp_path / "long")])
+    assert res.exit_code == 2 and "steps" in res.output and "101 rows" in res.output
+    assert not (tmp_path / "long").exists()
