@@ -23,7 +23,6 @@ import numpy as np
 
 from .certify_checks import RunView, step_check, tag
 from .checks import CheckResult, not_run
-from .status import SolveStatus
 
 GROUP_COST = "cost"
 GROUP_EXCITATION = "excitation"
