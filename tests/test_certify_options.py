@@ -186,3 +186,20 @@ def test_minmax_costs_are_not_certainty_equivalence_costs(minmax_run, spec):
     data["options"]["cost"] = "certainty_equivalence"
     cert = certify(fresh(data), spec)
     assert failed_and_not_run(cert) == ({"cost_value"}, [])
+
+
+def test_unattainable_level_falls_back_to_the_plain_qp_and_claims_nothing(spec, designed):
+    """ρ = 5 with P = 3 and |u| <= 1: even the one-dimensional rung at 1/8 of its level needs
+    Σ_window u² >= 5·1.5²/0.95/8 ≈ 1.48 from one new input after the transient, so no step enforces PE
+    (spec §8 fallback: (20) alone). The run then equals the run without PE, and its certificate has
+    no checkable PE claim (incomplete), with the fallback steps counted in the figure."""
+    steps = 12
+    pe = fresh(_run(spec, designed, OnlineOptions(pe_window=3, pe_level=5.0), steps))
+    plain = fresh(_run(spec, designed, OnlineOptions(), steps))
+    statuses = [r.pe_status for r in pe.records]
+    assert statuses[:4] == ["inactive"] * 4 and set(statuses[4:]) == {"fallback"}
+    np.testing.assert_array_equal(pe.u, plain.u)
+    cert = certify(pe, spec)
+    assert cert.ids("fail") == [] and cert.ids("not_run") == ["pe_level", "pe_bounds"]
+    assert cert.verdict == "incomplete"
+    assert cert.figures["persistent_excitation"]["status_counts"] == {"inactive": 4, "fallback": steps + 1 - 4}

@@ -18,6 +18,7 @@ that the negative controls of the test module exercise the very same code path.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import hashlib
 from collections import OrderedDict
 from dataclasses import dataclass, field
@@ -98,12 +99,14 @@ class Section4Case(Case):
         return h.hexdigest()
 
     def to_spec(self) -> ProblemSpec:
-        """Problem file with θ*_0 as the scenario's θ* (the trajectory file holds the sequence)."""
+        """Problem file of this case: its options as the ``online`` section and its θ* (the θ*_k
+        sequence of a time-varying case) in the scenario, so that ``amcp certify`` replays it."""
         kind = self.labels.get("disturbance", "uniform")
-        scenario = Scenario(x0=self.x0, theta_star=np.asarray(self.theta_star, float), steps=self.steps,
+        theta = self.theta_seq if self.theta_seq is not None else self.theta_star
+        scenario = Scenario(x0=self.x0, theta_star=np.asarray(theta, float), steps=self.steps,
                             disturbance=kind if kind in ("uniform", "vertices", "zero") else "uniform",
                             seed=int(self.seed) % (2**31))
-        return ProblemSpec(self.problem, self.spec.design, scenario)
+        return ProblemSpec(self.problem, self.spec.design, scenario, online=self.options)
 
 
 class Section4Runner:
@@ -166,13 +169,16 @@ def input_half_width(problem) -> float:
 
 @st.composite
 def pe_cases(draw, steps: int, max_N: int = 6):
-    """m = 1; window P ∈ {n+1, …, n+3}; level ρ = f·P·ū² with ū the input box half-width and
-    f ∈ [0.005, 0.6] (from easily reachable to beyond what the inputs can give, which exercises the
-    ladder's lower rungs and the fallback)."""
+    """m = 1; window P ∈ {n+1, …, n+3}; level ρ = f·P·ū² with ū the input box half-width and, in 3
+    of 4 cases, f ∈ [0.005, 0.6] (from easily reachable to beyond what the inputs can give, which
+    exercises the ladder's lower rungs), else f ∈ [10, 30]: unattainable at every rung even at 1/8 of
+    its level (ρ_1/8 > P ū²), so every step after the history is "fallback" (regime label)."""
     gen, theta_star, x0, s_max, w, seed, update, window, labels = _base(draw, steps, max_m=1, max_N=max_N)
     pr = gen.problem
     P = pr.n + 1 + draw(st.integers(0, 2))
-    frac = draw(_grid(0.005, 0.6, 0.005))
+    regime = draw(st.sampled_from(("attainable", "attainable", "attainable", "unattainable")))
+    frac = draw(_grid(0.005, 0.6, 0.005)) if regime == "attainable" else draw(_grid(10.0, 30.0, 1.0))
+    labels = dict(labels, pe_regime=regime)
     level = max(frac * P * input_half_width(pr) ** 2, 1e-4)
     options = OnlineOptions(update=update, window=window, pe_window=P, pe_level=float(level))
     return Section4Case(spec=gen.spec, design=gen.design, x0=x0, theta_star=theta_star, w=w, options=options,
@@ -384,6 +390,29 @@ def pe_levels_met(traj, realised=None) -> CheckResult:
         if m < worst:
             worst, where = m, f"step {k} ({status}): λ_min {lam!r}, record.pe_level {level!r}"
     return judge("PE level", "λ_min(window Gram) >= record.pe_level at every enforced step", worst, PE_TOL, where)
+
+
+#: Inputs of a PE run that never enforced the constraint vs the run without PE: the same QPs (20) on
+#: the same data, so only solver non-determinism could separate them (none observed: 0.0).
+SAME_INPUT_TOL = 1e-8
+
+
+def without_pe(case: Section4Case) -> Section4Case:
+    """The same case with the PE option off."""
+    return dataclasses.replace(case, options=dataclasses.replace(case.options, pe_window=None),
+                               labels=dict(case.labels, option="pe_off"))
+
+
+def same_inputs(traj, reference) -> CheckResult:
+    """Spec §8 fallback: a step where no input meets both (20) and the PE constraint solves (20) alone,
+    so a run that never enforced PE applies the inputs of the run without PE."""
+    if traj.stop_reason != reference.stop_reason or len(traj.u) != len(reference.u):
+        return judge("PE fallback = (20) alone", "a run without enforced PE steps equals the run without PE",
+                     -np.inf, SAME_INPUT_TOL, f"stop {traj.stop_reason!r} after {len(traj.u)} steps vs "
+                     f"{reference.stop_reason!r} after {len(reference.u)}")
+    diff = float(np.max(np.abs(traj.u - reference.u))) if len(traj.u) else 0.0
+    return judge("PE fallback = (20) alone", "a run without enforced PE steps equals the run without PE", -diff,
+                 SAME_INPUT_TOL, "margin = −max_k |u_k − u_k(no PE)|")
 
 
 def pe_bounds_respected(traj, bounds_of=None) -> CheckResult:
