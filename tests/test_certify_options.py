@@ -173,7 +173,7 @@ def test_minmax_run_certifies(spec, designed, backend):
 
 def test_tampered_minmax_cost_fails_only_cost_value(minmax_run, spec):
     tr = fresh(minmax_run)
-    tr.records[4].cost *= 1 + 1e-4
+    tr.records[4].cost += 1e-4 * max(1.0, tr.records[4].cost)
     cert = certify(tr, spec)
     assert failed_and_not_run(cert) == ({"cost_value"}, [])
     assert cert.claim("cost_value").data["worst_step"] == 4
