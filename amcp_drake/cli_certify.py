@@ -13,8 +13,8 @@ import sys
 
 import click
 
-from .cli_common import (EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, section4_options, example_option,
-                         formulation_option, load_problem_spec, problem_argument, resolve_online)
+from .cli_common import (EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, example_option, formulation_option,
+                         load_problem_spec, problem_argument, resolve_online, section4_options, update_options)
 
 
 @click.command("certify")
@@ -30,11 +30,12 @@ from .cli_common import (EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, 
               help="Output directory (its other files are left alone).")
 @click.option("--trajectory", "trajectory_file", default=None, type=click.Path(),
               help="Re-check a saved trajectory (.json or .json.gz) instead of running the loop.")
+@update_options
 @section4_options
 @click.pass_context
 @bad_input_exits_2
-def certify_cmd(ctx, problem_file, example, backend, formulation, steps, seed, out_dir, trajectory_file, d_theta,
-                pe_window, pe_level, cost):
+def certify_cmd(ctx, problem_file, example, backend, formulation, steps, seed, out_dir, trajectory_file, update,
+                window, projection, d_theta, pe_window, pe_level, cost):
     """Run the adaptive MPC on PROBLEM (default: --example lorenzen2019, x0 = [2, 3],
     θ* = [0.8, 0.2, -0.5], 50 steps, uniform disturbance, seed 0), check every claim of the paper
     from the recorded data with numpy/scipy only, and write certificate.json, report.html and
@@ -50,7 +51,8 @@ def certify_cmd(ctx, problem_file, example, backend, formulation, steps, seed, o
     if trajectory_file is not None:
         from click.core import ParameterSource
 
-        given = [f"--{name.replace('_', '-')}" for name in ("backend", "steps", "seed", "d_theta", "pe_window",
+        given = [f"--{name.replace('_', '-')}" for name in ("backend", "steps", "seed", "update", "window",
+                                                                  "projection", "d_theta", "pe_window",
                                                                   "pe_level", "cost")
                  if ctx.get_parameter_source(name) is ParameterSource.COMMANDLINE]
         if given:
@@ -64,8 +66,8 @@ def certify_cmd(ctx, problem_file, example, backend, formulation, steps, seed, o
                                "Add a \"scenario\" object, or pass --trajectory.")
         sc = spec.scenario
         traj = _run(spec, backend, steps or sc.steps, sc.seed if seed is None else seed, formulation,
-                    resolve_online(spec, d_theta=d_theta, pe_window=pe_window, pe_level=pe_level,
-                                   cost=cost))
+                    resolve_online(spec, update=update, window=window, projection=projection, d_theta=d_theta,
+                                   pe_window=pe_window, pe_level=pe_level, cost=cost))
         if traj.stop_reason.startswith("inconsistent"):
             click.echo(f"warning: the run stopped: {traj.stop_reason}; certifying the partial trajectory", err=True)
     cert = certify(traj, spec)

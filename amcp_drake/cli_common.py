@@ -51,6 +51,19 @@ formulation_option = click.option("--formulation", type=click.Choice(["plain", "
                                   show_default=True,
                                   help="Tube QP: plain (15) with multipliers, or the exact vertex form (faster, issue 8).")
 
+def update_options(func):
+    """--update, --window, --projection (the online set update and LMS projection; defaults: the
+    file's online section). ``--update none`` is the robust baseline (Θ_k ≡ Θ, θ̂_k ≡ θ̂0)."""
+    func = click.option("--projection", type=click.Choice(["Theta", "Theta_k"]), default=None,
+                        help="Project the LMS estimate onto Θ (12) or Θ_k (Remark 7). Default: file, else "
+                             "Theta.")(func)
+    func = click.option("--window", type=click.IntRange(min=1), default=None,
+                        help="Window length for --update window (default: file, else 10).")(func)
+    return click.option("--update", type=click.Choice(["fixed", "exact", "window", "none"]), default=None,
+                        help="Parameter-set update: (9), (7), (9) over a moving window (Remark 4), or none (robust "
+                             "baseline). Default: the problem file's online section, else fixed.")(func)
+
+
 def section4_options(func):
     """--d-theta, --pe, --pe-level, --cost (Section 4 extensions; defaults: the file's online section)."""
     func = click.option("--cost", type=click.Choice(["certainty_equivalence", "minmax"]), default=None,

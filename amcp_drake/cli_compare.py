@@ -7,8 +7,8 @@ from collections import defaultdict
 
 import click
 
-from .cli_common import (EXIT_FAIL, EXIT_OK, bad_input_exits_2, section4_options, example_option, formulation_option,
-                         load_problem_spec, problem_argument, resolve_online)
+from .cli_common import (EXIT_FAIL, EXIT_OK, bad_input_exits_2, example_option, formulation_option, load_problem_spec,
+                         problem_argument, resolve_online, section4_options, update_options)
 
 
 @click.command("compare")
@@ -19,16 +19,15 @@ from .cli_common import (EXIT_FAIL, EXIT_OK, bad_input_exits_2, section4_options
 @click.option("--mode", type=click.Choice(["lockstep", "independent"]), default="lockstep", show_default=True)
 @click.option("--drake-solver", default="clarabel", show_default=True, help="Drake solver (clarabel, osqp, scs, ...).")
 @click.option("--cvxpy-solver", default="CLARABEL", show_default=True, help="cvxpy solver (CLARABEL, OSQP, SCS, ...).")
-@click.option("--update", type=click.Choice(["fixed", "exact", "window", "none"]), default=None,
-              help="Set update (default: the problem file's online section, else fixed).")
+@update_options
 @section4_options
 @click.option("--out", "out_file", type=click.Path(), default="amcp-out/compare.json", show_default=True,
               help="JSON file with every difference.")
 @formulation_option
 @click.option("--quiet", is_flag=True, help="Only the summary, no per-step table.")
 @bad_input_exits_2
-def compare_cmd(problem_file, example, steps, seed, mode, drake_solver, cvxpy_solver, update, d_theta, pe_window, pe_level, cost,
-                out_file, formulation, quiet):
+def compare_cmd(problem_file, example, steps, seed, mode, drake_solver, cvxpy_solver, update, window, projection,
+                d_theta, pe_window, pe_level, cost, out_file, formulation, quiet):
     """Compare u, v, cost, h_theta and theta_hat (and report z, alpha) of both backends per step."""
     from .compare import INFORMATIONAL, TOLERANCES, independent, lockstep
     from .errors import ProblemError
@@ -39,8 +38,8 @@ def compare_cmd(problem_file, example, steps, seed, mode, drake_solver, cvxpy_so
         raise ProblemError("scenario", "a scenario in the problem file (x0, theta_star)", "none")
     steps = steps or spec.scenario.steps
     seed = spec.scenario.seed if seed is None else seed
-    options = resolve_online(spec, update=update, d_theta=d_theta, pe_window=pe_window, pe_level=pe_level,
-                             cost=cost)
+    options = resolve_online(spec, update=update, window=window, projection=projection, d_theta=d_theta,
+                             pe_window=pe_window, pe_level=pe_level, cost=cost)
     backend_options = ({"solver": drake_solver, "formulation": formulation},
                        {"solver": cvxpy_solver, "formulation": formulation})
     run = lockstep if mode == "lockstep" else independent

@@ -7,8 +7,8 @@ import sys
 import click
 import numpy as np
 
-from .cli_common import (EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, section4_options, example_option,
-                         formulation_option, load_problem_spec, problem_argument, resolve_online)
+from .cli_common import (EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, example_option, formulation_option,
+                         load_problem_spec, problem_argument, resolve_online, section4_options, update_options)
 
 
 @click.command("run")
@@ -19,12 +19,7 @@ from .cli_common import (EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, 
 @click.option("--steps", type=int, default=None, help="Number of steps (default: the problem's scenario).")
 @click.option("--seed", type=int, default=None, help="Disturbance seed (default: the scenario's).")
 @click.option("--disturbance", type=click.Choice(["uniform", "vertices", "zero"]), default=None)
-@click.option("--update", type=click.Choice(["fixed", "exact", "window", "none"]), default=None,
-              help="Parameter-set update: (9), (7), (9) over a moving window (Remark 4), or none (robust baseline). "
-                   "Default: the problem file's online section, else fixed.")
-@click.option("--window", type=int, default=None, help="Window length for --update window (default 10).")
-@click.option("--projection", type=click.Choice(["Theta", "Theta_k"]), default=None,
-              help="Project the LMS estimate onto Θ (12) or Θ_k (Remark 7). Default: file, else Theta.")
+@update_options
 @section4_options
 @click.option("--every", type=int, default=1, show_default=True, help="Print every n-th step.")
 @click.option("--save", type=click.Path(), default=None, help="Save the trajectory (JSON, .gz allowed).")

@@ -304,3 +304,27 @@ def test_cli_certify_and_compare_example2_with_its_drifting_theta_star(tmp_path)
                                     "--out", str(tmp_path / "long")])
     assert res.exit_code == 2 and "steps" in res.output and "101 rows" in res.output
     assert not (tmp_path / "long").exists()
+
+
+def test_cli_certify_and_compare_take_the_robust_baseline(tmp_path):
+    """`--update none` (robust baseline, Θ_k ≡ Θ) on certify and compare: the certificate records the
+    mode, lists (12), Lemma 5 and its precondition as not claimed, and passes; the backends agree."""
+    import json
+
+    from amcp_drake.cli import main
+
+    out = tmp_path / "cert"
+    res = CliRunner().invoke(main, ["certify", "--update", "none", "--steps", "8", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    cert = json.loads((out / "certificate.json").read_text())
+    assert cert["run"]["update"] == "none" and cert["verdict"] == "pass"
+    assert [c["id"] for c in cert["run"]["not_claimed"]] == ["mu_precondition", "lms_update", "lemma5"]
+    widths = cert["series"]["theta_width"]
+    assert widths[0] == widths[-1]  # Θ_k ≡ Θ
+    res = CliRunner().invoke(main, ["compare", "--update", "window", "--window", "3", "--projection", "Theta_k",
+                                    "--steps", "6", "--quiet", "--out", str(tmp_path / "c.json")])
+    assert res.exit_code == 0, res.output
+    # a saved trajectory is re-checked as recorded: run options are refused with it
+    res = CliRunner().invoke(main, ["certify", "--trajectory", str(out / "trajectory.json.gz"), "--update", "fixed",
+                                    "--out", str(tmp_path / "again")])
+    assert res.exit_code == 2 and "--update" in res.output
