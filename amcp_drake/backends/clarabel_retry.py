@@ -1,7 +1,8 @@
 """Clarabel settings tried, in order, when a tube MPC QP (20) ends "inaccurate" (AlmostSolved) or
 with a numerical solver error (InsufficientProgress).
 
-Both backends use this ladder, so a retry cannot make them disagree. Each retry is a full solve
+Both backends use this ladder for the plain form (15) of the QP (both costs), so a retry cannot
+make them disagree. The vertex form (issue 8, certainty-equivalence cost only) has no retries. Each retry is a full solve
 with Clarabel's default tolerances (1e-8); only a status "Solved" is accepted, so a retry never
 turns an inaccurate answer into "optimal" by loosening anything. Which rung solved a step is
 written into ``MPCSolution.detail``.
