@@ -1,0 +1,93 @@
+"""The Clarabel retry ladder of the tube QP (issue 7, amcp_drake/backends/clarabel_retry.py): an
+"inaccurate" first solve is solved again with the ladder's settings in order, only a clean "optimal"
+is accepted, the rung is named in the detail, and when every rung fails the status stays
+"inaccurate" (never promoted to "optimal")."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from amcp_drake.backends.clarabel_retry import CLARABEL_RETRY_LADDER
+from amcp_drake.controller import AdaptiveMPC
+from amcp_drake.status import SolveStatus
+
+X = np.array([2.0, 3.0])
+
+
+@pytest.fixture(scope="module")
+def drake_mpc(example_spec, example_design):
+    return AdaptiveMPC(example_spec.problem, example_design, backend="drake").mpc
+
+
+@pytest.fixture(scope="module")
+def cvxpy_mpc(example_spec, example_design):
+    return AdaptiveMPC(example_spec.problem, example_design, backend="cvxpy").mpc
+
+
+def _args(mpc):
+    """x_k = [2, 3], Θ_k = Θ (its offsets), θ̂ = 0."""
+    H = np.asarray(mpc.data.H_theta, float)
+    return X, np.ones(H.shape[0]), np.zeros(H.shape[1])
+
+
+def _drake_with_failures(monkeypatch, mpc, failures: int) -> list:
+    """The first ``failures`` solves report INACCURATE; records the extra options of every solve."""
+    solver = mpc._solver
+    calls: list = []
+    real_solve, real_status = solver.solve, solver.status
+
+    def solve(prog, extra_options=None):
+        calls.append(extra_options)
+        return real_solve(prog, extra_options)
+
+    def status(result):
+        return SolveStatus.INACCURATE if len(calls) <= failures else real_status(result)
+
+    monkeypatch.setattr(solver, "solve", solve)
+    monkeypatch.setattr(solver, "status", status)
+    return calls
+
+
+def test_drake_retries_in_order_and_names_the_rung(monkeypatch, drake_mpc):
+    reference = drake_mpc.solve(*_args(drake_mpc))
+    assert reference.status is SolveStatus.OPTIMAL and reference.detail == ""
+    calls = _drake_with_failures(monkeypatch, drake_mpc, failures=2)
+    sol = drake_mpc.solve(*_args(drake_mpc))
+    assert calls == [None, CLARABEL_RETRY_LADDER[0], CLARABEL_RETRY_LADDER[1]]
+    assert sol.status is SolveStatus.OPTIMAL and "retry 2" in sol.detail
+    np.testing.assert_allclose(sol.v, reference.v, atol=1e-6)
+
+
+def test_drake_never_promotes_an_inaccurate_answer(monkeypatch, drake_mpc):
+    calls = _drake_with_failures(monkeypatch, drake_mpc, failures=100)
+    sol = drake_mpc.solve(*_args(drake_mpc))
+    assert calls == [None, *CLARABEL_RETRY_LADDER]
+    assert sol.status is SolveStatus.INACCURATE and sol.v is None
+    assert f"after {len(CLARABEL_RETRY_LADDER)} Clarabel retries" in sol.detail
+
+
+def test_cvxpy_retries_in_order_and_never_promotes(monkeypatch, cvxpy_mpc):
+    from amcp_reference import backend as ref_backend
+
+    real = ref_backend.SolverCall.solve
+    calls: list = []
+    failures = {"n": 1}
+
+    def solve(self, problem):
+        calls.append(dict(self.options))
+        status, t, detail = real(self, problem)
+        if len(calls) <= failures["n"]:
+            return SolveStatus.INACCURATE, t, "optimal_inaccurate"
+        return status, t, detail
+
+    monkeypatch.setattr(ref_backend.SolverCall, "solve", solve)
+    sol = cvxpy_mpc.solve(*_args(cvxpy_mpc))
+    base = dict(cvxpy_mpc._call.options)
+    assert calls == [base, {**base, **CLARABEL_RETRY_LADDER[0]}]
+    assert sol.status is SolveStatus.OPTIMAL and "retry 1" in sol.detail
+    calls.clear()
+    failures["n"] = 100
+    sol = cvxpy_mpc.solve(*_args(cvxpy_mpc))
+    assert len(calls) == 1 + len(CLARABEL_RETRY_LADDER)
+    assert sol.status is SolveStatus.INACCURATE and sol.v is None and "Clarabel retries" in sol.detail
