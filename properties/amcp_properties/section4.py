@@ -161,6 +161,155 @@ def minmax_cases(draw, steps: int, max_N: int = 6):
                         labels=dict(labels, option="minmax"), seed=seed, ray_length=s_max)
 
 
+#: ‖[A_i B_i]‖₂·p of the baseline cases (the suite's default range is [0.01, 0.12]).
+BASELINE_DELTA = (0.08, 0.3)
+
+
+@st.composite
+def baseline_cases(draw, steps: int, max_N: int = 6):
+    """Random designed problem with a large parametric uncertainty (δ ∈ BASELINE_DELTA, where Θ_k
+    shrinking can change the optimum of (20)), boundary/near-boundary x0, the adaptive update (9)
+    (fixed or over a window); :func:`robust_twin` gives the same case with update "none"."""
+    gen, theta_star, x0, s_max, w, seed, update, window, labels = _base(draw, steps, max_N=max_N,
+                                                                        delta_range=BASELINE_DELTA)
+    options = OnlineOptions(update=update, window=window)
+    return Section4Case(spec=gen.spec, design=gen.design, x0=x0, theta_star=theta_star, w=w, options=options,
+                        labels=dict(labels, option="baseline"), seed=seed, ray_length=s_max)
+
+
+def example1_baseline_case(steps: int = 12) -> Section4Case:
+    """Example 1 (x0 = [2, 3], θ* = [0.8, 0.2, −0.5], uniform w, seed 0) with update (9): the paper's
+    system, where the parametric uncertainty dominates and adaptation enlarges the feasible region."""
+    from amcp_drake.design import design
+    from amcp_drake.examples import lorenzen2019_spec
+    from amcp_drake.simulate import disturbance_sequence
+
+    spec = lorenzen2019_spec()
+    sc = spec.scenario
+    w = disturbance_sequence(spec.problem, "uniform", steps, 0)
+    return Section4Case(spec=spec, design=design(spec.problem, spec.design, backend="drake"), x0=np.asarray(sc.x0),
+                        theta_star=np.asarray(sc.theta_star), w=w, options=OnlineOptions(update="fixed"),
+                        labels={"option": "baseline", "problem": "lorenzen2019"}, seed=0)
+
+
+def robust_twin(case: Section4Case) -> Section4Case:
+    """The same case under the robust baseline (update "none")."""
+    return dataclasses.replace(case, options=dataclasses.replace(case.options, update="none"),
+                               labels=dict(case.labels, update="none"))
+
+
+def baseline_is_constant(traj) -> CheckResult:
+    """Robust baseline: every record has Θ_k = Θ_0 (the design's H_θ, h_θ0) and θ̂_k = θ̂0."""
+    d, pr = traj.design, traj.problem
+    worst = 0.0
+    for r in traj.records:
+        if r.H_theta.shape != d.H_theta.shape:
+            return judge("baseline constant", "Θ_k ≡ Θ_0, θ̂_k ≡ θ̂0", -np.inf, 0.0, f"step {r.k}: shape changed")
+        worst = max(worst, float(np.max(np.abs(r.H_theta - d.H_theta))), float(np.max(np.abs(r.h_theta - d.h_theta0))),
+                    float(np.max(np.abs(r.theta_hat - pr.theta_hat0))))
+    return judge("baseline constant", "Θ_k ≡ Θ_0, θ̂_k ≡ θ̂0 at every step", -worst, 0.0,
+                 "margin = −max |change| (exact: nothing is updated)")
+
+
+#: Optimal costs of the QP (20) on Θ_k vs on Θ_0 at the same x_k and θ̂_k, relative to max(1, |J|):
+#: both are Clarabel optima (duality gap <= 1e-8), so 1e-6 leaves two orders of magnitude.
+MONOTONE_TOL = 1e-6
+
+
+#: Steps probed per run (spread over those where Θ_k shrank). At each, (20) is solved at x_k and at
+#: multiples s·x_k around s_0, the largest multiple at which (20) on Θ_0 is feasible (bisection to
+#: BISECTION_TOL): just inside (s_0(1 − 1e-3)), where the tube constraints bind and Θ_k ⊆ Θ_0 can
+#: lower the optimum, and just outside (1.05 s_0), where only the adaptive QP may be feasible.
+PROBE_STEPS = 3
+PROBE_OUTSIDE = 1.05
+BISECTION_TOL = 1e-3
+MAX_SCALE = 64.0
+
+
+@dataclass
+class Probe:
+    """(20) at one state x = scale·x_k with θ̂_k on Θ_k (adaptive) and on Θ_0 (robust), same backend."""
+
+    k: int
+    scale: float
+    status_adaptive: SolveStatus
+    cost_adaptive: float | None
+    status_robust: SolveStatus
+    cost_robust: float | None
+
+
+def _largest_feasible_scale(solve_robust, x: np.ndarray) -> float | None:
+    """max s <= MAX_SCALE with (20) on Θ_0 feasible at s·x (bisection; None if s = 1 is infeasible)."""
+    if solve_robust(x).status is not SolveStatus.OPTIMAL:
+        return None
+    lo, hi = 1.0, 2.0
+    while solve_robust(hi * x).status is SolveStatus.OPTIMAL:
+        lo, hi = hi, 2.0 * hi
+        if hi > MAX_SCALE:
+            return None
+    while hi - lo > BISECTION_TOL * lo:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if solve_robust(mid * x).status is SolveStatus.OPTIMAL else (lo, mid)
+    return lo
+
+
+def probe_theta0_vs_theta_k(traj, case: Section4Case, backend: str) -> list[Probe]:
+    """At up to PROBE_STEPS steps where Θ_k shrank, solve (20) with the recorded θ̂_k on Θ_k and on Θ_0
+    (the design's offsets h_θ0) at x_k, just inside and just outside the robust feasible ray."""
+    H0, h0 = np.asarray(case.design.H_theta, float), np.asarray(case.design.h_theta0, float)
+    shrunk = [r for r in traj.records if r.h_theta.shape == h0.shape and np.any(r.h_theta < h0 - 1e-6)
+              and np.linalg.norm(r.x) > 1e-9]
+    if not shrunk:
+        return []
+    picks = [shrunk[i] for i in sorted(set(np.linspace(0, len(shrunk) - 1, PROBE_STEPS).round().astype(int)))]
+    ctrl = AdaptiveMPC(case.problem, case.design, backend=backend, options=case.options)
+    out = []
+    for r in picks:
+        x = np.asarray(r.x, float)
+
+        def robust(y, r=r):
+            return ctrl.mpc.solve(y, h0, r.theta_hat, H0)
+
+        s0 = _largest_feasible_scale(robust, x)
+        scales = [1.0] if s0 is None else [1.0, s0 * (1.0 - BISECTION_TOL), PROBE_OUTSIDE * s0]
+        for scale in scales:
+            a = ctrl.mpc.solve(scale * x, r.h_theta, r.theta_hat, r.H_theta)
+            b = robust(scale * x)
+            out.append(Probe(r.k, scale, a.status, a.cost, b.status, b.cost))
+    return out
+
+
+def adaptation_never_hurts(probes: list[Probe], swap: bool = False) -> CheckResult:
+    """Θ_k ⊆ Θ_0 makes 𝔻(x, Θ_0) ⊆ 𝔻(x, Θ_k) (the tube conditions (5b) for the larger set imply them
+    for the smaller; (15) is exact by Farkas' lemma): wherever (20) on Θ_0 is feasible, (20) on Θ_k is
+    feasible with no larger optimum (same x, θ̂_k, objective). ``swap`` exchanges the roles
+    (negative control)."""
+    worst, where = np.inf, "no probe with a feasible QP on Θ_0"
+    for p in probes:
+        if p.status_robust is not SolveStatus.OPTIMAL:
+            continue
+        if p.status_adaptive is not SolveStatus.OPTIMAL:
+            return judge("adaptation never hurts", "feasible on Θ_0 ⇒ feasible on Θ_k", -np.inf, MONOTONE_TOL,
+                         f"step {p.k}, x = {p.scale}·x_k: Θ_0 optimal, Θ_k {p.status_adaptive.value}")
+        small, large = (p.cost_robust, p.cost_adaptive) if swap else (p.cost_adaptive, p.cost_robust)
+        m = (large - small) / max(1.0, abs(large))
+        if m < worst:
+            worst, where = m, f"step {p.k}, x = {p.scale}·x_k: J(Θ_k) {p.cost_adaptive!r}, J(Θ_0) {p.cost_robust!r}"
+    return judge("adaptation never hurts", "J*(x, Θ_k) <= J*(x, Θ_0) wherever (20) on Θ_0 is feasible",
+                 worst, MONOTONE_TOL, where)
+
+
+def strict_gains(probes: list[Probe]) -> dict[str, bool]:
+    """Coverage: some probe where Θ_k shrank; where only the adaptive QP is feasible; where its
+    optimum is strictly lower."""
+    return {"theta_shrunk": bool(probes),
+            "only_adaptive_feasible": any(p.status_adaptive is SolveStatus.OPTIMAL
+                                          and p.status_robust is not SolveStatus.OPTIMAL for p in probes),
+            "cheaper": any(p.status_adaptive is SolveStatus.OPTIMAL and p.status_robust is SolveStatus.OPTIMAL
+                           and p.cost_adaptive < p.cost_robust - 1e-4 * max(1.0, abs(p.cost_robust))
+                           for p in probes)}
+
+
 def input_half_width(problem) -> float:
     """Half-width of the input box of Z along u (m = 1): min over the rows with F = 0 of 1/|G|."""
     rows = np.all(problem.F == 0.0, axis=1) & (np.abs(problem.G[:, 0]) > 0)

@@ -154,14 +154,17 @@ class DesignedProblem(GeneratedProblem):
 
 
 @st.composite
-def problem_specs(draw, max_n: int = 3, max_m: int = 2, max_p: int = 3, min_N: int = 2, max_N: int = 10):
+def problem_specs(draw, max_n: int = 3, max_m: int = 2, max_p: int = 3, min_N: int = 2, max_N: int = 10,
+                  delta_range: tuple[float, float] = (0.01, 0.12)):
     """Random uncertain systems meeting Assumption 1, with a Z that binds.
 
     * A0 = ρ M/‖M‖∞ with ρ ∈ [0.2, 0.95], or (two booleans) ρ ∈ [1.02, 1.12], open-loop unstable
       for sure when M is shifted by ‖M‖₂ I (a third boolean). The ∞-norm (max row sum) keeps the
       template iteration of X0 convergent: scaled by the spectral norm instead, 13 % of the
       problems were rejected (X0 templates diverging for n = 3), with the ∞-norm 0 % of 300;
-      B0 of norm 0.3-1; ‖[A_i B_i]‖₂ = δ/p with δ ∈ [0.01, 0.12] (so the robust LMI is feasible).
+      B0 of norm 0.3-1; ‖[A_i B_i]‖₂ = δ/p with δ ∈ ``delta_range`` (default [0.01, 0.12], so the
+      robust LMI is feasible; larger δ make the parametric uncertainty dominate W, at the price of
+      more designs rejected).
     * Θ: a box lo < 0 < hi, or (boolean) the box cut by 1-3 random half-spaces; H_θ rows kept as drawn.
     * W: a box with half-widths 0.005-0.06 (asymmetric), or (boolean) such a box with cuts.
     * Z: a state box |x_i| within 1-4 and an input box within 0.3-2 (saturation is the binding
@@ -184,7 +187,7 @@ def problem_specs(draw, max_n: int = 3, max_m: int = 2, max_p: int = 3, min_N: i
     e11[0, 0] = 1.0
     B0 = _scaled(_matrix(draw, n, m), draw(_grid(0.3, 1.0, 0.05)), e11)
 
-    delta = draw(_grid(0.01, 0.12, 0.01))
+    delta = draw(_grid(delta_range[0], delta_range[1], 0.01))
     A_list, B_list = [], []
     for _ in range(p):
         AB = _matrix(draw, n, n + m)
