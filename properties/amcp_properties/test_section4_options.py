@@ -29,8 +29,8 @@ Coverage per (option, backend) is printed with the suite's coverage table (label
 by test_section4_coverage_is_not_vacuous (thresholds MIN_COVERAGE, ci profile).
 
 Runtime (ci profile: 24 examples per option and backend, 12-step runs, 18-step PE runs, N <= 6;
-2-core machine; both backends, this file alone): 54 s (pytest), the negative controls reusing
-the runs (Section4Runner).
+2-core machine; both backends, this file alone): 100 s (pytest), of which ~40 s are the baseline
+probes (bisection along rays); the negative controls reuse the runs (Section4Runner).
 
 Coverage measured (ci, both backends alike): PE 24 runs: "enforced" reached in 71 %,
 "enforced_necessary" in 58 %, the PE constraint binding (λ_min = level) in 75 %, Z active
