@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from .certify_checks import RunView, step_check, tag
+from .excitation import pe_measure
 from .checks import CheckResult, not_run
 
 GROUP_COST = "cost"
@@ -112,7 +113,11 @@ def applied_inputs(view: RunView) -> np.ndarray:
 
 
 def window_gram(u: np.ndarray, k: int, dim: int, window: int) -> np.ndarray | None:
-    """Σ_{j=k−P+1}^{k} ū_j ū_jᵀ, ū_j = [u_j; u_{j−1}; …; u_{j−d+1}] (None when the history is short)."""
+    """Σ_{j=k−P+1}^{k} ū_j ū_jᵀ, ū_j = [u_j; u_{j−1}; …; u_{j−d+1}] (None when the history is short).
+
+    Written again on purpose, not :func:`amcp_drake.excitation.stacked_gram`: that one is part of
+    the controller's PE rule whose output this claim checks, so sharing it would let one indexing
+    bug pass its own check."""
     first = k - window - dim + 2
     if first < 0 or k >= len(u):
         return None
@@ -190,10 +195,7 @@ def pe_figure(view: RunView) -> dict | None:
     input_lmin = [float(np.linalg.eigvalsh(G)[0]) for k in range(len(u))
                   if (G := window_gram(u, k, view.problem.n + 1, P)) is not None]
     D = np.array([view.regressor(k) for k in view.transitions])
-    reg_lmin = []
-    if len(D) >= P:
-        grams = np.einsum("kni,knj->kij", D, D)
-        reg_lmin = [float(np.linalg.eigvalsh(grams[k0:k0 + P].sum(axis=0))[0]) for k0 in range(len(D) - P + 1)]
+    reg_lmin = pe_measure(D, P)[0].tolist() if len(D) >= P else []
     return {"window": P, "level": float(view.traj.options.pe_level), "status_counts": counts,
             "input_gram_lambda_min": {"min": min(input_lmin, default=None),
                                       "median": float(np.median(input_lmin)) if input_lmin else None},

@@ -222,9 +222,7 @@ class Scenario:
 
     def max_theta_rate(self) -> float:
         """max_k ‖θ*_(k+1) − θ*_k‖ (0 for a constant θ*)."""
-        if not self.time_varying or len(self.theta_star) < 2:
-            return 0.0
-        return float(np.max(np.linalg.norm(np.diff(self.theta_star, axis=0), axis=1)))
+        return float(np.max(theta_steps(self.theta_star), initial=0.0))
 
     def theta_star_for(self, steps: int) -> np.ndarray:
         """The θ* argument of :func:`~amcp_drake.simulate.simulate` for a run of ``steps`` steps: the
@@ -239,14 +237,19 @@ class Scenario:
         raise ProblemError("steps", f"at most {rows} (scenario.theta_star is a sequence of {rows} rows)", str(steps))
 
 
+def theta_steps(theta_star: np.ndarray) -> np.ndarray:
+    """‖θ*_(k+1) − θ*_k‖ for each k of a sequence (rows); empty for a constant θ*."""
+    theta_star = np.asarray(theta_star, float)
+    if theta_star.ndim != 2:
+        return np.zeros(0)
+    return np.linalg.norm(np.diff(theta_star, axis=0), axis=1)
+
+
 def check_theta_rate(theta_star: np.ndarray, d_theta: float, field: str = "theta_star") -> None:
     """Assumption 17 for a sequence θ*_k (rows): ‖θ*_(k+1) − θ*_k‖ <= d_θ (ProblemError otherwise;
     a constant θ* always passes)."""
-    theta_star = np.asarray(theta_star, float)
-    if theta_star.ndim != 2 or len(theta_star) < 2:
-        return
-    rates = np.linalg.norm(np.diff(theta_star, axis=0), axis=1)
-    if float(np.max(rates)) > d_theta + THETA_RATE_TOL:
+    rates = theta_steps(theta_star)
+    if rates.size and float(np.max(rates)) > d_theta + THETA_RATE_TOL:
         k = int(np.argmax(rates))
         raise ProblemError(field, f"a sequence with ‖θ*_(k+1) − θ*_k‖ <= d_theta = {d_theta:g} "
                            "(Assumption 17; set the online option d_theta)", f"rate {rates[k]:.3g} at k = {k}")

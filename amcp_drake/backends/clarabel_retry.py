@@ -19,6 +19,8 @@ raising ``max_iter`` changes nothing.
 
 from __future__ import annotations
 
+from typing import Any, Callable
+
 from ..status import SolveStatus
 
 #: Statuses of the first solve that start the retries: "inaccurate" (AlmostSolved) and a solver
@@ -33,6 +35,24 @@ CLARABEL_RETRY_LADDER: tuple[dict, ...] = (
     {"equilibrate_enable": False, "max_step_fraction": 0.95},
     {"max_step_fraction": 0.9},
 )
+
+
+def solve_with_retries(solve: Callable[[dict | None], tuple[Any, SolveStatus, float]]
+                       ) -> tuple[Any, SolveStatus, float, str]:
+    """``solve(extra_options)`` once with None (the backend's own options), then, while its status
+    is in RETRIED, once per rung of the ladder. Returns the last (result, status), the summed solver
+    time and a note for ``MPCSolution.detail``: the rung that ended the retries, "after N Clarabel
+    retries" when none did, or "" when no retry was needed. The caller decides whether the solver
+    is Clarabel (the ladder's settings are Clarabel's)."""
+    result, status, elapsed = solve(None)
+    if status not in RETRIED:
+        return result, status, elapsed, ""
+    for rung, extra in enumerate(CLARABEL_RETRY_LADDER):
+        result, status, spent = solve(extra)
+        elapsed += spent
+        if status not in RETRIED:
+            return result, status, elapsed, describe(rung)
+    return result, status, elapsed, f"after {len(CLARABEL_RETRY_LADDER)} Clarabel retries"
 
 
 def describe(rung: int) -> str:

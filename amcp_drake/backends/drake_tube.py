@@ -20,7 +20,7 @@ from pydrake.solvers import MathematicalProgram
 
 from ..status import SolveStatus
 from .base import MPCSolution, TubeMPCData
-from .clarabel_retry import CLARABEL_RETRY_LADDER, RETRIED, describe
+from .clarabel_retry import solve_with_retries
 
 
 def _sqrtm(M: np.ndarray) -> np.ndarray:
@@ -241,6 +241,17 @@ class DrakeTubeMPC:
         return 0.5 * (H + H.T), S.T @ x, float(x @ T @ x)
 
     # -- solve ---------------------------------------------------------------------------------
+    def _solve(self):
+        """(result, status, solver time, retry note): Clarabel with the retry ladder of
+        :mod:`.clarabel_retry`, any other solver once."""
+        def once(extra_options):
+            result, elapsed = self._solver.solve(self.prog, extra_options)
+            return result, self._solver.status(result), elapsed
+
+        if self._solver.name != "clarabel":
+            return (*once(None), "")
+        return solve_with_retries(once)
+
     def solve(self, x, h_theta, theta_hat, H_theta=None, u0_bounds=None) -> MPCSolution:
         """Solve (20) at x_k with Θ_k = {H_θ θ <= h_theta} and point estimate θ̂_k.
 
@@ -273,17 +284,7 @@ class DrakeTubeMPC:
             Hv, g, const = self._cost_matrices(x, theta_hat)
             self._cost.UpdateCoefficients(2.0 * Hv, 2.0 * g, const, is_convex=True)
         update_time = time.perf_counter() - start
-        result, solver_time = self._solver.solve(self.prog)
-        status = self._solver.status(result)
-        detail = ""
-        if status in RETRIED and self._solver.name == "clarabel":
-            for rung, extra in enumerate(CLARABEL_RETRY_LADDER):
-                result, retry_time = self._solver.solve(self.prog, extra)
-                solver_time += retry_time
-                status = self._solver.status(result)
-                if status not in RETRIED:
-                    detail = describe(rung)
-                    break
+        result, status, solver_time, detail = self._solve()
         if status is not SolveStatus.OPTIMAL:
             names: tuple[str, ...] = ()
             try:
@@ -291,9 +292,8 @@ class DrakeTubeMPC:
             except Exception:  # noqa: BLE001 - diagnostics only; a failed report must not hide the status
                 names = ()
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names,
-                               detail=str(result.get_solution_result())
-                               + (f" after {len(CLARABEL_RETRY_LADDER)} Clarabel retries" if status in RETRIED
-                                  and self._solver.name == "clarabel" else ""))
+                               detail=f"{result.get_solution_result()} ({detail})" if detail
+                               else str(result.get_solution_result()))
         yv = result.GetSolution(self.y)
         N, n, m = lay.N, lay.n, lay.m
         z = yv[: lay.a0].reshape(N + 1, n)

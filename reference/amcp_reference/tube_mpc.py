@@ -24,7 +24,7 @@ import cvxpy as cp
 import numpy as np
 
 from amcp_drake.backends.base import MPCSolution, TubeMPCData
-from amcp_drake.backends.clarabel_retry import CLARABEL_RETRY_LADDER, RETRIED, describe
+from amcp_drake.backends.clarabel_retry import solve_with_retries
 from amcp_drake.status import SolveStatus
 
 from .offline import sqrtm_psd
@@ -278,19 +278,7 @@ class CvxpyTubeMPC:
             form.params["u0_hi"].value = np.where(np.isfinite(hi), hi, U0_INF)
         self._set_parameters(form, x, h_theta, theta_hat)
         update_time = time.perf_counter() - start
-        status, solver_time, detail = self._call.solve(form.problem)
-        if status in RETRIED and self._call.name == "CLARABEL":
-            from .backend import SolverCall
-
-            for rung, extra_options in enumerate(CLARABEL_RETRY_LADDER):
-                retry = SolverCall(self._call.name, {**self._call.options, **extra_options})
-                status, extra, detail = retry.solve(form.problem)
-                solver_time += extra
-                if status not in RETRIED:
-                    detail = f"{detail} ({describe(rung)})"
-                    break
-            else:
-                detail = f"{detail} after {len(CLARABEL_RETRY_LADDER)} Clarabel retries"
+        status, solver_time, detail = self._solve(form.problem)
         if status is not SolveStatus.OPTIMAL:
             names = self._diagnose(x, h_theta, theta_hat) if status is SolveStatus.INFEASIBLE else ()
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names, detail=detail)
@@ -306,6 +294,22 @@ class CvxpyTubeMPC:
         else:
             cost = nominal_cost(self.data, x, theta_hat, v)
         return MPCSolution(status, v, z, alpha, Lam, cost, solver_time, update_time, detail=detail)
+
+    def _solve(self, problem: cp.Problem) -> tuple[SolveStatus, float, str]:
+        """(status, solver time, detail): Clarabel with the retry ladder of
+        :mod:`amcp_drake.backends.clarabel_retry`, any other solver once."""
+        from .backend import SolverCall
+
+        def once(extra_options):
+            call = self._call if not extra_options else SolverCall(self._call.name,
+                                                                   {**self._call.options, **extra_options})
+            status, elapsed, detail = call.solve(problem)
+            return detail, status, elapsed
+
+        if self._call.name != "CLARABEL":
+            return self._call.solve(problem)
+        detail, status, elapsed, note = solve_with_retries(once)
+        return status, elapsed, f"{detail} ({note})" if note else detail
 
     def _u0_form(self) -> _Formulation:
         """The variant of (20) with the first-input bounds, built on first use for this q."""
