@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from hypothesis import strategies as st
 
+from amcp_drake import polytope
 from amcp_drake.checks import CheckResult, judge
 from amcp_drake.controller import AdaptiveMPC, OnlineOptions
 from amcp_drake.errors import InconsistentDataError
@@ -35,6 +36,7 @@ from amcp_drake.status import SolveStatus
 
 from . import profiles
 from .cases import Case
+from .feasible import TubeGeometry, max_ray_length
 from .strategies import _grid, designed_problems, disturbances, initial_states, theta_stars
 
 # -- sizes per profile ---------------------------------------------------------------------------------
@@ -217,13 +219,13 @@ MONOTONE_TOL = 1e-6
 
 
 #: Steps probed per run (spread over those where Θ_k shrank). At each, (20) is solved at x_k and at
-#: multiples s·x_k around s_0, the largest multiple at which (20) on Θ_0 is feasible (bisection to
-#: BISECTION_TOL): just inside (s_0(1 − 1e-3)), where the tube constraints bind and Θ_k ⊆ Θ_0 can
-#: lower the optimum, and just outside (1.05 s_0), where only the adaptive QP may be feasible.
+#: multiples s·x_k around s_0, the largest multiple at which (20) on Θ_0 is feasible
+#: (feasible.max_ray_length, the vertex-form LP): just inside (s_0(1 − INSIDE)), where the tube
+#: constraints bind and Θ_k ⊆ Θ_0 can lower the optimum, and just outside (PROBE_OUTSIDE·s_0), where
+#: only the adaptive QP may be feasible.
 PROBE_STEPS = 3
 PROBE_OUTSIDE = 1.05
-BISECTION_TOL = 1e-3
-MAX_SCALE = 64.0
+INSIDE = 1e-3
 
 
 @dataclass
@@ -238,21 +240,6 @@ class Probe:
     cost_robust: float | None
 
 
-def _largest_feasible_scale(solve_robust, x: np.ndarray) -> float | None:
-    """max s <= MAX_SCALE with (20) on Θ_0 feasible at s·x (bisection; None if s = 1 is infeasible)."""
-    if solve_robust(x).status is not SolveStatus.OPTIMAL:
-        return None
-    lo, hi = 1.0, 2.0
-    while solve_robust(hi * x).status is SolveStatus.OPTIMAL:
-        lo, hi = hi, 2.0 * hi
-        if hi > MAX_SCALE:
-            return None
-    while hi - lo > BISECTION_TOL * lo:
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if solve_robust(mid * x).status is SolveStatus.OPTIMAL else (lo, mid)
-    return lo
-
-
 def probe_theta0_vs_theta_k(traj, case: Section4Case, backend: str) -> list[Probe]:
     """At up to PROBE_STEPS steps where Θ_k shrank, solve (20) with the recorded θ̂_k on Θ_k and on Θ_0
     (the design's offsets h_θ0) at x_k, just inside and just outside the robust feasible ray."""
@@ -263,18 +250,15 @@ def probe_theta0_vs_theta_k(traj, case: Section4Case, backend: str) -> list[Prob
         return []
     picks = [shrunk[i] for i in sorted(set(np.linspace(0, len(shrunk) - 1, PROBE_STEPS).round().astype(int)))]
     ctrl = AdaptiveMPC(case.problem, case.design, backend=backend, options=case.options)
+    geometry0 = TubeGeometry.build(case.problem, case.design, polytope.vertices(H0, h0))
     out = []
     for r in picks:
         x = np.asarray(r.x, float)
-
-        def robust(y, r=r):
-            return ctrl.mpc.solve(y, h0, r.theta_hat, H0)
-
-        s0 = _largest_feasible_scale(robust, x)
-        scales = [1.0] if s0 is None else [1.0, s0 * (1.0 - BISECTION_TOL), PROBE_OUTSIDE * s0]
+        s0 = max_ray_length(geometry0, x)
+        scales = [1.0, s0 * (1.0 - INSIDE), PROBE_OUTSIDE * s0] if np.isfinite(s0) and s0 > 0 else [1.0]
         for scale in scales:
             a = ctrl.mpc.solve(scale * x, r.h_theta, r.theta_hat, r.H_theta)
-            b = robust(scale * x)
+            b = ctrl.mpc.solve(scale * x, h0, r.theta_hat, H0)
             out.append(Probe(r.k, scale, a.status, a.cost, b.status, b.cost))
     return out
 

@@ -16,7 +16,7 @@ boundary initial states; every check is numpy only against the recorded StepReco
   updated; and what adaptation buys, as a claim: Θ_k ⊆ Θ_0 ⇒ 𝔻(x, Θ_0) ⊆ 𝔻(x, Θ_k), so wherever
   (20) on Θ_0 is feasible (probed at recorded x_k and along their rays to the robust feasible
   boundary) (20) on Θ_k is feasible with no larger optimum. Random problems use δ ∈ [0.08, 0.3]
-  (parametric uncertainty larger than the suite's default); a strict gain is still rare there (1 of
+  (parametric uncertainty larger than the suite's default); a strict gain is still rare there (3 of
   24 runs: their Z box ends the ray), so Example 1 is checked too, where it is strict.
 * time-varying: θ*_k drifting at the full rate d_θ, reflected at the faces of Θ; θ*_k ∈ Θ_k
   (Proposition 19), θ*_{k+l} ∈ Θ_{l|k} (record.h_theta_stages, (26)), (x, u) ∈ Z, every QP optimal.
@@ -29,8 +29,9 @@ Coverage per (option, backend) is printed with the suite's coverage table (label
 by test_section4_coverage_is_not_vacuous (thresholds MIN_COVERAGE, ci profile).
 
 Runtime (ci profile: 24 examples per option and backend, 12-step runs, 18-step PE runs, N <= 6;
-2-core machine; both backends, this file alone): 100 s (pytest), of which ~40 s are the baseline
-probes (bisection along rays); the negative controls reuse the runs (Section4Runner).
+2-core machine; both backends, this file alone): 95 s (pytest), of which ~35 s are the baseline
+runs and probes (the robust ray length is one vertex-form LP, feasible.max_ray_length); the
+negative controls reuse the runs (Section4Runner).
 
 Coverage measured (ci, both backends alike): PE 24 runs: "enforced" reached in 71 %,
 "enforced_necessary" in 58 %, the PE constraint binding (λ_min = level) in 75 %, Z active
@@ -73,7 +74,7 @@ MIN_COVERAGE = {
     "minmax": {"Z_active": 0.25, "alpha_positive": 0.75},
     "pe": {"pe_enforced": 0.25, "pe_any_enforced": 0.5, "pe_binding": 0.25, "pe_fallback": 0.05},
     "time_varying": {"theta_near_boundary": 0.25, "dilation_needed": 0.2},
-    # random problems rarely show a strict gain (measured 1 of 24 runs): their Z box, not the tube's
+    # random problems rarely show a strict gain (measured 3 of 24 runs): their Z box, not the tube's
     # parametric growth, ends the feasible ray; Example 1 shows it deterministically (test below)
     "baseline": {"theta_shrunk": 0.5, "cheaper": 0.04},
 }
