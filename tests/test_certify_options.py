@@ -17,21 +17,19 @@ import pytest
 from amcp_drake.certify import certify, schema
 from amcp_drake.certify_options import certainty_equivalence_cost, minmax_cost, window_gram
 from amcp_drake.controller import AdaptiveMPC, OnlineOptions
-from amcp_drake.design import design
-from amcp_drake.examples import lorenzen2019_spec
 from amcp_drake.simulate import Trajectory, simulate
 
 PE_OPTIONS = OnlineOptions(update="exact", pe_window=3, pe_level=0.2)
 
 
 @pytest.fixture(scope="module")
-def spec():
-    return lorenzen2019_spec()
+def spec(example_spec):
+    return example_spec
 
 
 @pytest.fixture(scope="module")
-def designed(spec):
-    return design(spec.problem, spec.design, backend="drake")
+def designed(example_design):
+    return example_design
 
 
 def _run(spec, designed, options, steps, backend="drake") -> dict:
