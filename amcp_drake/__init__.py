@@ -19,33 +19,40 @@ from typing import Any
 __version__ = "0.1.0"
 
 _LAZY = {
-    "Problem": "amcp_drake.problem",
-    "DesignOptions": "amcp_drake.problem",
-    "Scenario": "amcp_drake.problem",
-    "ProblemSpec": "amcp_drake.problem",
-    "load_problem": "amcp_drake.problem_io",
-    "load_spec": "amcp_drake.problem_io",
-    "save_spec": "amcp_drake.problem_io",
-    "design": "amcp_drake.design",
-    "OfflineDesign": "amcp_drake.design",
-    "verify_design": "amcp_drake.design_checks",
-    "AdaptiveMPC": "amcp_drake.controller",
-    "OnlineOptions": "amcp_drake.controller",
-    "simulate": "amcp_drake.simulate",
-    "Trajectory": "amcp_drake.simulate",
-    "certify": "amcp_drake.certify",
+    "Problem": "amcp_drake.model.problem",
+    "DesignOptions": "amcp_drake.model.problem",
+    "Scenario": "amcp_drake.model.problem",
+    "ProblemSpec": "amcp_drake.model.problem",
+    "load_problem": "amcp_drake.model.problem_io",
+    "load_spec": "amcp_drake.model.problem_io",
+    "save_spec": "amcp_drake.model.problem_io",
+    "design": "amcp_drake.offline.design",
+    "OfflineDesign": "amcp_drake.offline.design",
+    "verify_design": "amcp_drake.offline.checks",
+    "AdaptiveMPC": "amcp_drake.online.controller",
+    "OnlineOptions": "amcp_drake.model.options",
+    "simulate": "amcp_drake.online.simulate",
+    "Trajectory": "amcp_drake.online.simulate",
+    "certify": "amcp_drake.certificate.certify",
     "available_backends": "amcp_drake.backends",
     "get_backend": "amcp_drake.backends",
-    "SolveStatus": "amcp_drake.status",
+    "SolveStatus": "amcp_drake.model.status",
 }
-_SUBMODULES = {"examples", "errors", "polytope", "backends", "checks"}
+#: public submodule names (kept from the flat layout) -> their module in the layered package
+_SUBMODULES = {
+    "examples": "amcp_drake.model.examples",
+    "errors": "amcp_drake.model.errors",
+    "polytope": "amcp_drake.model.polytope",
+    "checks": "amcp_drake.model.check_result",
+    "backends": "amcp_drake.backends",
+}
 
 
 def __getattr__(name: str) -> Any:
     if name in _LAZY:
         return getattr(importlib.import_module(_LAZY[name]), name)
     if name in _SUBMODULES:
-        return importlib.import_module(f"amcp_drake.{name}")
+        return importlib.import_module(_SUBMODULES[name])
     raise AttributeError(f"module 'amcp_drake' has no attribute {name!r}")
 
 

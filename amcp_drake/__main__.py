@@ -1,6 +1,6 @@
 """``python -m amcp_drake``: the ``amcp`` command line."""
 
-from .cli import main
+from amcp_drake.cli import main
 
 if __name__ == "__main__":
     main()

@@ -23,10 +23,10 @@ import scipy.sparse as sp
 
 
 def run_data(facets: int, steps: int):
-    from amcp_drake.controller import AdaptiveMPC
-    from amcp_drake.design import design
-    from amcp_drake.examples import lorenzen2019_spec
-    from amcp_drake.simulate import simulate
+    from amcp_drake.model.examples import lorenzen2019_spec
+    from amcp_drake.offline.design import design
+    from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_drake.online.simulate import simulate
 
     spec = lorenzen2019_spec()
     d = design(spec.problem, dataclasses.replace(spec.design, x0_facets=facets), backend="drake")

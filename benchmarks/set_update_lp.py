@@ -51,10 +51,10 @@ def main() -> None:
 
     from amcp_drake.backends import get_backend
     from amcp_drake.backends.drake_ import CLARABEL_LP_OPTIONS, _Solver
-    from amcp_drake.controller import AdaptiveMPC
-    from amcp_drake.design import design
-    from amcp_drake.examples import lorenzen2019_spec
-    from amcp_drake.simulate import simulate
+    from amcp_drake.model.examples import lorenzen2019_spec
+    from amcp_drake.offline.design import design
+    from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_drake.online.simulate import simulate
 
     spec = lorenzen2019_spec()
     d = design(spec.problem, spec.design, backend="drake")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from amcp_drake.examples import lorenzen2019_spec
+from amcp_drake.model.examples import lorenzen2019_spec
 
 
 @pytest.fixture(scope="session")
@@ -15,7 +15,7 @@ def example_spec():
 
 @pytest.fixture(scope="session")
 def example_design(example_spec):
-    from amcp_drake.design import design
+    from amcp_drake.offline.design import design
 
     return design(example_spec.problem, example_spec.design, backend="drake")
 
@@ -23,8 +23,8 @@ def example_design(example_spec):
 @pytest.fixture(scope="session")
 def example_run(example_spec, example_design):
     """Example 1, 50 steps from x0 = [2, 3], uniform disturbance (seed 0), Drake backend."""
-    from amcp_drake.controller import AdaptiveMPC
-    from amcp_drake.simulate import simulate
+    from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_drake.online.simulate import simulate
 
     sc = example_spec.scenario
     ctrl = AdaptiveMPC(example_spec.problem, example_design, backend="drake")
@@ -34,7 +34,7 @@ def example_run(example_spec, example_design):
 
 def scalar_problem(**changes):
     """A scalar system x+ = (0.5 + 0.2 θ) x + u + w, θ ∈ [-1, 1], |w| <= 0.1, |x| <= 5, |u| <= 2."""
-    from amcp_drake.problem import Problem
+    from amcp_drake.model.problem import Problem
 
     data = dict(A0=[[0.5]], B0=[[1.0]], A=[[[0.2]]], B=[[[0.0]]], H_w=[[10.0], [-10.0]],
                 H_theta=[[1.0], [-1.0]], h_theta=[1.0, 1.0], F=[[0.2], [-0.2], [0.0], [0.0]],

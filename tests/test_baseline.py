@@ -1,4 +1,4 @@
-"""Adaptive vs robust baseline (amcp_drake.baseline): honest, small versions of docs/baseline.md."""
+"""Adaptive vs robust baseline (amcp_drake.studies.baseline): honest, small versions of docs/baseline.md."""
 
 from __future__ import annotations
 
@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from amcp_drake.baseline import feasible_grid, run_baseline
-from amcp_drake.controller import AdaptiveMPC, OnlineOptions
-from amcp_drake.simulate import simulate
+from amcp_drake.model.options import OnlineOptions
+from amcp_drake.online.controller import AdaptiveMPC
+from amcp_drake.online.simulate import simulate
+from amcp_drake.studies.baseline import feasible_grid, run_baseline
 
 SEEDS = [0, 1]
 STEPS = 20
@@ -68,7 +69,7 @@ def test_cli_baseline_table():
 def test_one_step_tube_closed_form_on_a_box(example_spec, example_design, rng):
     """On a box Θ = [lo, hi], max_θ c·(θ − θ̂) = Σ_i max(c_i (lo_i − θ̂_i), c_i (hi_i − θ̂_i)): the
     vertex-based one-step tube size equals this closed form, and shrinking the box shrinks it."""
-    from amcp_drake.baseline import one_step_tube
+    from amcp_drake.studies.baseline import one_step_tube
 
     pr, d = example_spec.problem, example_design
     H = np.vstack([np.eye(3), -np.eye(3)])

@@ -96,7 +96,7 @@ def test_help_does_not_import_the_solvers():
     code = ("import sys; from click.testing import CliRunner; from amcp_drake.cli import main; "
             "r = CliRunner().invoke(main, ['bench', '--help']); assert r.exit_code == 0, r.output; "
             "assert '--quick' in r.output; "
-            "print(sorted(m for m in ('pydrake', 'cvxpy', 'matplotlib', 'amcp_drake.bench') if m in sys.modules))")
+            "print(sorted(m for m in ('pydrake', 'cvxpy', 'matplotlib', 'amcp_drake.studies.bench') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
 
@@ -104,7 +104,7 @@ def test_help_does_not_import_the_solvers():
 def test_section4_rows_cover_every_option_and_backend(quick_result):
     """The quick run includes the Section 4 table: every option on both backends, each run completed,
     ratios relative to the CE reference of the same backend (which is exactly 1)."""
-    from amcp_drake.bench_section4 import CONFIGS
+    from amcp_drake.studies.bench_section4 import CONFIGS
 
     _, output, data = quick_result
     rows = data["section4"]["rows"]
@@ -120,10 +120,9 @@ def test_section4_rows_cover_every_option_and_backend(quick_result):
 def test_qp_time_counts_every_pe_solve():
     """With PE, the QP time of a step is every bounded solve, plus the final unbounded one only when
     no bounded QP was applied (the applied one is already in pe_solver)."""
-    from amcp_drake.bench_section4 import qp_time
-    from amcp_drake.controller import StepRecord
-
-    from amcp_drake.status import SolveStatus
+    from amcp_drake.model.status import SolveStatus
+    from amcp_drake.online.controller import StepRecord
+    from amcp_drake.studies.bench_section4 import qp_time
 
     base = dict(k=1, x=np.zeros(2), u=np.zeros(1), status=SolveStatus.OPTIMAL, H_theta=np.eye(3), h_theta=np.ones(3),
                 theta_hat=np.zeros(3))

@@ -14,13 +14,13 @@ from pathlib import Path
 
 import pytest
 
-from amcp_drake.campaign_store import CampaignStore
+from amcp_drake.studies.campaign_store import CampaignStore
 
 pytest.importorskip("distributed")
 pytest.importorskip("amcp_properties")
 
 BIN = Path(sys.executable).parent
-AMCP = [sys.executable, "-m", "amcp_drake.cli", "campaign"]
+AMCP = [sys.executable, "-m", "amcp_drake", "campaign"]
 
 
 def _stored(path: Path) -> set[int]:
@@ -34,8 +34,8 @@ def _stored(path: Path) -> set[int]:
 
 
 def test_local_cluster_campaign_stores_every_problem_and_answers_the_summary(tmp_path):
-    from amcp_drake.campaign import run_campaign
-    from amcp_drake.cli_campaign import report_html, summary_text
+    from amcp_drake.cli.campaign import report_html, summary_text
+    from amcp_drake.studies.campaign import run_campaign
 
     store_path = tmp_path / "c.sqlite"
     counts = run_campaign(store_path, systems=6, backends=("drake",), seed=3, workers=2, steps=6, progress=False)
@@ -48,7 +48,7 @@ def test_local_cluster_campaign_stores_every_problem_and_answers_the_summary(tmp
     assert "problems stored: 6" in text and "coverage" in text
     assert "<table id='claims'>" in report_html(store)
     # a second run without --resume is refused, with --resume nothing is re-run
-    from amcp_drake.errors import ProblemError
+    from amcp_drake.model.errors import ProblemError
 
     store.close()
     with pytest.raises(ProblemError, match="--resume"):
@@ -58,7 +58,7 @@ def test_local_cluster_campaign_stores_every_problem_and_answers_the_summary(tmp
 
 
 def test_problem_draws_are_reproducible_per_index():
-    from amcp_drake.campaign import draw_case
+    from amcp_drake.studies.campaign import draw_case
 
     a, b, c = draw_case(5, 2, 6), draw_case(5, 2, 6), draw_case(5, 3, 6)
     assert a.key() == b.key()

@@ -18,12 +18,12 @@ import jsonschema
 import numpy as np
 import pytest
 
-from amcp_drake.certify import certify, schema
-from amcp_drake.certify_checks import theta_vertices
-from amcp_drake.errors import TrajectoryError
-from amcp_drake.examples import lorenzen2019_spec
-from amcp_drake.simulate import Trajectory
-from amcp_drake.status import SolveStatus
+from amcp_drake.certificate.certify import certify, schema
+from amcp_drake.certificate.claims import theta_vertices
+from amcp_drake.model.errors import TrajectoryError
+from amcp_drake.model.examples import lorenzen2019_spec
+from amcp_drake.model.status import SolveStatus
+from amcp_drake.online.simulate import Trajectory
 
 STEPS = 8
 ROOT = Path(__file__).resolve().parents[1]
@@ -50,8 +50,8 @@ def spec():
 
 @pytest.fixture(scope="module")
 def controller(spec):
-    from amcp_drake.controller import AdaptiveMPC
-    from amcp_drake.design import design
+    from amcp_drake.offline.design import design
+    from amcp_drake.online.controller import AdaptiveMPC
 
     return AdaptiveMPC(spec.problem, design(spec.problem, spec.design, backend="drake"), backend="drake")
 
@@ -59,7 +59,7 @@ def controller(spec):
 @pytest.fixture(scope="module")
 def recorded(spec, controller) -> dict:
     """An 8-step run of Example 1 (seed 0), as the JSON dict of its trajectory file."""
-    from amcp_drake.simulate import simulate
+    from amcp_drake.online.simulate import simulate
 
     sc = spec.scenario
     traj = simulate(controller, sc.x0, sc.theta_star, STEPS, "uniform", seed=0,
@@ -283,7 +283,7 @@ def test_failed_qp_fails_recursive_feasibility(recorded, spec):
 def test_infeasible_start_fails_and_never_passes(spec, controller):
     """A real run that is infeasible at k = 0 (x0 violates x2 >= −0.3): recursive feasibility fails, the
     claims about steps that never happened are not run, and the verdict is fail."""
-    from amcp_drake.simulate import simulate
+    from amcp_drake.online.simulate import simulate
 
     traj = simulate(controller, [0.0, -1.0], spec.scenario.theta_star, 3, "uniform", seed=0,
                     mu_state_bound=spec.design.mu_state_bound)
@@ -324,7 +324,7 @@ def test_malformed_trajectory_raises(recorded, tamper, message):
 
 def test_problem_spec_must_match_the_trajectory(recorded, spec):
     other = spec.problem.with_changes(R=[[2.0]])
-    from amcp_drake.problem import ProblemSpec
+    from amcp_drake.model.problem import ProblemSpec
 
     with pytest.raises(TrajectoryError, match="different problem"):
         certify(fresh(recorded), ProblemSpec(other, spec.design, spec.scenario))
@@ -350,7 +350,7 @@ def test_certify_runs_without_any_backend(recorded, tmp_path):
     code = (
         "import sys\n"
         "sys.modules['pydrake'] = None\nsys.modules['cvxpy'] = None\n"
-        "from amcp_drake.simulate import Trajectory\nfrom amcp_drake.certify import certify\n"
+        "from amcp_drake.online.simulate import Trajectory\nfrom amcp_drake.certificate.certify import certify\n"
         f"c = certify(Trajectory.load({str(path)!r}))\n"
         "assert not any(m.startswith(('pydrake', 'cvxpy')) and sys.modules[m] for m in sys.modules)\n"
         "print(c.verdict)\n"
@@ -366,9 +366,9 @@ def test_a_loose_solver_is_not_trusted(spec):
     """SCS (first-order, default accuracy ~1e-4) reports every step as optimal; the certificate does
     not take its word: the recomputed residuals violate the tube and multiplier claims by more than
     QP_TOL, and the verdict is fail although recursive feasibility (the solver's own status) passes."""
-    from amcp_drake.controller import AdaptiveMPC
-    from amcp_drake.design import design
-    from amcp_drake.simulate import simulate
+    from amcp_drake.offline.design import design
+    from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_drake.online.simulate import simulate
 
     ctrl = AdaptiveMPC(spec.problem, design(spec.problem, spec.design, backend="drake"), backend="drake", solver="scs")
     sc = spec.scenario
@@ -385,9 +385,10 @@ def test_robust_baseline_is_not_certified_for_the_adaptive_claims(spec):
     """Update mode 'none' (Θ_k ≡ Θ_0, θ̂_k ≡ θ̂0) makes no claim about (12) or Lemma 5: those are listed
     as not claimed, with the reason, and are not among the checked claims; its Theorem 14 and tube
     claims are checked and hold, so its verdict is pass."""
-    from amcp_drake.controller import AdaptiveMPC, OnlineOptions
-    from amcp_drake.design import design
-    from amcp_drake.simulate import simulate
+    from amcp_drake.model.options import OnlineOptions
+    from amcp_drake.offline.design import design
+    from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_drake.online.simulate import simulate
 
     ctrl = AdaptiveMPC(spec.problem, design(spec.problem, spec.design, backend="drake"), backend="drake",
                        options=OnlineOptions(update="none"))
@@ -406,7 +407,7 @@ def test_robust_baseline_is_not_certified_for_the_adaptive_claims(spec):
 # -- known answers: the vectorised checks against plain loops -----------------------------------------
 def test_propagation_margin_matches_a_brute_force_loop(recorded, spec, baseline):
     """tube_propagation's worst margin equals a plain loop over l, vertices of X_(l|k), Θ_k and W."""
-    from amcp_drake import polytope
+    from amcp_drake.model import polytope
 
     tr = fresh(recorded)
     pr, d = tr.problem, tr.design
@@ -453,9 +454,9 @@ def test_regression_campaign_0_126_lower_inclusion_with_short_delta_rows():
 
     import numpy as np
 
-    from amcp_drake.certify import certify
-    from amcp_drake.problem_io import load_spec
-    from amcp_drake.simulate import Trajectory
+    from amcp_drake.certificate.certify import certify
+    from amcp_drake.model.problem_io import load_spec
+    from amcp_drake.online.simulate import Trajectory
 
     data = Path(__file__).parent / "data"
     traj = Trajectory.load(data / "campaign-0-126-trajectory.json.gz")

@@ -14,11 +14,11 @@ import jsonschema
 import pytest
 from click.testing import CliRunner
 
-from amcp_drake.certify import schema
+from amcp_drake.certificate.certify import schema
+from amcp_drake.certificate.report import OUTPUT_FILES
 from amcp_drake.cli import main
-from amcp_drake.examples import lorenzen2019_spec
-from amcp_drake.problem_io import save_spec, spec_to_dict
-from amcp_drake.report import OUTPUT_FILES
+from amcp_drake.model.examples import lorenzen2019_spec
+from amcp_drake.model.problem_io import save_spec, spec_to_dict
 
 ROOT = Path(__file__).resolve().parents[1]
 STEPS = 6
@@ -27,9 +27,9 @@ STEPS = 6
 @pytest.fixture(scope="module")
 def saved(tmp_path_factory) -> dict:
     """A 6-step Example 1 run saved as trajectory.json.gz (and its dict for tampered copies)."""
-    from amcp_drake.controller import AdaptiveMPC
-    from amcp_drake.design import design
-    from amcp_drake.simulate import simulate
+    from amcp_drake.offline.design import design
+    from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_drake.online.simulate import simulate
 
     spec = lorenzen2019_spec()
     ctrl = AdaptiveMPC(spec.problem, design(spec.problem, spec.design, backend="drake"), backend="drake")
@@ -83,9 +83,9 @@ def test_default_run_certifies_example_1(tmp_path):
 
 
 def test_saved_trajectory_is_rechecked_without_running(saved, tmp_path, monkeypatch):
-    import amcp_drake.simulate
+    import amcp_drake.online.simulate
 
-    monkeypatch.setattr(amcp_drake.simulate, "simulate", lambda *a, **k: pytest.fail("the loop was run again"))
+    monkeypatch.setattr(amcp_drake.online.simulate, "simulate", lambda *a, **k: pytest.fail("the loop was run again"))
     out = tmp_path / "out"
     result = invoke("--trajectory", saved["path"], "--out", out)
     assert result.exit_code == 0, result.output
@@ -140,7 +140,7 @@ def _recompute_costs(data: dict) -> None:
     not the certificate's function."""
     import numpy as np
 
-    from amcp_drake.simulate import Trajectory
+    from amcp_drake.online.simulate import Trajectory
 
     tr = Trajectory.from_dict(json.loads(json.dumps(data)))
     pr, K, P = tr.problem, np.asarray(tr.design.K), np.asarray(tr.design.P)
@@ -250,7 +250,7 @@ def test_bad_input_exits_2_without_output(case, saved, tmp_path):
 def test_interrupted_write_keeps_the_previous_bundle(saved, tmp_path, monkeypatch):
     """A failure (here: Ctrl-C while rendering the report) leaves the previous bundle untouched and no
     half-written directory behind."""
-    import amcp_drake.report
+    import amcp_drake.certificate.report
 
     out = tmp_path / "out"
     assert invoke("--trajectory", saved["path"], "--out", out).exit_code == 0
@@ -259,7 +259,7 @@ def test_interrupted_write_keeps_the_previous_bundle(saved, tmp_path, monkeypatc
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(amcp_drake.report, "render_report", interrupted)
+    monkeypatch.setattr(amcp_drake.certificate.report, "render_report", interrupted)
     result = CliRunner().invoke(main, ["certify", "--trajectory", str(saved["path"]), "--out", str(out)])
     assert result.exit_code != 0
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
@@ -271,7 +271,7 @@ def test_interrupted_write_keeps_the_previous_bundle(saved, tmp_path, monkeypatc
 
 
 def test_command_module_imports_no_backend_or_plotting():
-    code = ("import sys, amcp_drake.cli_certify, amcp_drake.certify\n"
+    code = ("import sys, amcp_drake.cli.certify, amcp_drake.certificate.certify\n"
             "bad = [m for m in ('pydrake', 'cvxpy', 'matplotlib') if m in sys.modules]\n"
             "assert not bad, bad\n")
     env_path = f"{ROOT}:{ROOT / 'reference'}:{ROOT / 'properties'}"
@@ -283,7 +283,7 @@ def test_command_module_imports_no_backend_or_plotting():
 def test_interrupt_during_the_commit_still_completes_it(tmp_path, monkeypatch):
     """Ctrl-C right after the first file was moved: the remaining files are still moved, then the
     interrupt propagates; no mix of old and new files, no staging directory left."""
-    import amcp_drake.report as report
+    import amcp_drake.certificate.report as report
 
     out = tmp_path / "out"
     staging = out / ".certify-staging-test"

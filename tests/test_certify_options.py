@@ -14,10 +14,11 @@ import jsonschema
 import numpy as np
 import pytest
 
-from amcp_drake.certify import certify, schema
-from amcp_drake.certify_options import certainty_equivalence_cost, minmax_cost, window_gram
-from amcp_drake.controller import AdaptiveMPC, OnlineOptions
-from amcp_drake.simulate import Trajectory, simulate
+from amcp_drake.certificate.certify import certify, schema
+from amcp_drake.certificate.section4 import certainty_equivalence_cost, minmax_cost, window_gram
+from amcp_drake.model.options import OnlineOptions
+from amcp_drake.online.controller import AdaptiveMPC
+from amcp_drake.online.simulate import Trajectory, simulate
 
 PE_OPTIONS = OnlineOptions(update="exact", pe_window=3, pe_level=0.2)
 

@@ -11,8 +11,8 @@ import pytest
 from click.testing import CliRunner
 
 from amcp_drake.backends import available_backends
-from amcp_drake.compare import TOLERANCES, lockstep
-from amcp_drake.problem import ProblemSpec, Scenario
+from amcp_drake.comparison.compare import TOLERANCES, lockstep
+from amcp_drake.model.problem import ProblemSpec, Scenario
 
 pytestmark = pytest.mark.skipif("cvxpy" not in available_backends(), reason="cvxpy backend not installed")
 

@@ -7,12 +7,13 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from amcp_drake.controller import AdaptiveMPC, OnlineOptions
-from amcp_drake.design import design
-from amcp_drake.errors import InconsistentDataError, ProblemError
-from amcp_drake.problem import DesignOptions
-from amcp_drake.simulate import Trajectory, simulate
-from amcp_drake.status import SolveStatus
+from amcp_drake.model.errors import InconsistentDataError, ProblemError
+from amcp_drake.model.options import OnlineOptions
+from amcp_drake.model.problem import DesignOptions
+from amcp_drake.model.status import SolveStatus
+from amcp_drake.offline.design import design
+from amcp_drake.online.controller import AdaptiveMPC
+from amcp_drake.online.simulate import Trajectory, simulate
 
 from .conftest import scalar_problem
 
@@ -101,7 +102,7 @@ def test_example_1_closed_loop_meets_the_issue_3_claims(example_spec, example_ru
 
 
 def test_exact_update_is_inside_the_fixed_complexity_set(example_spec, example_design):
-    from amcp_drake import polytope
+    from amcp_drake.model import polytope
 
     sc = example_spec.scenario
     runs = {}

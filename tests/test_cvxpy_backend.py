@@ -12,7 +12,7 @@ from scipy.linalg import solve_discrete_are
 from scipy.optimize import linprog, minimize_scalar
 
 from amcp_drake.backends import Backend, TubeMPCData, TubeMPCSolver, get_backend
-from amcp_drake.status import SolveStatus
+from amcp_drake.model.status import SolveStatus
 from amcp_reference import STATUS_MAP, CvxpyBackend
 from amcp_reference.tube_mpc import GROUPS
 
@@ -306,7 +306,7 @@ def check_scalar_tube_semantics(data, sol, x, theta_lo, theta_hi, tol=TOL):
 def unconstrained_optimum(data, x, theta_hat):
     """argmin of (17)-(18) over v with no constraints, by least squares on the stacked residuals
     (x̂ and û are affine in v); returns (v (N, m), J)."""
-    n, m, N = data.A0.shape[0], data.B0.shape[1], data.N
+    m, N = data.B0.shape[1], data.N
     A = data.A0 + np.tensordot(theta_hat, data.A, axes=1)
     B = data.B0 + np.tensordot(theta_hat, data.B, axes=1)
     Qh, Rh, Ph = (np.linalg.cholesky(M).T for M in (data.Q, data.R, data.P))
@@ -521,7 +521,8 @@ def test_cvxpy_per_row_lp_and_drake_matrix_lp_give_the_same_offsets(be):
 @pytest.mark.parametrize("update", ["fixed", "exact"])
 def test_closed_loop_in_lock_step_with_drake_on_example1(example_spec, example_design, update):
     """Both controllers see the same states (the Drake run's); (9)/(7), (12) and (20) must agree."""
-    from amcp_drake.controller import AdaptiveMPC, OnlineOptions
+    from amcp_drake.model.options import OnlineOptions
+    from amcp_drake.online.controller import AdaptiveMPC
 
     pr, d = example_spec.problem, example_design
     options = OnlineOptions(update=update)

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from amcp_drake.backends import available_backends, get_backend
-from amcp_drake.design import design, template_directions
-from amcp_drake.design_checks import verify_design
-from amcp_drake.errors import BackendNotFound, ProblemError, TerminalSetError
-from amcp_drake.problem import DesignOptions
+from amcp_drake.model.errors import BackendNotFound, ProblemError, TerminalSetError
+from amcp_drake.model.problem import DesignOptions
+from amcp_drake.offline.checks import verify_design
+from amcp_drake.offline.design import design, template_directions
 
 #: spec §9 [NUM]: maximising trace(P^-1) s.t. (16) at the 8 vertices gives these (3-4 digits printed)
 SPEC_K = np.array([[0.0176, -0.4152]])

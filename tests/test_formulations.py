@@ -17,14 +17,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from amcp_drake import polytope
 from amcp_drake.backends import TubeMPCData, get_backend
 from amcp_drake.backends.vertex_form import VertexEnumerationError, theta_vertices
-from amcp_drake.controller import AdaptiveMPC
-from amcp_drake.design import design
-from amcp_drake.problem import DesignOptions, Problem
-from amcp_drake.simulate import simulate
-from amcp_drake.status import SolveStatus
+from amcp_drake.model import polytope
+from amcp_drake.model.problem import DesignOptions, Problem
+from amcp_drake.model.status import SolveStatus
+from amcp_drake.offline.design import design
+from amcp_drake.online.controller import AdaptiveMPC
+from amcp_drake.online.simulate import simulate
 
 from .conftest import scalar_problem
 

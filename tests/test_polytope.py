@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from amcp_drake import polytope
+from amcp_drake.model import polytope
 
 
 def test_vertices_of_a_box_are_its_corners():

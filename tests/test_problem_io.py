@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from amcp_drake.errors import ProblemError, ProblemFileError
-from amcp_drake.problem_io import load_spec, save_spec, spec_to_dict
+from amcp_drake.model.errors import ProblemError, ProblemFileError
+from amcp_drake.model.problem_io import load_spec, save_spec, spec_to_dict
 
 
 def test_example_file_in_the_repository_equals_the_builtin(example_spec):

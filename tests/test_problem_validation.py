@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from amcp_drake.errors import AmcpError, ProblemError
-from amcp_drake.problem import DesignOptions, Problem, Scenario
+from amcp_drake.model.errors import AmcpError, ProblemError
+from amcp_drake.model.problem import DesignOptions, Problem, Scenario
 
 from .conftest import scalar_problem
 
@@ -119,8 +119,8 @@ def test_theta_star_sequence_is_accepted_and_cut_to_the_run_length():
 
 def test_theta_star_sequence_faster_than_d_theta_is_rejected():
     """Assumption 17 in a problem spec: the file's online.d_theta must bound the sequence's steps."""
-    from amcp_drake.controller import OnlineOptions
-    from amcp_drake.problem import ProblemSpec
+    from amcp_drake.model.options import OnlineOptions
+    from amcp_drake.model.problem import ProblemSpec
 
     seq = [[0.1, 0.1], [0.1, 0.11], [0.1, 0.15]]
     sc = Scenario(x0=[1.0, 1.0], theta_star=seq, steps=2)

@@ -11,9 +11,9 @@ from click.testing import CliRunner
 
 def test_documented_api_calls_work_even_after_the_submodules_are_imported():
     import amcp_drake as amcp
-    import amcp_drake.certify  # noqa: F401  - importing the submodules must not shadow the functions
-    import amcp_drake.design  # noqa: F401
-    import amcp_drake.simulate  # noqa: F401
+    import amcp_drake.certificate.certify  # noqa: F401  - importing the submodules must not shadow the functions
+    import amcp_drake.offline.design  # noqa: F401
+    import amcp_drake.online.simulate  # noqa: F401
 
     spec = amcp.examples.lorenzen2019_spec()
     offline = amcp.design(spec.problem, spec.design, backend="drake")

@@ -17,10 +17,10 @@ from pathlib import Path
 
 import pytest
 
-from amcp_drake.certify import certify
-from amcp_drake.examples import lorenzen2019_spec
-from amcp_drake.report import PLOTS, render_report, write_outputs
-from amcp_drake.simulate import Trajectory
+from amcp_drake.certificate.certify import certify
+from amcp_drake.certificate.report import PLOTS, render_report, write_outputs
+from amcp_drake.model.examples import lorenzen2019_spec
+from amcp_drake.online.simulate import Trajectory
 
 STEPS = 6
 CHROMIUM_CANDIDATES = ("/usr/bin/chromium", "chromium", "chromium-browser", "google-chrome")
@@ -65,9 +65,9 @@ def parse(html: str) -> Elements:
 @pytest.fixture(scope="module")
 def bundle(tmp_path_factory):
     """An Example 1 run (6 steps), its certificate and the written bundle."""
-    from amcp_drake.controller import AdaptiveMPC
-    from amcp_drake.design import design
-    from amcp_drake.simulate import simulate
+    from amcp_drake.offline.design import design
+    from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_drake.online.simulate import simulate
 
     spec = lorenzen2019_spec()
     ctrl = AdaptiveMPC(spec.problem, design(spec.problem, spec.design, backend="drake"), backend="drake")

@@ -7,11 +7,12 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from amcp_drake.controller import AdaptiveMPC, OnlineOptions
-from amcp_drake.excitation import (assumption20, pe_bounds, pe_measure, pe_quadratic, theta_diameter, xi_matrix)
-from amcp_drake.problem_io import spec_from_dict, spec_to_dict
-from amcp_drake.simulate import Trajectory, simulate
-from amcp_drake.status import SolveStatus
+from amcp_drake.model.options import OnlineOptions
+from amcp_drake.model.problem_io import spec_from_dict, spec_to_dict
+from amcp_drake.model.status import SolveStatus
+from amcp_drake.online.controller import AdaptiveMPC
+from amcp_drake.online.excitation import assumption20, pe_bounds, pe_measure, pe_quadratic, theta_diameter, xi_matrix
+from amcp_drake.online.simulate import Trajectory, simulate
 
 #: eigenvalue round-off allowed when the quadratic form is compared with the window Gram
 EIG_TOL = 1e-9
@@ -63,7 +64,7 @@ def test_pe_ladder_rung_is_attainable_and_climbs():
 
 
 def test_pe_bounds_cases():
-    from amcp_drake.excitation import PEQuadratic
+    from amcp_drake.online.excitation import PEQuadratic
 
     assert pe_bounds(None) is None
     assert pe_bounds(PEQuadratic(1.0, 0.0, -0.25, (-0.5, 0.5))) == [(-np.inf, -0.5), (0.5, np.inf)]
@@ -144,7 +145,7 @@ def test_pe_run_enforces_window_constraint(example_spec, example_design, tmp_pat
 
 
 def test_pe_needs_scalar_input_and_plain(example_spec, example_design):
-    from amcp_drake.errors import ProblemError
+    from amcp_drake.model.errors import ProblemError
 
     with pytest.raises(ProblemError, match="plain"):
         AdaptiveMPC(example_spec.problem, example_design, options=OnlineOptions(pe_window=3), formulation="vertex")
@@ -159,7 +160,7 @@ def test_online_section_round_trip(example_spec):
     spec = spec_from_dict(data)
     assert spec.online == OnlineOptions(update="window", window=5, d_theta=0.01)
     assert spec_from_dict(spec_to_dict(spec)).online == spec.online
-    from amcp_drake.errors import ProblemFileError
+    from amcp_drake.model.errors import ProblemFileError
 
     data["online"] = {"bogus": 1}
     with pytest.raises(ProblemFileError):
@@ -220,7 +221,7 @@ def test_minmax_cost_both_backends(example_spec, example_design, x):
 @pytest.mark.parametrize("backend", ["drake", "cvxpy"])
 def test_minmax_closed_loop_certifies(example_spec, example_design, backend):
     """20 steps include the instance (seed 0, step 12) where cvxpy+Clarabel needed the retry."""
-    from amcp_drake.certify import certify
+    from amcp_drake.certificate.certify import certify
 
     sc = example_spec.scenario
     ctrl = AdaptiveMPC(example_spec.problem, example_design, backend=backend, options=OnlineOptions(cost="minmax"))
@@ -233,8 +234,8 @@ def test_minmax_closed_loop_certifies(example_spec, example_design, backend):
 def test_example2_builtin_runs_with_drift():
     """Example 2 (spec §9): built in, with its online section; the documented drifting θ*_k run keeps
     θ*_k ∈ Θ_k, (x_k, u_k) ∈ Z and feasibility, and the PE constraint is enforced."""
-    from amcp_drake.design import design
-    from amcp_drake.examples import get_example, lorenzen2019_ex2_theta_star
+    from amcp_drake.model.examples import get_example, lorenzen2019_ex2_theta_star
+    from amcp_drake.offline.design import design
 
     spec = get_example("lorenzen2019_ex2")
     assert spec.online == OnlineOptions(update="fixed", d_theta=0.01, pe_window=3, pe_level=0.8)

@@ -1,7 +1,7 @@
 """Backend registry and dispatcher (qpsolvers style).
 
 Backends are detected without importing them (``importlib.util.find_spec``); asking for one that
-is unknown or not installed raises :class:`~amcp_drake.errors.BackendNotFound` listing what is
+is unknown or not installed raises :class:`~amcp_drake.model.errors.BackendNotFound` listing what is
 installed. ``get_backend(name, **options)`` imports the implementation lazily.
 """
 
@@ -11,9 +11,16 @@ import importlib
 import importlib.util
 from typing import Any
 
-from ..errors import BackendNotFound
-from .base import (Backend, GainResult, MPCSolution, ProjectionResult, SetUpdateResult, TubeMPCData,
-                   TubeMPCSolver)
+from amcp_drake.backends.base import (
+    Backend,
+    GainResult,
+    MPCSolution,
+    ProjectionResult,
+    SetUpdateResult,
+    TubeMPCData,
+    TubeMPCSolver,
+)
+from amcp_drake.model.errors import BackendNotFound
 
 #: backend name -> (module, class name, packages that must be importable)
 REGISTRY: dict[str, tuple[str, str, tuple[str, ...]]] = {

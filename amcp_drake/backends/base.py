@@ -21,7 +21,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from ..status import SolveStatus
+from amcp_drake.model.status import SolveStatus
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,7 +57,7 @@ class ProjectionResult:
 class TubeMPCData:
     """Fixed data of the tube MPC QP (20), set once per controller.
 
-    * problem matrices: ``A0 B0 A B F G Q R N`` as in :class:`~amcp_drake.problem.Problem`;
+    * problem matrices: ``A0 B0 A B F G Q R N`` as in :class:`~amcp_drake.model.problem.Problem`;
     * ``K`` (m, n), ``P`` (n, n): Assumption 8 and (16);
     * ``H_x`` (u, n): X0 = {x | H_x x <= 1}; ``X0_vertices`` (v, n): x^j of (14);
     * ``w_bar`` (u,), ``f_bar`` (c,): offline constants of Proposition 9;
@@ -92,7 +92,7 @@ class TubeMPCData:
 class MPCSolution:
     """Solution of (20): ``v`` (N, m), ``z`` (N+1, n), ``alpha`` (N+1,), ``Lambda`` (N, v, u, q),
     ``cost`` = J_N of (17) (including the constant term), times in seconds. Arrays are None when
-    no solution is present (see :data:`~amcp_drake.status.SOLUTION_PRESENT`). ``Lambda`` is also
+    no solution is present (see :data:`~amcp_drake.model.status.SOLUTION_PRESENT`). ``Lambda`` is also
     None for the vertex form of (5b) (``formulation="vertex"``), which has no multipliers."""
 
     status: SolveStatus

@@ -19,9 +19,10 @@ raising ``max_iter`` changes nothing.
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
-from ..status import SolveStatus
+from amcp_drake.model.status import SolveStatus
 
 #: Statuses of the first solve that start the retries: "inaccurate" (AlmostSolved) and a solver
 #: error (Clarabel's InsufficientProgress / NumericalError). Infeasible and unbounded are answers.

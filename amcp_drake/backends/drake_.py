@@ -16,11 +16,20 @@ import time
 
 import numpy as np
 import scipy.sparse as sp
-from pydrake.solvers import (ClarabelSolver, ClpSolver, CsdpSolver, IpoptSolver, MathematicalProgram,
-                             OsqpSolver, ScsSolver, SolutionResult, SolverOptions)
+from pydrake.solvers import (
+    ClarabelSolver,
+    ClpSolver,
+    CsdpSolver,
+    IpoptSolver,
+    MathematicalProgram,
+    OsqpSolver,
+    ScsSolver,
+    SolutionResult,
+    SolverOptions,
+)
 
-from ..status import SolveStatus
-from .base import GainResult, MPCSolution, ProjectionResult, SetUpdateResult, TubeMPCData
+from amcp_drake.backends.base import GainResult, ProjectionResult, SetUpdateResult, TubeMPCData
+from amcp_drake.model.status import SolveStatus
 
 #: Drake's SolutionResult -> canonical status.
 STATUS_MAP = {
@@ -289,10 +298,10 @@ class DrakeBackend:
     # -- online: tube MPC QP (20) --------------------------------------------------------------
     def tube_mpc(self, data: TubeMPCData):
         if self.formulation == "vertex":
-            from .drake_vertex import DrakeVertexTubeMPC
+            from amcp_drake.backends.drake_vertex import DrakeVertexTubeMPC
 
             return DrakeVertexTubeMPC(data, self._solver, self._solver_options)
-        from .drake_tube import DrakeTubeMPC
+        from amcp_drake.backends.drake_tube import DrakeTubeMPC
 
         return DrakeTubeMPC(data, self._solver)
 

@@ -18,9 +18,9 @@ import numpy as np
 import scipy.sparse as sp
 from pydrake.solvers import MathematicalProgram
 
-from ..status import SolveStatus
-from .base import MPCSolution, TubeMPCData
-from .clarabel_retry import solve_with_retries
+from amcp_drake.backends.base import MPCSolution, TubeMPCData
+from amcp_drake.backends.clarabel_retry import solve_with_retries
+from amcp_drake.model.status import SolveStatus
 
 
 def _sqrtm(M: np.ndarray) -> np.ndarray:

@@ -30,9 +30,9 @@ import numpy as np
 import scipy.sparse as sp
 from pydrake.solvers import MathematicalProgram
 
-from ..status import SolveStatus
-from .base import MPCSolution, TubeMPCData
-from .vertex_form import CLARABEL_OPTIONS, VertexEnumerationError, theta_vertices
+from amcp_drake.backends.base import MPCSolution, TubeMPCData
+from amcp_drake.backends.vertex_form import CLARABEL_OPTIONS, VertexEnumerationError, theta_vertices
+from amcp_drake.model.status import SolveStatus
 
 TUBE_ROWS = "(5b) tube propagation at the vertices of Theta_k (vertex form of (15c)-(15d))"
 
@@ -90,7 +90,7 @@ class DrakeVertexTubeMPC:
         self.data = data
         self._plain_solver = solver
         if solver.name == "clarabel":
-            from .drake_ import _Solver
+            from amcp_drake.backends.drake_ import _Solver
 
             solver = _Solver("clarabel", {**CLARABEL_OPTIONS, **(solver_options or {})})
         self._solver = solver
@@ -173,7 +173,7 @@ class DrakeVertexTubeMPC:
     def tube_rows(self, vertices: np.ndarray) -> tuple[sp.csc_matrix, np.ndarray]:
         """Matrix (N·S·u, size) and upper bound of the vertex-form rows for Θ_k's vertices (S, p)."""
         S = len(vertices)
-        n, m, N, u = self.n, self.m, self.N, self.u
+        n, N, u = self.n, self.N, self.u
         A_cl = self.Acl0 + np.tensordot(vertices, self.Acl_i, axes=1)                 # (S, n, n)
         B_s = self.data.B0 + np.tensordot(vertices, self.data.B, axes=1)              # (S, n, m)
         HA = self.H_x @ A_cl                                                          # (S, u, n)
@@ -238,7 +238,7 @@ class DrakeVertexTubeMPC:
         """Fallback for a step whose Θ_k vertices cannot be enumerated: the plain form (15)."""
         from dataclasses import replace
 
-        from .drake_tube import DrakeTubeMPC
+        from amcp_drake.backends.drake_tube import DrakeTubeMPC
 
         if self._plain is None:
             H0 = self.data.H_theta if H_theta is None else H_theta

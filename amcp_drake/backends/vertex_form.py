@@ -25,7 +25,7 @@ choice of p linearly independent rows, solved as a batch of p×p systems, kept w
 textbook definition of a vertex as a basic feasible solution. Unlike Qhull it needs no interior
 point, so it is also exact for flat (lower-dimensional) Θ_k, which the fixed-complexity update
 (9) produces when θ* is pinned by vertex disturbances. Above :data:`MAX_COMBINATIONS` choices it
-falls back to :func:`amcp_drake.polytope.vertices` (Qhull, full-dimensional sets only).
+falls back to :func:`amcp_drake.model.polytope.vertices` (Qhull, full-dimensional sets only).
 """
 
 from __future__ import annotations
@@ -121,7 +121,7 @@ def _unique(points: np.ndarray) -> np.ndarray:
 
 
 def _qhull_vertices(H: np.ndarray, h: np.ndarray) -> np.ndarray:
-    from .. import polytope
+    from amcp_drake.model import polytope
 
     try:
         return polytope.vertices(H, h)

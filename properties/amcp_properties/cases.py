@@ -14,11 +14,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from amcp_drake.controller import AdaptiveMPC, OnlineOptions
-from amcp_drake.design import OfflineDesign
-from amcp_drake.errors import InconsistentDataError
-from amcp_drake.problem import Problem, ProblemSpec, Scenario
-from amcp_drake.simulate import Trajectory, simulate
+from amcp_drake.model.errors import InconsistentDataError
+from amcp_drake.model.options import OnlineOptions
+from amcp_drake.model.problem import Problem, ProblemSpec, Scenario
+from amcp_drake.offline.design import OfflineDesign
+from amcp_drake.online.controller import AdaptiveMPC
+from amcp_drake.online.simulate import Trajectory, simulate
 
 #: Trajectories and controllers kept in memory by a Runner (a trajectory of 20-80 steps with its
 #: multipliers is 0.1-2 MB; the ci profile needs about 2 x max_examples of them at a time).

@@ -1,7 +1,7 @@
 """The paper's claims as checks on a recorded closed loop, with numpy/scipy only.
 
-Every function takes a :class:`amcp_drake.simulate.Trajectory` (or a problem and its design) and
-returns an :class:`amcp_drake.checks.CheckResult`: ``margin`` >= −``tolerance`` means the claim
+Every function takes a :class:`amcp_drake.online.simulate.Trajectory` (or a problem and its design) and
+returns an :class:`amcp_drake.model.check_result.CheckResult`: ``margin`` >= −``tolerance`` means the claim
 holds on this run. Nothing here calls an optimisation backend or trusts a solver's multipliers:
 sets are handled by vertex enumeration (Qhull) or, for sets with empty interior, HiGHS LPs
 (:mod:`amcp_properties.geometry`); Δ_k, D(x,u), w̄ and f̄ are recomputed from their definitions.
@@ -16,9 +16,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linprog
 
-from amcp_drake import polytope
-from amcp_drake.checks import CheckResult, judge
-from amcp_drake.status import SolveStatus
+from amcp_drake.model import polytope
+from amcp_drake.model.check_result import CheckResult, judge
+from amcp_drake.model.status import SolveStatus
 
 from .geometry import delta_set, maxima, regressor, signed_chebyshev_radius, unit_rows, vertices
 

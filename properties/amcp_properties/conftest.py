@@ -42,7 +42,7 @@ def pytest_configure(config: pytest.Config) -> None:
 def backend(request) -> str:
     """An online backend that can be imported, or a visible skip saying why not."""
     from amcp_drake.backends import get_backend
-    from amcp_drake.errors import BackendNotFound
+    from amcp_drake.model.errors import BackendNotFound
 
     try:
         get_backend(request.param)
@@ -55,7 +55,7 @@ def backend(request) -> str:
 def both_backends() -> tuple[str, str]:
     """Both backends for the lockstep comparison (skipped visibly unless both are selected and importable)."""
     from amcp_drake.backends import get_backend
-    from amcp_drake.errors import BackendNotFound
+    from amcp_drake.model.errors import BackendNotFound
 
     names = _backend_names()
     if not {"drake", "cvxpy"} <= set(names):

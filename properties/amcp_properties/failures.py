@@ -3,9 +3,9 @@
 When a claim fails on the final (shrunk) example, :func:`require` writes into
 ``$AMCP_FAILURE_DIR/<test>-<backend>-<hash>/`` (default ``./amcp-failures``):
 
-* ``problem.json``: the problem, design options and scenario (:func:`amcp_drake.problem_io.save_spec`);
+* ``problem.json``: the problem, design options and scenario (:func:`amcp_drake.model.problem_io.save_spec`);
 * ``trajectory.json.gz``: the recorded run with the design and the exact disturbance sequence
-  (:meth:`amcp_drake.simulate.Trajectory.save`; ``amcp certify --trajectory`` re-checks it);
+  (:meth:`amcp_drake.online.simulate.Trajectory.save`; ``amcp certify --trajectory`` re-checks it);
 * ``design.json``: the offline design, for a failure without a run (Assumption 11);
 * ``claim.txt``: the claim, its margin, tolerance and where it failed, and how to replay.
 
@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from amcp_drake.checks import CheckResult
-from amcp_drake.controller import AdaptiveMPC
-from amcp_drake.problem_io import load_spec, save_spec, spec_to_dict, write_json_atomic
-from amcp_drake.simulate import Trajectory, simulate
+from amcp_drake.model.check_result import CheckResult
+from amcp_drake.model.problem_io import load_spec, save_spec, spec_to_dict, write_json_atomic
+from amcp_drake.online.controller import AdaptiveMPC
+from amcp_drake.online.simulate import Trajectory, simulate
 
 FAILURE_DIR_ENV = "AMCP_FAILURE_DIR"
 DEFAULT_FAILURE_DIR = "amcp-failures"

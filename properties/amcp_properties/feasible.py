@@ -22,7 +22,7 @@ import numpy as np
 from scipy.optimize import linprog
 from scipy.sparse import csr_matrix
 
-from amcp_drake import polytope
+from amcp_drake.model import polytope
 
 
 @dataclass(frozen=True)
@@ -46,7 +46,7 @@ class TubeGeometry:
     N: int
 
     @classmethod
-    def build(cls, problem, design, theta_vertices: np.ndarray) -> "TubeGeometry":
+    def build(cls, problem, design, theta_vertices: np.ndarray) -> TubeGeometry:
         K = np.asarray(design.K, float)
         H_x = np.asarray(design.H_x, float)
         X0_v = polytope.vertices(H_x, np.ones(len(H_x)))

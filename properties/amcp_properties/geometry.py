@@ -1,7 +1,7 @@
 """Small numpy/scipy geometry helpers for the claim checks (no optimisation backend).
 
 Maxima of linear functions over a polytope are taken at its vertices (Qhull via
-:func:`amcp_drake.polytope.vertices`); when the polytope has (numerically) empty interior, which
+:func:`amcp_drake.model.polytope.vertices`); when the polytope has (numerically) empty interior, which
 happens when Θ_k collapses onto θ* under vertex disturbances, vertex enumeration is impossible
 and the maxima are computed by one HiGHS LP per direction instead.
 """
@@ -14,7 +14,7 @@ import numpy as np
 from scipy.optimize import linprog
 from scipy.spatial import HalfspaceIntersection, QhullError
 
-from amcp_drake import polytope
+from amcp_drake.model import polytope
 
 #: Below this Chebyshev radius Qhull cannot enumerate vertices reliably; use LPs instead.
 MIN_RADIUS_FOR_VERTICES = 1e-7

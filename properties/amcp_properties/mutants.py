@@ -13,21 +13,22 @@ conservative or change its performance; the runner reports them as "not caught (
 
 from __future__ import annotations
 
-from contextlib import contextmanager
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass, field, replace
-from typing import Callable, ContextManager, Iterator
-
-import numpy as np
 from unittest.mock import patch
 
-from amcp_drake import controller as controller_module
-from amcp_drake.checks import CheckResult
-from amcp_drake.controller import AdaptiveMPC, OnlineOptions
-from amcp_drake.design import design
-from amcp_drake.examples import lorenzen2019_spec
-from amcp_drake.problem import Problem, ProblemSpec, DesignOptions
-from amcp_drake.simulate import disturbance_sequence
-from amcp_drake.status import SolveStatus
+import numpy as np
+
+from amcp_drake.model.check_result import CheckResult
+from amcp_drake.model.examples import lorenzen2019_spec
+from amcp_drake.model.options import OnlineOptions
+from amcp_drake.model.problem import DesignOptions, Problem, ProblemSpec
+from amcp_drake.model.status import SolveStatus
+from amcp_drake.offline.design import design
+from amcp_drake.online import controller as controller_module
+from amcp_drake.online.controller import AdaptiveMPC
+from amcp_drake.online.simulate import disturbance_sequence
 
 from . import claims
 from .cases import Case, run
@@ -49,7 +50,7 @@ def _after_init(change: Callable[[AdaptiveMPC], None]) -> Iterator[None]:
         yield
 
 
-def _tube_data(**edits: Callable[[np.ndarray], np.ndarray]) -> ContextManager:
+def _tube_data(**edits: Callable[[np.ndarray], np.ndarray]) -> AbstractContextManager:
     """Edit fields of the TubeMPCData given to the backend (both backends) and rebuild the QP."""
 
     def change(ctrl: AdaptiveMPC) -> None:
@@ -59,7 +60,7 @@ def _tube_data(**edits: Callable[[np.ndarray], np.ndarray]) -> ContextManager:
     return _after_init(change)
 
 
-def _qp_inputs(edit: Callable[[AdaptiveMPC, np.ndarray, np.ndarray, np.ndarray], tuple]) -> ContextManager:
+def _qp_inputs(edit: Callable[[AdaptiveMPC, np.ndarray, np.ndarray, np.ndarray], tuple]) -> AbstractContextManager:
     """Rewrite the (x_k, h_θk, θ̂_k) handed to the tube QP at every step (both backends)."""
 
     def change(ctrl: AdaptiveMPC) -> None:
@@ -155,7 +156,7 @@ class Mutant:
 
     name: str
     bug: str
-    patch: Callable[[], ContextManager]
+    patch: Callable[[], AbstractContextManager]
     breaks: bool = True
     backends: tuple[str, ...] = ("drake", "cvxpy")
     why_not: str = ""

@@ -7,9 +7,9 @@ states, disturbances) and add the option: ``cost="minmax"``; ``pe_window``/``pe_
 with a θ*_k sequence that moves at the full rate d_θ and is reflected at the faces of Θ (so θ*_k
 reaches the boundary of Θ and of Θ_k).
 
-The checks (``check_*``) take a :class:`~amcp_drake.simulate.Trajectory` and return
-:class:`~amcp_drake.checks.CheckResult` objects; they use numpy only and read the recorded
-contract of :class:`~amcp_drake.controller.StepRecord` (``cost``, ``z``, ``alpha``, ``v``,
+The checks (``check_*``) take a :class:`~amcp_drake.online.simulate.Trajectory` and return
+:class:`~amcp_drake.model.check_result.CheckResult` objects; they use numpy only and read the recorded
+contract of :class:`~amcp_drake.online.controller.StepRecord` (``cost``, ``z``, ``alpha``, ``v``,
 ``pe_status``, ``pe_level``, ``pe_dim``, ``pe_bounds``, ``h_theta_stages``), never the controller's
 internals. Each check accepts an optional override (a wrong cost formula, a tampered record) so
 that the negative controls of the test module exercise the very same code path.
@@ -26,13 +26,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from hypothesis import strategies as st
 
-from amcp_drake import polytope
-from amcp_drake.checks import CheckResult, judge
-from amcp_drake.controller import AdaptiveMPC, OnlineOptions
-from amcp_drake.errors import InconsistentDataError
-from amcp_drake.problem import Scenario, ProblemSpec
-from amcp_drake.simulate import Trajectory, simulate
-from amcp_drake.status import SolveStatus
+from amcp_drake.model import polytope
+from amcp_drake.model.check_result import CheckResult, judge
+from amcp_drake.model.errors import InconsistentDataError
+from amcp_drake.model.options import OnlineOptions
+from amcp_drake.model.problem import ProblemSpec, Scenario
+from amcp_drake.model.status import SolveStatus
+from amcp_drake.online.controller import AdaptiveMPC
+from amcp_drake.online.simulate import Trajectory, simulate
 
 from . import profiles
 from .cases import Case
@@ -182,9 +183,9 @@ def baseline_cases(draw, steps: int, max_N: int = 6):
 def example1_baseline_case(steps: int = 12) -> Section4Case:
     """Example 1 (x0 = [2, 3], θ* = [0.8, 0.2, −0.5], uniform w, seed 0) with update (9): the paper's
     system, where the parametric uncertainty dominates and adaptation enlarges the feasible region."""
-    from amcp_drake.design import design
-    from amcp_drake.examples import lorenzen2019_spec
-    from amcp_drake.simulate import disturbance_sequence
+    from amcp_drake.model.examples import lorenzen2019_spec
+    from amcp_drake.offline.design import design
+    from amcp_drake.online.simulate import disturbance_sequence
 
     spec = lorenzen2019_spec()
     sc = spec.scenario

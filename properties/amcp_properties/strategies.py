@@ -2,7 +2,7 @@
 
 Every generated problem meets Assumption 1 by construction (W and Θ bounded polytopes, 0 in the
 interior of W, θ̂0 and θ* in Θ); Assumptions 8 and 11 and (16) are then obtained from the
-project's offline design (:func:`amcp_drake.design.design`), which can still fail (no robust
+project's offline design (:func:`amcp_drake.offline.design.design`), which can still fail (no robust
 gain, X0 not contractive, X_f empty). Such a failure is a *generator rejection*: it is counted
 in :data:`GENERATOR_STATS` and reported by the suite, and the generator is tuned so that it is
 rare (systems are "nice" by construction: ‖A0‖∞ < 1 most of the time, small ‖[A_i B_i]‖, W small
@@ -30,12 +30,12 @@ import numpy as np
 from hypothesis import event, reject
 from hypothesis import strategies as st
 
-from amcp_drake.controller import OnlineOptions
-from amcp_drake.design import OfflineDesign, design
-from amcp_drake.errors import DesignError
-from amcp_drake.problem import DesignOptions, Problem, ProblemSpec
-from amcp_drake.problem_io import spec_to_dict
-from amcp_drake.simulate import disturbance_sequence
+from amcp_drake.model.errors import DesignError
+from amcp_drake.model.options import OnlineOptions
+from amcp_drake.model.problem import DesignOptions, Problem, ProblemSpec
+from amcp_drake.model.problem_io import spec_to_dict
+from amcp_drake.offline.design import OfflineDesign, design
+from amcp_drake.online.simulate import disturbance_sequence
 
 from .cases import Case
 from .feasible import TubeGeometry, max_ray_length

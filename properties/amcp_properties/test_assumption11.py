@@ -7,8 +7,8 @@ from dataclasses import replace
 
 from hypothesis import given, note
 
-from amcp_drake.design import design
-from amcp_drake.errors import DesignError
+from amcp_drake.model.errors import DesignError
+from amcp_drake.offline.design import design
 
 from . import claims, profiles
 from .failures import require

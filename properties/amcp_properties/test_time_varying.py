@@ -12,12 +12,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from amcp_drake.controller import AdaptiveMPC, OnlineOptions
-from amcp_drake.design import design
-from amcp_drake.errors import ProblemError
-from amcp_drake.examples import lorenzen2019_spec
-from amcp_drake.simulate import simulate
-from amcp_drake.status import SolveStatus
+from amcp_drake.model.errors import ProblemError
+from amcp_drake.model.examples import lorenzen2019_spec
+from amcp_drake.model.options import OnlineOptions
+from amcp_drake.model.status import SolveStatus
+from amcp_drake.offline.design import design
+from amcp_drake.online.controller import AdaptiveMPC
+from amcp_drake.online.simulate import simulate
 
 #: θ*_k ∈ Θ_k on unit rows, allowed round-off: the LP (9) is solved to ~1e-9 and Δ_k carries a
 #: margin of 1e-6 (controller.DELTA_MARGIN) in the safe direction.

@@ -15,14 +15,15 @@ from __future__ import annotations
 import time
 import warnings
 from collections import OrderedDict
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import cvxpy as cp
 import cvxpy.settings as cps
 import numpy as np
 
 from amcp_drake.backends.base import ProjectionResult, SetUpdateResult, TubeMPCData
-from amcp_drake.status import SolveStatus
+from amcp_drake.model.status import SolveStatus
 
 #: cvxpy status string -> canonical status (cvxpy.settings). Inaccurate certificates of
 #: infeasibility / unboundedness count as such (no solution is returned either way);

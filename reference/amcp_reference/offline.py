@@ -9,7 +9,7 @@ import cvxpy as cp
 import numpy as np
 
 from amcp_drake.backends.base import GainResult
-from amcp_drake.status import SolveStatus
+from amcp_drake.model.status import SolveStatus
 
 
 def sqrtm_psd(M: np.ndarray) -> np.ndarray:

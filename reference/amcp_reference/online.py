@@ -5,11 +5,11 @@ Both are DPP problems cached by shape: each call sets parameters and re-solves.
 
 from __future__ import annotations
 
-import numpy as np
 import cvxpy as cp
+import numpy as np
 
 from amcp_drake.backends.base import ProjectionResult, SetUpdateResult
-from amcp_drake.status import SolveStatus
+from amcp_drake.model.status import SolveStatus
 
 
 class SetUpdateLP:

@@ -25,7 +25,7 @@ import numpy as np
 
 from amcp_drake.backends.base import MPCSolution, TubeMPCData
 from amcp_drake.backends.clarabel_retry import solve_with_retries
-from amcp_drake.status import SolveStatus
+from amcp_drake.model.status import SolveStatus
 
 from .offline import sqrtm_psd
 
@@ -83,7 +83,7 @@ def formulate(data: TubeMPCData, q: int, elastic: bool = False, u0_bounds: bool 
     n, m = B0.shape
     p = A.shape[0]
     N = int(data.N)
-    nv, u, c = Xv.shape[0], H_x.shape[0], F.shape[0]
+    nv, u = Xv.shape[0], H_x.shape[0]
 
     params = {
         "x_k": cp.Parameter(n, name="x_k"),
@@ -283,7 +283,6 @@ class CvxpyTubeMPC:
             names = self._diagnose(x, h_theta, theta_hat) if status is SolveStatus.INFEASIBLE else ()
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names, detail=detail)
         f = form
-        N = int(self.data.N)
         nv, u = np.shape(self.data.X0_vertices)[0], np.shape(self.data.H_x)[0]
         v = np.asarray(f.v.value, float).T.copy()           # (N, m)
         z = np.asarray(f.z.value, float).T.copy()           # (N+1, n)

@@ -34,7 +34,7 @@ import numpy as np
 
 from amcp_drake.backends.base import MPCSolution, TubeMPCData
 from amcp_drake.backends.vertex_form import CLARABEL_OPTIONS, VertexEnumerationError, theta_vertices
-from amcp_drake.status import SolveStatus
+from amcp_drake.model.status import SolveStatus
 
 from .offline import sqrtm_psd
 from .tube_mpc import ELASTIC_SLACK_TOL, GROUP_15A, GROUP_15B, GROUP_TERMINAL, nominal_cost

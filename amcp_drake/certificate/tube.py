@@ -1,0 +1,183 @@
+"""Certificate checks of the prediction tube (Proposition 9, eqs (5), (14), (15)) at every solved step.
+
+Two independent routes, both from the recorded z_{l|k}, α_{l|k}, v_{l|k}, Λ^j_{l|k} and Θ_k:
+
+* **Vertex enumeration** (the primal claim (5a)-(5c)): the vertices of X_{l|k} = {z_l} ⊕ α_l X0
+  (X0's vertices recomputed with Qhull from H_x), of Θ_k and of W are enumerated, and
+  A(θ)x + B(θ)(Kx + v_l) + w ∈ X_{l+1|k} is evaluated at every combination. Since the map is
+  affine in each of x, θ, w separately and X_{l+1|k} is convex, the vertices suffice.
+* **Dual certificates** (15c)-(15d): the recorded multipliers Λ must be non-negative and satisfy
+  (15c) and (15d) when the residuals are recomputed from z, α, v, Λ, h_θk, H_θk; then LP duality
+  proves max_{θ∈Θ_k} [H_x]_i D^j θ <= [Λ^j h_θk]_i, i.e. the same containment.
+
+The vertex ordering j of Λ^j is that of ``design.X0_vertices`` (the QP's order), which the check
+``design.x0_vertices`` compares with the recomputed vertex set.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from amcp_drake.certificate.claims import RunView, max_over_set, step_check, tag
+from amcp_drake.model import polytope
+from amcp_drake.model.check_result import CheckResult, judge
+
+#: Constraints the tube QP (20) enforces, as returned by its solver: Clarabel's default
+#: feasibility tolerance is 1e-8 (relative to data of order 1-10 here); 1e-6 leaves room for that
+#: scaling and is still far below any violation that matters (state bounds of order 0.1-1).
+#: A loose solver (SCS at its defaults: violations ~1e-4 on Example 1) is caught, as intended.
+QP_TOL = 1e-6
+#: Vertex enumeration by Qhull: vertices are accurate to ~1e-12; 1e-8 as in design_checks.
+VERTEX_TOL = 1e-8
+
+GROUP_TUBE = "tube"
+GROUP_DESIGN = "design"
+
+
+def x0_vertex_list(view: RunView) -> CheckResult:
+    """The QP's vertex list x^1..x^v of X0 (14) equals the vertex set of {H_x x <= 1} (Qhull).
+
+    Margin: −(Hausdorff distance between the two finite sets).
+    """
+    d = view.design
+    recorded = np.asarray(d.X0_vertices, float)
+    fresh = polytope.vertices(d.H_x, np.ones(len(d.H_x)))
+    dist = np.linalg.norm(recorded[:, None, :] - fresh[None, :, :], axis=2)
+    hausdorff = max(float(np.max(np.min(dist, axis=1))), float(np.max(np.min(dist, axis=0))))
+    return tag(judge("X0 vertex list", "(14): the vertices x^j used by the QP are exactly the vertices of X0",
+                     0.0 - hausdorff, VERTEX_TOL, f"{len(recorded)} recorded, {len(fresh)} recomputed vertices; "
+                     "margin = −Hausdorff distance"), "design.x0_vertices", GROUP_DESIGN)
+
+
+class _TubeStep:
+    """Recorded tube of one solved step k, with vertex arrays."""
+
+    def __init__(self, view: RunView, k: int, X0v: np.ndarray) -> None:
+        r = view.records[k]
+        self.k = k
+        self.z = np.asarray(r.z, float)
+        self.alpha = np.asarray(r.alpha, float)
+        self.v = np.asarray(r.v, float)
+        self.Lambda = None if r.Lambda is None else np.asarray(r.Lambda, float)
+        self.H_theta = np.asarray(r.H_theta, float)
+        self.h_theta = np.asarray(r.h_theta, float)
+        self.N = len(self.v)
+        self.X0v = X0v
+
+    def vertices(self, l: int, X0v: np.ndarray | None = None) -> np.ndarray:
+        """Vertices z_l + α_l x^j of X_{l|k}, shape (v, n)."""
+        base = self.X0v if X0v is None else X0v
+        return self.z[l] + self.alpha[l] * base
+
+
+def _propagation_margin(view: RunView, step: _TubeStep, theta_v: np.ndarray | None, W_v: np.ndarray,
+                        w_bar: np.ndarray) -> float:
+    """min over l, vertices x of X_{l|k}, θ of Θ_k, w of W of α_{l+1} − max_i [H_x]_i (A(θ)x + B(θ)(Kx+v_l) + w − z_{l+1}).
+
+    (5b) by vertex enumeration; when Θ_k's vertices are unavailable (flat or degenerate set) the
+    maximum over θ is taken by HiGHS support LPs instead (same value, by LP duality no solver of
+    the run is involved).
+    """
+    pr, d = view.problem, view.design
+    H_x, K = d.H_x, d.K
+    worst = np.inf
+    for l in range(step.N):
+        X = step.vertices(l)                                   # (v, n)
+        U = X @ K.T + step.v[l]                                # (v, m)
+        base = X @ pr.A0.T + U @ pr.B0.T                       # (v, n)
+        Dv = np.einsum("pab,vb->vap", pr.A, X) + np.einsum("pab,vb->vap", pr.B, U)  # (v, n, p) = D(x^j, u^j)
+        if theta_v is not None:
+            images = base[:, None, :] + np.einsum("vap,tp->vta", Dv, theta_v)        # (v, t, n)
+            images = images[:, :, None, :] + W_v[None, None, :, :]                 # (v, t, w, n)
+            rows = (images - step.z[l + 1]) @ H_x.T                                # (v, t, w, u)
+            top = float(np.max(rows))
+        else:
+            top = -np.inf
+            for j in range(len(X)):
+                sup = max_over_set(step.H_theta, step.h_theta, None, H_x @ Dv[j])  # (u,)
+                top = max(top, float(np.max(H_x @ (base[j] - step.z[l + 1]) + sup + w_bar)))
+        worst = min(worst, float(step.alpha[l + 1]) - top)
+    return worst
+
+
+def tube_checks(view: RunView) -> list[CheckResult]:
+    """Every tube check of Proposition 9 / (5) / (14) / terminal set, one CheckResult each."""
+    pr, d, tr = view.problem, view.design, view.traj
+    H_x, K = d.H_x, d.K
+    X0v = polytope.vertices(H_x, np.ones(len(H_x)))
+    X0v_qp = np.asarray(d.X0_vertices, float)
+    W_v = pr.w_vertices()
+    w_bar = np.max(H_x @ W_v.T, axis=1)  # recomputed, not the design's w̄
+
+    contains, contains_next, alpha_ok, constraints, propagation, terminal = {}, {}, {}, {}, {}, {}
+    lam_nonneg, lam_c, lam_d = {}, {}, {}
+    lp_fallback = []
+    for k in view.solved:
+        s = _TubeStep(view, k, X0v)
+        x = tr.x[k]
+        contains[k] = float(np.min(s.alpha[0] - H_x @ (x - s.z[0])))
+        if k < view.T:
+            contains_next[k] = float(np.min(s.alpha[1] - H_x @ (tr.x[k + 1] - s.z[1])))
+        alpha_ok[k] = float(np.min(s.alpha))
+        con = np.inf
+        for l in range(s.N):
+            X = s.vertices(l)
+            U = X @ K.T + s.v[l]
+            con = min(con, float(np.min(1.0 - X @ pr.F.T - U @ pr.G.T)))
+        constraints[k] = con
+        theta_v = view.theta_k_vertices[k]
+        if theta_v is None:
+            lp_fallback.append(k)
+        propagation[k] = _propagation_margin(view, s, theta_v, W_v, w_bar)
+        terminal[k] = float(np.min(1.0 - d.H_T @ s.z[s.N] - d.h_T * s.alpha[s.N]))
+        # dual certificates (15c)-(15d) with the QP's vertex order (the vertex formulation has no Λ)
+        if s.Lambda is None:
+            continue
+        lam_nonneg[k] = float(np.min(s.Lambda))
+        c_margin, d_margin = np.inf, np.inf
+        for l in range(s.N):
+            X = s.vertices(l, X0v_qp)
+            U = X @ K.T + s.v[l]
+            for j in range(len(X)):
+                Lam = s.Lambda[l, j]                                   # (u, q_k)
+                dj = pr.A0 @ X[j] + pr.B0 @ U[j] - s.z[l + 1]          # d^j_{l|k}
+                lhs = Lam @ s.h_theta + H_x @ dj - s.alpha[l + 1]
+                c_margin = min(c_margin, float(np.min(-w_bar - lhs)))
+                Dj = pr.regressor(X[j], U[j])                           # D^j_{l|k}
+                d_margin = min(d_margin, -float(np.max(np.abs(H_x @ Dj - Lam @ s.H_theta))))
+        lam_c[k], lam_d[k] = c_margin, d_margin
+
+    none = "no step has a QP solution (see recursive feasibility)"
+    prop_detail = "margin = min α_(l+1) − [H_x]_i(A(θ)x + B(θ)(Kx+v_l) + w − z_(l+1)) over l, vertices of X_(l|k), Θ_k, W"
+    if lp_fallback:
+        prop_detail += f"; Θ_k vertices not enumerable at steps {lp_fallback}: max over Θ_k by HiGHS LPs"
+    checks = [
+        step_check("tube_contains_state", GROUP_TUBE, "x_k ∈ X_0|k", "(5a), (15b): the tube starts at the measured state",
+                   contains, QP_TOL, "margin = min_i (α_0 − [H_x]_i (x_k − z_0))", none),
+        step_check("tube_contains_next_state", GROUP_TUBE, "x_(k+1) ∈ X_1|k",
+                   "(5b) on the run: the realised successor lies in the first predicted cross-section",
+                   contains_next, QP_TOL, "margin = min_i (α_1 − [H_x]_i (x_(k+1) − z_1))", none),
+        step_check("tube_propagation", GROUP_TUBE, "tube propagation (5b)",
+                   "(5b): A(θ)X_(l|k) ⊕ B(θ)v_l ⊕ W ⊆ X_(l+1|k) for all θ ∈ Θ_k (vertex enumeration)",
+                   propagation, QP_TOL, prop_detail, none),
+        step_check("tube_constraints", GROUP_TUBE, "tube in Z (5c)",
+                   "(5c), (15a): F x + G(Kx + v_l) <= 1 at every vertex of every X_(l|k), l < N",
+                   constraints, QP_TOL, "margin = min (1 − F x − G(Kx + v_l)) over tube vertices", none),
+        step_check("tube_alpha_nonneg", GROUP_TUBE, "α_(l|k) >= 0", "(14): tube scalings are non-negative",
+                   alpha_ok, QP_TOL, "margin = min_l α_(l|k)", none),
+        step_check("terminal_set", GROUP_TUBE, "(z_N, α_N) ∈ X_f", "Assumption 11: the tube ends in the terminal set",
+                   terminal, QP_TOL, "margin = min_r (1 − [H_T]_r z_N − [h_T]_r α_N)", none),
+    ]
+    if view.traj.meta.get("formulation") == "vertex":
+        # The vertex formulation enforces (5b) at the vertices of Θ_k without multipliers: there is no Λ
+        # to check. (5b) itself is still checked above by vertex enumeration (tube_propagation).
+        return checks
+    return checks + [
+        step_check("multipliers_nonneg", GROUP_TUBE, "Λ >= 0", "Proposition 9: the multipliers Λ^j_(l|k) are non-negative",
+                   lam_nonneg, QP_TOL, "margin = min entry of Λ", none),
+        step_check("multipliers_15c", GROUP_TUBE, "(15c) residual",
+                   "(15c): Λ^j h_θk + H_x d^j − α_(l+1) 1 <= −w̄ with the recorded Λ", lam_c, QP_TOL,
+                   "margin = min (−w̄ − Λ^j h_θk − H_x d^j + α_(l+1)); w̄ recomputed from the vertices of W", none),
+        step_check("multipliers_15d", GROUP_TUBE, "(15d) residual", "(15d): H_x D^j = Λ^j H_θk with the recorded Λ",
+                   lam_d, QP_TOL, "margin = −max |H_x D^j − Λ^j H_θk|", none),
+    ]

@@ -1,0 +1,52 @@
+"""``amcp bench``: per-step times of the online loop (issue 8); see :mod:`amcp_drake.studies.bench`."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from amcp_drake.cli.common import EXIT_BAD_INPUT, EXIT_OK, bad_input_exits_2
+
+
+@click.command("bench")
+@click.option("--quick", is_flag=True, help="Short runs and small sweeps (a minute or less; for CI and tests).")
+@click.option("--steps", type=int, default=None, help="Steps per Example 1 run (default 50, quick 10).")
+@click.option("--scaling-steps", type=int, default=None, help="Steps per sweep point (default 10, quick 3).")
+@click.option("--only", type=click.Choice(["example", "scaling", "section4"]), default=None,
+              help="Run only Example 1, only the sweeps over N, p and the facets of X0, or only the Section 4 "
+                   "options (PE, min-max cost, time-varying parameters) against the CE cost.")
+@click.option("--backend", "backends", type=click.Choice(["drake", "cvxpy"]), multiple=True,
+              help="Backend(s) to time (repeatable; default both).")
+@click.option("--formulation", "formulations", type=click.Choice(["plain", "vertex"]), multiple=True,
+              help="Tube QP formulation(s): plain (15) with Λ, or (5b) at Θ_k's vertices (repeatable; default both).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Disturbance seed.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default="amcp-out/bench", show_default=True,
+              help="Directory for bench.json and bench.png.")
+@click.option("--no-plot", is_flag=True, help="Write the JSON only.")
+@bad_input_exits_2
+def bench_cmd(quick, steps, scaling_steps, only, backends, formulations, seed, out_dir, no_plot):
+    """Time the online loop: set update, LMS, QP update, solver and total per step (median, p90),
+    Example 1 with X0 of 4 and 8 facets, both backends and both formulations, run in lockstep;
+    then sweeps over N, p and the facets of X0. Writes JSON and a PNG."""
+    from amcp_drake.studies.bench import BenchSettings, format_summary, run_benchmarks, write_outputs
+
+    changes = {"seed": seed, "only": only}
+    if steps is not None:
+        changes["steps"] = steps
+    if scaling_steps is not None:
+        changes["scaling_steps"] = scaling_steps
+    if backends:
+        changes["backends"] = tuple(dict.fromkeys(backends))
+    if formulations:
+        changes["formulations"] = tuple(dict.fromkeys(formulations))
+    for name in ("steps", "scaling_steps"):
+        if name in changes and changes[name] < 1:
+            click.echo(f"error: --{name.replace('_', '-')} must be >= 1, got {changes[name]}", err=True)
+            sys.exit(EXIT_BAD_INPUT)
+    settings = BenchSettings.quick_settings(**changes) if quick else BenchSettings(**changes)
+    result = run_benchmarks(settings, progress=lambda msg: click.echo(msg, err=True))
+    paths = write_outputs(result, out_dir, plot=not no_plot)
+    click.echo(format_summary(result))
+    click.echo(f"results: {', '.join(str(p) for p in paths.values())}")
+    sys.exit(EXIT_OK)

@@ -1,0 +1,93 @@
+"""``amcp campaign``: verification campaigns at scale on Dask (issue 9)."""
+
+from __future__ import annotations
+
+import html
+import sys
+
+import click
+
+from amcp_drake.cli.common import EXIT_FAIL, EXIT_OK, bad_input_exits_2
+
+
+def summary_text(store) -> str:
+    """The closing summary: claims x backends, coverage fractions, slowest and failing problems."""
+    lines = []
+    counts = store.problem_counts()
+    lines.append(f"problems stored: {sum(counts.values())} ({', '.join(f'{k}: {v}' for k, v in sorted(counts.items()))})")
+    lines.append("")
+    lines.append(f"{'claim':34s} {'backend':8s} {'pass':>6s} {'fail':>6s} {'not run':>8s}")
+    for claim, backend, p, f, n in store.claim_table():
+        lines.append(f"{claim:34s} {backend:8s} {p:6d} {f:6d} {n:8d}")
+    lines.append("")
+    lines.append(f"{'coverage':34s} {'backend':8s} {'fraction':>9s} {'runs':>6s}")
+    for key, backend, frac, count in store.coverage_table():
+        lines.append(f"{key:34s} {backend:8s} {frac:9.2f} {count:6d}")
+    lines.append("")
+    lines.append("slowest problems: " + ", ".join(f"#{idx} {sec:.1f} s" for _, idx, sec in store.slowest()))
+    failures = store.failures()
+    lines.append(f"failing problems: {len(failures)}")
+    for seed, idx, folder, message in failures:
+        replay = f"amcp certify {folder}/problem.json" if folder else "(no replay files: " + (message or "").splitlines()[0] + ")"
+        lines.append(f"  seed {seed} #{idx}: {replay}")
+    return "\n".join(lines)
+
+
+def report_html(store) -> str:
+    """The store rendered as a self-contained HTML page (jinja2)."""
+    import jinja2
+
+    template = jinja2.Environment(autoescape=True).from_string(
+        "<!doctype html><html><head><meta charset='utf-8'><title>amcp campaign</title>"
+        "<style>body{font-family:sans-serif} td,th{padding:2px 8px} .fail{color:#b00}</style></head><body>"
+        "<h1>amcp campaign</h1><p>{{ counts }}</p>"
+        "<h2>Claims</h2><table id='claims'><tr><th>claim</th><th>backend</th><th>pass</th><th>fail</th><th>not run</th></tr>"
+        "{% for c, b, p, f, n in claims %}<tr><td>{{ c }}</td><td>{{ b }}</td><td>{{ p }}</td>"
+        "<td class='{{ 'fail' if f else '' }}'>{{ f }}</td><td>{{ n }}</td></tr>{% endfor %}</table>"
+        "<h2>Coverage</h2><table id='coverage'><tr><th>key</th><th>backend</th><th>fraction</th><th>runs</th></tr>"
+        "{% for k, b, fr, n in coverage %}<tr><td>{{ k }}</td><td>{{ b }}</td><td>{{ '%.2f' % fr }}</td><td>{{ n }}</td></tr>{% endfor %}</table>"
+        "<h2>Failing problems</h2><ul id='failures'>{% for s, i, d, m in failures %}<li>seed {{ s }} #{{ i }}: "
+        "{{ d or m }}</li>{% else %}<li>none</li>{% endfor %}</ul></body></html>")
+    return template.render(counts=html.escape(str(store.problem_counts())), claims=store.claim_table(),
+                           coverage=store.coverage_table(), failures=store.failures())
+
+
+@click.command("campaign")
+@click.option("--systems", type=click.IntRange(min=1), default=200, show_default=True, help="Number of random problems.")
+@click.option("--backends", default="drake,cvxpy", show_default=True, help="Comma-separated backends.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Campaign seed.")
+@click.option("--scheduler", default=None, help="Address of an existing Dask scheduler (tcp://host:port).")
+@click.option("--workers", type=click.IntRange(min=1), default=2, show_default=True, help="LocalCluster workers.")
+@click.option("--store", "store_path", default="amcp-campaign.sqlite", show_default=True, type=click.Path(),
+              help="SQLite store, written as each problem finishes.")
+@click.option("--steps", type=click.IntRange(min=2), default=15, show_default=True, help="Closed-loop steps per problem.")
+@click.option("--resume", is_flag=True, help="Continue an interrupted campaign (stored problems are skipped).")
+@click.option("--report", "report_file", default=None, type=click.Path(),
+              help="Only render the store as HTML to this file (no run).")
+@bad_input_exits_2
+def campaign_cmd(systems, backends, seed, scheduler, workers, store_path, steps, resume, report_file):
+    """Draw random problems from the property-suite generators, run every claim check on each closed
+    loop for each backend, fan out on Dask, and keep every result in SQLite."""
+    from amcp_drake.model.errors import ProblemError
+    from amcp_drake.model.problem_io import write_text_atomic
+    from amcp_drake.studies.campaign_store import CampaignStore
+
+    chosen = tuple(b.strip() for b in backends.split(",") if b.strip())
+    if not chosen or any(b not in ("drake", "cvxpy") for b in chosen):
+        raise ProblemError("--backends", "a comma-separated subset of drake,cvxpy", repr(backends))
+    if report_file:
+        store = CampaignStore(store_path)
+        write_text_atomic(report_html(store), report_file)
+        click.echo(f"report written to {report_file}")
+        store.close()
+        sys.exit(EXIT_OK)
+    from amcp_drake.studies.campaign import run_campaign
+
+    counts = run_campaign(store_path, systems, chosen, seed=seed, scheduler=scheduler, workers=workers,
+                          resume=resume, steps=steps)
+    store = CampaignStore(store_path)
+    click.echo(f"submitted {counts['submitted']}, stored {counts['stored']}, skipped (already stored) {counts['skipped']}")
+    click.echo(summary_text(store))
+    ok = not store.failures()
+    store.close()
+    sys.exit(EXIT_OK if ok else EXIT_FAIL)

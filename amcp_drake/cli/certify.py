@@ -1,0 +1,146 @@
+"""``amcp certify``: run a closed loop (or load a saved one), check every claim independently, write the bundle.
+
+Exit codes: 0 every claim holds; 1 a claim failed **or could not be checked** (verdict
+``incomplete``: a claim that did not run is not a pass); 2 bad input (unreadable or malformed
+problem or trajectory file, bad option, --out naming a file). On exit 2 no
+output is written; on 0 and 1 the bundle (certificate.json, report.html, trajectory.json.gz) is
+written atomically into --out.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from amcp_drake.cli.common import (
+    EXIT_FAIL,
+    EXIT_OK,
+    backend_option,
+    bad_input_exits_2,
+    example_option,
+    formulation_option,
+    load_problem_spec,
+    problem_argument,
+    resolve_online,
+    section4_options,
+    update_options,
+)
+
+
+@click.command("certify")
+@problem_argument
+@example_option
+@backend_option
+@formulation_option
+@click.option("--steps", type=click.IntRange(min=1), default=None,
+              help="Closed-loop steps (default: the scenario's; 50 for Example 1).")
+@click.option("--seed", type=click.IntRange(min=0), default=None,
+              help="Seed of the disturbance sequence (default: the scenario's; 0 for Example 1).")
+@click.option("--out", "out_dir", default="amcp-out", show_default=True, type=click.Path(),
+              help="Output directory (its other files are left alone).")
+@click.option("--trajectory", "trajectory_file", default=None, type=click.Path(),
+              help="Re-check a saved trajectory (.json or .json.gz) instead of running the loop.")
+@update_options
+@section4_options
+@click.pass_context
+@bad_input_exits_2
+def certify_cmd(ctx, problem_file, example, backend, formulation, steps, seed, out_dir, trajectory_file, update,
+                window, projection, d_theta, pe_window, pe_level, cost):
+    """Run the adaptive MPC on PROBLEM (default: --example lorenzen2019, x0 = [2, 3],
+    θ* = [0.8, 0.2, -0.5], 50 steps, uniform disturbance, seed 0), check every claim of the paper
+    from the recorded data with numpy/scipy only, and write certificate.json, report.html and
+    trajectory.json.gz into --out.
+
+    Exit code 0: every claim holds; 1: a claim failed or could not be checked (the bundle is
+    still written); 2: bad input (nothing is written). See docs/certificate.md."""
+    from amcp_drake.certificate.certify import certify
+    from amcp_drake.certificate.report import check_out_dir, write_outputs
+    from amcp_drake.model.errors import ProblemError
+
+    check_out_dir(out_dir)
+    if trajectory_file is not None:
+        from click.core import ParameterSource
+
+        given = [f"--{name.replace('_', '-')}" for name in ("backend", "steps", "seed", "update", "window",
+                                                                  "projection", "d_theta", "pe_window",
+                                                                  "pe_level", "cost")
+                 if ctx.get_parameter_source(name) is ParameterSource.COMMANDLINE]
+        if given:
+            raise ProblemError(", ".join(given), "no run options together with --trajectory (the run is not repeated)",
+                               "both")
+        traj, spec = _load_trajectory(trajectory_file, problem_file, example)
+    else:
+        spec = load_problem_spec(problem_file, example)
+        if spec.scenario is None:
+            raise ProblemError("scenario", "a scenario (x0, theta_star, ...) in the problem file to run", "none",
+                               "Add a \"scenario\" object, or pass --trajectory.")
+        sc = spec.scenario
+        traj = _run(spec, backend, steps or sc.steps, sc.seed if seed is None else seed, formulation,
+                    resolve_online(spec, update=update, window=window, projection=projection, d_theta=d_theta,
+                                   pe_window=pe_window, pe_level=pe_level, cost=cost))
+        if traj.stop_reason.startswith("inconsistent"):
+            click.echo(f"warning: the run stopped: {traj.stop_reason}; certifying the partial trajectory", err=True)
+    cert = certify(traj, spec)
+    out = write_outputs(out_dir, traj, cert)
+    _print(cert, out)
+    sys.exit(EXIT_OK if cert.passed else EXIT_FAIL)
+
+
+def _run(spec, backend: str, steps: int, seed: int, formulation: str = "plain", options=None):
+    """Offline design, then the closed loop with a progress bar (Drake/cvxpy imported only here)."""
+    from amcp_drake.model.errors import InconsistentDataError
+    from amcp_drake.offline.design import design
+    from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_drake.online.simulate import simulate
+
+    sc = spec.scenario
+    offline = design(spec.problem, spec.design, backend=backend)
+    ctrl = AdaptiveMPC(spec.problem, offline, backend=backend, options=options, formulation=formulation)
+    try:
+        return simulate(ctrl, sc.x0, sc.theta_star_for(steps), steps, sc.disturbance, seed=seed, progress=True,
+                        mu_state_bound=spec.design.mu_state_bound)
+    except InconsistentDataError as exc:
+        return exc.trajectory
+
+
+def _load_trajectory(path: str, problem_file, example):
+    """The saved trajectory and the problem spec that goes with it: the one given, or a built-in example
+    whose problem data are identical to the recorded ones (it supplies the μ box), or None."""
+    from amcp_drake.certificate.certify import _require_same_problem
+    from amcp_drake.model.examples import EXAMPLES
+    from amcp_drake.online.simulate import Trajectory
+
+    traj = Trajectory.load(path)
+    if problem_file or example:
+        return traj, load_problem_spec(problem_file, example)
+    for make in EXAMPLES.values():
+        spec = make()
+        try:
+            _require_same_problem(traj, spec)
+        except ValueError:
+            continue
+        return traj, spec
+    return traj, None
+
+
+def _print(cert, out) -> None:
+    click.echo(f"{'claim':32s} {'status':8s} {'margin':>11s} {'tolerance':>9s} {'step':>5s}  statement")
+    for c in cert.claims:
+        margin = "n/a" if c.margin is None else f"{c.margin:.3e}"
+        step = c.data.get("worst_step")
+        click.echo(f"{c.data['id']:32s} {c.status:8s} {margin:>11s} {c.tolerance:9.1e} "
+                   f"{'' if step is None else step:>5}  {c.name}")
+    for c in cert.not_claimed:
+        click.echo(f"{c['id']:32s} {'-':8s} {'':>11s} {'':9s} {'':>5s}  not claimed for this run: {c['reason']}")
+    click.echo("")
+    counts = cert.counts()
+    if cert.passed:
+        click.echo(f"CERTIFIED: all {counts['pass']} claims hold")
+    elif counts["fail"]:
+        click.echo(f"NOT CERTIFIED: {counts['fail']} claim(s) failed: {', '.join(cert.ids('fail'))}"
+                   + (f"; {counts['not_run']} not run: {', '.join(cert.ids('not_run'))}" if counts["not_run"] else ""))
+    else:
+        click.echo(f"NOT CERTIFIED (incomplete): {counts['not_run']} claim(s) could not be checked: "
+                   f"{', '.join(cert.ids('not_run'))}")
+    click.echo(f"wrote {out}/certificate.json, {out}/report.html, {out}/trajectory.json.gz")

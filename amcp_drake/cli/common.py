@@ -1,0 +1,94 @@
+"""Helpers shared by the CLI subcommands: loading a problem, mapping errors to exit code 2."""
+
+from __future__ import annotations
+
+import functools
+import sys
+from collections.abc import Callable
+
+import click
+
+from amcp_drake.model.errors import AmcpError, BackendNotFound, ProblemError, TrajectoryError
+
+EXIT_OK, EXIT_FAIL, EXIT_BAD_INPUT = 0, 1, 2
+
+
+def load_problem_spec(problem_file: str | None, example: str | None):
+    """The ProblemSpec named by a PROBLEM argument or ``--example`` (default: lorenzen2019)."""
+    from amcp_drake.model.examples import get_example
+    from amcp_drake.model.problem_io import load_spec
+
+    if problem_file and example:
+        raise ProblemError("PROBLEM, --example", "one of them", "both")
+    if problem_file:
+        return load_spec(problem_file)
+    return get_example(example or "lorenzen2019")
+
+
+def bad_input_exits_2(func: Callable) -> Callable:
+    """Turn ProblemError / BackendNotFound / TrajectoryError into a one-line message and exit 2."""
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        try:
+            return func(*args, **kwargs)
+        except (ProblemError, BackendNotFound, TrajectoryError) as exc:
+            click.echo(f"error: {exc}", err=True)
+            sys.exit(EXIT_BAD_INPUT)
+        except AmcpError as exc:
+            click.echo(f"error: {exc}", err=True)
+            sys.exit(EXIT_FAIL)
+
+    return wrapper
+
+
+backend_option = click.option("--backend", type=click.Choice(["drake", "cvxpy"]), default="drake", show_default=True,
+                              help="Optimisation backend.")
+problem_argument = click.argument("problem_file", metavar="[PROBLEM]", required=False, type=click.Path())
+example_option = click.option("--example", default=None, help="Built-in example (default: lorenzen2019).")
+
+formulation_option = click.option("--formulation", type=click.Choice(["plain", "vertex"]), default="plain",
+                                  show_default=True,
+                                  help="Tube QP: plain (15) with multipliers, or the exact vertex form (faster, issue 8).")
+
+def update_options(func):
+    """--update, --window, --projection (the online set update and LMS projection; defaults: the
+    file's online section). ``--update none`` is the robust baseline (Θ_k ≡ Θ, θ̂_k ≡ θ̂0)."""
+    func = click.option("--projection", type=click.Choice(["Theta", "Theta_k"]), default=None,
+                        help="Project the LMS estimate onto Θ (12) or Θ_k (Remark 7). Default: file, else "
+                             "Theta.")(func)
+    func = click.option("--window", type=click.IntRange(min=1), default=None,
+                        help="Window length for --update window (default: file, else 10).")(func)
+    return click.option("--update", type=click.Choice(["fixed", "exact", "window", "none"]), default=None,
+                        help="Parameter-set update: (9), (7), (9) over a moving window (Remark 4), or none (robust "
+                             "baseline). Default: the problem file's online section, else fixed.")(func)
+
+
+def section4_options(func):
+    """--d-theta, --pe, --pe-level, --cost (Section 4 extensions; defaults: the file's online section)."""
+    func = click.option("--cost", type=click.Choice(["certainty_equivalence", "minmax"]), default=None,
+                        help="Cost of (20): (17) with θ̂_k, or the min-max cost (19) (default: the file's online "
+                             "section, else certainty_equivalence). minmax needs --formulation plain.")(func)
+    func = click.option("--pe-level", "pe_level", type=click.FloatRange(min=0.0, min_open=True), default=None,
+                        help="PE level ρ (default: file, else 0.1).")(func)
+    func = click.option("--pe", "pe_window", type=click.IntRange(min=1), default=None,
+                        help="Enforce a persistently exciting input over windows of this length (spec §8, m = 1; "
+                             "default: the file's online section, else off). Needs --formulation plain.")(func)
+    return d_theta_option(func)
+
+
+d_theta_option = click.option("--d-theta", "d_theta", type=click.FloatRange(min=0.0), default=None,
+                              help="Rate bound d_θ of a time-varying θ* (Section 4.1; default: the problem file's "
+                                   "online section, else 0). Needs --formulation plain.")
+
+
+def resolve_online(spec, **given):
+    """OnlineOptions: the problem file's ``online`` section (or the defaults), with every option
+    given on the command line (not None) replacing its field."""
+    import dataclasses
+
+    from amcp_drake.model.options import OnlineOptions
+
+    base = spec.online if spec.online is not None else OnlineOptions()
+    changes = {k: v for k, v in given.items() if v is not None}
+    return dataclasses.replace(base, **changes)

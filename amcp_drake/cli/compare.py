@@ -1,0 +1,97 @@
+"""``amcp compare``: the Drake and cvxpy backends side by side (issue 4)."""
+
+from __future__ import annotations
+
+import sys
+from collections import defaultdict
+
+import click
+
+from amcp_drake.cli.common import (
+    EXIT_FAIL,
+    EXIT_OK,
+    bad_input_exits_2,
+    example_option,
+    formulation_option,
+    load_problem_spec,
+    problem_argument,
+    resolve_online,
+    section4_options,
+    update_options,
+)
+
+
+@click.command("compare")
+@problem_argument
+@example_option
+@click.option("--steps", type=int, default=None, help="Steps (default: the scenario's).")
+@click.option("--seed", type=int, default=None, help="Disturbance seed (default: the scenario's).")
+@click.option("--mode", type=click.Choice(["lockstep", "independent"]), default="lockstep", show_default=True)
+@click.option("--drake-solver", default="clarabel", show_default=True, help="Drake solver (clarabel, osqp, scs, ...).")
+@click.option("--cvxpy-solver", default="CLARABEL", show_default=True, help="cvxpy solver (CLARABEL, OSQP, SCS, ...).")
+@update_options
+@section4_options
+@click.option("--out", "out_file", type=click.Path(), default="amcp-out/compare.json", show_default=True,
+              help="JSON file with every difference.")
+@formulation_option
+@click.option("--quiet", is_flag=True, help="Only the summary, no per-step table.")
+@bad_input_exits_2
+def compare_cmd(problem_file, example, steps, seed, mode, drake_solver, cvxpy_solver, update, window, projection,
+                d_theta, pe_window, pe_level, cost, out_file, formulation, quiet):
+    """Compare u, v, cost, h_theta and theta_hat (and report z, alpha) of both backends per step."""
+    from amcp_drake.comparison.compare import INFORMATIONAL, TOLERANCES, independent, lockstep
+    from amcp_drake.model.errors import ProblemError
+    from amcp_drake.model.problem_io import write_json_atomic
+
+    spec = load_problem_spec(problem_file, example)
+    if spec.scenario is None:
+        raise ProblemError("scenario", "a scenario in the problem file (x0, theta_star)", "none")
+    steps = steps or spec.scenario.steps
+    seed = spec.scenario.seed if seed is None else seed
+    options = resolve_online(spec, update=update, window=window, projection=projection, d_theta=d_theta,
+                             pe_window=pe_window, pe_level=pe_level, cost=cost)
+    backend_options = ({"solver": drake_solver, "formulation": formulation},
+                       {"solver": cvxpy_solver, "formulation": formulation})
+    run = lockstep if mode == "lockstep" else independent
+    comp = run(spec, steps, seed, options=options, backend_options=backend_options)
+
+    if not quiet:
+        per_step: dict[int, dict[str, float]] = defaultdict(dict)
+        for d in comp.differences + comp.informational:
+            if d.step is not None:
+                per_step[d.step][d.quantity] = d.difference
+        quantities = [q for q in ("u", "v", "cost", "h_theta", "theta_hat", *INFORMATIONAL)
+                      if any(q in row for row in per_step.values())]
+        click.echo(f"{'k':>3}  {'status a/b':22s} " + " ".join(f"{q:>10s}" for q in quantities))
+        statuses = {k: (a, b) for k, a, b in comp.statuses}
+        for k in sorted(per_step):
+            a, b = statuses.get(k, ("-", "-"))
+            flag = "" if a == b else "  <- status differs"
+            cells = " ".join(f"{per_step[k].get(q, float('nan')):10.2e}" for q in quantities)
+            click.echo(f"{k:3d}  {a[:10] + '/' + b[:10]:22s} {cells}{flag}")
+        click.echo("")
+    click.echo(f"{comp.mode} comparison, backends {comp.backends[0]} ({drake_solver}) vs {comp.backends[1]} ({cvxpy_solver}), "
+               f"{steps} steps, seed {seed}")
+    click.echo(f"{'quantity':14s} {'largest diff':>13s} {'at step':>8s} {'tolerance':>11s}  (abs + rel*scale)   verdict")
+    for q, d in sorted(comp.worst().items()):
+        abs_tol, rel_tol = TOLERANCES.get(q, (float("nan"), float("nan")))
+        verdict = "info (not unique)" if q in INFORMATIONAL else ("agree" if d.agree else "DISAGREE")
+        step = "design" if d.step is None else str(d.step)
+        click.echo(f"{q:14s} {d.difference:13.3e} {step:>8s} {d.tolerance:11.3e}  ({abs_tol:g} + {rel_tol:g}*{d.scale:.3g})  {verdict}")
+    if comp.drift:
+        k_max = max(range(len(comp.drift)), key=comp.drift.__getitem__)
+        click.echo(f"state drift |x_a - x_b|: max {comp.drift[k_max]:.3e} at step {k_max}")
+    status_diffs = [(k, a, b) for k, a, b in comp.statuses if a != b]
+    for k, a, b in status_diffs:
+        click.echo(f"status differs at step {k}: {a} vs {b}")
+    for note in comp.notes:
+        click.echo(f"note: {note}")
+    bad = comp.disagreements()
+    if bad:
+        first = min(bad, key=lambda d: (d.step if d.step is not None else -1))
+        click.echo(f"DISAGREE: {len(bad)} differences over tolerance; first: {first.quantity} at step {first.step} "
+                   f"(diff {first.difference:.3e} > tol {first.tolerance:.3e})")
+    write_json_atomic(comp.to_dict(), out_file)
+    click.echo(f"all differences written to {out_file}")
+    click.echo("backends agree" if comp.agree else "backends DISAGREE")
+    sys.exit(EXIT_OK if comp.agree else EXIT_FAIL)

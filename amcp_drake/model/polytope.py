@@ -1,0 +1,223 @@
+"""Polytope helpers in half-space form {x | H x <= h}, with numpy and scipy only.
+
+These helpers are deliberately independent of both optimisation backends: the
+certificates (design.md, "Certificates are independent of the solver") re-check claims
+with them, so they must not use Drake or cvxpy. LPs are solved with scipy's HiGHS,
+vertices are enumerated with Qhull (scipy.spatial.HalfspaceIntersection).
+
+Decision: Drake's ``HPolyhedron``/``VPolytope`` are not used here, because Drake aborts
+the interpreter (``SystemExit``) on unbounded or non-finite input and because the
+certificate path must not trust the backend that produced a run.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linprog
+from scipy.spatial import HalfspaceIntersection
+
+#: Feasibility tolerance of membership tests (HiGHS' default primal feasibility is 1e-7).
+MEMBERSHIP_TOL = 1e-7
+#: Redundancy: a row is kept when the other rows allow exceeding it by more than this.
+REDUNDANCY_TOL = 1e-9
+#: A Chebyshev radius below -this means the set is empty (HiGHS feasibility is ~1e-7; a flat but
+#: non-empty set gives a radius of 0 up to round-off).
+EMPTY_RADIUS_TOL = 1e-9
+
+
+@dataclass(frozen=True)
+class LPResult:
+    """Outcome of a support-function LP: ``value`` is +inf when unbounded, nan when infeasible."""
+
+    value: float
+    point: np.ndarray | None
+    status: str  # "optimal" | "unbounded" | "infeasible" | "error"
+
+
+def _linprog_max(direction: np.ndarray, H: np.ndarray, h: np.ndarray) -> LPResult:
+    res = linprog(-direction, A_ub=H, b_ub=h, bounds=[(None, None)] * H.shape[1], method="highs")
+    if res.status == 0:
+        return LPResult(float(-res.fun), np.asarray(res.x, dtype=float), "optimal")
+    if res.status == 3:
+        return LPResult(float("inf"), None, "unbounded")
+    if res.status == 2:
+        return LPResult(float("nan"), None, "infeasible")
+    return LPResult(float("nan"), None, "error")
+
+
+def support(H: np.ndarray, h: np.ndarray, direction: np.ndarray) -> LPResult:
+    """Support function max{direction·x | H x <= h} by LP (HiGHS)."""
+    return _linprog_max(np.asarray(direction, float), np.asarray(H, float), np.asarray(h, float))
+
+
+def normalize_rows(H: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Scale each row to unit Euclidean norm (rows of zero norm are left unchanged)."""
+    H = np.asarray(H, float)
+    h = np.asarray(h, float)
+    norms = np.linalg.norm(H, axis=1)
+    norms = np.where(norms > 0, norms, 1.0)
+    return H / norms[:, None], h / norms
+
+
+def is_bounded(H: np.ndarray, h: np.ndarray) -> bool:
+    """True when {H x <= h} is bounded (checked by 2n support LPs along ±e_i).
+
+    An infeasible set counts as bounded (it is empty); call :func:`chebyshev_center`
+    to test non-emptiness.
+    """
+    n = np.asarray(H).shape[1]
+    for i in range(n):
+        for sign in (1.0, -1.0):
+            e = np.zeros(n)
+            e[i] = sign
+            if support(H, h, e).status == "unbounded":
+                return False
+    return True
+
+
+def chebyshev_center(H: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre and radius of the largest ball inside {H x <= h}.
+
+    Returns radius ``-inf`` when the set is empty and ``+inf`` when the ball is unbounded.
+    """
+    H = np.asarray(H, float)
+    h = np.asarray(h, float)
+    n = H.shape[1]
+    norms = np.linalg.norm(H, axis=1)
+    c = np.zeros(n + 1)
+    c[-1] = -1.0
+    A = np.hstack([H, norms[:, None]])
+    res = linprog(c, A_ub=A, b_ub=h, bounds=[(None, None)] * n + [(None, None)], method="highs")
+    if res.status == 2:
+        return np.full(n, np.nan), float("-inf")
+    if res.status == 3:
+        return np.full(n, np.nan), float("inf")
+    if res.status != 0:
+        return np.full(n, np.nan), float("nan")
+    radius = float(res.x[-1])
+    if radius < -EMPTY_RADIUS_TOL:  # the radius is a free variable: negative means no point fits
+        return np.full(n, np.nan), float("-inf")
+    return np.asarray(res.x[:n]), max(radius, 0.0)
+
+
+def contains(H: np.ndarray, h: np.ndarray, x: np.ndarray, tol: float = MEMBERSHIP_TOL) -> bool:
+    """True when H x <= h + tol holds row-wise."""
+    return bool(np.all(np.asarray(H) @ np.asarray(x) <= np.asarray(h) + tol))
+
+
+def max_violation(H: np.ndarray, h: np.ndarray, x: np.ndarray) -> float:
+    """max_i (H x - h)_i: negative inside, positive outside (the margin of membership)."""
+    return float(np.max(np.asarray(H) @ np.asarray(x) - np.asarray(h)))
+
+
+def vertices(H: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Vertices of the bounded, full-dimensional polytope {H x <= h}, shape (v, n).
+
+    Raises ValueError when the set is empty, unbounded or has empty interior.
+    """
+    H = np.asarray(H, float)
+    h = np.asarray(h, float)
+    n = H.shape[1]
+    center, radius = chebyshev_center(H, h)
+    if not np.isfinite(radius) or radius <= 1e-12:
+        raise ValueError(f"vertex enumeration needs a bounded polytope with interior; Chebyshev radius {radius}")
+    if n == 1:
+        lo = support(H, h, np.array([-1.0]))
+        hi = support(H, h, np.array([1.0]))
+        return np.array([[-lo.value], [hi.value]])
+    halfspaces = np.hstack([H, -h[:, None]])
+    hs = HalfspaceIntersection(halfspaces, center)
+    pts = hs.intersections
+    return _unique_rows(pts)
+
+
+def _unique_rows(points: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+    kept: list[np.ndarray] = []
+    for p in points:
+        if not any(np.max(np.abs(p - q)) <= tol * max(1.0, np.max(np.abs(q))) for q in kept):
+            kept.append(p)
+    return np.array(kept)
+
+
+def remove_redundant(H: np.ndarray, h: np.ndarray, tol: float = REDUNDANCY_TOL) -> tuple[np.ndarray, np.ndarray]:
+    """Drop rows implied by the others (one LP per row); duplicate rows are merged first."""
+    H, h = normalize_rows(H, h)
+    order = np.lexsort(np.round(np.hstack([H, h[:, None]]), 12).T[::-1])
+    H, h = H[order], h[order]
+    keep = np.ones(len(h), dtype=bool)
+    for i in range(len(h)):
+        others = keep.copy()
+        others[i] = False
+        if not others.any():
+            continue
+        res = support(H[others], h[others], H[i])
+        if res.status == "optimal" and res.value <= h[i] + tol:
+            keep[i] = False
+    return H[keep], h[keep]
+
+
+def box(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """H-representation of the box lower <= x <= upper."""
+    lower = np.asarray(lower, float)
+    upper = np.asarray(upper, float)
+    n = lower.size
+    return np.vstack([np.eye(n), -np.eye(n)]), np.concatenate([upper, -lower])
+
+
+def unit_rhs(H: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Rewrite {H x <= h} with h > 0 as {H' x <= 1}, returning H'."""
+    h = np.asarray(h, float)
+    if np.any(h <= 0):
+        raise ValueError("unit_rhs needs h > 0 (the origin in the interior)")
+    return np.asarray(H, float) / h[:, None]
+
+
+def theta_vertices(H: np.ndarray, h: np.ndarray) -> np.ndarray | None:
+    """Vertices of Θ_k = {H θ <= h}, or None when it is empty or unbounded.
+
+    Full-dimensional sets: Qhull. Flat sets (the exact update (7) with disturbances at vertices of
+    W can pin θ* between two opposite data rows): the implicit equalities E θ = e are found with
+    one HiGHS LP per row, and the vertices are enumerated in the affine hull θ = θ_0 + N y.
+    """
+    H, h = np.asarray(H, float), np.asarray(h, float)
+    try:
+        return vertices(H, h)
+    except (ValueError, RuntimeError):
+        pass
+    try:
+        return _flat_vertices(H, h)
+    except (ValueError, RuntimeError, np.linalg.LinAlgError):
+        return None
+
+
+#: A row of Θ_k whose minimum over Θ_k is within this of its bound is an implicit equality (the set
+#: is flat in that direction). Treating a set thinner than this as flat moves its vertices by at most
+#: ~this much, far below the tolerances of the claims that use them (>= 1e-7).
+FLAT_TOL = 1e-9
+
+
+def _flat_vertices(H: np.ndarray, h: np.ndarray) -> np.ndarray | None:
+    from scipy.linalg import null_space
+
+    _, radius = chebyshev_center(H, h)
+    if radius == float("-inf") or radius == float("inf") or radius != radius:
+        return None
+    Hn, hn = normalize_rows(H, h)
+    lows = np.array([support(Hn, hn, -row).value for row in Hn])  # −min_θ [H]_i θ
+    if not np.all(np.isfinite(lows)):
+        return None
+    eq = hn + lows <= FLAT_TOL
+    if not np.any(eq):
+        return None
+    E, e = Hn[eq], hn[eq]
+    theta0 = np.linalg.lstsq(E, e, rcond=None)[0]
+    basis = null_space(E, rcond=1e-10)                      # (p, r)
+    if basis.shape[1] == 0:
+        return theta0[None, :]
+    H_red, h_red = Hn[~eq] @ basis, hn[~eq] - Hn[~eq] @ theta0
+    if len(H_red) == 0:
+        return None
+    y = vertices(H_red, h_red)                      # (v, r)
+    return theta0 + y @ basis.T

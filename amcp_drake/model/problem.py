@@ -1,0 +1,332 @@
+"""The problem model: system (1)-(2), W, Theta, Z (Assumption 1, eqs (3)-(4)), cost and horizon.
+
+All matrices are float64 numpy arrays. Shapes (n states, m inputs, p parameters):
+
+* ``A0`` (n, n), ``B0`` (n, m); ``A`` (p, n, n), ``B`` (p, n, m): eq. (2),
+  A(θ) = A0 + Σ_i A_i θ_i, B(θ) = B0 + Σ_i B_i θ_i.
+* ``H_w`` (q_w, n): W = {w | H_w w <= 1} (Assumption 1).
+* ``H_theta`` (q, p), ``h_theta`` (q,): Θ = {θ | H_θ θ <= h_θ}, eq. (3).
+* ``F`` (c, n), ``G`` (c, m): Z = {(x, u) | F x + G u <= 1}, eq. (4).
+* ``Q`` (n, n) ≻ 0, ``R`` (m, m) ≻ 0, horizon ``N`` >= 1: cost (17).
+* ``theta_hat0`` (p,) ∈ Θ: initial point estimate of (12).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from amcp_drake.model import polytope
+from amcp_drake.model.errors import ProblemError
+from amcp_drake.model.validate import as_matrix, as_positive_int, as_vector, require_positive_definite
+
+#: θ̂0 may lie this far outside Θ (rounding in a problem file) before it is rejected.
+THETA_HAT0_TOL = 1e-9
+#: Slack on the rate bound of Assumption 17 when a θ* sequence is validated (round-off of a
+#: sequence generated at exactly the rate d_θ).
+THETA_RATE_TOL = 1e-12
+
+
+@dataclass(frozen=True, eq=False)
+class Problem:
+    """An uncertain linear system with constraints, validated on construction."""
+
+    A0: np.ndarray
+    B0: np.ndarray
+    A: np.ndarray
+    B: np.ndarray
+    H_w: np.ndarray
+    H_theta: np.ndarray
+    h_theta: np.ndarray
+    F: np.ndarray
+    G: np.ndarray
+    Q: np.ndarray
+    R: np.ndarray
+    N: int
+    theta_hat0: np.ndarray
+    name: str = "problem"
+
+    def __post_init__(self) -> None:
+        A0 = as_matrix("system.A0", self.A0)
+        n = A0.shape[0]
+        if A0.shape[1] != n:
+            raise ProblemError("system.A0", f"a square matrix ({n}x{n})", f"shape {A0.shape}")
+        B0 = as_matrix("system.B0", self.B0, rows=n)
+        m = B0.shape[1]
+        A = _stack("system.A", self.A, (n, n))
+        B = _stack("system.B", self.B, (n, m))
+        if A.shape[0] != B.shape[0]:
+            raise ProblemError("system.B", f"{A.shape[0]} matrices (one per parameter, like system.A)", f"{B.shape[0]}")
+        p = A.shape[0]
+        if p < 1:
+            raise ProblemError("system.A", "at least one uncertain parameter (p >= 1)", "p = 0")
+        for i in range(p):
+            if not (np.any(A[i]) or np.any(B[i])):
+                raise ProblemError(
+                    f"system.A[{i}], system.B[{i}]",
+                    "at least one non-zero entry (parameter i must enter the model)",
+                    "both all zero",
+                    "Remove the parameter or give it a direction.",
+                )
+        H_w = as_matrix("W.H", self.H_w, cols=n)
+        _require_bounded("W.H", H_w, np.ones(H_w.shape[0]), "W = {w | H_w w <= 1}")
+        H_theta = as_matrix("Theta.H", self.H_theta, cols=p)
+        h_theta = as_vector("Theta.h", self.h_theta, size=H_theta.shape[0])
+        _require_bounded("Theta.H", H_theta, h_theta, "Theta = {θ | H_θ θ <= h_θ}")
+        F = as_matrix("Z.F", self.F, cols=n)
+        G = as_matrix("Z.G", self.G, rows=F.shape[0], cols=m)
+        if np.any(np.all(np.hstack([F, G]) == 0, axis=1)):
+            row = int(np.argmax(np.all(np.hstack([F, G]) == 0, axis=1)))
+            raise ProblemError("Z.F, Z.G", "no all-zero row (0 <= 1 is vacuous)", f"row {row} is all zero")
+        Q = as_matrix("cost.Q", self.Q, rows=n, cols=n)
+        require_positive_definite("cost.Q", Q)
+        R = as_matrix("cost.R", self.R, rows=m, cols=m)
+        require_positive_definite("cost.R", R)
+        N = as_positive_int("cost.N", self.N, 1)
+        theta_hat0 = as_vector("theta_hat0", self.theta_hat0, size=p)
+        violation = polytope.max_violation(H_theta, h_theta, theta_hat0)
+        if violation > THETA_HAT0_TOL:
+            raise ProblemError("theta_hat0", "a point of Theta (H_θ θ̂0 <= h_θ)", f"{theta_hat0.tolist()}, outside by {violation:.3g}")
+        if not isinstance(self.name, str) or not self.name:
+            raise ProblemError("name", "a non-empty string", repr(self.name))
+        for key, value in dict(A0=A0, B0=B0, A=A, B=B, H_w=H_w, H_theta=H_theta, h_theta=h_theta,
+                               F=F, G=G, Q=0.5 * (Q + Q.T), R=0.5 * (R + R.T), N=N, theta_hat0=theta_hat0).items():
+            if isinstance(value, np.ndarray):
+                value.setflags(write=False)
+            object.__setattr__(self, key, value)
+
+    # -- dimensions -------------------------------------------------------------------------
+    @property
+    def n(self) -> int:
+        """State dimension."""
+        return self.A0.shape[0]
+
+    @property
+    def m(self) -> int:
+        """Input dimension."""
+        return self.B0.shape[1]
+
+    @property
+    def p(self) -> int:
+        """Number of uncertain parameters."""
+        return self.A.shape[0]
+
+    # -- model, eq. (2) -----------------------------------------------------------------------
+    def A_of(self, theta: np.ndarray) -> np.ndarray:
+        """A(θ) = A0 + Σ_i A_i θ_i, eq. (2)."""
+        return self.A0 + np.tensordot(np.asarray(theta, float), self.A, axes=1)
+
+    def B_of(self, theta: np.ndarray) -> np.ndarray:
+        """B(θ) = B0 + Σ_i B_i θ_i, eq. (2)."""
+        return self.B0 + np.tensordot(np.asarray(theta, float), self.B, axes=1)
+
+    def regressor(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """D(x, u) = [A_1 x + B_1 u, ..., A_p x + B_p u], shape (n, p) (spec §2)."""
+        return (self.A @ np.asarray(x, float) + self.B @ np.asarray(u, float)).T
+
+    def step(self, x: np.ndarray, u: np.ndarray, theta: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """x⁺ = A(θ) x + B(θ) u + w, eq. (1)."""
+        return self.A_of(theta) @ x + self.B_of(theta) @ u + w
+
+    def theta_vertices(self) -> np.ndarray:
+        """Vertices of Θ, shape (v_p, p)."""
+        return polytope.vertices(self.H_theta, self.h_theta)
+
+    def w_vertices(self) -> np.ndarray:
+        """Vertices of W, shape (v_w, n)."""
+        return polytope.vertices(self.H_w, np.ones(self.H_w.shape[0]))
+
+    def in_Z(self, x: np.ndarray, u: np.ndarray) -> float:
+        """max_i (F x + G u − 1)_i: <= 0 means (x, u) ∈ Z, eq. (4)."""
+        return float(np.max(self.F @ x + self.G @ u - 1.0))
+
+    def with_changes(self, **changes: Any) -> Problem:
+        """A copy with some fields replaced (validated again)."""
+        data = {f: getattr(self, f) for f in self.__dataclass_fields__}
+        data.update(changes)
+        return Problem(**data)
+
+
+def _stack(field_name: str, value: Any, shape: tuple[int, int]) -> np.ndarray:
+    try:
+        arr = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ProblemError(field_name, f"a list of {shape[0]}x{shape[1]} matrices", "ragged or non-numeric data") from None
+    if arr.ndim == 2 and shape[1] == 1 and arr.shape[1] == shape[0]:
+        arr = arr[:, :, None]
+    if arr.ndim != 3 or arr.shape[1:] != shape:
+        raise ProblemError(field_name, f"a list of {shape[0]}x{shape[1]} matrices", f"an array of shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ProblemError(field_name, "finite entries", "NaN or infinity")
+    return arr
+
+
+def _require_bounded(field_name: str, H: np.ndarray, h: np.ndarray, what: str) -> None:
+    center, radius = polytope.chebyshev_center(H, h)
+    if radius == float("-inf") or (np.isfinite(radius) and radius <= 1e-12):
+        raise ProblemError(field_name, f"{what} non-empty with non-empty interior", f"Chebyshev radius {radius:.3g}")
+    if not polytope.is_bounded(H, h):
+        raise ProblemError(field_name, f"{what} bounded", "an unbounded set",
+                           "Add rows so that the set is closed in every direction.")
+
+
+@dataclass(frozen=True, eq=False)
+class Scenario:
+    """A closed-loop experiment on a problem: initial state, true parameter, disturbance.
+
+    ``theta_star`` is a constant θ* (p,) or, for time-varying parameters (Section 4.1, system (24)),
+    a sequence θ*_0 … θ*_T of shape (T+1, p) (or (T, p): the last value is held) with T = ``steps``;
+    every θ*_k must lie in Θ, and a file's ``online.d_theta`` must bound its rate (Assumption 17).
+    ``disturbance`` is one of ``"uniform"`` (i.i.d. uniform on W), ``"vertices"`` (i.i.d. on the
+    vertices of W), ``"zero"``; an explicit sequence is passed to :func:`simulate` directly.
+    """
+
+    x0: np.ndarray
+    theta_star: np.ndarray
+    steps: int = 50
+    disturbance: str = "uniform"
+    seed: int = 0
+
+    @property
+    def time_varying(self) -> bool:
+        """True when ``theta_star`` is a sequence θ*_k."""
+        return np.ndim(self.theta_star) == 2
+
+    def validate_for(self, problem: Problem) -> Scenario:
+        """Check dimensions and θ* ∈ Θ (every θ*_k of a sequence) against ``problem``; return self."""
+        x0 = as_vector("scenario.x0", self.x0, size=problem.n)
+        steps = as_positive_int("scenario.steps", self.steps, 1)
+        raw = np.asarray(self.theta_star, dtype=object)
+        if raw.ndim == 2 and raw.shape[0] > 1:
+            theta_star = as_matrix("scenario.theta_star", self.theta_star, cols=problem.p)
+            if theta_star.shape[0] not in (steps, steps + 1):
+                raise ProblemError("scenario.theta_star", f"a vector of length {problem.p} or a sequence of "
+                                   f"{steps + 1} (or {steps}) rows θ*_0..θ*_T for steps = {steps}",
+                                   f"{theta_star.shape[0]} rows")
+            rows = [(f"scenario.theta_star[{k}]", th) for k, th in enumerate(theta_star)]
+        else:
+            theta_star = as_vector("scenario.theta_star", self.theta_star, size=problem.p)
+            rows = [("scenario.theta_star", theta_star)]
+        for name, th in rows:
+            violation = polytope.max_violation(problem.H_theta, problem.h_theta, th)
+            if violation > THETA_HAT0_TOL:
+                raise ProblemError(name, "a point of Theta (Assumption 1 / 17)", f"outside by {violation:.3g}")
+        if self.disturbance not in DISTURBANCE_KINDS:
+            raise ProblemError("scenario.disturbance", f"one of {sorted(DISTURBANCE_KINDS)}", repr(self.disturbance))
+        as_positive_int("scenario.seed", self.seed, 0)
+        object.__setattr__(self, "x0", x0)
+        object.__setattr__(self, "theta_star", theta_star)
+        return self
+
+    def max_theta_rate(self) -> float:
+        """max_k ‖θ*_(k+1) − θ*_k‖ (0 for a constant θ*)."""
+        return float(np.max(theta_steps(self.theta_star), initial=0.0))
+
+    def theta_star_for(self, steps: int) -> np.ndarray:
+        """The θ* argument of :func:`~amcp_drake.online.simulate.simulate` for a run of ``steps`` steps: the
+        constant θ*, or the first steps+1 rows of the sequence (ProblemError when it is shorter)."""
+        if not self.time_varying:
+            return self.theta_star
+        rows = self.theta_star.shape[0]
+        if rows >= steps + 1:
+            return self.theta_star[: steps + 1]
+        if rows == steps:
+            return self.theta_star
+        raise ProblemError("steps", f"at most {rows} (scenario.theta_star is a sequence of {rows} rows)", str(steps))
+
+
+def theta_steps(theta_star: np.ndarray) -> np.ndarray:
+    """‖θ*_(k+1) − θ*_k‖ for each k of a sequence (rows); empty for a constant θ*."""
+    theta_star = np.asarray(theta_star, float)
+    if theta_star.ndim != 2:
+        return np.zeros(0)
+    return np.linalg.norm(np.diff(theta_star, axis=0), axis=1)
+
+
+def check_theta_rate(theta_star: np.ndarray, d_theta: float, field: str = "theta_star") -> None:
+    """Assumption 17 for a sequence θ*_k (rows): ‖θ*_(k+1) − θ*_k‖ <= d_θ (ProblemError otherwise;
+    a constant θ* always passes)."""
+    rates = theta_steps(theta_star)
+    if rates.size and float(np.max(rates)) > d_theta + THETA_RATE_TOL:
+        k = int(np.argmax(rates))
+        raise ProblemError(field, f"a sequence with ‖θ*_(k+1) − θ*_k‖ <= d_theta = {d_theta:g} "
+                           "(Assumption 17; set the online option d_theta)", f"rate {rates[k]:.3g} at k = {k}")
+
+
+DISTURBANCE_KINDS = frozenset({"uniform", "vertices", "zero"})
+
+
+@dataclass(frozen=True, eq=False)
+class DesignOptions:
+    """Choices for the offline design (spec §4-§6, §5.1). Every [REC] choice is a field here.
+
+    * ``x0_facets``: number of facet directions of the tube shape X0 (2-D: equally spaced angles;
+      n-D: ±e_i, then ±(e_i ± e_j)/√2, ...). X0 is the template outer approximation of the minimal
+      robust positively invariant set of x⁺ = A_cl(θ)x + w, θ ∈ Θ (spec §5, "Choice of X0").
+    * ``K``, ``P``: user-given gain and terminal weight, verified instead of designed.
+    * ``lmi_margin``: ε of the LMI S ⪰ εI and the strictness of (16).
+    * ``mu_state_bound``: when Z is unbounded in x, the box |x_i| <= bound used to evaluate
+      sup ‖D(x,u)‖² in (11); required then. ``mu_fraction``: μ = fraction / sup ‖D‖² (< 1: strict).
+    * ``centre_dynamics``: A_z of spec §5.1 step 2: ``"nominal"`` = A_cl(θ̂0), ``"zero"`` = 0.
+    * ``terminal_max_iter``: iteration cap of the terminal set recursion.
+    * ``theta_extra_directions``: extra facet normals (k, p) for the fixed-complexity shape H_θ of (9).
+    """
+
+    x0_facets: int = 8
+    K: np.ndarray | None = None
+    P: np.ndarray | None = None
+    lmi_margin: float = 1e-6
+    mu_state_bound: float | None = None
+    mu_fraction: float = 0.95
+    centre_dynamics: str = "nominal"
+    terminal_max_iter: int = 60
+    theta_extra_directions: np.ndarray | None = None
+    mrpi_max_iter: int = 500
+
+    def validate_for(self, problem: Problem) -> DesignOptions:
+        """Check values and shapes against ``problem``; return self."""
+        as_positive_int("design.x0_facets", self.x0_facets, 2 * problem.n)
+        if self.K is not None:
+            object.__setattr__(self, "K", as_matrix("design.K", self.K, rows=problem.m, cols=problem.n))
+        if self.P is not None:
+            P = as_matrix("design.P", self.P, rows=problem.n, cols=problem.n)
+            require_positive_definite("design.P", P)
+            object.__setattr__(self, "P", P)
+        if (self.K is None) != (self.P is None) and self.P is not None:
+            raise ProblemError("design.K", "K given whenever P is given", "P without K")
+        if not (isinstance(self.lmi_margin, (int, float)) and 0 < self.lmi_margin < 1):
+            raise ProblemError("design.lmi_margin", "a number in (0, 1)", repr(self.lmi_margin))
+        if self.mu_state_bound is not None and not (isinstance(self.mu_state_bound, (int, float))
+                                                    and np.isfinite(self.mu_state_bound) and self.mu_state_bound > 0):
+            raise ProblemError("design.mu_state_bound", "a positive finite number", repr(self.mu_state_bound))
+        if not (isinstance(self.mu_fraction, (int, float)) and 0 < self.mu_fraction < 1):
+            raise ProblemError("design.mu_fraction", "a number in (0, 1) (1/μ > sup‖D‖² is strict)", repr(self.mu_fraction))
+        if self.centre_dynamics not in ("nominal", "zero"):
+            raise ProblemError("design.centre_dynamics", "'nominal' or 'zero'", repr(self.centre_dynamics))
+        as_positive_int("design.terminal_max_iter", self.terminal_max_iter, 1)
+        as_positive_int("design.mrpi_max_iter", self.mrpi_max_iter, 1)
+        if self.theta_extra_directions is not None:
+            object.__setattr__(self, "theta_extra_directions",
+                               as_matrix("design.theta_extra_directions", self.theta_extra_directions, cols=problem.p))
+        return self
+
+
+@dataclass(frozen=True, eq=False)
+class ProblemSpec:
+    """Everything a problem file holds: the problem, design options, a default scenario and the
+    default online options (``online``: an :class:`~amcp_drake.model.options.OnlineOptions`, or None
+    for the defaults; the CLIs start from it)."""
+
+    problem: Problem
+    design: DesignOptions = field(default_factory=DesignOptions)
+    scenario: Scenario | None = None
+    online: Any = None
+
+    def __post_init__(self) -> None:
+        self.design.validate_for(self.problem)
+        if self.scenario is not None:
+            self.scenario.validate_for(self.problem)
+            d_theta = getattr(self.online, "d_theta", 0.0) if self.online is not None else 0.0
+            check_theta_rate(self.scenario.theta_star, d_theta, "scenario.theta_star")

@@ -1,0 +1,104 @@
+"""Independent verification of an offline design with numpy/scipy only (no backend).
+
+Each check recomputes its quantity from the problem data and vertex enumeration, never from
+the solver that produced the design: (16) by eigenvalues at every vertex of Θ, Assumption 8 by
+spectral radii, contractivity and robust invariance of X0 from its vertices, Assumption 11 for
+X_f by enumerating the vertices of X_f, Θ, X0 and W, and μ against (11).
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+from amcp_drake.model import polytope
+from amcp_drake.model.check_result import CheckResult, judge, not_run
+from amcp_drake.model.problem import Problem
+from amcp_drake.offline.design import OfflineDesign, closed_loop_vertices, regressor_bound
+
+#: Round-off allowed in the eigenvalue check of (16) (the LMI is solved with margin 1e-6).
+EIG_TOL = 1e-9
+#: Round-off allowed in set-inclusion checks evaluated at vertices (qhull accuracy ~1e-12).
+VERTEX_TOL = 1e-8
+
+
+def verify_design(problem: Problem, design: OfflineDesign, mu_state_bound: float | None = None) -> list[CheckResult]:
+    """All design checks, in the order a reader follows the paper."""
+    theta_v = polytope.vertices(problem.H_theta, problem.h_theta)
+    A_cl = closed_loop_vertices(problem, design.K, theta_v)
+    checks = [
+        _terminal_cost(problem, design, A_cl),
+        _prestabilisation(A_cl),
+    ]
+    X0_v = polytope.vertices(design.H_x, np.ones(len(design.H_x)))
+    W_v = problem.w_vertices()
+    w_bar = np.max(design.H_x @ W_v.T, axis=1)
+    h_bar = np.array([np.max(design.H_x @ Ak @ X0_v.T, axis=1) for Ak in A_cl])
+    checks.append(judge("X0 contractive", "Appendix A.1: lambda_bar = max_k,i [h_bar^k]_i < 1",
+                        1.0 - float(np.max(h_bar)), VERTEX_TOL, f"lambda_bar = {np.max(h_bar):.6f}"))
+    checks.append(judge("X0 robustly invariant", "A_cl(θ)X0 ⊕ W ⊆ X0 for all θ ∈ Θ (h_bar^k + w_bar <= 1)",
+                        1.0 - float(np.max(h_bar + w_bar)), VERTEX_TOL))
+    checks.append(judge("w_bar, f_bar recomputed", "offline constants of Prop. 9 match vertex recomputation",
+                        -max(float(np.max(np.abs(w_bar - design.w_bar))),
+                             float(np.max(np.abs(np.max((problem.F + problem.G @ design.K) @ X0_v.T, axis=1) - design.f_bar)))),
+                        1e-6))
+    checks.extend(_terminal_set(problem, design, A_cl, X0_v, W_v, w_bar, h_bar))
+    checks.append(_mu(problem, design, mu_state_bound))
+    return checks
+
+
+def _terminal_cost(problem: Problem, design: OfflineDesign, A_cl: np.ndarray) -> CheckResult:
+    K, P = design.K, design.P
+    worst = max(float(np.max(np.linalg.eigvalsh(Ak.T @ P @ Ak + problem.Q + K.T @ problem.R @ K - P))) for Ak in A_cl)
+    return judge("terminal cost (16)", "A_cl(θ)ᵀ P A_cl(θ) + Q + KᵀRK ⪯ P at every vertex of Θ",
+                 -worst, EIG_TOL, f"largest eigenvalue {worst:.3e}")
+
+
+def _prestabilisation(A_cl: np.ndarray) -> CheckResult:
+    radius = max(float(np.max(np.abs(np.linalg.eigvals(Ak)))) for Ak in A_cl)
+    return judge("Assumption 8", "A_cl(θ) Schur stable at every vertex of Θ (spectral radius < 1)",
+                 1.0 - radius, 0.0, f"max spectral radius {radius:.6f}")
+
+
+def _terminal_set(problem, design, A_cl, X0_v, W_v, w_bar, h_bar) -> list[CheckResult]:
+    claim_inv = "Assumption 11: A_cl(θ)({z} ⊕ αX0) ⊕ W ⊆ {z⁺} ⊕ α⁺X0 with (z⁺, α⁺) ∈ X_f, for all θ ∈ Θ"
+    claim_con = "Assumption 11: (x, Kx) ∈ Z for all x ∈ {z} ⊕ αX0, (z, α) ∈ X_f"
+    H = np.vstack([np.column_stack([design.H_T, design.h_T]), np.r_[np.zeros(problem.n), -1.0]])
+    h = np.r_[np.ones(len(design.H_T)), 0.0]
+    try:
+        verts = polytope.vertices(H, h)
+    except ValueError as exc:
+        return [not_run("X_f invariant", claim_inv, f"X_f is unbounded or flat, vertices not enumerable: {exc}"),
+                not_run("X_f in Z", claim_con, "X_f vertices not enumerable")]
+    n = problem.n
+    E = np.array([design.H_x @ (Ak - design.A_z) for Ak in A_cl])
+    inclusion_margin = np.inf
+    member_margin = np.inf
+    for vert in verts:
+        z, alpha = vert[:n], vert[n]
+        alpha_next = float(np.max(E @ z + h_bar * alpha + w_bar))  # φ(z, α)
+        z_next = design.A_z @ z
+        member_margin = min(member_margin, 1.0 - float(np.max(design.H_T @ z_next + design.h_T * alpha_next)),
+                            alpha_next)
+        for Ak, xj, w in itertools.product(A_cl, X0_v, W_v):
+            image = Ak @ (z + alpha * xj) + w
+            inclusion_margin = min(inclusion_margin, alpha_next - float(np.max(design.H_x @ (image - z_next))))
+    FGK = problem.F + problem.G @ design.K
+    con_margin = min(1.0 - float(np.max(FGK @ (vert[:n] + vert[n] * xj))) for vert in verts for xj in X0_v)
+    detail = f"{len(verts)} vertices of X_f, {len(design.H_T)} rows"
+    return [
+        judge("X_f non-empty", "Assumption 11: X_f ≠ ∅", float(len(verts)), 0.0, detail),
+        judge("X_f invariant", claim_inv, min(inclusion_margin, member_margin), VERTEX_TOL, detail),
+        judge("X_f in Z", claim_con, con_margin, VERTEX_TOL, detail),
+    ]
+
+
+def _mu(problem: Problem, design: OfflineDesign, state_bound: float | None) -> CheckResult:
+    claim = "(11): 1/μ > sup ‖D(x,u)‖₂² over the (x,u) region"
+    try:
+        sup, region = regressor_bound(problem, state_bound)
+    except ValueError as exc:
+        return not_run("mu condition (11)", claim, str(exc))
+    return judge("mu condition (11)", claim, 1.0 - design.mu * sup, 0.0,
+                 f"μ = {design.mu:.6g}, sup ‖D‖² = {sup:.6g} over {region}")

@@ -1,0 +1,362 @@
+"""Offline design (spec §4-§6 and §5.1): K, P, X0, w̄, f̄, h̄^k, X_f, μ, and the shape H_θ of (9).
+
+Every optimisation problem is formulated by the chosen backend (gain LMI, support LPs); this
+module only orchestrates. Choices where the paper is silent ([REC] in the spec) are documented
+on :class:`~amcp_drake.model.problem.DesignOptions` and in docs/decisions.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from amcp_drake.backends import get_backend
+from amcp_drake.model import polytope
+from amcp_drake.model.errors import DesignError, ProblemError, TerminalSetError
+from amcp_drake.model.problem import DesignOptions, Problem
+from amcp_drake.model.status import SolveStatus
+
+#: A candidate row of the terminal-set recursion is redundant if the current set keeps it below
+#: 1 + this (LP accuracy of Clarabel is ~1e-8; looser than that would keep duplicates).
+TERMINAL_REDUNDANCY_TOL = 1e-7
+#: The minimal-RPI template iteration stops when the residual T(h) - h is below this fraction of
+#: w̄ per row; inflating h by X0_INFLATION then makes the template exactly invariant (see _x0).
+MRPI_RESIDUAL_FRACTION = 1e-3
+X0_INFLATION = 1.01
+
+
+@dataclass(frozen=True, eq=False)
+class OfflineDesign:
+    """Result of :func:`design`. Shapes: n states, m inputs, p parameters, u facets of X0,
+    v vertices of X0, v_p vertices of Θ, c rows of Z, r rows of X_f, q rows of H_θ.
+
+    * ``K`` (m, n), ``P`` (n, n): Assumption 8 and (16).
+    * ``H_x`` (u, n): X0 = {x | H_x x <= 1} (14); ``X0_vertices`` (v, n).
+    * ``w_bar`` (u,): [w̄]_i = max_{w∈W} [H_x]_i w; ``f_bar`` (c,): [f̄]_i = max_{x∈X0} [F+GK]_i x.
+    * ``h_bar`` (v_p, u): [h̄^k]_i = max_{x∈X0} [H_x]_i A_cl(θ^k) x (App. A.1); ``lambda_bar`` = max h̄.
+    * ``A_z`` (n, n): centre dynamics of the terminal recursion (spec §5.1 step 2).
+    * ``H_T`` (r, n), ``h_T`` (r,): X_f = {(z, α) | H_T z + h_T α <= 1, α >= 0} (Assumption 11).
+    * ``mu``: gain of (12); ``mu_sup`` = sup ‖D(x,u)‖₂² over ``mu_region`` (the (x,u) set used).
+    * ``H_theta`` (q, p), ``h_theta0`` (q,): the fixed shape and initial offsets of (9), Θ ⊆ Θ0.
+    * ``theta_vertices`` (v_p, p).
+    """
+
+    K: np.ndarray
+    P: np.ndarray
+    H_x: np.ndarray
+    X0_vertices: np.ndarray
+    w_bar: np.ndarray
+    f_bar: np.ndarray
+    h_bar: np.ndarray
+    lambda_bar: float
+    A_z: np.ndarray
+    H_T: np.ndarray
+    h_T: np.ndarray
+    mu: float
+    mu_sup: float
+    mu_region: str
+    H_theta: np.ndarray
+    h_theta0: np.ndarray
+    theta_vertices: np.ndarray
+    terminal_iterations: int
+    backend: str
+    gain_source: str = "lmi"
+    info: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict of every field."""
+        out = {}
+        for key in self.__dataclass_fields__:
+            value = getattr(self, key)
+            out[key] = value.tolist() if isinstance(value, np.ndarray) else value
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict) -> OfflineDesign:
+        """Inverse of :meth:`to_dict`."""
+        kwargs = {}
+        for key, f in cls.__dataclass_fields__.items():
+            if key not in data:
+                if key in ("gain_source", "info"):
+                    continue
+                raise ProblemError(f"design.{key}", "a value", "nothing (missing)")
+            value = data[key]
+            kwargs[key] = np.asarray(value, float) if isinstance(value, list) else value
+        return cls(**kwargs)
+
+
+def closed_loop_vertices(problem: Problem, K: np.ndarray, theta_vertices: np.ndarray) -> np.ndarray:
+    """A_cl(θ^k) = A(θ^k) + B(θ^k) K for every vertex θ^k of Θ, shape (v_p, n, n)."""
+    return np.array([problem.A_of(t) + problem.B_of(t) @ K for t in theta_vertices])
+
+
+def template_directions(n: int, count: int) -> np.ndarray:
+    """Facet normals of X0: 2-D equally spaced angles; n-D ±e_i then ±(e_i ± e_j)/√2 (unit rows)."""
+    if count < 2 * n:
+        raise ProblemError("design.x0_facets", f"at least 2n = {2 * n} directions", str(count))
+    if n == 1:
+        return np.array([[1.0], [-1.0]])[:count]
+    if n == 2:
+        angles = 2 * np.pi * np.arange(count) / count
+        return np.column_stack([np.cos(angles), np.sin(angles)])
+    rows = [s * e for e in np.eye(n) for s in (1.0, -1.0)]
+    for i in range(n):
+        for j in range(i + 1, n):
+            for si in (1.0, -1.0):
+                for sj in (1.0, -1.0):
+                    d = np.zeros(n)
+                    d[i], d[j] = si, sj
+                    rows.append(d / np.sqrt(2))
+    if count > len(rows):
+        raise ProblemError("design.x0_facets", f"at most {len(rows)} directions for n = {n}", str(count))
+    return np.array(rows[:count])
+
+
+def design(problem: Problem, options: DesignOptions | None = None, backend="drake") -> OfflineDesign:
+    """Compute the offline design of the algorithm (spec §6, "Offline").
+
+    Raises DesignError (or TerminalSetError) naming the step and the condition that failed.
+    """
+    options = (options or DesignOptions()).validate_for(problem)
+    be = get_backend(backend)
+    # μ, eq. (11), first: it needs no solver and fails fast on a missing state box
+    mu_sup, region = regressor_bound(problem, options.mu_state_bound)
+    mu = options.mu_fraction / mu_sup
+    theta_vertices = problem.theta_vertices()
+    A_v = np.array([problem.A_of(t) for t in theta_vertices])
+    B_v = np.array([problem.B_of(t) for t in theta_vertices])
+
+    # K and P: Assumption 8 and (16)
+    if options.K is not None and options.P is not None:
+        K, P, source = np.asarray(options.K), np.asarray(options.P), "given"
+    elif options.K is not None or options.P is not None:
+        raise ProblemError("design.K, design.P", "both K and P, or neither", "only one of them")
+    else:
+        gain = be.robust_gain(A_v, B_v, problem.Q, problem.R, options.lmi_margin)
+        if gain.status is not SolveStatus.OPTIMAL:
+            raise DesignError(f"gain LMI (16) for K, P: solver status {gain.status.value}; no robustly "
+                              "stabilising state feedback with a common quadratic Lyapunov function was found "
+                              "for the vertices of Theta (Assumption 8)")
+        K, P, source = gain.K, gain.P, "lmi"
+    A_cl = closed_loop_vertices(problem, K, theta_vertices)
+    _require_stable(A_cl)
+    if source == "lmi":
+        _require_terminal_cost(problem, K, P, A_cl)
+
+    # X0: template outer approximation of the minimal RPI set
+    H_x = _x0(problem, A_cl, be, options)
+    X0_vertices = polytope.vertices(H_x, np.ones(len(H_x)))
+    w_bar = be.support(problem.H_w, np.ones(len(problem.H_w)), H_x)
+    FGK = problem.F + problem.G @ K
+    f_bar = be.support(H_x, np.ones(len(H_x)), FGK)
+    h_bar = np.array([be.support(H_x, np.ones(len(H_x)), H_x @ Ak) for Ak in A_cl])
+    _require_finite_support("w_bar", w_bar)
+    _require_finite_support("f_bar", f_bar)
+    _require_finite_support("h_bar", h_bar)
+    lambda_bar = float(np.max(h_bar))
+    if lambda_bar >= 1.0:
+        raise DesignError(f"X0 is not contractive: lambda_bar = {lambda_bar:.4f} >= 1 (spec §5.1 conditions); "
+                          "increase design.x0_facets")
+
+    # terminal set X_f, spec §5.1
+    if options.centre_dynamics == "nominal":
+        A_z = problem.A_of(problem.theta_hat0) + problem.B_of(problem.theta_hat0) @ K
+    else:
+        A_z = np.zeros((problem.n, problem.n))
+    H_T, h_T, iterations = terminal_set(FGK, f_bar, H_x, A_cl, A_z, w_bar, h_bar, be, options.terminal_max_iter)
+
+    # fixed-complexity shape of (9)
+    H_theta = problem.H_theta
+    if options.theta_extra_directions is not None:
+        H_theta = np.vstack([H_theta, options.theta_extra_directions])
+    H_theta_n, _ = polytope.normalize_rows(H_theta, np.zeros(len(H_theta)))
+    h_theta0 = be.support(problem.H_theta, problem.h_theta, H_theta_n)
+    _require_finite_support("h_theta0", h_theta0)
+
+    return OfflineDesign(K=K, P=P, H_x=H_x, X0_vertices=X0_vertices, w_bar=w_bar, f_bar=f_bar, h_bar=h_bar,
+                         lambda_bar=lambda_bar, A_z=A_z, H_T=H_T, h_T=h_T, mu=float(mu), mu_sup=float(mu_sup),
+                         mu_region=region, H_theta=H_theta_n, h_theta0=h_theta0, theta_vertices=theta_vertices,
+                         terminal_iterations=iterations, backend=be.name, gain_source=source)
+
+
+def _require_stable(A_cl: np.ndarray) -> None:
+    radius = max(float(np.max(np.abs(np.linalg.eigvals(Ak)))) for Ak in A_cl)
+    if radius >= 1.0:
+        raise DesignError(f"Assumption 8 fails: spectral radius of A_cl at a vertex of Theta is {radius:.4f} >= 1")
+
+
+def _require_terminal_cost(problem: Problem, K: np.ndarray, P: np.ndarray, A_cl: np.ndarray) -> None:
+    """Re-check (16) by eigenvalues: an SDP solver may call a solution of tolerance size optimal."""
+    worst = max(float(np.max(np.linalg.eigvalsh(Ak.T @ P @ Ak + problem.Q + K.T @ problem.R @ K - P))) for Ak in A_cl)
+    if worst > 0.0:
+        raise DesignError(f"gain LMI (16): the solver's K, P violate (16) by {worst:.3e} (largest eigenvalue); "
+                          "the robust LMI is (nearly) infeasible for the vertices of Theta (Assumption 8)")
+
+
+def _require_finite_support(name: str, values: np.ndarray) -> None:
+    if not np.all(np.isfinite(values)):
+        raise DesignError(f"{name}: a support-function LP was unbounded or failed ({values.tolist()})")
+
+
+def _x0(problem: Problem, A_cl: np.ndarray, be, options: DesignOptions) -> np.ndarray:
+    """Tube shape X0 = {H_x x <= 1}: least fixed point of the template map
+
+    h ↦ max_k σ_{X(h)}(A_cl(θ^k)ᵀ d_i) + σ_W(d_i),  X(h) = {D x <= h},
+
+    started from h = σ_W(D) (a template outer approximation of the minimal robust positively
+    invariant set, spec §5 "Choice of X0"). Stopped when T(h) - h <= 1e-3 w̄, then inflated by
+    c = 1.01, which makes X(c h) robustly invariant: T(ch) = c T(h) - (c-1) w̄ <= c h.
+    """
+    D = template_directions(problem.n, options.x0_facets)
+    ones_w = np.ones(len(problem.H_w))
+    w_sup = be.support(problem.H_w, ones_w, D)
+    _require_finite_support("sigma_W", w_sup)
+    h = w_sup.copy()
+    for _ in range(options.mrpi_max_iter):
+        images = np.array([be.support(D, h, D @ Ak) for Ak in A_cl])
+        _require_finite_support("X0 template iteration", images)
+        h_next = np.max(images, axis=0) + w_sup
+        residual = np.max((h_next - h) / w_sup)
+        h = h_next
+        if residual <= MRPI_RESIDUAL_FRACTION:
+            return D / (X0_INFLATION * h)[:, None]
+    raise DesignError(f"X0: the minimal-RPI template iteration did not converge in {options.mrpi_max_iter} "
+                      f"iterations with {options.x0_facets} facet directions; the template is not invariant "
+                      "for this A_cl(Theta). Increase design.x0_facets or design.mrpi_max_iter.")
+
+
+def terminal_set(FGK, f_bar, H_x, A_cl, A_z, w_bar, h_bar, be, max_iter: int):
+    """X_f by the (z, α) recursion of spec §5.1 (Assumption 11, Appendix A.1).
+
+    X^0 = {(F+GK) z + f̄ α <= 1, α >= 0};  X^{i+1} = X^i ∩ Pre(X^i) with the map
+    (z, α) ↦ (A_z z, φ(z, α)), φ = max_{k,i'} [E^k]_{i'} z + [h̄^k]_{i'} α + [w̄]_{i'},
+    E^k = H_x (A_cl(θ^k) - A_z). Since Pre distributes over intersections, only the rows added in
+    the previous iteration are propagated. Rows are kept as [a, b] with a z + b α <= 1, b >= 0.
+
+    Redundancy: while X^i is unbounded, each candidate row is tested by a support LP of the
+    backend; once it is bounded, exactly by its vertices (a linear function attains its maximum
+    over a polytope at a vertex), which is far faster and needs no solver tolerance.
+    Returns (H_T, h_T, iterations).
+    """
+    n = FGK.shape[1]
+    current = _prune(_dedupe(np.column_stack([FGK, f_bar])), be)
+    new = current
+    E = np.array([H_x @ (Ak - A_z) for Ak in A_cl])  # (v_p, u, n)
+    for iteration in range(1, max_iter + 1):
+        candidates = []
+        for a_b in new:
+            a, b = a_b[:n], a_b[n]
+            rhs = 1.0 - b * w_bar  # (u,)
+            if np.any(rhs <= 0.0):
+                raise TerminalSetError(
+                    f"terminal set X_f is empty (iteration {iteration}): a constraint row needs alpha <= "
+                    f"{1.0 / max(b, 1e-300):.4g} but the disturbance alone forces alpha >= {np.max(w_bar):.4g} "
+                    "(spec §5.1: alpha_inf f_bar < 1 fails). Choose a smaller X0 (more facets) or relax Z.")
+            for k in range(len(A_cl)):
+                lhs_z = a @ A_z + b * E[k]          # (u, n)
+                lhs_a = b * h_bar[k]                 # (u,)
+                candidates.append(np.column_stack([lhs_z, lhs_a]) / rhs[:, None])
+        cand = _dedupe(np.vstack(candidates))
+        values = _row_maxima(current, cand, be)
+        if np.any(np.isnan(values)):
+            raise TerminalSetError(f"terminal set recursion: an LP failed at iteration {iteration}")
+        keep = ~(values <= 1.0 + TERMINAL_REDUNDANCY_TOL)
+        if not np.any(keep):
+            return current[:, :n], current[:, n], iteration
+        merged = _prune(np.vstack([current, cand[keep]]), be)
+        old = {tuple(np.round(r, 10)) for r in current}
+        new = np.array([r for r in merged if tuple(np.round(r, 10)) not in old])
+        current = merged
+        if len(new) == 0:
+            return current[:, :n], current[:, n], iteration
+    raise TerminalSetError(
+        f"terminal set recursion did not converge in {max_iter} iterations; finite termination needs "
+        "A_z Schur, lambda_bar < 1, X_f^0 bounded and the fixed point (0, alpha_inf) strictly inside X_f^0 "
+        "(spec §5.1). Check that Z bounds the state in every direction reachable by (F+GK).")
+
+
+def _with_alpha_nonneg(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    dim = rows.shape[1]
+    alpha_row = np.zeros(dim)
+    alpha_row[-1] = -1.0
+    return np.vstack([rows, alpha_row]), np.concatenate([np.ones(len(rows)), [0.0]])
+
+
+def _dedupe(rows: np.ndarray) -> np.ndarray:
+    rounded = np.round(rows, 10)
+    _, idx = np.unique(rounded, axis=0, return_index=True)
+    return rows[np.sort(idx)]
+
+
+def _bounded_vertices(rows: np.ndarray, be) -> np.ndarray | None:
+    """Vertices of {rows · y <= 1, α >= 0} when it is bounded (checked by backend LPs), else None."""
+    H, h = _with_alpha_nonneg(rows)
+    dim = rows.shape[1]
+    extent = be.support(H, h, np.vstack([np.eye(dim), -np.eye(dim)]))
+    if not np.all(np.isfinite(extent)):
+        return None
+    try:
+        return polytope.vertices(H, h)
+    except (ValueError, RuntimeError):
+        return None
+
+
+def _row_maxima(rows: np.ndarray, directions: np.ndarray, be) -> np.ndarray:
+    """max of each direction over {rows · y <= 1, α >= 0}: by vertices when bounded, else by LPs."""
+    verts = _bounded_vertices(rows, be)
+    if verts is not None:
+        return np.max(directions @ verts.T, axis=1)
+    H, h = _with_alpha_nonneg(rows)
+    return be.support(H, h, directions)
+
+
+def _prune(rows: np.ndarray, be) -> np.ndarray:
+    """Remove rows of {rows · (z, α) <= 1, α >= 0} implied by the others.
+
+    Bounded case: a row is kept iff it is tight (within TERMINAL_REDUNDANCY_TOL) at >= dim
+    vertices of the set, i.e. it supports a facet. Unbounded case: one support LP per row.
+    """
+    dim = rows.shape[1]
+    verts = _bounded_vertices(rows, be)
+    if verts is not None:
+        tight = np.abs(rows @ verts.T - 1.0) <= TERMINAL_REDUNDANCY_TOL * 10
+        facet = np.array([np.linalg.matrix_rank(np.column_stack([verts[t], np.ones(t.sum())]), tol=1e-9) >= dim
+                          if t.sum() >= dim else False for t in tight])
+        return _dedupe(rows[facet])
+    keep = np.ones(len(rows), dtype=bool)
+    for i in range(len(rows)):
+        keep[i] = False
+        H, h = _with_alpha_nonneg(rows[keep])
+        value = be.support(H, h, rows[i:i + 1])[0]
+        if not (value <= 1.0 + TERMINAL_REDUNDANCY_TOL):
+            keep[i] = True
+    return rows[keep]
+
+
+def regressor_bound(problem: Problem, state_bound: float | None) -> tuple[float, str]:
+    """sup ‖D(x,u)‖₂² over Z (or Z ∩ {|x_i| <= state_bound} when Z is unbounded in x).
+
+    ‖D(x,u)‖₂ is convex in (x,u), so the supremum is attained at a vertex of that polytope,
+    which are enumerated exactly (no optimisation solver is involved).
+    """
+    n, m = problem.n, problem.m
+    H = np.hstack([problem.F, problem.G])
+    h = np.ones(len(H))
+    region = "Z"
+    if not polytope.is_bounded(H, h):
+        if state_bound is None:
+            raise ProblemError("design.mu_state_bound", "a bound on |x_i| because Z is unbounded in x (needed for "
+                               "sup ‖D(x,u)‖² in (11))", "nothing",
+                               "Set design.mu_state_bound; the closed loop is then checked to stay inside that box.")
+        Hb, hb = polytope.box(-state_bound * np.ones(n), state_bound * np.ones(n))
+        H = np.vstack([H, np.hstack([Hb, np.zeros((2 * n, m))])])
+        h = np.concatenate([h, hb])
+        region = f"Z ∩ {{|x_i| <= {state_bound:g}}}"
+        if not polytope.is_bounded(H, h):
+            raise ProblemError("Z.G", "Z bounded in the input u (needed for (11))", "an input direction without bound")
+    verts = polytope.vertices(H, h)
+    sup = max(float(np.linalg.norm(problem.regressor(vx[:n], vx[n:]), 2) ** 2) for vx in verts)
+    if sup <= 0.0:
+        raise ProblemError("system.A, system.B", "a regressor D(x,u) that is not identically zero on Z", "sup ‖D‖ = 0")
+    return sup, region

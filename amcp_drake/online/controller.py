@@ -1,0 +1,307 @@
+"""The adaptive MPC online loop (spec §6, "Online", steps (i)-(iv)), backend-agnostic.
+
+At each k: (i) measure x_k; (ii) if k > 0 update Θ_k by (9) (or (7), or the moving window of
+Remark 4) and θ̂_k by the projected LMS (12); (iii) solve the tube MPC QP (20); (iv) apply
+u_k = K x_k + v*_{0|k} (21). Every optimisation problem is delegated to the backend.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from amcp_drake.backends import TubeMPCData, get_backend
+from amcp_drake.model import polytope
+from amcp_drake.model.errors import InconsistentDataError, ProblemError
+from amcp_drake.model.options import OnlineOptions
+from amcp_drake.model.problem import Problem
+from amcp_drake.model.status import SolveStatus
+from amcp_drake.offline.design import OfflineDesign
+
+#: Rows of Δ_k are scaled to unit norm before the update: near x = 0 the raw rows −H_w D_{k−1} are of
+#: order ‖x_{k−1}‖, and the LP solvers' absolute tolerances then allow errors of order tol/‖row‖ in θ
+#: (found by the property suite: the per-row LP (9) excluded θ* by 1e-2 with rows of norm ~1e-3).
+#: Rows shorter than this carry nothing floating point can resolve (1 + H_w d_k is computed with an
+#: absolute error ~1e-16, i.e. ~1e-10 after scaling) and are dropped, which can only enlarge Θ_k.
+DELTA_ROW_MIN_NORM = 1e-6
+#: Numerical margin added to every (unit) row of Δ_k, in θ units: with vertex disturbances θ* lies on
+#: the boundary of every Δ_k, and Θ_k collapses onto θ* (a point, found by the property suite). The
+#: LP (9) is then degenerate and interior-point and simplex solvers alike return offsets that are
+#: wrong by 1e-8..1e-2 or a false "infeasible". With the margin, Θ_k always contains Θ ∩ B_ε(θ*) (a
+#: set with interior), Δ_k ⊆ Δ_k^ε keeps Lemma 3 exact, and a disturbance outside W by more than
+#: this distance is still reported as inconsistent data.
+DELTA_MARGIN = 1e-6
+
+
+
+@dataclass
+class StepRecord:
+    """Everything recorded at step k. Shapes as in :class:`~amcp_drake.backends.MPCSolution`;
+    ``H_theta`` (q_k, p), ``h_theta`` (q_k,) describe Θ_k; ``set_Lambda`` are the multipliers of (9)."""
+
+    k: int
+    x: np.ndarray
+    u: np.ndarray | None
+    status: SolveStatus
+    H_theta: np.ndarray
+    h_theta: np.ndarray
+    theta_hat: np.ndarray
+    theta_tilde: np.ndarray | None = None
+    v: np.ndarray | None = None
+    z: np.ndarray | None = None
+    alpha: np.ndarray | None = None
+    Lambda: np.ndarray | None = None
+    cost: float | None = None
+    set_status: SolveStatus = SolveStatus.NOT_RUN
+    set_Lambda: np.ndarray | None = None
+    h_theta_stages: np.ndarray | None = None
+    pe_status: str = "off"
+    pe_bounds: tuple | None = None
+    #: PE constraint enforced at this step (excitation.pe_quadratic): λ_min of the window Gram of the
+    #: stacked input [u_j; …; u_{j−pe_dim+1}] >= pe_level. pe_dim = n + 1 is spec §8's constraint
+    #: (status "enforced"); a smaller pe_dim is a rung of the ladder used while ρ is unattainable
+    #: ("enforced_partial", or "enforced_necessary" for pe_dim = 1: Σ_window u_j² >= pe_level).
+    pe_level: float | None = None
+    pe_dim: int | None = None
+    projection_status: SolveStatus = SolveStatus.NOT_RUN
+    infeasible_constraints: tuple[str, ...] = ()
+    times: dict[str, float] = field(default_factory=dict)
+
+
+class AdaptiveMPC:
+    """Adaptive robust MPC of Lorenzen et al. (2019) with a chosen backend.
+
+    ``step(x)`` returns ``(u, record)``; ``u`` is None when the QP (20) was not solved to
+    optimality (the status is on the record: a solver failure is data, not an exception).
+    Raises InconsistentDataError when Θ_{k-1} ∩ Δ_k is empty.
+    """
+
+    def __init__(self, problem: Problem, design: OfflineDesign, backend="drake",
+                 options: OnlineOptions | None = None, **backend_options) -> None:
+        self.problem = problem
+        self.design = design
+        self.options = options or OnlineOptions()
+        self.backend = get_backend(backend, **backend_options)
+        self.data = TubeMPCData(
+            A0=problem.A0, B0=problem.B0, A=problem.A, B=problem.B, F=problem.F, G=problem.G, Q=problem.Q,
+            R=problem.R, N=problem.N, K=design.K, P=design.P, H_x=design.H_x, X0_vertices=design.X0_vertices,
+            w_bar=design.w_bar, f_bar=design.f_bar, H_T=design.H_T, h_T=design.h_T, H_theta=design.H_theta,
+            cost=self.options.cost)
+        if self.options.cost != "certainty_equivalence" and getattr(self.backend, "formulation", "plain") != "plain":
+            raise ProblemError("formulation", "'plain' (the min-max cost (19) needs formulation='plain')",
+                               repr(self.backend.formulation))
+        if self.options.d_theta > 0 and getattr(self.backend, "formulation", "plain") != "plain":
+            raise ProblemError("formulation", "'plain' (time-varying parameters need formulation='plain': the "
+                               "predicted sets (26) differ per stage)", repr(self.backend.formulation))
+        if self.options.pe_window is not None:
+            if problem.m != 1:
+                raise ProblemError("online.pe_window", "None for m > 1 (the PE constraint of spec §8 is for a "
+                                   "scalar input)", repr(self.options.pe_window))
+            if getattr(self.backend, "formulation", "plain") != "plain":
+                raise ProblemError("formulation", "'plain' (the PE constraint needs formulation='plain')",
+                                   repr(self.backend.formulation))
+        self.mpc = self.backend.tube_mpc(self.data)
+        #: ‖[H_θ]_i‖: the dilation D_l of Section 4.1 on un-normalised rows (same set as on unit rows)
+        self._row_norms = np.linalg.norm(np.asarray(design.H_theta, float), axis=1)
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to k = 0: Θ_0 = {H_θ θ <= h_θ0}, θ̂_0 from the problem."""
+        self.k = 0
+        self.H_theta = np.array(self.design.H_theta)
+        self.h_theta = np.array(self.design.h_theta0)
+        self.theta_hat = np.array(self.problem.theta_hat0)
+        self._prev: tuple[np.ndarray, np.ndarray] | None = None
+        self._window: list[tuple[np.ndarray, np.ndarray]] = []
+        self._u_hist: list[float] = []
+
+    # -- (ii) set-membership update ------------------------------------------------------------
+    def _delta(self, x_prev, u_prev, x) -> tuple[np.ndarray, np.ndarray]:
+        """Δ_k of (6): {θ | −H_w D_{k−1} θ <= 1 + H_w d_k}, d_k = A0 x_{k−1} + B0 u_{k−1} − x_k, rows
+        scaled to unit norm (see DELTA_ROW_MIN_NORM)."""
+        pr = self.problem
+        D = pr.regressor(x_prev, u_prev)
+        d = pr.A0 @ x_prev + pr.B0 @ u_prev - x
+        H, h = -pr.H_w @ D, 1.0 + pr.H_w @ d
+        norms = np.linalg.norm(H, axis=1)
+        keep = norms >= DELTA_ROW_MIN_NORM
+        return H[keep] / norms[keep, None], h[keep] / norms[keep] + DELTA_MARGIN
+
+    def _update_set(self, H_delta, h_delta, record: StepRecord) -> None:
+        opts = self.options
+        if opts.update == "exact":
+            H = np.vstack([self.H_theta, H_delta])
+            h = np.concatenate([self.h_theta, h_delta])
+            _, radius = polytope.chebyshev_center(H, h)
+            if radius == float("-inf"):
+                raise InconsistentDataError(self.k, "exact intersection (7) is infeasible")
+            keep = self._irredundant_rows(H, h)
+            self.H_theta, self.h_theta = H[keep], h[keep]
+            record.set_status = SolveStatus.OPTIMAL
+            return
+        if opts.update == "window":
+            self._window = ([(H_delta, h_delta)] + self._window)[: opts.window]
+            H_data = np.vstack([w[0] for w in self._window])
+            # time-varying θ* (Section 4.1): Δ_{k−i} holds θ*_{k−i−1}, so its unit rows are dilated
+            # by i·d_θ to hold θ*_{k−1} (the data of (9) must all contain the same point)
+            h_data = np.concatenate([w[1] + age * opts.d_theta for age, w in enumerate(self._window)])
+        else:
+            H_data, h_data = H_delta, h_delta
+        result = self.backend.set_update(self.design.H_theta, self.h_theta, H_data, h_data)
+        record.times["set_update"] = result.solve_time
+        record.set_status = result.status
+        if result.status is SolveStatus.OPTIMAL:
+            self.h_theta = self._dilate(np.asarray(result.h, float), 1)
+            record.set_Lambda = result.Lambda
+            return
+        # confirm emptiness independently before declaring the data inconsistent
+        _, radius = polytope.chebyshev_center(np.vstack([self.design.H_theta, H_data]),
+                                              np.concatenate([self.h_theta, h_data]))
+        if radius == float("-inf"):
+            raise InconsistentDataError(self.k, f"LP (9) status {result.status.value}; scipy confirms the "
+                                                "intersection is empty")
+
+    def _dilate(self, h: np.ndarray, l: int) -> np.ndarray:
+        """min(h + l d_θ n, h_θ0), n_i = ‖[H_θ]_i‖: the fixed-shape form of D_l(·) ∩ Θ0 of (25)/(26).
+
+        For a row [H_θ]_i and ‖θ*_{k+l} − θ*_k‖ <= l d_θ, Cauchy-Schwarz gives [H_θ]_i θ*_{k+l} <=
+        [H_θ]_i θ*_k + l d_θ ‖[H_θ]_i‖, which is D_l on the normalised row. Intersecting with
+        Θ0 = {H_θ θ <= h_θ0} ⊇ Θ (same shape) is the row-wise min: this is (25) with Θ replaced by
+        its outer approximation Θ0 of the fixed shape (equal to Θ when H_θ is that of (3)).
+        """
+        if self.options.d_theta == 0.0 or l == 0:
+            return h
+        return np.minimum(h + l * self.options.d_theta * self._row_norms, np.asarray(self.design.h_theta0, float))
+
+    def stage_offsets(self, h: np.ndarray) -> np.ndarray:
+        """(N, q) offsets of the predicted sets (26): row l is h_{θ l|k} = min(h_θk + l d_θ n, h_θ0)."""
+        return np.stack([self._dilate(h, l) for l in range(self.problem.N)])
+
+    def _irredundant_rows(self, H: np.ndarray, h: np.ndarray) -> np.ndarray:
+        """Rows of {H θ <= h} not implied by the others (support LPs of the backend)."""
+        keep = np.ones(len(h), dtype=bool)
+        for i in range(len(h)):
+            keep[i] = False
+            value = self.backend.support(H[keep], h[keep], H[i:i + 1])[0]
+            if not (value <= h[i] + 1e-9):
+                keep[i] = True
+        return keep
+
+    # -- (ii) projected LMS (12) -----------------------------------------------------------------
+    def _update_estimate(self, x_prev, u_prev, x, record: StepRecord) -> None:
+        pr = self.problem
+        D = pr.regressor(x_prev, u_prev)
+        x_pred = pr.A_of(self.theta_hat) @ x_prev + pr.B_of(self.theta_hat) @ u_prev
+        theta_tilde = self.theta_hat + self.design.mu * D.T @ (x - x_pred)
+        record.theta_tilde = theta_tilde
+        if self.options.projection == "Theta":
+            H, h = pr.H_theta, pr.h_theta
+        else:
+            H, h = self.H_theta, self.h_theta
+        if np.all(H @ theta_tilde <= h):
+            # the projection of a point of the set is the point itself: no QP needed
+            self.theta_hat = theta_tilde
+            record.projection_status = SolveStatus.OPTIMAL
+            return
+        result = self.backend.project(theta_tilde, H, h)
+        if result.status is not SolveStatus.OPTIMAL and self.options.projection == "Theta_k":
+            # Θ_k can be a single point that round-off in (9) leaves empty by ~1e-9 (θ* pinned at a
+            # vertex by vertex disturbances; found by the property suite): the QP is then infeasible.
+            # Projecting onto Θ ⊇ Θ_k instead is (12) itself, so Lemma 5 still holds (Remark 7).
+            result = self.backend.project(theta_tilde, pr.H_theta, pr.h_theta)
+        record.times["projection"] = result.solve_time
+        record.projection_status = result.status
+        if result.status is SolveStatus.OPTIMAL:
+            self.theta_hat = np.asarray(result.theta, float)
+
+    # -- (iii) the QP (20), with the PE two-QP procedure of spec §8 when enabled -----------------
+    def _solve_qp(self, x, h_arg, H_arg, record: StepRecord):
+        opts = self.options
+        if opts.pe_window is None:
+            return self.mpc.solve(x, h_arg, self.theta_hat, H_arg)
+        from amcp_drake.online.excitation import RETRY_LEVEL_FACTORS, pe_bounds, pe_quadratic, pe_quadratic_at
+
+        u_hist = np.array(self._u_hist)
+        quad = pe_quadratic(u_hist, self.problem.n, opts.pe_window, opts.pe_level)
+        bounds = pe_bounds(quad)
+        if bounds is None:
+            record.pe_status = "inactive" if quad is None else "satisfied"
+            return self.mpc.solve(x, h_arg, self.theta_hat, H_arg)
+        spent = 0.0
+        level = quad.level
+        # the rung's level, then reduced levels (RETRY_LEVEL_FACTORS) when no input reaches it
+        for factor in (1.0,) + RETRY_LEVEL_FACTORS:
+            if factor != 1.0:
+                quad = pe_quadratic_at(u_hist, quad.dim, opts.pe_window, level * factor)
+                bounds = pe_bounds(quad)
+                if bounds is None:  # the reduced level holds for every input
+                    record.times["pe_solver"] = spent
+                    record.pe_status, record.pe_dim, record.pe_level = "satisfied", int(quad.dim), float(quad.level)
+                    return self.mpc.solve(x, h_arg, self.theta_hat, H_arg)
+            best, best_b = None, None
+            for b in bounds:
+                sol = self.mpc.solve(x, h_arg, self.theta_hat, H_arg, u0_bounds=b)
+                spent += sol.solver_time
+                if sol.status is SolveStatus.OPTIMAL and (best is None or sol.cost < best.cost):
+                    best, best_b = sol, b
+            if best is not None:
+                record.times["pe_solver"] = spent
+                record.pe_status = ("enforced" if quad.dim == self.problem.n + 1 else
+                                    "enforced_necessary" if quad.necessary_only else "enforced_partial")
+                record.pe_dim = int(quad.dim)
+                record.pe_bounds = tuple(float(v) for v in best_b)
+                record.pe_level = float(quad.level)
+                return best
+        record.times["pe_solver"] = spent
+        # no input satisfies both (20) and the PE constraint: (20) alone (SRC-1's fallback; the PE
+        # constraint is not part of the recursive-feasibility argument)
+        record.pe_status = "fallback"
+        return self.mpc.solve(x, h_arg, self.theta_hat, H_arg)
+
+    # -- one step --------------------------------------------------------------------------------
+    def step(self, x: np.ndarray) -> tuple[np.ndarray | None, StepRecord]:
+        """Steps (i)-(iv) at the measured state x_k."""
+        start = time.perf_counter()
+        x = np.asarray(x, float)
+        if x.shape != (self.problem.n,) or not np.all(np.isfinite(x)):
+            raise ProblemError("x", f"a finite state vector of length {self.problem.n}", f"{x!r}")
+        record = StepRecord(k=self.k, x=x, u=None, status=SolveStatus.NOT_RUN, H_theta=self.H_theta,
+                            h_theta=self.h_theta, theta_hat=self.theta_hat)
+        if self._prev is not None and self.options.update != "none":
+            x_prev, u_prev = self._prev
+            t0 = time.perf_counter()
+            self._update_set(*self._delta(x_prev, u_prev, x), record)
+            record.times["set_update_total"] = time.perf_counter() - t0
+            if record.set_status is not SolveStatus.OPTIMAL:
+                record.status = record.set_status
+                record.times["total"] = time.perf_counter() - start
+                return None, record
+            t0 = time.perf_counter()
+            self._update_estimate(x_prev, u_prev, x, record)
+            record.times["lms_total"] = time.perf_counter() - t0
+            if record.projection_status is not SolveStatus.OPTIMAL:
+                record.status = record.projection_status
+                record.times["total"] = time.perf_counter() - start
+                return None, record
+        record.H_theta, record.h_theta, record.theta_hat = self.H_theta, self.h_theta, self.theta_hat
+        H_arg = self.H_theta if self.options.update == "exact" else None
+        h_arg = self.h_theta
+        if self.options.d_theta > 0:
+            h_arg = record.h_theta_stages = self.stage_offsets(self.h_theta)
+        sol = self._solve_qp(x, h_arg, H_arg, record)
+        record.status = sol.status
+        record.times["qp_update"] = sol.update_time
+        record.times["solver"] = sol.solver_time
+        record.infeasible_constraints = sol.infeasible_constraints
+        u = None
+        if sol.status is SolveStatus.OPTIMAL:
+            record.v, record.z, record.alpha, record.Lambda, record.cost = sol.v, sol.z, sol.alpha, sol.Lambda, sol.cost
+            u = self.design.K @ x + sol.v[0]
+            record.u = u
+            self._prev = (x, u)
+            self._u_hist.append(float(u[0]))
+        self.k += 1
+        record.times["total"] = time.perf_counter() - start
+        return u, record

@@ -1,0 +1,270 @@
+"""Closed-loop simulation of system (1) under the adaptive MPC, and the recorded Trajectory.
+
+A :class:`Trajectory` holds the problem, the design, the online options, θ*, the disturbance
+sequence and every :class:`~amcp_drake.online.controller.StepRecord`; it is saved as JSON (gzip when the
+name ends in ``.gz``) and loaded back, so a run can be re-checked (``amcp certify --trajectory``)
+without re-running it.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from amcp_drake.model import polytope
+from amcp_drake.model.errors import InconsistentDataError, ProblemError, TrajectoryError
+from amcp_drake.model.options import OnlineOptions
+from amcp_drake.model.problem import DISTURBANCE_KINDS, Problem, ProblemSpec, check_theta_rate
+from amcp_drake.model.problem_io import options_from_dict, options_to_dict, spec_from_dict, spec_to_dict, write_text_atomic
+from amcp_drake.model.status import SolveStatus
+from amcp_drake.offline.design import OfflineDesign
+from amcp_drake.online.controller import AdaptiveMPC, StepRecord
+
+TRAJECTORY_FORMAT = "amcp-trajectory"
+TRAJECTORY_VERSION = 1
+
+
+def disturbance_sequence(problem: Problem, kind: str | np.ndarray, steps: int, seed: int = 0) -> np.ndarray:
+    """w_0..w_{steps-1}, shape (steps, n): ``"uniform"`` i.i.d. uniform on W (rejection sampling
+    from the bounding box of W), ``"vertices"`` i.i.d. uniform over the vertices of W, ``"zero"``,
+    or an explicit array (returned as is after a shape check)."""
+    n = problem.n
+    if not isinstance(kind, str):
+        arr = np.asarray(kind, float)
+        if arr.shape != (steps, n) or not np.all(np.isfinite(arr)):
+            raise ProblemError("disturbance", f"a finite array of shape ({steps}, {n})", f"shape {arr.shape}")
+        return arr
+    if kind not in DISTURBANCE_KINDS:
+        raise ProblemError("disturbance", f"one of {sorted(DISTURBANCE_KINDS)} or an array", repr(kind))
+    rng = np.random.default_rng(seed)
+    if kind == "zero":
+        return np.zeros((steps, n))
+    verts = problem.w_vertices()
+    if kind == "vertices":
+        return verts[rng.integers(len(verts), size=steps)]
+    lo, hi = verts.min(axis=0), verts.max(axis=0)
+    out = np.empty((steps, n))
+    ones = np.ones(len(problem.H_w))
+    for k in range(steps):
+        while True:
+            w = rng.uniform(lo, hi)
+            if np.all(problem.H_w @ w <= ones):
+                out[k] = w
+                break
+    return out
+
+
+@dataclass
+class Trajectory:
+    """A recorded closed-loop run. ``x`` (T+1, n) states, ``u`` (T, m) inputs, ``w`` (T, n) the
+    disturbances applied, ``records`` the T+1 step records (the last one may hold a failure)."""
+
+    problem: Problem
+    design: OfflineDesign
+    options: OnlineOptions
+    backend: str
+    theta_star: np.ndarray
+    x: np.ndarray
+    u: np.ndarray
+    w: np.ndarray
+    records: list[StepRecord]
+    stop_reason: str = "completed"
+    mu_state_bound: float | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def steps(self) -> int:
+        """Number of applied inputs T."""
+        return len(self.u)
+
+    @property
+    def all_solved(self) -> bool:
+        """True when every step's QP (and update) ended OPTIMAL."""
+        return all(r.status is SolveStatus.OPTIMAL for r in self.records)
+
+    # -- persistence ------------------------------------------------------------------------------
+    @property
+    def time_varying(self) -> bool:
+        """True when θ* was given as a sequence θ*_k (Section 4.1) that is not constant."""
+        seq = np.asarray(self.theta_star, float)
+        return seq.ndim == 2 and bool(np.any(seq != seq[0]))
+
+    def theta_star_at(self, k: int) -> np.ndarray:
+        """θ*_k: the constant θ*, or entry k of the sequence (the last entry past its end)."""
+        seq = np.asarray(self.theta_star, float)
+        if seq.ndim == 1:
+            return seq
+        return seq[min(k, len(seq) - 1)]
+
+    def to_dict(self) -> dict[str, Any]:
+        spec = ProblemSpec(self.problem)
+        return {
+            "format": TRAJECTORY_FORMAT, "version": TRAJECTORY_VERSION,
+            "problem": spec_to_dict(spec), "design": self.design.to_dict(),
+            "options": options_to_dict(self.options),
+            "backend": self.backend, "theta_star": self.theta_star.tolist(),
+            "x": self.x.tolist(), "u": self.u.tolist(), "w": self.w.tolist(),
+            "stop_reason": self.stop_reason, "mu_state_bound": self.mu_state_bound, "meta": self.meta,
+            "records": [_record_to_dict(r) for r in self.records],
+        }
+
+    def save(self, path: str | Path) -> Path:
+        """Write JSON atomically (gzip when the name ends in .gz)."""
+        text = json.dumps(self.to_dict(), allow_nan=False)
+        path = Path(path)
+        if path.suffix == ".gz":
+            tmp = path.with_name(f".{path.name}.tmp")
+            with gzip.open(tmp, "wt") as handle:
+                handle.write(text)
+            tmp.replace(path)
+            return path
+        return write_text_atomic(text, path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> Trajectory:
+        """Read a file written by :meth:`save`."""
+        path = Path(path)
+        try:
+            opener = gzip.open if path.suffix == ".gz" else open
+            with opener(path, "rt") as handle:
+                data = json.load(handle)
+        except (OSError, json.JSONDecodeError) as exc:
+            raise TrajectoryError(f"trajectory file {path}: cannot be read as JSON ({exc})") from None
+        return cls.from_dict(data)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Trajectory:
+        if not isinstance(data, dict) or data.get("format") != TRAJECTORY_FORMAT:
+            raise TrajectoryError(f"not a trajectory file: format {data.get('format') if isinstance(data, dict) else None!r}, "
+                                  f"expected {TRAJECTORY_FORMAT!r}")
+        try:
+            problem = spec_from_dict(data["problem"]).problem
+            return cls(problem=problem, design=OfflineDesign.from_dict(data["design"]),
+                       options=options_from_dict(data["options"]), backend=data["backend"],
+                       theta_star=np.asarray(data["theta_star"], float),
+                       x=np.asarray(data["x"], float).reshape(-1, problem.n),
+                       u=np.asarray(data["u"], float).reshape(-1, problem.m),
+                       w=np.asarray(data["w"], float).reshape(-1, problem.n),
+                       records=[_record_from_dict(r) for r in data["records"]],
+                       stop_reason=data.get("stop_reason", ""), mu_state_bound=data.get("mu_state_bound"),
+                       meta=data.get("meta", {}))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise TrajectoryError(f"trajectory file is malformed: {exc!r}") from None
+
+
+def _record_to_dict(r: StepRecord) -> dict[str, Any]:
+    out = {}
+    for f in fields(StepRecord):
+        value = getattr(r, f.name)
+        if isinstance(value, np.ndarray):
+            value = value.tolist()
+        elif isinstance(value, SolveStatus):
+            value = value.value
+        elif isinstance(value, tuple):
+            # ±inf (one-sided PE bounds) is not JSON: stored as None
+            value = [None if isinstance(v, float) and not np.isfinite(v) else v for v in value]
+        out[f.name] = value
+    return out
+
+
+_ARRAY_FIELDS = {"x", "u", "H_theta", "h_theta", "theta_hat", "theta_tilde", "v", "z", "alpha", "Lambda", "set_Lambda",
+                 "h_theta_stages"}
+_STATUS_FIELDS = {"status", "set_status", "projection_status"}
+
+
+def _record_from_dict(d: dict[str, Any]) -> StepRecord:
+    kwargs = {}
+    for f in fields(StepRecord):
+        if f.name not in d:
+            continue
+        value = d[f.name]
+        if f.name in _ARRAY_FIELDS and value is not None:
+            value = np.asarray(value, float)
+        elif f.name in _STATUS_FIELDS:
+            value = SolveStatus(value)
+        elif f.name == "infeasible_constraints":
+            value = tuple(value)
+        elif f.name == "pe_bounds" and value is not None:
+            value = (float("-inf") if value[0] is None else value[0], float("inf") if value[1] is None else value[1])
+        kwargs[f.name] = value
+    return StepRecord(**kwargs)
+
+
+def simulate(controller: AdaptiveMPC, x0, theta_star, steps: int, disturbance: str | np.ndarray = "uniform",
+             seed: int = 0, progress: bool = False, mu_state_bound: float | None = None) -> Trajectory:
+    """Run ``steps`` steps of the closed loop x_{k+1} = A(θ*)x_k + B(θ*)u_k + w_k under ``controller``.
+
+    ``theta_star`` is θ* (p,) or a sequence θ*_k of shape (steps, p) or (steps+1, p) (system (24),
+    Section 4.1): each θ*_k must lie in Θ and consecutive ones obey Assumption 17,
+    ‖θ*_{k+1} − θ*_k‖ <= d_θ of the controller's options (up to THETA_RATE_TOL). A (steps, p)
+    sequence is extended by θ*_steps = θ*_{steps−1}; the stored sequence has steps+1 rows.
+
+    The run ends early, keeping the partial trajectory, when a step's status is not OPTIMAL.
+    InconsistentDataError (Θ_{k-1} ∩ Δ_k empty) propagates with the partial trajectory attached
+    as ``exc.trajectory``.
+    """
+    problem = controller.problem
+    x = np.asarray(x0, float)
+    if x.shape != (problem.n,) or not np.all(np.isfinite(x)):
+        raise ProblemError("x0", f"a finite vector of length {problem.n}", f"{np.asarray(x0)!r}")
+    theta_star = np.asarray(theta_star, float)
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+        raise ProblemError("steps", "an integer >= 1", repr(steps))
+    if theta_star.ndim == 2 and theta_star.shape == (steps, problem.p):
+        theta_star = np.vstack([theta_star, theta_star[-1:]])
+    if theta_star.shape not in ((problem.p,), (steps + 1, problem.p)) or not np.all(np.isfinite(theta_star)):
+        raise ProblemError("theta_star", f"a finite vector of length {problem.p} or a sequence of shape "
+                           f"({steps}, {problem.p}) / ({steps + 1}, {problem.p})", f"shape {theta_star.shape}")
+    for k, th in enumerate(np.atleast_2d(theta_star)):
+        if polytope.max_violation(problem.H_theta, problem.h_theta, th) > 1e-9:
+            raise ProblemError("theta_star" if theta_star.ndim == 1 else f"theta_star[{k}]",
+                               "a point of Theta (Assumption 1 / 17)", f"{th.tolist()}")
+    check_theta_rate(theta_star, controller.options.d_theta)
+    W = disturbance_sequence(problem, disturbance, steps, seed)
+    controller.reset()
+    xs, us, ws, records = [x], [], [], []
+    stop = "completed"
+    iterator = range(steps)
+    if progress:
+        from tqdm import tqdm
+
+        iterator = tqdm(iterator, desc=f"closed loop ({controller.backend.name})", unit="step")
+
+    def _trajectory() -> Trajectory:
+        return Trajectory(problem=problem, design=controller.design, options=controller.options,
+                          backend=controller.backend.name, theta_star=theta_star, x=np.array(xs),
+                          u=np.array(us).reshape(-1, problem.m), w=np.array(ws).reshape(-1, problem.n),
+                          records=records, stop_reason=stop, mu_state_bound=mu_state_bound,
+                          meta={"disturbance": disturbance if isinstance(disturbance, str) else "array", "seed": seed,
+                                "formulation": getattr(controller.backend, "formulation", "plain")})
+
+    for k in iterator:
+        try:
+            u, record = controller.step(x)
+        except InconsistentDataError as exc:
+            stop = f"inconsistent data at step {k}"
+            exc.trajectory = _trajectory()
+            raise
+        records.append(record)
+        if u is None:
+            stop = f"step {k}: status {record.status.value}"
+            break
+        x = problem.step(x, u, theta_star if theta_star.ndim == 1 else theta_star[k], W[k])
+        xs.append(x)
+        us.append(u)
+        ws.append(W[k])
+    else:
+        # final step record at x_T: set update, LMS and QP at the last state (checks Θ_T, θ̂_T)
+        try:
+            _, record = controller.step(x)
+            records.append(record)
+        except InconsistentDataError as exc:
+            stop = f"inconsistent data at step {steps}"
+            exc.trajectory = _trajectory()
+            raise
+    return _trajectory()
