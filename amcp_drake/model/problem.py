@@ -18,9 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from amcp_drake.model import polytope
-from amcp_drake.model.errors import ProblemError
-from amcp_drake.model.validate import as_matrix, as_positive_int, as_vector, require_positive_definite
+from . import polytope
+from ._validate import (reject_booleans, as_matrix, as_positive_int, as_vector, require_finite,
+                        require_positive_definite)
+from .errors import ProblemError
 
 #: θ̂0 may lie this far outside Θ (rounding in a problem file) before it is rejected.
 THETA_HAT0_TOL = 1e-9
@@ -150,6 +151,7 @@ class Problem:
 
 
 def _stack(field_name: str, value: Any, shape: tuple[int, int]) -> np.ndarray:
+    reject_booleans(field_name, value, f"a list of {shape[0]}x{shape[1]} matrices of real numbers")
     try:
         arr = np.array(value, dtype=float)
     except (TypeError, ValueError):
@@ -158,8 +160,7 @@ def _stack(field_name: str, value: Any, shape: tuple[int, int]) -> np.ndarray:
         arr = arr[:, :, None]
     if arr.ndim != 3 or arr.shape[1:] != shape:
         raise ProblemError(field_name, f"a list of {shape[0]}x{shape[1]} matrices", f"an array of shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ProblemError(field_name, "finite entries", "NaN or infinity")
+    require_finite(field_name, arr)
     return arr
 
 
@@ -316,13 +317,15 @@ class DesignOptions:
 @dataclass(frozen=True, eq=False)
 class ProblemSpec:
     """Everything a problem file holds: the problem, design options, a default scenario and the
-    default online options (``online``: an :class:`~amcp_drake.model.options.OnlineOptions`, or None
-    for the defaults; the CLIs start from it)."""
+    default online options (``online``: an :class:`~amcp_drake.controller.OnlineOptions`, or None
+    for the defaults; the CLIs start from it). ``notes``: what loading changed (e.g. redundant rows
+    removed, :func:`~amcp_drake.limits.remove_redundant_rows`); the CLIs print them."""
 
     problem: Problem
     design: DesignOptions = field(default_factory=DesignOptions)
     scenario: Scenario | None = None
     online: Any = None
+    notes: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         self.design.validate_for(self.problem)

@@ -12,24 +12,37 @@ Layout (format "amcp-problem", version 1)::
       "theta_hat0": [..],
       "design":   {... DesignOptions fields, all optional ...},
       "scenario": {"x0": [..], "theta_star": [..], "steps": 50, "disturbance": "uniform", "seed": 0},
-      "online":   {... OnlineOptions fields, all optional ...}   # optional (Section 4 extensions)
+      "online":   {... OnlineOptions fields, all optional ...},  # optional (Section 4 extensions)
+      "keep_redundant_rows": false                   # optional; files written by amcp say true
     }
+
+Reading is strict (docs/problem-format.md, "Strictness"): the text must be UTF-8 JSON without
+duplicate keys, NaN or overlong integers (:mod:`amcp_drake.json_strict`); the layout is validated
+against ``data/problem.schema.json`` (unknown keys at every level, with the closest known key
+suggested; booleans are not numbers; entries of magnitude at most 1e9), each message naming the JSON
+path of the field (``cost.R[0][0]``); then the dataclasses check shapes and the paper's assumptions.
+Rows of W.H, Θ and Z implied by the others are removed with a note (``ProblemSpec.notes``) unless
+``keep_redundant_rows`` is true (:func:`amcp_drake.limits.remove_redundant_rows`).
 
 Files are written atomically (temporary file + rename), so a crash never leaves half a file.
 """
 
 from __future__ import annotations
 
+import difflib
 import json
 import os
 import tempfile
+from functools import lru_cache
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from amcp_drake.model.errors import ProblemError, ProblemFileError
-from amcp_drake.model.problem import DesignOptions, Problem, ProblemSpec, Scenario
+from .errors import ProblemError, ProblemFileError
+from .json_strict import json_path, load_json_strict
+from .problem import DesignOptions, Problem, ProblemSpec, Scenario
 
 FORMAT = "amcp-problem"
 VERSION = 1
@@ -45,17 +58,146 @@ def _get(data: dict, key: str, where: str) -> Any:
     return data[key]
 
 
-def spec_from_dict(data: dict) -> ProblemSpec:
-    """Build and validate a :class:`ProblemSpec` from the documented JSON layout."""
+@lru_cache(maxsize=1)
+def problem_schema() -> dict:
+    """The JSON Schema of problem files (``amcp_drake/data/problem.schema.json``, docs/problem-format.md)."""
+    return json.loads((resources.files("amcp_drake") / "data" / "problem.schema.json").read_text())
+
+
+def _entries_ok(values: Any, bound: float) -> bool:
+    """True when ``values`` is a non-empty list of JSON numbers (not booleans) within ±bound."""
+    if not isinstance(values, list) or not values:
+        return False
+    for x in values:
+        kind = type(x)
+        if (kind is not float and kind is not int) or not -bound <= x <= bound:
+            return False
+    return True
+
+
+@lru_cache(maxsize=1)
+def _schema_validator():
+    """A Draft 2020-12 validator of the problem schema whose ``items`` keyword checks lists of entries
+    (vectors) and lists of vectors (matrices) in one Python pass when they are valid, and falls back to
+    the standard per-item validation (exact messages) when they are not: a 5 MB W.H validates in well
+    under a second instead of ~40 s. The accepted language is unchanged."""
+    import jsonschema
+
+    schema = problem_schema()
+    entry = schema["$defs"]["entry"]
+    bound = float(entry["maximum"])
+    assert entry["minimum"] == -bound
+    standard_items = jsonschema.Draft202012Validator.VALIDATORS["items"]
+
+    def items(validator, item_schema, instance, parent_schema):
+        ref = item_schema.get("$ref") if isinstance(item_schema, dict) else None
+        if ref == "#/$defs/entry" and _entries_ok(instance, bound):
+            return
+        if ref == "#/$defs/vector" and isinstance(instance, list) and all(_entries_ok(row, bound) for row in instance):
+            return
+        yield from standard_items(validator, item_schema, instance, parent_schema)
+
+    fast = jsonschema.validators.extend(jsonschema.Draft202012Validator, {"items": items})
+    return fast(schema)
+
+
+_JSON_TYPES = {"object": "a JSON object", "array": "a list", "number": "a number", "integer": "an integer",
+               "string": "a string", "boolean": "true or false", "null": "null"}
+
+
+def _json_type(value: Any) -> str:
+    if isinstance(value, bool):
+        return "a boolean"
+    if isinstance(value, dict):
+        return "a JSON object"
+    if isinstance(value, list):
+        return "a list"
+    if isinstance(value, int):
+        return "an integer"
+    if isinstance(value, float):
+        return "a number"
+    if isinstance(value, str):
+        return "a string"
+    return "null" if value is None else type(value).__name__
+
+
+def _shown(value: Any) -> str:
+    if isinstance(value, (dict, list)):
+        text = json.dumps(value)
+        text = text if len(text) <= 40 else text[:37] + "..."
+        return f"{text} ({_json_type(value)})"
+    return f"{json.dumps(value)} ({_json_type(value)})"
+
+
+def _schema_error(error) -> ProblemFileError:
+    """A ProblemFileError naming the JSON path, the expectation and the value of a jsonschema error."""
+    path = tuple(error.absolute_path)
+    field = json_path(path) if path else "file"
+    kind, spec, value = error.validator, error.validator_value, error.instance
+    if kind == "additionalProperties":
+        known = sorted(error.schema.get("properties", {}))
+        unknown = sorted(k for k in value if k not in known)
+        key = unknown[0]
+        close = difflib.get_close_matches(key, known, n=1, cutoff=0.6)
+        fix = f"Did you mean {close[0]!r}?" if close else ""
+        return ProblemFileError(json_path(path + (key,)), f"one of the keys {known}", f"unknown key {key!r}", fix)
+    if kind == "required":
+        missing = [k for k in spec if k not in value][0]
+        return ProblemFileError(json_path(path + (missing,)), "a value", "nothing (key missing)")
+    if kind == "type":
+        types = spec if isinstance(spec, list) else [spec]
+        expected = " or ".join(_JSON_TYPES.get(t, t) for t in types)
+        if "number" in types or "integer" in types:
+            expected += " (booleans are not numbers)" if isinstance(value, bool) else ""
+        return ProblemFileError(field, expected, _shown(value))
+    if kind in ("minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum"):
+        op = {"minimum": ">=", "maximum": "<=", "exclusiveMinimum": ">", "exclusiveMaximum": "<"}[kind]
+        if "magnitude" in error.schema.get("description", ""):
+            return ProblemFileError(field, f"{error.schema['description']}; rescale the units", _shown(value))
+        return ProblemFileError(field, f"a value {op} {spec:g}" if isinstance(spec, float) else f"a value {op} {spec}",
+                                _shown(value))
+    if kind in ("enum", "const"):
+        options = spec if kind == "enum" else [spec]
+        return ProblemFileError(field, "one of " + ", ".join(json.dumps(o) for o in options), _shown(value))
+    if kind == "minItems":
+        return ProblemFileError(field, f"a list of at least {spec} item(s)", _shown(value))
+    if kind in ("minLength", "maxLength"):
+        return ProblemFileError(field, f"a string of {'at least' if kind == 'minLength' else 'at most'} {spec} "
+                                "characters", _shown(value))
+    return ProblemFileError(field, f"a value matching the problem schema ({kind})", f"{_shown(value)}: {error.message}")
+
+
+def _deepest(error):
+    """For anyOf errors, the alternative that got furthest into the value (the most specific message)."""
+    while error.context:
+        error = max(error.context, key=lambda e: (len(e.absolute_path), e.validator != "type"))
+    return error
+
+
+def validate_layout(data: Any) -> None:
+    """Check ``data`` against the problem schema; raise ProblemFileError naming the first bad field."""
     if not isinstance(data, dict):
-        raise ProblemFileError("file", "a JSON object at top level", type(data).__name__)
+        raise ProblemFileError("file", "a JSON object at top level", _shown(data))
     fmt = data.get("format")
     if fmt != FORMAT:
         raise ProblemFileError("format", f"'{FORMAT}'", repr(fmt))
-    if data.get("version") != VERSION:
-        raise ProblemFileError("version", str(VERSION), repr(data.get("version")))
+    if data.get("version") != VERSION or isinstance(data.get("version"), bool):
+        raise ProblemFileError("version", f"{VERSION} (the only problem-file version this amcp reads)",
+                               repr(data.get("version")))
+    errors = sorted(_schema_validator().iter_errors(data), key=lambda e: [str(p) for p in e.absolute_path])
+    if errors:
+        raise _schema_error(_deepest(errors[0]))
+
+
+def spec_from_dict(data: dict, reduce_rows: bool = True) -> ProblemSpec:
+    """Build and validate a :class:`ProblemSpec` from the documented JSON layout.
+
+    ``reduce_rows``: remove the redundant rows of W.H, Θ and Z (with a note in ``spec.notes``) unless
+    the file says ``"keep_redundant_rows": true``. Trajectory files pass False: a recorded run is
+    re-checked on exactly the problem it ran."""
+    validate_layout(data)
     system = _get(data, "system", "")
-    problem = Problem(
+    raw = dict(
         A0=_get(system, "A0", "system"), B0=_get(system, "B0", "system"),
         A=_get(system, "A", "system"), B=_get(system, "B", "system"),
         H_w=_get(_get(data, "W", ""), "H", "W"),
@@ -64,6 +206,13 @@ def spec_from_dict(data: dict) -> ProblemSpec:
         Q=_get(_get(data, "cost", ""), "Q", "cost"), R=_get(data["cost"], "R", "cost"), N=_get(data["cost"], "N", "cost"),
         theta_hat0=_get(data, "theta_hat0", ""), name=data.get("name", "problem"),
     )
+    notes: list[str] = []
+    if reduce_rows and not data.get("keep_redundant_rows", False):
+        from .limits import reduce_rows as reduce_redundant
+
+        changes, notes = reduce_redundant(raw["H_w"], raw["H_theta"], raw["h_theta"], raw["F"], raw["G"])
+        raw.update(changes)
+    problem = Problem(**raw)
     design_data = data.get("design", {}) or {}
     unknown = set(design_data) - _DESIGN_FIELDS
     if unknown:
@@ -81,7 +230,7 @@ def spec_from_dict(data: dict) -> ProblemSpec:
     online = None
     if data.get("online") is not None:
         online = options_from_dict(data["online"], where="online")
-    return ProblemSpec(problem=problem, design=design, scenario=scenario, online=online)
+    return ProblemSpec(problem=problem, design=design, scenario=scenario, online=online, notes=tuple(notes))
 
 
 def options_from_dict(data: Any, where: str = "options"):
@@ -111,6 +260,8 @@ def spec_to_dict(spec: ProblemSpec) -> dict:
     pr = spec.problem
     data: dict[str, Any] = {
         "format": FORMAT, "version": VERSION, "name": pr.name,
+        # the rows are exactly those of the problem that ran (replays and trajectories reproduce it)
+        "keep_redundant_rows": True,
         "system": {"A0": pr.A0.tolist(), "B0": pr.B0.tolist(), "A": pr.A.tolist(), "B": pr.B.tolist()},
         "W": {"H": pr.H_w.tolist()},
         "Theta": {"H": pr.H_theta.tolist(), "h": pr.h_theta.tolist()},
@@ -139,15 +290,7 @@ def spec_to_dict(spec: ProblemSpec) -> dict:
 
 def load_spec(path: str | os.PathLike) -> ProblemSpec:
     """Read a problem file (see module docstring)."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ProblemFileError("file", "a readable problem file", f"{path}: {exc.strerror}") from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ProblemFileError("file", "valid JSON", f"{path}: {exc.msg} at line {exc.lineno}") from None
+    data = load_json_strict(path, ProblemFileError, "problem file")
     try:
         return spec_from_dict(data)
     except TypeError as exc:  # e.g. DesignOptions(**{...}) with a bad call
@@ -189,5 +332,6 @@ def write_text_atomic(text: str, path: str | os.PathLike) -> Path:
 
 
 __all__ = ["load_spec", "load_problem", "save_spec", "spec_from_dict", "spec_to_dict", "options_from_dict",
+           "problem_schema", "validate_layout",
            "options_to_dict", "write_json_atomic",
            "write_text_atomic", "ProblemError"]

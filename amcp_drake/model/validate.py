@@ -12,6 +12,13 @@ import numpy as np
 
 from amcp_drake.model.errors import ProblemError
 
+#: Largest magnitude accepted for an entry of problem data (matrices, vectors, design K, P, x0, θ*).
+#: Beyond it the tube QP's coefficients span more than the ~1e-8 relative accuracy of the interior-point
+#: and simplex solvers can resolve, and products such as Q x with |x| ~ 1e3 approach the float range
+#: (1e308 in cost.Q overflowed in Drake, in W.H in linprog). Rescale units instead. The same bound is
+#: in data/problem.schema.json ($defs/entry); a test keeps them equal. docs/decisions.md, "Strict input files".
+MAX_ABS_ENTRY = 1e9
+
 
 def _describe(value: Any) -> str:
     if isinstance(value, np.ndarray):
@@ -20,8 +27,22 @@ def _describe(value: Any) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
+def reject_booleans(field: str, value: Any, what: str) -> None:
+    if isinstance(value, (bool, np.bool_)) or (isinstance(value, np.ndarray) and value.dtype == bool):
+        raise ProblemError(field, what + " (booleans are not numbers)", _describe(value))
+    if isinstance(value, (list, tuple)):
+        try:
+            raw = np.asarray(value, dtype=object).ravel()
+        except ValueError:  # ragged: reported by the caller
+            return
+        for index, item in enumerate(raw):
+            if isinstance(item, (bool, np.bool_)):
+                raise ProblemError(field, what + " (booleans are not numbers)", f"{item!r} at flat index {index}")
+
+
 def as_matrix(field: str, value: Any, rows: int | None = None, cols: int | None = None) -> np.ndarray:
     """Return ``value`` as a finite float64 2-D array with the given shape (None: any)."""
+    reject_booleans(field, value, "a matrix of real numbers")
     try:
         arr = np.array(value, dtype=float)
     except (TypeError, ValueError):
@@ -44,6 +65,7 @@ def as_matrix(field: str, value: Any, rows: int | None = None, cols: int | None 
 
 def as_vector(field: str, value: Any, size: int | None = None) -> np.ndarray:
     """Return ``value`` as a finite float64 1-D array of the given length (None: any)."""
+    reject_booleans(field, value, "a vector of real numbers")
     try:
         arr = np.array(value, dtype=float)
     except (TypeError, ValueError):
@@ -61,10 +83,19 @@ def as_vector(field: str, value: Any, size: int | None = None) -> np.ndarray:
 
 
 def require_finite(field: str, arr: np.ndarray) -> None:
-    """Reject NaN and infinity (Drake aborts with SystemExit on non-finite coefficients)."""
+    """Reject NaN, infinity (Drake aborts with SystemExit on non-finite coefficients) and entries of
+    magnitude above :data:`MAX_ABS_ENTRY`. The message names the entry, e.g. ``cost.Q[0][1]``."""
     if not np.all(np.isfinite(arr)):
         bad = np.argwhere(~np.isfinite(arr))[0]
-        raise ProblemError(field, "finite entries", f"{arr[tuple(bad)]} at index {tuple(int(i) for i in bad)}")
+        raise ProblemError(_entry(field, bad), "finite entries", f"{arr[tuple(bad)]}")
+    if arr.size and float(np.max(np.abs(arr))) > MAX_ABS_ENTRY:
+        bad = np.argwhere(np.abs(arr) > MAX_ABS_ENTRY)[0]
+        raise ProblemError(_entry(field, bad), f"entries of magnitude at most {MAX_ABS_ENTRY:g} (rescale the units)",
+                           f"{arr[tuple(bad)]:.6g}")
+
+
+def _entry(field: str, index: Any) -> str:
+    return field + "".join(f"[{int(i)}]" for i in index)
 
 
 def require_positive_definite(field: str, arr: np.ndarray, strict: bool = True) -> None:

@@ -1,0 +1,256 @@
+"""Resource limits: an estimate of the size of a run checked before anything is built, and the
+removal of redundant rows of W, Θ and Z at load.
+
+**Size estimate** (:func:`estimate_run_size`). The tube QP (20) in the plain form (15), as built by
+``backends/drake_tube.py`` (the cvxpy backend builds the same rows), has for n states, m inputs,
+p parameters, horizon N, u facets and v vertices of the tube shape X0, q rows of Θ (plus
+``design.theta_extra_directions``) and c rows of Z:
+
+* variables: (N+1)·n (z) + (N+1) (α) + N·m (v) + N·v·u·q (Λ of (15c)-(15d));
+* rows: N·c (15a) + u (15b) + N·v·u (15c) + N·v·u·p (15d) + c (terminal set, estimated by c rows;
+  its true size is known only after the design);
+* nonzeros: N·c·(n+m+1) + u·(n+1) + N·v·u·(2n+m+2+q) + N·v·u·p·(n+m+1+q) + c·(n+1).
+
+v is not known before the design; it is bounded by the upper bound theorem (McMullen 1970) for a
+polytope with u facets in dimension n (exact for n <= 2: v = u). The set update LP (9) adds q + q·r·L
+variables (r rows of W, L = 1 or the window length of update "window"); every step records Θ_k,
+(v, z, α) and Λ (N·v·u·q numbers), kept in memory for the whole run and written at the end.
+
+Memory = :data:`BYTES_PER_NONZERO` × nonzeros (the sparse matrices are assembled as scipy
+``lil_matrix``, whose Python lists cost about this much per entry) + :data:`BYTES_PER_RECORDED_NUMBER`
+× numbers recorded over the run. A run whose estimate exceeds the limit (default
+:data:`DEFAULT_MAX_MEMORY_MB`; ``--max-memory`` raises it) is refused with a
+:class:`~amcp_drake.errors.ProblemError` before the design starts.
+
+**Redundant rows** (:func:`remove_redundant_rows`). A row a·x <= b of a polytope with an interior
+point c is implied by the others exactly when the point a/(b − a·c) of the polar lies in the convex
+hull of the other such points and the origin. The hull is computed once with Qhull
+(``scipy.spatial.ConvexHull``) in the span of the rows, so a set of 100,000 rows is reduced in well
+under a second instead of one LP per row; a row is kept whenever its polar point is a hull vertex or
+lies outside the hull of the kept rows by more than :data:`POLAR_TOL`. Above :data:`MAX_HULL_DIM`
+dimensions only duplicate rows are merged (Qhull's cost grows quickly with the dimension).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from math import comb
+from typing import Any
+
+import numpy as np
+from scipy.spatial import ConvexHull, QhullError
+
+from . import polytope
+from .errors import ProblemError
+
+#: Default limit of the estimated memory of a run, in MiB (the shared machines have 23 GB; Example 1
+#: with N = 10 and 50 steps is estimated at a few MB). Raised with ``--max-memory``.
+DEFAULT_MAX_MEMORY_MB = 2048
+#: Bytes per nonzero of the QP while it is assembled (scipy lil_matrix: a Python float and int per
+#: entry in per-row lists, about 100 bytes; the CSC copy handed to the solver adds 12).
+BYTES_PER_NONZERO = 112
+#: Bytes per number recorded over the run: 8 in the numpy record, ~32 as a Python float of the
+#: JSON tree and ~20 as text when the trajectory is written.
+BYTES_PER_RECORDED_NUMBER = 60
+#: Qhull is used for the redundancy test up to this dimension; above it only duplicates are merged.
+MAX_HULL_DIM = 8
+#: A polar point outside the hull of the kept rows by more than this is kept (Qhull's own precision
+#: is ~1e-13 relative; 1e-9 matches polytope.REDUNDANCY_TOL).
+POLAR_TOL = 1e-9
+#: Relative singular-value threshold for the span of the rows.
+RANK_TOL = 1e-12
+
+
+def max_vertices(facets: int, dim: int) -> int:
+    """Upper bound theorem: the most vertices a polytope with ``facets`` facets in R^dim can have."""
+    if dim <= 0:
+        return 1
+    if dim <= 2:
+        return facets if dim == 2 else 2
+    half_floor, half_ceil = dim // 2, (dim + 1) // 2
+    return comb(facets - half_ceil, half_floor) + comb(facets - half_floor - 1, half_ceil - 1)
+
+
+@dataclass(frozen=True)
+class SizeEstimate:
+    """Estimated size of a run (module docstring)."""
+
+    n: int
+    m: int
+    p: int
+    N: int
+    facets: int
+    vertices: int
+    theta_rows: int
+    w_rows: int
+    z_rows: int
+    steps: int
+    variables: int
+    rows: int
+    nonzeros: int
+    recorded_numbers: int
+    memory_bytes: int
+
+    def describe(self) -> str:
+        """One line with the inputs and the estimate."""
+        return (f"n = {self.n}, m = {self.m}, p = {self.p}, cost.N = {self.N}, design.x0_facets = {self.facets} "
+                f"(<= {self.vertices} vertices), {self.theta_rows} rows of Theta, {self.w_rows} rows of W.H, "
+                f"{self.z_rows} rows of Z, {self.steps} steps: tube QP (15) with {self.variables:,} variables, "
+                f"{self.rows:,} rows, {self.nonzeros:,} nonzeros; {self.recorded_numbers:,} numbers recorded; "
+                f"estimated memory {_mib(self.memory_bytes)}")
+
+
+def _mib(nbytes: int) -> str:
+    mib = nbytes / 2**20
+    return f"{mib / 1024:,.1f} GiB" if mib >= 1024 else f"{mib:,.1f} MiB"
+
+
+def estimate_run_size(n: int, m: int, p: int, N: int, facets: int, theta_rows: int, w_rows: int, z_rows: int,
+                      steps: int = 1, window: int = 1) -> SizeEstimate:
+    """The size of a run (module docstring); Python integers, so absurd inputs cannot overflow."""
+    nv, u, q, c = max_vertices(facets, n), facets, theta_rows, z_rows
+    block = N * nv * u
+    variables = (N + 1) * n + (N + 1) + N * m + block * q
+    rows = N * c + u + block + block * p + c
+    nonzeros = (N * c * (n + m + 1) + u * (n + 1) + block * (2 * n + m + 2 + q) + block * p * (n + m + 1 + q)
+                + c * (n + 1))
+    update_nonzeros = q * w_rows * window * (p + 1) + q * (p + 1)
+    per_step = q * (p + 1) + (N + 1) * (n + 1) + N * m + block * q + q * w_rows * window
+    recorded = (steps + 1) * per_step
+    memory = BYTES_PER_NONZERO * (nonzeros + update_nonzeros) + BYTES_PER_RECORDED_NUMBER * recorded
+    return SizeEstimate(n, m, p, N, facets, nv, q, w_rows, c, steps, variables, rows, nonzeros, recorded, memory)
+
+
+def estimate_for(problem, design_options=None, steps: int = 1, online=None) -> SizeEstimate:
+    """:func:`estimate_run_size` for a :class:`~amcp_drake.problem.Problem` and its options."""
+    facets = getattr(design_options, "x0_facets", 8) if design_options is not None else 8
+    extra = getattr(design_options, "theta_extra_directions", None) if design_options is not None else None
+    theta_rows = len(problem.H_theta) + (0 if extra is None else len(np.atleast_2d(extra)))
+    window = online.window if online is not None and getattr(online, "update", "") == "window" else 1
+    return estimate_run_size(problem.n, problem.m, problem.p, int(problem.N), int(facets), theta_rows,
+                             len(problem.H_w), len(problem.F), steps=int(steps), window=int(window))
+
+
+def check_run_size(problem, design_options=None, steps: int = 1, online=None,
+                   max_memory_mb: float = DEFAULT_MAX_MEMORY_MB, option: str = "--max-memory") -> SizeEstimate:
+    """Refuse a run whose estimated memory exceeds ``max_memory_mb`` (ProblemError naming the sizes)."""
+    est = estimate_for(problem, design_options, steps, online)
+    if est.memory_bytes > max_memory_mb * 2**20:
+        raise ProblemError("problem size (cost.N, design.x0_facets, rows of Theta and W.H, steps)",
+                           f"an estimated memory of at most {max_memory_mb:,g} MiB",
+                           est.describe(),
+                           f"Reduce cost.N, design.x0_facets or the steps, or raise the limit with {option} "
+                           "(docs/problem-format.md, 'Size limits').")
+    return est
+
+
+# -- redundant rows --------------------------------------------------------------------------------
+def nonredundant_rows(H: np.ndarray, h: np.ndarray, interior: np.ndarray) -> np.ndarray:
+    """Indices (ascending) of the rows of {x | H x <= h} not implied by the others; ``interior`` is a
+    point with H·interior < h. Of equal rows one is kept."""
+    H = np.asarray(H, float)
+    slack = np.asarray(h, float) - H @ np.asarray(interior, float)
+    if np.any(slack <= 0):
+        raise ValueError("nonredundant_rows needs a strictly interior point")
+    P = H / slack[:, None]
+    first = np.arange(len(P))  # (Qhull keeps one of equal points; the others are dropped as inside)
+    if len(first) <= 1:
+        return first
+    U, S, Vt = np.linalg.svd(P[first], full_matrices=False)
+    rank = int(np.sum(S > RANK_TOL * S[0]))
+    if rank > MAX_HULL_DIM:  # only exact duplicates are merged
+        _, unique = np.unique(P, axis=0, return_index=True)
+        return np.sort(unique)
+    coords = P[first] @ Vt[:rank].T
+    if rank == 1:
+        t = coords[:, 0]
+        keep = {int(np.argmax(t))} if t.max() > 0 else set()
+        if t.min() < 0:
+            keep.add(int(np.argmin(t)))
+        return np.sort(first[sorted(keep)])
+    points = np.vstack([np.zeros(rank), coords])
+    try:
+        hull = ConvexHull(points)
+    except QhullError:  # degenerate configuration Qhull cannot handle: keep every distinct row
+        return first
+    kept = np.zeros(len(first), dtype=bool)
+    kept[hull.vertices[hull.vertices > 0] - 1] = True
+    # every dropped point must lie in the hull of the kept ones (and the origin) within POLAR_TOL
+    try:
+        kept_hull = ConvexHull(np.vstack([np.zeros(rank), coords[kept]])) if kept.sum() >= rank else None
+    except QhullError:
+        kept_hull = None
+    if kept_hull is not None:
+        scale = np.max(np.abs(coords), axis=1)
+        outside = (coords @ kept_hull.equations[:, :-1].T + kept_hull.equations[:, -1]).max(axis=1)
+        kept |= outside > POLAR_TOL * np.maximum(scale, 1.0)
+    else:
+        kept[:] = True
+    return first[kept]
+
+
+_FIELDS = {"W": "W.H", "Theta": "Theta.H, Theta.h", "Z": "Z.F, Z.G"}
+
+
+def _as_rows(value: Any) -> np.ndarray | None:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    return arr if arr.ndim == 2 and arr.size and np.all(np.isfinite(arr)) else None
+
+
+def _note(name: str, total: int, keep: np.ndarray) -> str:
+    dropped = np.setdiff1d(np.arange(total), keep)
+    shown = ", ".join(str(int(i)) for i in dropped[:8]) + (", ..." if len(dropped) > 8 else "")
+    note = f"{_FIELDS[name]}: removed {len(dropped)} of {total} rows implied by the others (rows {shown}); {len(keep)} kept"
+    if name == "Theta":
+        note += ("; they are no longer facet directions of the fixed-shape update (9): list them in "
+                 "design.theta_extra_directions to keep them")
+    return note + " (\"keep_redundant_rows\": true keeps every row)"
+
+
+def reduce_rows(H_w: Any, H_theta: Any, h_theta: Any, F: Any, G: Any) -> tuple[dict[str, Any], list[str]]:
+    """Redundant rows of W = {H_w w <= 1}, Θ = {H_θ θ <= h_θ} and Z = {F x + G u <= 1} removed, on raw
+    (not yet validated) data, so that a problem with 100,000 redundant rows is reduced *before* the
+    validation LPs run on it. Returns the changed arrays (keys H_w, H_theta, h_theta, F, G; a set that
+    did not change, or whose data are malformed, is left out: the validation reports it) and one note
+    per reduced set. Rows keep their order."""
+    changes: dict[str, Any] = {}
+    notes: list[str] = []
+    W = _as_rows(H_w)
+    if W is not None:
+        keep = nonredundant_rows(W, np.ones(len(W)), np.zeros(W.shape[1]))
+        if len(keep) < len(W):
+            changes["H_w"] = W[keep]
+            notes.append(_note("W", len(W), keep))
+    Ht, ht = _as_rows(H_theta), _as_rows(np.reshape(h_theta, (-1, 1)) if np.ndim(h_theta) == 1 else None)
+    if Ht is not None and ht is not None and len(ht) == len(Ht):
+        ht = ht[:, 0]
+        centre, radius = polytope.chebyshev_center(Ht, ht)
+        if np.isfinite(radius) and radius > 0:
+            keep = nonredundant_rows(Ht, ht, centre)
+            if len(keep) < len(Ht):
+                changes.update(H_theta=Ht[keep], h_theta=ht[keep])
+                notes.append(_note("Theta", len(Ht), keep))
+    Fa, Ga = _as_rows(F), _as_rows(G)
+    if Fa is not None and Ga is not None and len(Fa) == len(Ga):
+        FG = np.hstack([Fa, Ga])
+        if not np.any(np.all(FG == 0, axis=1)):
+            keep = nonredundant_rows(FG, np.ones(len(FG)), np.zeros(FG.shape[1]))
+            if len(keep) < len(FG):
+                changes.update(F=Fa[keep], G=Ga[keep])
+                notes.append(_note("Z", len(FG), keep))
+    return changes, notes
+
+
+def remove_redundant_rows(problem) -> tuple[Any, list[str]]:
+    """``problem`` (a :class:`~amcp_drake.problem.Problem`) with the redundant rows of W.H, Θ and Z
+    removed (:func:`reduce_rows`), and the notes; the same object when nothing was redundant."""
+    changes, notes = reduce_rows(problem.H_w, problem.H_theta, problem.h_theta, problem.F, problem.G)
+    return (problem.with_changes(**changes) if changes else problem), notes
+
+
+__all__ = ["BYTES_PER_NONZERO", "BYTES_PER_RECORDED_NUMBER", "DEFAULT_MAX_MEMORY_MB", "SizeEstimate",
+           "check_run_size", "estimate_for", "estimate_run_size", "max_vertices", "nonredundant_rows",
+           "reduce_rows", "remove_redundant_rows"]
