@@ -43,6 +43,9 @@ from scipy.spatial import ConvexHull, QhullError
 from . import polytope
 from .errors import ProblemError
 
+#: Most closed-loop steps of one run (``--steps``, ``scenario.steps``): at ~20 ms per step of Example 1
+#: that is over half an hour, and the recorded trajectory is held in memory; longer studies are split.
+MAX_STEPS = 100_000
 #: Default limit of the estimated memory of a run, in MiB (the shared machines have 23 GB; Example 1
 #: with N = 10 and 50 steps is estimated at a few MB). Raised with ``--max-memory``.
 DEFAULT_MAX_MEMORY_MB = 2048
@@ -251,6 +254,6 @@ def remove_redundant_rows(problem) -> tuple[Any, list[str]]:
     return (problem.with_changes(**changes) if changes else problem), notes
 
 
-__all__ = ["BYTES_PER_NONZERO", "BYTES_PER_RECORDED_NUMBER", "DEFAULT_MAX_MEMORY_MB", "SizeEstimate",
+__all__ = ["MAX_STEPS", "BYTES_PER_NONZERO", "BYTES_PER_RECORDED_NUMBER", "DEFAULT_MAX_MEMORY_MB", "SizeEstimate",
            "check_run_size", "estimate_for", "estimate_run_size", "max_vertices", "nonredundant_rows",
            "reduce_rows", "remove_redundant_rows"]

@@ -214,7 +214,7 @@ def _bad_inputs(tmp: Path, saved: dict) -> dict[str, tuple[list[str], str]]:
     traj = str(saved["path"])
     return {
         "missing-trajectory": (["--trajectory", str(tmp / "nope.json.gz")], "cannot be read"),
-        "malformed-json": (["--trajectory", str(malformed)], "cannot be read as JSON"),
+        "malformed-json": (["--trajectory", str(malformed)], "expected valid JSON"),
         "not-a-trajectory": (["--trajectory", str(not_traj)], "not a trajectory file"),
         "bad-record-shape": (["--trajectory", str(shape_file)], r"records\[1\]\.Lambda has shape"),
         "trajectory-of-other-problem": ([str(other_file), "--trajectory", traj], "different problem"),

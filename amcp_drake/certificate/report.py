@@ -10,15 +10,24 @@ place with ``os.replace`` (atomic per file, same filesystem), and once that comm
 is completed even on Ctrl-C. A failure or interrupt before the commit removes the staging
 directory and leaves ``out_dir`` as it was (a directory created for this call is removed again).
 Other files in ``out_dir`` (e.g. ``compare.json`` of ``amcp compare``) are left alone.
+
+A process killed while writing (SIGKILL: no handler runs) leaves its ``.certify-staging-<hex>``
+behind. Each staging directory holds a lock file (``fcntl.flock``) for as long as its writer lives; the
+kernel releases the lock when the process dies, so :func:`remove_stale_staging` (called by ``amcp
+certify`` before it starts and by :func:`write_outputs`) removes exactly the staging directories whose
+writer is gone, and never one that a concurrent ``amcp certify`` into the same folder is writing.
 """
 
 from __future__ import annotations
 
 import base64
+import fcntl
 import io
 import json
 import os
+import re
 import shutil
+import time
 import uuid
 from pathlib import Path
 from typing import Any
@@ -26,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from amcp_drake.certificate.certify import Certificate, claim_to_dict
-from amcp_drake.model.errors import ProblemError
+from amcp_drake.model.problem_io import check_output_dir
 from amcp_drake.online.simulate import Trajectory
 
 CERTIFICATE_FILE = "certificate.json"
@@ -51,13 +60,52 @@ PLOTS = (
 )
 
 
+#: Name of the staging directories (``.certify-staging-`` + 32 hex digits) and of their lock file.
+STAGING_PATTERN = re.compile(r"\.certify-staging-[0-9a-f]{32}")
+STAGING_LOCK = ".lock"
+#: A staging directory without a lock file is removed only when older than this (it may have been
+#: created a moment ago by a writer that has not yet taken its lock).
+STAGING_UNLOCKED_GRACE_S = 60.0
+
+
 # -- output directory ------------------------------------------------------------------------------
 def check_out_dir(out_dir: str | os.PathLike) -> Path:
-    """Refuse an output path that exists but is not a directory. Raises ProblemError (exit code 2)."""
+    """Refuse an output path that is empty, exists but is not a directory, lies below a file or cannot
+    be written (e.g. in /proc). Raises ProblemError (exit code 2)."""
+    return check_output_dir("--out", out_dir)
+
+
+def remove_stale_staging(out_dir: str | os.PathLike) -> list[Path]:
+    """Remove the ``.certify-staging-<hex>`` directories in ``out_dir`` left by killed writers (their
+    lock is free); return the removed paths."""
     out = Path(out_dir)
-    if (out.exists() or out.is_symlink()) and not out.is_dir():
-        raise ProblemError("--out", "a directory (new or existing)", f"{out} is a file")
-    return out
+    removed: list[Path] = []
+    if not out.is_dir():
+        return removed
+    for entry in out.iterdir():
+        if not (STAGING_PATTERN.fullmatch(entry.name) and entry.is_dir() and not entry.is_symlink()):
+            continue
+        lock_path = entry / STAGING_LOCK
+        try:
+            handle = open(lock_path, "rb")
+        except FileNotFoundError:
+            if time.time() - entry.stat().st_mtime < STAGING_UNLOCKED_GRACE_S:
+                continue
+            handle = None
+        except OSError:
+            continue
+        try:
+            if handle is not None:
+                try:
+                    fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except BlockingIOError:
+                    continue  # a live writer holds it
+            shutil.rmtree(entry, ignore_errors=True)
+            removed.append(entry)
+        finally:
+            if handle is not None:
+                handle.close()
+    return removed
 
 
 def write_outputs(out_dir: str | os.PathLike, traj: Trajectory, cert: Certificate) -> Path:
@@ -65,18 +113,25 @@ def write_outputs(out_dir: str | os.PathLike, traj: Trajectory, cert: Certificat
     out = check_out_dir(out_dir)
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
+    remove_stale_staging(out)
     staging = out / f".certify-staging-{uuid.uuid4().hex}"
     staging.mkdir()
+    lock = open(staging / STAGING_LOCK, "wb")
+    fcntl.flock(lock, fcntl.LOCK_EX)  # held until this process ends or the staging directory is gone
     try:
         (staging / CERTIFICATE_FILE).write_text(json.dumps(cert.to_dict(), indent=1, allow_nan=False))
         (staging / REPORT_FILE).write_text(render_report(traj, cert), encoding="utf-8")
         traj.save(staging / TRAJECTORY_FILE)
     except BaseException:
+        lock.close()
         shutil.rmtree(staging, ignore_errors=True)
         if created:
             shutil.rmtree(out, ignore_errors=True)
         raise
-    _commit(staging, out)
+    try:
+        _commit(staging, out)
+    finally:
+        lock.close()
     return out
 
 

@@ -6,30 +6,26 @@ import sys
 
 import click
 
-from amcp_drake.cli.common import (
-    EXIT_FAIL,
-    EXIT_OK,
-    backend_option,
-    bad_input_exits_2,
-    example_option,
-    load_problem_spec,
-    problem_argument,
-)
+from amcp_drake.cli.common import (EXIT_FAIL, EXIT_OK, MAX_SEEDS, backend_option, bad_input_exits_2, check_run_size,
+                         example_option, load_problem_spec, max_memory_option, problem_argument, steps_option)
 
 
 @click.command("baseline")
 @problem_argument
 @example_option
 @backend_option
-@click.option("--seeds", type=int, default=20, show_default=True, help="Number of disturbance seeds (0..seeds-1).")
-@click.option("--steps", type=int, default=None, help="Steps per run (default: the problem's scenario).")
+@click.option("--seeds", type=click.IntRange(1, MAX_SEEDS), default=20, show_default=True,
+              help="Number of disturbance seeds (0..seeds-1).")
+@steps_option("Steps per run (default: the problem's scenario).")
 @click.option("--update", type=click.Choice(["fixed", "exact", "window"]), default="fixed", show_default=True,
               help="Set update of the adaptive controller.")
 @click.option("--formulation", type=click.Choice(["plain", "vertex"]), default="vertex", show_default=True,
               help="Tube QP formulation (vertex: same optimum, faster).")
-@click.option("--grid", type=int, default=None, help="Grid points per axis for the feasible region (default 31).")
+@click.option("--grid", type=click.IntRange(2, 401), default=None,
+              help="Grid points per axis for the feasible region (default 31).")
+@max_memory_option
 @bad_input_exits_2
-def baseline_cmd(problem_file, example, backend, seeds, steps, update, formulation, grid):
+def baseline_cmd(problem_file, example, backend, seeds, steps, update, formulation, grid, max_memory):
     """Closed-loop cost, tube size and feasible region of x0: adaptive vs robust, over many seeds."""
     import numpy as np
 
@@ -41,6 +37,9 @@ def baseline_cmd(problem_file, example, backend, seeds, steps, update, formulati
     if spec.problem.n != 2:
         raise ProblemError("problem", "a problem with n = 2 (the feasible region is gridded in the plane)",
                            f"n = {spec.problem.n}")
+    if spec.scenario is None:
+        raise ProblemError("scenario", "a scenario in the problem file (x0, theta_star)", "none")
+    check_run_size(spec, spec.scenario.steps if steps is None else steps, None, max_memory)
     d = design(spec.problem, spec.design, backend=backend)
     res = run_baseline(spec, d, seeds=seeds, steps=steps, backend=backend, formulation=formulation, update=update,
                        grid=grid or DEFAULT_GRID)

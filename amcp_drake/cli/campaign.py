@@ -7,7 +7,7 @@ import sys
 
 import click
 
-from amcp_drake.cli.common import EXIT_FAIL, EXIT_OK, bad_input_exits_2
+from amcp_drake.cli.common import EXIT_FAIL, EXIT_OK, bad_input_exits_2, output_file_callback, store_path_callback
 
 
 def summary_text(store) -> str:
@@ -59,10 +59,11 @@ def report_html(store) -> str:
 @click.option("--scheduler", default=None, help="Address of an existing Dask scheduler (tcp://host:port).")
 @click.option("--workers", type=click.IntRange(min=1), default=2, show_default=True, help="LocalCluster workers.")
 @click.option("--store", "store_path", default="amcp-campaign.sqlite", show_default=True, type=click.Path(),
+              callback=store_path_callback,
               help="SQLite store, written as each problem finishes.")
 @click.option("--steps", type=click.IntRange(min=2), default=15, show_default=True, help="Closed-loop steps per problem.")
 @click.option("--resume", is_flag=True, help="Continue an interrupted campaign (stored problems are skipped).")
-@click.option("--report", "report_file", default=None, type=click.Path(),
+@click.option("--report", "report_file", default=None, type=click.Path(), callback=output_file_callback,
               help="Only render the store as HTML to this file (no run).")
 @bad_input_exits_2
 def campaign_cmd(systems, backends, seed, scheduler, workers, store_path, steps, resume, report_file):

@@ -13,19 +13,10 @@ import sys
 
 import click
 
-from amcp_drake.cli.common import (
-    EXIT_FAIL,
-    EXIT_OK,
-    backend_option,
-    bad_input_exits_2,
-    example_option,
-    formulation_option,
-    load_problem_spec,
-    problem_argument,
-    resolve_online,
-    section4_options,
-    update_options,
-)
+from amcp_drake.cli.common import (EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, check_run_size, example_option,
+                         formulation_option, load_problem_spec, max_memory_option, output_dir_callback,
+                         problem_argument, resolve_online, section4_options, seed_option, steps_option,
+                         update_options)
 
 
 @click.command("certify")
@@ -33,20 +24,19 @@ from amcp_drake.cli.common import (
 @example_option
 @backend_option
 @formulation_option
-@click.option("--steps", type=click.IntRange(min=1), default=None,
-              help="Closed-loop steps (default: the scenario's; 50 for Example 1).")
-@click.option("--seed", type=click.IntRange(min=0), default=None,
-              help="Seed of the disturbance sequence (default: the scenario's; 0 for Example 1).")
-@click.option("--out", "out_dir", default="amcp-out", show_default=True, type=click.Path(),
+@steps_option("Closed-loop steps (default: the scenario's; 50 for Example 1).")
+@seed_option("Seed of the disturbance sequence (default: the scenario's; 0 for Example 1).")
+@click.option("--out", "out_dir", default="amcp-out", show_default=True, type=click.Path(), callback=output_dir_callback,
               help="Output directory (its other files are left alone).")
 @click.option("--trajectory", "trajectory_file", default=None, type=click.Path(),
               help="Re-check a saved trajectory (.json or .json.gz) instead of running the loop.")
 @update_options
 @section4_options
+@max_memory_option
 @click.pass_context
 @bad_input_exits_2
 def certify_cmd(ctx, problem_file, example, backend, formulation, steps, seed, out_dir, trajectory_file, update,
-                window, projection, d_theta, pe_window, pe_level, cost):
+                window, projection, d_theta, pe_window, pe_level, cost, max_memory):
     """Run the adaptive MPC on PROBLEM (default: --example lorenzen2019, x0 = [2, 3],
     θ* = [0.8, 0.2, -0.5], 50 steps, uniform disturbance, seed 0), check every claim of the paper
     from the recorded data with numpy/scipy only, and write certificate.json, report.html and
@@ -55,16 +45,16 @@ def certify_cmd(ctx, problem_file, example, backend, formulation, steps, seed, o
     Exit code 0: every claim holds; 1: a claim failed or could not be checked (the bundle is
     still written); 2: bad input (nothing is written). See docs/certificate.md."""
     from amcp_drake.certificate.certify import certify
-    from amcp_drake.certificate.report import check_out_dir, write_outputs
     from amcp_drake.model.errors import ProblemError
+    from amcp_drake.certificate.report import check_out_dir, remove_stale_staging, write_outputs
 
-    check_out_dir(out_dir)
+    remove_stale_staging(check_out_dir(out_dir))
     if trajectory_file is not None:
         from click.core import ParameterSource
 
         given = [f"--{name.replace('_', '-')}" for name in ("backend", "steps", "seed", "update", "window",
                                                                   "projection", "d_theta", "pe_window",
-                                                                  "pe_level", "cost")
+                                                                  "pe_level", "cost", "max_memory")
                  if ctx.get_parameter_source(name) is ParameterSource.COMMANDLINE]
         if given:
             raise ProblemError(", ".join(given), "no run options together with --trajectory (the run is not repeated)",
@@ -76,9 +66,11 @@ def certify_cmd(ctx, problem_file, example, backend, formulation, steps, seed, o
             raise ProblemError("scenario", "a scenario (x0, theta_star, ...) in the problem file to run", "none",
                                "Add a \"scenario\" object, or pass --trajectory.")
         sc = spec.scenario
-        traj = _run(spec, backend, steps or sc.steps, sc.seed if seed is None else seed, formulation,
-                    resolve_online(spec, update=update, window=window, projection=projection, d_theta=d_theta,
-                                   pe_window=pe_window, pe_level=pe_level, cost=cost))
+        steps = sc.steps if steps is None else steps
+        options = resolve_online(spec, update=update, window=window, projection=projection, d_theta=d_theta,
+                                 pe_window=pe_window, pe_level=pe_level, cost=cost)
+        check_run_size(spec, steps, options, max_memory)
+        traj = _run(spec, backend, steps, sc.seed if seed is None else seed, formulation, options)
         if traj.stop_reason.startswith("inconsistent"):
             click.echo(f"warning: the run stopped: {traj.stop_reason}; certifying the partial trajectory", err=True)
     cert = certify(traj, spec)

@@ -4,25 +4,83 @@ from __future__ import annotations
 
 import functools
 import sys
-from collections.abc import Callable
+from pathlib import Path
+from typing import Callable
 
 import click
 
 from amcp_drake.model.errors import AmcpError, BackendNotFound, ProblemError, TrajectoryError
+from amcp_drake.model.limits import DEFAULT_MAX_MEMORY_MB, MAX_STEPS
+from amcp_drake.model.problem_io import check_output_dir, check_output_file, check_store_path
 
 EXIT_OK, EXIT_FAIL, EXIT_BAD_INPUT = 0, 1, 2
+#: Largest seed: seeds are stored as signed 64-bit integers (campaign store, trajectory meta).
+MAX_SEED = 2**63 - 1
+#: Most disturbance seeds of one ``amcp baseline`` / ``pe-figure`` (each seed is two full runs).
+MAX_SEEDS = 10_000
 
 
 def load_problem_spec(problem_file: str | None, example: str | None):
-    """The ProblemSpec named by a PROBLEM argument or ``--example`` (default: lorenzen2019)."""
+    """The ProblemSpec named by a PROBLEM argument or ``--example`` (default: lorenzen2019); what
+    loading changed (``spec.notes``, e.g. redundant rows removed) is printed to stderr."""
     from amcp_drake.model.examples import get_example
     from amcp_drake.model.problem_io import load_spec
 
     if problem_file and example:
         raise ProblemError("PROBLEM, --example", "one of them", "both")
-    if problem_file:
-        return load_spec(problem_file)
-    return get_example(example or "lorenzen2019")
+    if problem_file is not None and not str(problem_file).strip():
+        raise ProblemError("PROBLEM", "the path of a problem file", "an empty string")
+    spec = load_spec(problem_file) if problem_file else get_example(example or "lorenzen2019")
+    for note in spec.notes:
+        click.echo(f"note: {note}", err=True)
+    return spec
+
+
+def check_run_size(spec, steps: int, online=None, max_memory_mb: float = DEFAULT_MAX_MEMORY_MB):
+    """Refuse a run whose estimated size exceeds ``--max-memory`` before anything is built
+    (:func:`amcp_drake.model.limits.check_run_size`); returns the estimate."""
+    from amcp_drake.model.limits import check_run_size as check
+
+    return check(spec.problem, spec.design, steps, online if online is not None else spec.online, max_memory_mb)
+
+
+# -- output paths (checked as soon as the option is parsed) ----------------------------------------
+def _callback(check: Callable[[str, str], Path]) -> Callable:
+    def callback(ctx: click.Context, param: click.Parameter, value):
+        if value is None:
+            return None
+        try:
+            check(param.opts[0], value)
+        except ProblemError as exc:
+            raise click.BadParameter(f"expected {exc.expected}; received {exc.received}") from None
+        return value
+
+    return callback
+
+
+#: click callbacks: the option is checked as soon as it is parsed (exit 2, click's "Invalid value for '--out'").
+output_dir_callback = _callback(check_output_dir)
+output_file_callback = _callback(check_output_file)
+store_path_callback = _callback(check_store_path)
+
+
+def steps_option(help_text: str, default=None, minimum: int = 1, show_default: bool = False):
+    """``--steps`` between ``minimum`` and :data:`~amcp_drake.model.limits.MAX_STEPS` (``--steps 0`` is refused,
+    never read as "the default")."""
+    return click.option("--steps", type=click.IntRange(minimum, MAX_STEPS), default=default, show_default=show_default,
+                        help=help_text)
+
+
+def seed_option(help_text: str, default=None, show_default: bool = False):
+    """``--seed`` between 0 and :data:`MAX_SEED`."""
+    return click.option("--seed", type=click.IntRange(0, MAX_SEED), default=default, show_default=show_default,
+                        help=help_text)
+
+
+max_memory_option = click.option(
+    "--max-memory", "max_memory", type=click.FloatRange(min=1.0), default=DEFAULT_MAX_MEMORY_MB, show_default=True,
+    help="Refuse a run whose estimated size (tube QP nonzeros, recorded steps; docs/problem-format.md, "
+         "'Size limits') exceeds this many MiB, before anything is built.")
 
 
 def bad_input_exits_2(func: Callable) -> Callable:

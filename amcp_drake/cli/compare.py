@@ -7,37 +7,30 @@ from collections import defaultdict
 
 import click
 
-from amcp_drake.cli.common import (
-    EXIT_FAIL,
-    EXIT_OK,
-    bad_input_exits_2,
-    example_option,
-    formulation_option,
-    load_problem_spec,
-    problem_argument,
-    resolve_online,
-    section4_options,
-    update_options,
-)
+from amcp_drake.cli.common import (EXIT_FAIL, EXIT_OK, bad_input_exits_2, check_run_size, example_option, formulation_option,
+                         load_problem_spec, max_memory_option, output_file_callback, problem_argument, resolve_online,
+                         section4_options, seed_option, steps_option, update_options)
 
 
 @click.command("compare")
 @problem_argument
 @example_option
-@click.option("--steps", type=int, default=None, help="Steps (default: the scenario's).")
-@click.option("--seed", type=int, default=None, help="Disturbance seed (default: the scenario's).")
+@steps_option("Steps (default: the scenario's).")
+@seed_option("Disturbance seed (default: the scenario's).")
 @click.option("--mode", type=click.Choice(["lockstep", "independent"]), default="lockstep", show_default=True)
 @click.option("--drake-solver", default="clarabel", show_default=True, help="Drake solver (clarabel, osqp, scs, ...).")
 @click.option("--cvxpy-solver", default="CLARABEL", show_default=True, help="cvxpy solver (CLARABEL, OSQP, SCS, ...).")
 @update_options
 @section4_options
 @click.option("--out", "out_file", type=click.Path(), default="amcp-out/compare.json", show_default=True,
+              callback=output_file_callback,
               help="JSON file with every difference.")
 @formulation_option
 @click.option("--quiet", is_flag=True, help="Only the summary, no per-step table.")
+@max_memory_option
 @bad_input_exits_2
 def compare_cmd(problem_file, example, steps, seed, mode, drake_solver, cvxpy_solver, update, window, projection,
-                d_theta, pe_window, pe_level, cost, out_file, formulation, quiet):
+                d_theta, pe_window, pe_level, cost, out_file, formulation, quiet, max_memory):
     """Compare u, v, cost, h_theta and theta_hat (and report z, alpha) of both backends per step."""
     from amcp_drake.comparison.compare import INFORMATIONAL, TOLERANCES, independent, lockstep
     from amcp_drake.model.errors import ProblemError
@@ -46,10 +39,11 @@ def compare_cmd(problem_file, example, steps, seed, mode, drake_solver, cvxpy_so
     spec = load_problem_spec(problem_file, example)
     if spec.scenario is None:
         raise ProblemError("scenario", "a scenario in the problem file (x0, theta_star)", "none")
-    steps = steps or spec.scenario.steps
+    steps = spec.scenario.steps if steps is None else steps
     seed = spec.scenario.seed if seed is None else seed
     options = resolve_online(spec, update=update, window=window, projection=projection, d_theta=d_theta,
                              pe_window=pe_window, pe_level=pe_level, cost=cost)
+    check_run_size(spec, steps, options, max_memory)
     backend_options = ({"solver": drake_solver, "formulation": formulation},
                        {"solver": cvxpy_solver, "formulation": formulation})
     run = lockstep if mode == "lockstep" else independent

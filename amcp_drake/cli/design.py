@@ -8,15 +8,8 @@ import sys
 import click
 import numpy as np
 
-from amcp_drake.cli.common import (
-    EXIT_FAIL,
-    EXIT_OK,
-    backend_option,
-    bad_input_exits_2,
-    example_option,
-    load_problem_spec,
-    problem_argument,
-)
+from amcp_drake.cli.common import (EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, check_run_size, example_option,
+                         load_problem_spec, max_memory_option, problem_argument)
 
 
 def _fmt(a) -> str:
@@ -28,14 +21,16 @@ def _fmt(a) -> str:
 @example_option
 @backend_option
 @click.option("--json", "as_json", is_flag=True, help="Print the design and checks as JSON.")
+@max_memory_option
 @bad_input_exits_2
-def design_cmd(problem_file, example, backend, as_json):
+def design_cmd(problem_file, example, backend, as_json, max_memory):
     """Compute K, P, X0, w_bar, f_bar, Xf and mu (spec §4-§6) and verify them independently."""
     from amcp_drake.offline.checks import verify_design
     from amcp_drake.offline.design import design
 
     spec = load_problem_spec(problem_file, example)
     pr = spec.problem
+    check_run_size(spec, 1, None, max_memory)  # the design builds the tube QP's sets, not a run
     d = design(pr, spec.design, backend=backend)
     checks = verify_design(pr, d, spec.design.mu_state_bound)
     ok = all(c.passed for c in checks)

@@ -6,31 +6,28 @@ import sys
 
 import click
 
-from amcp_drake.cli.common import (
-    EXIT_FAIL,
-    EXIT_OK,
-    backend_option,
-    bad_input_exits_2,
-    example_option,
-    load_problem_spec,
-    problem_argument,
-)
+from amcp_drake.cli.common import (EXIT_FAIL, EXIT_OK, MAX_SEEDS, backend_option, bad_input_exits_2, check_run_size,
+                         example_option, load_problem_spec, max_memory_option, output_dir_callback, problem_argument,
+                         steps_option)
 
 
 @click.command("pe-figure")
 @problem_argument
 @example_option
 @backend_option
-@click.option("--seeds", type=click.IntRange(min=1), default=5, show_default=True, help="Disturbance seeds 0..seeds-1.")
-@click.option("--steps", type=click.IntRange(min=2), default=500, show_default=True)
+@click.option("--seeds", type=click.IntRange(1, MAX_SEEDS), default=5, show_default=True,
+              help="Disturbance seeds 0..seeds-1.")
+@steps_option("Closed-loop steps per run.", default=500, minimum=2, show_default=True)
 @click.option("--update", type=click.Choice(["exact", "window", "fixed"]), default="exact", show_default=True,
               help="Set update: (7) (Proposition 23's setting), (9) over a moving window, or (9).")
 @click.option("--pe-window", type=click.IntRange(min=1), default=10, show_default=True, help="PE window P.")
 @click.option("--pe-level", type=click.FloatRange(min=0.0, min_open=True), default=1.0, show_default=True,
               help="PE level ρ.")
-@click.option("--out", "out_dir", default="amcp-out", show_default=True, type=click.Path(file_okay=False))
+@click.option("--out", "out_dir", default="amcp-out", show_default=True, type=click.Path(file_okay=False),
+              callback=output_dir_callback)
+@max_memory_option
 @bad_input_exits_2
-def pe_figure_cmd(problem_file, example, backend, seeds, steps, update, pe_window, pe_level, out_dir):
+def pe_figure_cmd(problem_file, example, backend, seeds, steps, update, pe_window, pe_level, out_dir, max_memory):
     """Write pe_diameter.png and pe_diameter.json: diam Θ_k vs k with and without PE (Proposition 23).
 
     Exit code 0 when every run completed, 1 otherwise (the figure is still written)."""
@@ -38,6 +35,7 @@ def pe_figure_cmd(problem_file, example, backend, seeds, steps, update, pe_windo
     from amcp_drake.studies.pe_figure import run_pe_figure, write_pe_figure
 
     spec = load_problem_spec(problem_file, example)
+    check_run_size(spec, steps, None, max_memory)
     d = design(spec.problem, spec.design, backend=backend)
 
     def progress(label, seed):

@@ -7,19 +7,10 @@ import sys
 import click
 import numpy as np
 
-from amcp_drake.cli.common import (
-    EXIT_FAIL,
-    EXIT_OK,
-    backend_option,
-    bad_input_exits_2,
-    example_option,
-    formulation_option,
-    load_problem_spec,
-    problem_argument,
-    resolve_online,
-    section4_options,
-    update_options,
-)
+from amcp_drake.cli.common import (EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, check_run_size, example_option,
+                         formulation_option, load_problem_spec, max_memory_option, output_file_callback,
+                         problem_argument, resolve_online, section4_options, seed_option, steps_option,
+                         update_options)
 
 
 @click.command("run")
@@ -27,16 +18,18 @@ from amcp_drake.cli.common import (
 @example_option
 @backend_option
 @formulation_option
-@click.option("--steps", type=int, default=None, help="Number of steps (default: the problem's scenario).")
-@click.option("--seed", type=int, default=None, help="Disturbance seed (default: the scenario's).")
+@steps_option("Number of steps (default: the problem's scenario).")
+@seed_option("Disturbance seed (default: the scenario's).")
 @click.option("--disturbance", type=click.Choice(["uniform", "vertices", "zero"]), default=None)
 @update_options
 @section4_options
-@click.option("--every", type=int, default=1, show_default=True, help="Print every n-th step.")
-@click.option("--save", type=click.Path(), default=None, help="Save the trajectory (JSON, .gz allowed).")
+@click.option("--every", type=click.IntRange(min=1), default=1, show_default=True, help="Print every n-th step.")
+@click.option("--save", type=click.Path(), default=None, callback=output_file_callback,
+              help="Save the trajectory (JSON, .gz allowed).")
+@max_memory_option
 @bad_input_exits_2
 def run_cmd(problem_file, example, backend, formulation, steps, seed, disturbance, update, window, projection, d_theta,
-            pe_window, pe_level, cost, every, save):
+            pe_window, pe_level, cost, every, save, max_memory):
     """Design, then run the adaptive MPC closed loop and print one line per step."""
     from amcp_drake.cli.summary import format_table, step_table
     from amcp_drake.model.errors import ProblemError
@@ -49,12 +42,14 @@ def run_cmd(problem_file, example, backend, formulation, steps, seed, disturbanc
     if sc is None:
         raise ProblemError("scenario", "a scenario in the problem file (x0, theta_star)", "none")
     pr = spec.problem
-    d = design(pr, spec.design, backend=backend)
+    steps = sc.steps if steps is None else steps
     options = resolve_online(spec, update=update, window=window, projection=projection, d_theta=d_theta,
                              pe_window=pe_window, pe_level=pe_level, cost=cost)
+    check_run_size(spec, steps, options, max_memory)
+    d = design(pr, spec.design, backend=backend)
     update = options.update
     ctrl = AdaptiveMPC(pr, d, backend=backend, options=options, formulation=formulation)
-    traj = simulate(ctrl, sc.x0, sc.theta_star_for(steps or sc.steps), steps or sc.steps, disturbance or sc.disturbance,
+    traj = simulate(ctrl, sc.x0, sc.theta_star_for(steps), steps, disturbance or sc.disturbance,
                     seed=sc.seed if seed is None else seed, progress=False, mu_state_bound=spec.design.mu_state_bound)
     theta_text = (f"theta*_k sequence from {traj.theta_star_at(0).tolist()} (max step {sc.max_theta_rate():.3g})"
                   if sc.time_varying else f"theta* = {np.asarray(sc.theta_star).tolist()}")

@@ -307,6 +307,74 @@ def save_spec(spec: ProblemSpec, path: str | os.PathLike) -> Path:
     return write_json_atomic(spec_to_dict(spec), path)
 
 
+# -- output paths ------------------------------------------------------------------------------------
+# -- output paths ------------------------------------------------------------------------------
+def _nearest_existing(path: Path) -> Path:
+    probe = path
+    while not (probe.exists() or probe.is_symlink()):
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    return probe
+
+
+def _require_writable_dir(option: str, given: str, folder: Path) -> None:
+    """Create and remove a probe directory in ``folder`` (the only reliable test: root passes
+    ``os.access`` everywhere, yet cannot create files in /proc or on a read-only mount)."""
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".amcp-write-probe-", dir=folder))
+    except OSError as exc:
+        raise ProblemError(option, "a path in a writable directory",
+                           f"{given!r}: cannot create files in {folder} ({exc.strerror or exc})") from None
+
+
+def check_output_dir(option: str, path: str | os.PathLike | None) -> Path:
+    """A usable output directory for ``option``: not empty, not a file, not below a file, writable
+    (existing or to be created). Raises ProblemError (exit 2) before anything is computed."""
+    given = "" if path is None else str(path)
+    if not given.strip():
+        raise ProblemError(option, "a directory path", "an empty string (it would write into the current directory)")
+    out = Path(given)
+    if (out.exists() or out.is_symlink()) and not out.is_dir():
+        raise ProblemError(option, "a directory (new or existing)", f"{given!r} is a file")
+    base = _nearest_existing(out)
+    if not base.is_dir():
+        raise ProblemError(option, "a directory path (new or existing)", f"{given!r} lies below the file {base}")
+    _require_writable_dir(option, given, base)
+    return out
+
+
+def check_output_file(option: str, path: str | os.PathLike | None) -> Path:
+    """A usable output file path for ``option``: not empty, not a directory, its folder writable."""
+    given = "" if path is None else str(path)
+    if not given.strip():
+        raise ProblemError(option, "a file path", "an empty string")
+    out = Path(given)
+    if out.is_dir():
+        raise ProblemError(option, "a file path", f"{given!r} is a directory")
+    base = _nearest_existing(out.parent)
+    if not base.is_dir():
+        raise ProblemError(option, "a file path (its folder new or existing)", f"{given!r} lies below the file {base}")
+    _require_writable_dir(option, given, base)
+    return out
+
+
+def check_store_path(option: str, path: str | os.PathLike | None) -> Path:
+    """A campaign store path: not empty, not a directory, not below a file (SQLite opens or creates it;
+    whether its content is a store is the campaign's check)."""
+    given = "" if path is None else str(path)
+    if not given.strip():
+        raise ProblemError(option, "the path of a SQLite store file", "an empty string")
+    out = Path(given)
+    if out.is_dir():
+        raise ProblemError(option, "the path of a SQLite store file", f"{given!r} is a directory")
+    base = _nearest_existing(out.parent)
+    if not base.is_dir():
+        raise ProblemError(option, "the path of a SQLite store file", f"{given!r} lies below the file {base}")
+    return out
+
+
+
 def write_json_atomic(data: Any, path: str | os.PathLike) -> Path:
     """Write JSON to ``path`` through a temporary file in the same folder and a rename."""
     return write_text_atomic(json.dumps(data, indent=1, allow_nan=False), path)
@@ -332,6 +400,6 @@ def write_text_atomic(text: str, path: str | os.PathLike) -> Path:
 
 
 __all__ = ["load_spec", "load_problem", "save_spec", "spec_from_dict", "spec_to_dict", "options_from_dict",
-           "problem_schema", "validate_layout",
+           "problem_schema", "validate_layout", "check_output_dir", "check_output_file", "check_store_path",
            "options_to_dict", "write_json_atomic",
            "write_text_atomic", "ProblemError"]

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import gzip
 import json
+import os
+import tempfile
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -17,16 +19,24 @@ from typing import Any
 import numpy as np
 
 from amcp_drake.model import polytope
-from amcp_drake.model.errors import InconsistentDataError, ProblemError, TrajectoryError
-from amcp_drake.model.options import OnlineOptions
-from amcp_drake.model.problem import DISTURBANCE_KINDS, Problem, ProblemSpec, check_theta_rate
-from amcp_drake.model.problem_io import options_from_dict, options_to_dict, spec_from_dict, spec_to_dict, write_text_atomic
-from amcp_drake.model.status import SolveStatus
-from amcp_drake.offline.design import OfflineDesign
 from amcp_drake.online.controller import AdaptiveMPC, StepRecord
+from amcp_drake.model.options import OnlineOptions
+from amcp_drake.offline.design import OfflineDesign
+from amcp_drake.model.errors import InconsistentDataError, ProblemError, TrajectoryError
+from amcp_drake.model.problem import DISTURBANCE_KINDS, Problem, check_theta_rate
+from amcp_drake.model.json_strict import decode_utf8, first_non_finite, loads_strict
+from amcp_drake.model.problem_io import options_from_dict, options_to_dict, spec_from_dict, spec_to_dict, write_text_atomic
+from amcp_drake.model.problem import ProblemSpec
+from amcp_drake.model.status import SolveStatus
 
 TRAJECTORY_FORMAT = "amcp-trajectory"
 TRAJECTORY_VERSION = 1
+#: Versions of the trajectory format this code reads; any other "version" is refused (exit 2), since
+#: a newer layout may hold data this version would silently ignore.
+SUPPORTED_TRAJECTORY_VERSIONS = (1,)
+#: Largest decompressed trajectory read (a run of MAX_STEPS steps of Example 1 is ~0.5 GB of JSON);
+#: guards against a small .gz that expands without end.
+MAX_TRAJECTORY_BYTES = 2**31
 
 
 def disturbance_sequence(problem: Problem, kind: str | np.ndarray, steps: int, seed: int = 0) -> np.ndarray:
@@ -114,47 +124,94 @@ class Trajectory:
         }
 
     def save(self, path: str | Path) -> Path:
-        """Write JSON atomically (gzip when the name ends in .gz)."""
-        text = json.dumps(self.to_dict(), allow_nan=False)
+        """Write JSON atomically (gzip when the name ends in .gz). A non-finite number anywhere is a
+        TrajectoryError naming its field (``records[10].cost``), raised before any file is opened."""
+        data = self.to_dict()
+        bad = first_non_finite(data)
+        if bad is not None:
+            raise TrajectoryError(f"{bad[0]}: expected a finite number to write the trajectory {path}; received "
+                                  f"{bad[1]} (nothing was written)")
+        text = json.dumps(data, allow_nan=False)
         path = Path(path)
         if path.suffix == ".gz":
-            tmp = path.with_name(f".{path.name}.tmp")
-            with gzip.open(tmp, "wt") as handle:
-                handle.write(text)
-            tmp.replace(path)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+            try:
+                with os.fdopen(fd, "wb") as raw, gzip.GzipFile(fileobj=raw, mode="wb") as handle:
+                    handle.write(text.encode("utf-8"))
+                os.replace(tmp, path)
+            except BaseException:
+                if os.path.exists(tmp):
+                    os.unlink(tmp)
+                raise
             return path
         return write_text_atomic(text, path)
 
     @classmethod
-    def load(cls, path: str | Path) -> Trajectory:
-        """Read a file written by :meth:`save`."""
+    def load(cls, path: str | Path) -> "Trajectory":
+        """Read a file written by :meth:`save` (gzip recognised by its magic bytes). Unreadable,
+        truncated or corrupt gzip data, non-UTF-8 text, invalid or non-strict JSON (duplicate keys, NaN)
+        and an unknown format version raise TrajectoryError naming the file or the field."""
         path = Path(path)
         try:
-            opener = gzip.open if path.suffix == ".gz" else open
-            with opener(path, "rt") as handle:
-                data = json.load(handle)
-        except (OSError, json.JSONDecodeError) as exc:
-            raise TrajectoryError(f"trajectory file {path}: cannot be read as JSON ({exc})") from None
-        return cls.from_dict(data)
+            raw = path.read_bytes()
+        except OSError as exc:
+            raise TrajectoryError(f"--trajectory: expected a readable trajectory file; received {path}, which "
+                                  f"cannot be read ({exc.strerror or exc})") from None
+        if raw[:2] == b"\x1f\x8b":
+            raw = _gunzip(raw, path)
+        text = decode_utf8(raw, str(path), TrajectoryError)
+        return cls.from_dict(loads_strict(text, str(path), TrajectoryError))
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Trajectory:
         if not isinstance(data, dict) or data.get("format") != TRAJECTORY_FORMAT:
-            raise TrajectoryError(f"not a trajectory file: format {data.get('format') if isinstance(data, dict) else None!r}, "
-                                  f"expected {TRAJECTORY_FORMAT!r}")
+            raise TrajectoryError(f"format: expected {TRAJECTORY_FORMAT!r} (not a trajectory file); received "
+                                  f"{data.get('format') if isinstance(data, dict) else type(data).__name__!r}")
+        version = data.get("version")
+        if isinstance(version, bool) or version not in SUPPORTED_TRAJECTORY_VERSIONS:
+            raise TrajectoryError(f"version: expected one of {list(SUPPORTED_TRAJECTORY_VERSIONS)} (the trajectory "
+                                  f"format versions this amcp reads); received {version!r}")
         try:
-            problem = spec_from_dict(data["problem"]).problem
+            problem = spec_from_dict(data["problem"], reduce_rows=False).problem
+        except ProblemError as exc:
+            raise TrajectoryError(f"problem.{exc}") from None
+        except KeyError:
+            raise TrajectoryError("problem: expected the recorded problem; received nothing (key missing)") from None
+        try:
             return cls(problem=problem, design=OfflineDesign.from_dict(data["design"]),
                        options=options_from_dict(data["options"]), backend=data["backend"],
                        theta_star=np.asarray(data["theta_star"], float),
                        x=np.asarray(data["x"], float).reshape(-1, problem.n),
                        u=np.asarray(data["u"], float).reshape(-1, problem.m),
                        w=np.asarray(data["w"], float).reshape(-1, problem.n),
-                       records=[_record_from_dict(r) for r in data["records"]],
+                       records=_records_from_list(data["records"]),
                        stop_reason=data.get("stop_reason", ""), mu_state_bound=data.get("mu_state_bound"),
                        meta=data.get("meta", {}))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise TrajectoryError(f"trajectory file is malformed: {exc!r}") from None
+        except KeyError as exc:
+            raise TrajectoryError(f"{exc.args[0]}: expected a value; received nothing (key missing)") from None
+        except (TypeError, ValueError, AttributeError) as exc:
+            raise TrajectoryError(f"file: expected the documented trajectory layout; received malformed data "
+                                  f"({exc})") from None
+
+
+def _gunzip(raw: bytes, path: Path) -> bytes:
+    """Decompress gzip data; truncated or corrupt data and oversized content raise TrajectoryError."""
+    import io
+    import zlib
+
+    try:
+        with gzip.GzipFile(fileobj=io.BytesIO(raw)) as handle:
+            data = handle.read(MAX_TRAJECTORY_BYTES + 1)
+    except EOFError:
+        raise TrajectoryError(f"file: expected a complete gzip file; received {path}, truncated (the compressed "
+                              "data end before the end-of-stream marker)") from None
+    except (OSError, zlib.error) as exc:
+        raise TrajectoryError(f"file: expected gzip-compressed JSON; received {path}: corrupt data ({exc})") from None
+    if len(data) > MAX_TRAJECTORY_BYTES:
+        raise TrajectoryError(f"file: expected at most {MAX_TRAJECTORY_BYTES:,} bytes of JSON after decompression; "
+                              f"received more from {path}")
+    return data
 
 
 def _record_to_dict(r: StepRecord) -> dict[str, Any]:
@@ -175,6 +232,20 @@ def _record_to_dict(r: StepRecord) -> dict[str, Any]:
 _ARRAY_FIELDS = {"x", "u", "H_theta", "h_theta", "theta_hat", "theta_tilde", "v", "z", "alpha", "Lambda", "set_Lambda",
                  "h_theta_stages"}
 _STATUS_FIELDS = {"status", "set_status", "projection_status"}
+
+
+def _records_from_list(records: Any) -> list[StepRecord]:
+    if not isinstance(records, list):
+        raise TrajectoryError(f"records: expected a list of step records; received {type(records).__name__}")
+    out = []
+    for i, r in enumerate(records):
+        try:
+            if not isinstance(r, dict):
+                raise TypeError(f"{type(r).__name__} instead of an object")
+            out.append(_record_from_dict(r))
+        except (TypeError, ValueError, KeyError) as exc:
+            raise TrajectoryError(f"records[{i}]: expected a step record; received malformed data ({exc})") from None
+    return out
 
 
 def _record_from_dict(d: dict[str, Any]) -> StepRecord:
