@@ -185,7 +185,7 @@ def decode_utf8(raw: bytes, source: str, error: type[Exception] = ProblemFileErr
     if raw.startswith(b"\xef\xbb\xbf"):
         raw = raw[3:]
     if b"\x00" in raw[:4096]:
-        guess = "UTF-16 or UTF-32 without byte-order mark" if raw[:2].count(b"\x00") == 1 else "binary data"
+        guess = _guess_nul_encoding(raw[:400])
         raise _error(error, "file", "UTF-8 encoded JSON text", f"{source} contains NUL bytes ({guess})")
     try:
         return raw.decode("utf-8")
@@ -193,6 +193,23 @@ def decode_utf8(raw: bytes, source: str, error: type[Exception] = ProblemFileErr
         raise _error(error, "file", "UTF-8 encoded JSON text",
                      f"{source}: byte 0x{raw[exc.start]:02x} at offset {exc.start} is not UTF-8 "
                      "(binary data, or a Latin-1/Windows-1252 file)") from None
+
+
+def _guess_nul_encoding(sample: bytes) -> str:
+    """Name the encoding of text with NUL bytes from their positions (ASCII text in UTF-16/32)."""
+    def zero(start: int, step: int) -> bool:
+        part = sample[start::step]
+        return len(part) >= 2 and not any(part)
+
+    if zero(1, 4) and zero(2, 4) and zero(3, 4):
+        return "UTF-32 (little-endian) without byte-order mark"
+    if zero(0, 4) and zero(1, 4) and zero(2, 4):
+        return "UTF-32 (big-endian) without byte-order mark"
+    if zero(1, 2):
+        return "UTF-16 (little-endian) without byte-order mark"
+    if zero(0, 2):
+        return "UTF-16 (big-endian) without byte-order mark"
+    return "binary data"
 
 
 def read_text_strict(path: str | os.PathLike, error: type[Exception] = ProblemFileError,

@@ -83,29 +83,27 @@ def remove_stale_staging(out_dir: str | os.PathLike) -> list[Path]:
     if not out.is_dir():
         return removed
     for entry in out.iterdir():
-        if not (STAGING_PATTERN.fullmatch(entry.name) and entry.is_dir() and not entry.is_symlink()):
-            continue
-        lock_path = entry / STAGING_LOCK
-        try:
-            handle = open(lock_path, "rb")
-        except FileNotFoundError:
-            if time.time() - entry.stat().st_mtime < STAGING_UNLOCKED_GRACE_S:
-                continue
-            handle = None
-        except OSError:
-            continue
-        try:
-            if handle is not None:
-                try:
-                    fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                except BlockingIOError:
-                    continue  # a live writer holds it
+        if STAGING_PATTERN.fullmatch(entry.name) and entry.is_dir() and not entry.is_symlink() \
+                and not _staging_in_use(entry):
             shutil.rmtree(entry, ignore_errors=True)
             removed.append(entry)
-        finally:
-            if handle is not None:
-                handle.close()
     return removed
+
+
+def _staging_in_use(staging: Path) -> bool:
+    """True when a live process holds the staging folder's lock (or, without a lock file, when the
+    folder is younger than STAGING_UNLOCKED_GRACE_S: its writer may not have taken the lock yet)."""
+    try:
+        with open(staging / STAGING_LOCK, "rb") as handle:
+            try:
+                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                return True
+            return False  # closing the file releases the lock taken here
+    except FileNotFoundError:
+        return time.time() - staging.stat().st_mtime < STAGING_UNLOCKED_GRACE_S
+    except OSError:
+        return True  # unreadable: leave it alone
 
 
 def write_outputs(out_dir: str | os.PathLike, traj: Trajectory, cert: Certificate) -> Path:
@@ -116,22 +114,18 @@ def write_outputs(out_dir: str | os.PathLike, traj: Trajectory, cert: Certificat
     remove_stale_staging(out)
     staging = out / f".certify-staging-{uuid.uuid4().hex}"
     staging.mkdir()
-    lock = open(staging / STAGING_LOCK, "wb")
-    fcntl.flock(lock, fcntl.LOCK_EX)  # held until this process ends or the staging directory is gone
-    try:
-        (staging / CERTIFICATE_FILE).write_text(json.dumps(cert.to_dict(), indent=1, allow_nan=False))
-        (staging / REPORT_FILE).write_text(render_report(traj, cert), encoding="utf-8")
-        traj.save(staging / TRAJECTORY_FILE)
-    except BaseException:
-        lock.close()
-        shutil.rmtree(staging, ignore_errors=True)
-        if created:
-            shutil.rmtree(out, ignore_errors=True)
-        raise
-    try:
+    with open(staging / STAGING_LOCK, "wb") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # held while this process writes (the kernel drops it on a kill)
+        try:
+            (staging / CERTIFICATE_FILE).write_text(json.dumps(cert.to_dict(), indent=1, allow_nan=False))
+            (staging / REPORT_FILE).write_text(render_report(traj, cert), encoding="utf-8")
+            traj.save(staging / TRAJECTORY_FILE)
+        except BaseException:
+            shutil.rmtree(staging, ignore_errors=True)
+            if created:
+                shutil.rmtree(out, ignore_errors=True)
+            raise
         _commit(staging, out)
-    finally:
-        lock.close()
     return out
 
 

@@ -142,7 +142,7 @@ def _schema_error(error) -> ProblemFileError:
         fix = f"Did you mean {close[0]!r}?" if close else ""
         return ProblemFileError(json_path(path + (key,)), f"one of the keys {known}", f"unknown key {key!r}", fix)
     if kind == "required":
-        missing = [k for k in spec if k not in value][0]
+        missing = next(k for k in spec if k not in value)
         return ProblemFileError(json_path(path + (missing,)), "a value", "nothing (key missing)")
     if kind == "type":
         types = spec if isinstance(spec, list) else [spec]
@@ -168,8 +168,16 @@ def _schema_error(error) -> ProblemFileError:
 
 
 def _deepest(error):
-    """For anyOf errors, the alternative that got furthest into the value (the most specific message)."""
+    """For anyOf errors, the alternative that got furthest into the value (the most specific message);
+    when every alternative failed on the type of the value itself, one error listing the types."""
     while error.context:
+        if all(c.validator == "type" and c.absolute_path == error.absolute_path for c in error.context):
+            import copy
+
+            combined = copy.copy(error.context[0])
+            combined.validator_value = [t for c in error.context for t in
+                                        (c.validator_value if isinstance(c.validator_value, list) else [c.validator_value])]
+            return combined
         error = max(error.context, key=lambda e: (len(e.absolute_path), e.validator != "type"))
     return error
 
@@ -197,15 +205,16 @@ def spec_from_dict(data: dict, reduce_rows: bool = True) -> ProblemSpec:
     re-checked on exactly the problem it ran."""
     validate_layout(data)
     system = _get(data, "system", "")
-    raw = dict(
-        A0=_get(system, "A0", "system"), B0=_get(system, "B0", "system"),
-        A=_get(system, "A", "system"), B=_get(system, "B", "system"),
-        H_w=_get(_get(data, "W", ""), "H", "W"),
-        H_theta=_get(_get(data, "Theta", ""), "H", "Theta"), h_theta=_get(data["Theta"], "h", "Theta"),
-        F=_get(_get(data, "Z", ""), "F", "Z"), G=_get(data["Z"], "G", "Z"),
-        Q=_get(_get(data, "cost", ""), "Q", "cost"), R=_get(data["cost"], "R", "cost"), N=_get(data["cost"], "N", "cost"),
-        theta_hat0=_get(data, "theta_hat0", ""), name=data.get("name", "problem"),
-    )
+    raw = {
+        "A0": _get(system, "A0", "system"), "B0": _get(system, "B0", "system"),
+        "A": _get(system, "A", "system"), "B": _get(system, "B", "system"),
+        "H_w": _get(_get(data, "W", ""), "H", "W"),
+        "H_theta": _get(_get(data, "Theta", ""), "H", "Theta"), "h_theta": _get(data["Theta"], "h", "Theta"),
+        "F": _get(_get(data, "Z", ""), "F", "Z"), "G": _get(data["Z"], "G", "Z"),
+        "Q": _get(_get(data, "cost", ""), "Q", "cost"), "R": _get(data["cost"], "R", "cost"),
+        "N": _get(data["cost"], "N", "cost"),
+        "theta_hat0": _get(data, "theta_hat0", ""), "name": data.get("name", "problem"),
+    }
     notes: list[str] = []
     if reduce_rows and not data.get("keep_redundant_rows", False):
         from .limits import reduce_rows as reduce_redundant
@@ -399,7 +408,20 @@ def write_text_atomic(text: str, path: str | os.PathLike) -> Path:
     return path
 
 
-__all__ = ["load_spec", "load_problem", "save_spec", "spec_from_dict", "spec_to_dict", "options_from_dict",
-           "problem_schema", "validate_layout", "check_output_dir", "check_output_file", "check_store_path",
-           "options_to_dict", "write_json_atomic",
-           "write_text_atomic", "ProblemError"]
+__all__ = [
+    "ProblemError",
+    "check_output_dir",
+    "check_output_file",
+    "check_store_path",
+    "load_problem",
+    "load_spec",
+    "options_from_dict",
+    "options_to_dict",
+    "problem_schema",
+    "save_spec",
+    "spec_from_dict",
+    "spec_to_dict",
+    "validate_layout",
+    "write_json_atomic",
+    "write_text_atomic",
+]
