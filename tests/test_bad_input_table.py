@@ -386,8 +386,8 @@ def test_table_size():
 
 # -- not through the CLI: writing, and live staging folders ------------------------------------------
 def test_nan_in_a_record_is_refused_on_write_naming_the_field_and_writing_nothing(tmp_path):
-    from amcp_drake.errors import TrajectoryError
-    from amcp_drake.simulate import Trajectory
+    from amcp_drake.model.errors import TrajectoryError
+    from amcp_drake.online.simulate import Trajectory
 
     loaded = Trajectory.load(TRAJECTORY_DATA)
     loaded.records[10].cost = float("nan")
@@ -403,7 +403,7 @@ def test_staging_folder_of_a_live_writer_is_kept_and_removed_once_it_dies(tmp_pa
     import subprocess
     import sys
 
-    from amcp_drake.report import remove_stale_staging
+    from amcp_drake.certificate.report import remove_stale_staging
 
     live = tmp_path / STALE
     live.mkdir()
@@ -427,10 +427,10 @@ def test_schema_bound_equals_the_validators_bound_and_sections_match_the_datacla
     design, scenario and online (a field added to a dataclass must be added to the schema)."""
     from dataclasses import fields
 
-    from amcp_drake._validate import MAX_ABS_ENTRY
-    from amcp_drake.controller import OnlineOptions
-    from amcp_drake.problem import DesignOptions, Scenario
-    from amcp_drake.problem_io import problem_schema
+    from amcp_drake.model.options import OnlineOptions
+    from amcp_drake.model.problem import DesignOptions, Scenario
+    from amcp_drake.model.problem_io import problem_schema
+    from amcp_drake.model.validate import MAX_ABS_ENTRY
 
     schema = problem_schema()
     assert schema["$defs"]["entry"]["maximum"] == MAX_ABS_ENTRY == -schema["$defs"]["entry"]["minimum"]
@@ -443,7 +443,7 @@ def test_schema_bound_equals_the_validators_bound_and_sections_match_the_datacla
 def test_files_written_by_amcp_load_back_unchanged(tmp_path, example_spec):
     """save_spec writes keep_redundant_rows: true, so a problem with redundant rows (as the campaign
     generators draw them) is read back with the same rows; a hand-written file is reduced."""
-    from amcp_drake.problem_io import load_spec, save_spec
+    from amcp_drake.model.problem_io import load_spec, save_spec
 
     pr = example_spec.problem
     redundant = pr.with_changes(H_w=np.vstack([pr.H_w, [[1.0, 1.0]]]))

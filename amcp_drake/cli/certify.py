@@ -13,10 +13,24 @@ import sys
 
 import click
 
-from amcp_drake.cli.common import (EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, check_run_size, example_option,
-                         formulation_option, load_problem_spec, max_memory_option, output_dir_callback,
-                         problem_argument, resolve_online, section4_options, seed_option, steps_option,
-                         update_options)
+from amcp_drake.cli.common import (
+    EXIT_FAIL,
+    EXIT_OK,
+    backend_option,
+    bad_input_exits_2,
+    check_run_size,
+    example_option,
+    formulation_option,
+    load_problem_spec,
+    max_memory_option,
+    output_dir_callback,
+    problem_argument,
+    resolve_online,
+    section4_options,
+    seed_option,
+    steps_option,
+    update_options,
+)
 
 
 @click.command("certify")
@@ -45,8 +59,8 @@ def certify_cmd(ctx, problem_file, example, backend, formulation, steps, seed, o
     Exit code 0: every claim holds; 1: a claim failed or could not be checked (the bundle is
     still written); 2: bad input (nothing is written). See docs/certificate.md."""
     from amcp_drake.certificate.certify import certify
-    from amcp_drake.model.errors import ProblemError
     from amcp_drake.certificate.report import check_out_dir, remove_stale_staging, write_outputs
+    from amcp_drake.model.errors import ProblemError
 
     remove_stale_staging(check_out_dir(out_dir))
     if trajectory_file is not None:

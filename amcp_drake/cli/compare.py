@@ -7,9 +7,23 @@ from collections import defaultdict
 
 import click
 
-from amcp_drake.cli.common import (EXIT_FAIL, EXIT_OK, bad_input_exits_2, check_run_size, example_option, formulation_option,
-                         load_problem_spec, max_memory_option, output_file_callback, problem_argument, resolve_online,
-                         section4_options, seed_option, steps_option, update_options)
+from amcp_drake.cli.common import (
+    EXIT_FAIL,
+    EXIT_OK,
+    bad_input_exits_2,
+    check_run_size,
+    example_option,
+    formulation_option,
+    load_problem_spec,
+    max_memory_option,
+    output_file_callback,
+    problem_argument,
+    resolve_online,
+    section4_options,
+    seed_option,
+    steps_option,
+    update_options,
+)
 
 
 @click.command("compare")

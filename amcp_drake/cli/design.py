@@ -8,8 +8,17 @@ import sys
 import click
 import numpy as np
 
-from amcp_drake.cli.common import (EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, check_run_size, example_option,
-                         load_problem_spec, max_memory_option, problem_argument)
+from amcp_drake.cli.common import (
+    EXIT_FAIL,
+    EXIT_OK,
+    backend_option,
+    bad_input_exits_2,
+    check_run_size,
+    example_option,
+    load_problem_spec,
+    max_memory_option,
+    problem_argument,
+)
 
 
 def _fmt(a) -> str:

@@ -6,9 +6,20 @@ import sys
 
 import click
 
-from amcp_drake.cli.common import (EXIT_FAIL, EXIT_OK, MAX_SEEDS, backend_option, bad_input_exits_2, check_run_size,
-                         example_option, load_problem_spec, max_memory_option, output_dir_callback, problem_argument,
-                         steps_option)
+from amcp_drake.cli.common import (
+    EXIT_FAIL,
+    EXIT_OK,
+    MAX_SEEDS,
+    backend_option,
+    bad_input_exits_2,
+    check_run_size,
+    example_option,
+    load_problem_spec,
+    max_memory_option,
+    output_dir_callback,
+    problem_argument,
+    steps_option,
+)
 
 
 @click.command("pe-figure")

@@ -7,10 +7,24 @@ import sys
 import click
 import numpy as np
 
-from amcp_drake.cli.common import (EXIT_FAIL, EXIT_OK, backend_option, bad_input_exits_2, check_run_size, example_option,
-                         formulation_option, load_problem_spec, max_memory_option, output_file_callback,
-                         problem_argument, resolve_online, section4_options, seed_option, steps_option,
-                         update_options)
+from amcp_drake.cli.common import (
+    EXIT_FAIL,
+    EXIT_OK,
+    backend_option,
+    bad_input_exits_2,
+    check_run_size,
+    example_option,
+    formulation_option,
+    load_problem_spec,
+    max_memory_option,
+    output_file_callback,
+    problem_argument,
+    resolve_online,
+    section4_options,
+    seed_option,
+    steps_option,
+    update_options,
+)
 
 
 @click.command("run")

@@ -18,10 +18,16 @@ from typing import Any
 
 import numpy as np
 
-from . import polytope
-from ._validate import (reject_booleans, as_matrix, as_positive_int, as_vector, require_finite,
-                        require_positive_definite)
-from .errors import ProblemError
+from amcp_drake.model import polytope
+from amcp_drake.model.errors import ProblemError
+from amcp_drake.model.validate import (
+    as_matrix,
+    as_positive_int,
+    as_vector,
+    reject_booleans,
+    require_finite,
+    require_positive_definite,
+)
 
 #: θ̂0 may lie this far outside Θ (rounding in a problem file) before it is rejected.
 THETA_HAT0_TOL = 1e-9
@@ -317,9 +323,9 @@ class DesignOptions:
 @dataclass(frozen=True, eq=False)
 class ProblemSpec:
     """Everything a problem file holds: the problem, design options, a default scenario and the
-    default online options (``online``: an :class:`~amcp_drake.controller.OnlineOptions`, or None
+    default online options (``online``: an :class:`~amcp_drake.model.options.OnlineOptions`, or None
     for the defaults; the CLIs start from it). ``notes``: what loading changed (e.g. redundant rows
-    removed, :func:`~amcp_drake.limits.remove_redundant_rows`); the CLIs print them."""
+    removed, :func:`~amcp_drake.model.limits.remove_redundant_rows`); the CLIs print them."""
 
     problem: Problem
     design: DesignOptions = field(default_factory=DesignOptions)

@@ -17,12 +17,12 @@ Layout (format "amcp-problem", version 1)::
     }
 
 Reading is strict (docs/problem-format.md, "Strictness"): the text must be UTF-8 JSON without
-duplicate keys, NaN or overlong integers (:mod:`amcp_drake.json_strict`); the layout is validated
+duplicate keys, NaN or overlong integers (:mod:`amcp_drake.model.json_strict`); the layout is validated
 against ``data/problem.schema.json`` (unknown keys at every level, with the closest known key
 suggested; booleans are not numbers; entries of magnitude at most 1e9), each message naming the JSON
 path of the field (``cost.R[0][0]``); then the dataclasses check shapes and the paper's assumptions.
 Rows of W.H, Θ and Z implied by the others are removed with a note (``ProblemSpec.notes``) unless
-``keep_redundant_rows`` is true (:func:`amcp_drake.limits.remove_redundant_rows`).
+``keep_redundant_rows`` is true (:func:`amcp_drake.model.limits.remove_redundant_rows`).
 
 Files are written atomically (temporary file + rename), so a crash never leaves half a file.
 """
@@ -40,9 +40,9 @@ from typing import Any
 
 import numpy as np
 
-from .errors import ProblemError, ProblemFileError
-from .json_strict import json_path, load_json_strict
-from .problem import DesignOptions, Problem, ProblemSpec, Scenario
+from amcp_drake.model.errors import ProblemError, ProblemFileError
+from amcp_drake.model.json_strict import json_path, load_json_strict
+from amcp_drake.model.problem import DesignOptions, Problem, ProblemSpec, Scenario
 
 FORMAT = "amcp-problem"
 VERSION = 1
@@ -217,7 +217,7 @@ def spec_from_dict(data: dict, reduce_rows: bool = True) -> ProblemSpec:
     }
     notes: list[str] = []
     if reduce_rows and not data.get("keep_redundant_rows", False):
-        from .limits import reduce_rows as reduce_redundant
+        from amcp_drake.model.limits import reduce_rows as reduce_redundant
 
         changes, notes = reduce_redundant(raw["H_w"], raw["H_theta"], raw["h_theta"], raw["F"], raw["G"])
         raw.update(changes)

@@ -19,15 +19,14 @@ from typing import Any
 import numpy as np
 
 from amcp_drake.model import polytope
-from amcp_drake.online.controller import AdaptiveMPC, StepRecord
-from amcp_drake.model.options import OnlineOptions
-from amcp_drake.offline.design import OfflineDesign
 from amcp_drake.model.errors import InconsistentDataError, ProblemError, TrajectoryError
-from amcp_drake.model.problem import DISTURBANCE_KINDS, Problem, check_theta_rate
 from amcp_drake.model.json_strict import decode_utf8, first_non_finite, loads_strict
+from amcp_drake.model.options import OnlineOptions
+from amcp_drake.model.problem import DISTURBANCE_KINDS, Problem, ProblemSpec, check_theta_rate
 from amcp_drake.model.problem_io import options_from_dict, options_to_dict, spec_from_dict, spec_to_dict, write_text_atomic
-from amcp_drake.model.problem import ProblemSpec
 from amcp_drake.model.status import SolveStatus
+from amcp_drake.offline.design import OfflineDesign
+from amcp_drake.online.controller import AdaptiveMPC, StepRecord
 
 TRAJECTORY_FORMAT = "amcp-trajectory"
 TRAJECTORY_VERSION = 1
@@ -148,7 +147,7 @@ class Trajectory:
         return write_text_atomic(text, path)
 
     @classmethod
-    def load(cls, path: str | Path) -> "Trajectory":
+    def load(cls, path: str | Path) -> Trajectory:
         """Read a file written by :meth:`save` (gzip recognised by its magic bytes). Unreadable,
         truncated or corrupt gzip data, non-UTF-8 text, invalid or non-strict JSON (duplicate keys, NaN)
         and an unknown format version raise TrajectoryError naming the file or the field."""

@@ -20,7 +20,7 @@ Memory = :data:`BYTES_PER_NONZERO` × nonzeros + :data:`BYTES_PER_RECORDED_NUMBE
 over the run, both measured (peak RSS of Example 1 with N = 10 and 200, 5 to 40 steps: the estimate is
 within 10 % of the measurement). A run whose estimate exceeds the limit (default
 :data:`DEFAULT_MAX_MEMORY_MB`; ``--max-memory`` raises it) is refused with a
-:class:`~amcp_drake.errors.ProblemError` before the design starts.
+:class:`~amcp_drake.model.errors.ProblemError` before the design starts.
 
 **Redundant rows** (:func:`remove_redundant_rows`). A row a·x <= b of a polytope with an interior
 point c is implied by the others exactly when the point a/(b − a·c) of the polar lies in the convex
@@ -40,8 +40,8 @@ from typing import Any
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-from . import polytope
-from .errors import ProblemError
+from amcp_drake.model import polytope
+from amcp_drake.model.errors import ProblemError
 
 #: Most closed-loop steps of one run (``--steps``, ``scenario.steps``): at ~20 ms per step of Example 1
 #: that is over half an hour, and the recorded trajectory is held in memory; longer studies are split.
@@ -127,7 +127,7 @@ def estimate_run_size(n: int, m: int, p: int, N: int, facets: int, theta_rows: i
 
 
 def estimate_for(problem, design_options=None, steps: int = 1, online=None) -> SizeEstimate:
-    """:func:`estimate_run_size` for a :class:`~amcp_drake.problem.Problem` and its options."""
+    """:func:`estimate_run_size` for a :class:`~amcp_drake.model.problem.Problem` and its options."""
     facets = getattr(design_options, "x0_facets", 8) if design_options is not None else 8
     extra = getattr(design_options, "theta_extra_directions", None) if design_options is not None else None
     theta_rows = len(problem.H_theta) + (0 if extra is None else len(np.atleast_2d(extra)))
@@ -250,7 +250,7 @@ def reduce_rows(H_w: Any, H_theta: Any, h_theta: Any, F: Any, G: Any) -> tuple[d
 
 
 def remove_redundant_rows(problem) -> tuple[Any, list[str]]:
-    """``problem`` (a :class:`~amcp_drake.problem.Problem`) with the redundant rows of W.H, Θ and Z
+    """``problem`` (a :class:`~amcp_drake.model.problem.Problem`) with the redundant rows of W.H, Θ and Z
     removed (:func:`reduce_rows`), and the notes; the same object when nothing was redundant."""
     changes, notes = reduce_rows(problem.H_w, problem.H_theta, problem.h_theta, problem.F, problem.G)
     return (problem.with_changes(**changes) if changes else problem), notes

@@ -4,7 +4,7 @@ Python's :mod:`json` is lenient in ways that hide mistakes in a hand-written pro
 of two equal keys wins without a word, ``NaN``/``Infinity`` literals are accepted, ``1e400`` becomes
 ``inf``, a 5000-digit integer raises a bare ``ValueError`` and 100,000 nested brackets a
 ``RecursionError``. :func:`loads_strict` turns each of these into a
-:class:`~amcp_drake.errors.ProblemFileError` (or the error class the caller asks for) whose message
+:class:`~amcp_drake.model.errors.ProblemFileError` (or the error class the caller asks for) whose message
 names the file, the JSON path of the offending value (``cost.R[0][0]``), what was expected and what
 was received. :func:`read_text_strict` refuses files that are not UTF-8 text (binary data, UTF-16/32
 with or without a byte-order mark), naming the encoding it recognised.
@@ -27,7 +27,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from .errors import ProblemFileError
+from amcp_drake.model.errors import ProblemFileError
 
 #: Deepest nesting accepted (a problem file needs 4 levels, a trajectory about 6).
 MAX_DEPTH = 64
