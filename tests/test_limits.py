@@ -1,0 +1,71 @@
+"""Resource limits (amcp_drake.model.limits): the size estimate against the QP Drake actually builds,
+and the Qhull-based redundant-row removal against one LP per row (polytope.support, HiGHS)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from amcp_drake.model import polytope
+from amcp_drake.model.limits import estimate_for, max_vertices, nonredundant_rows
+
+
+def _implied_by_others(H: np.ndarray, h: np.ndarray, i: int, kept: np.ndarray) -> bool:
+    """Reference: row i is implied by the kept rows when max{H_i x | kept rows} <= h_i (one LP)."""
+    others = [j for j in kept if j != i]
+    res = polytope.support(H[others], h[others], H[i])
+    return res.status == "optimal" and res.value <= h[i] + 1e-7 * max(1.0, abs(h[i]))
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3, 4])
+def test_nonredundant_rows_agree_with_one_lp_per_row(dim):
+    """Random polytopes (a box, random cuts, duplicates and scaled copies): every removed row is
+    implied by the kept ones (LP), and every kept row is not."""
+    rng = np.random.default_rng(dim)
+    for _ in range(5):
+        H = np.vstack([np.eye(dim), -np.eye(dim), rng.normal(size=(30, dim))])
+        h = np.concatenate([rng.uniform(0.5, 2.0, 2 * dim), rng.uniform(0.3, 3.0, 30)])
+        H = np.vstack([H, H[:3], 2.0 * H[3:5]])  # duplicates and scaled duplicates
+        h = np.concatenate([h, h[:3], 2.0 * h[3:5]])
+        centre, radius = polytope.chebyshev_center(H, h)
+        assert radius > 0
+        kept = nonredundant_rows(H, h, centre)
+        for i in range(len(H)):
+            if i in kept:
+                assert not _implied_by_others(H, h, i, kept), f"row {i} kept but implied"
+            else:
+                assert _implied_by_others(H, h, i, kept), f"row {i} removed but not implied"
+
+
+def test_nonredundant_rows_of_an_unbounded_set_in_a_subspace():
+    """Z of Example 1 lives in (x1, x2, u) but constrains only x2 and u (rows span 2 of 3
+    dimensions); an extra row implied by the others is removed, the others kept."""
+    FG = np.array([[0.0, -1 / 0.3, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [0.0, 0.0, 0.5], [0.0, -1.0, 0.0]])
+    kept = nonredundant_rows(FG, np.ones(5), np.zeros(3))
+    assert kept.tolist() == [0, 1, 2]
+
+
+def test_the_estimate_counts_the_variables_and_rows_drake_builds(example_spec, example_design):
+    """Example 1 (n = 2, m = 1, p = 3, 8 facets, 6 rows of Θ, 3 rows of Z), N = 4: the estimate's
+    variables equal the decision vector of the Drake tube QP, and its rows bound the rows built
+    (the terminal set is estimated by the rows of Z, so the difference is exactly that)."""
+    from amcp_drake.online.controller import AdaptiveMPC
+
+    problem = example_spec.problem.with_changes(N=4)
+    design = example_design
+    ctrl = AdaptiveMPC(problem, design, backend="drake")
+    prog = ctrl.mpc.prog
+    est = estimate_for(problem, example_spec.design, steps=1)
+    assert est.vertices == max_vertices(8, 2) == len(design.X0_vertices) == 8
+    assert est.variables == prog.num_vars()
+    linear_rows = sum(b.evaluator().num_constraints() for b in prog.linear_constraints()) \
+        + sum(b.evaluator().num_constraints() for b in prog.linear_equality_constraints())
+    terminal_rows = len(design.H_T)
+    assert est.rows - len(problem.F) == linear_rows - terminal_rows
+
+
+def test_upper_bound_theorem():
+    """max_vertices is the cube's 8 for 6 facets in R^3 and the cyclic polytope's count in R^4."""
+    assert max_vertices(6, 3) == 8
+    assert max_vertices(8, 4) == 20  # C(6, 2) + C(5, 1)
+    assert max_vertices(2, 1) == 2
