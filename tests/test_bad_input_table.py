@@ -463,3 +463,35 @@ def test_files_written_by_amcp_load_back_unchanged(tmp_path, example_spec):
     expected = ('W.H: removed 1 of 5 rows implied by the others (rows 4); 4 kept '
                 '("keep_redundant_rows": true keeps every row)')
     assert reduced.notes == (expected,)
+
+
+def test_a_killed_certify_leaves_a_staging_folder_that_the_next_run_removes(tmp_path):
+    """SIGKILL ``amcp certify`` while it writes its bundle into a new D: D holds only the staging
+    folder; the next ``amcp certify`` into D (here one that exits 2 on a bad problem) removes it."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "D"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    proc = subprocess.Popen([sys.executable, "-m", "amcp_drake", "certify", "--trajectory", str(TRAJECTORY_DATA),
+                             "--out", str(out)], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 300
+        while not list(out.glob(".certify-staging-*")):
+            assert proc.poll() is None, "certify ended before its staging folder was seen"
+            assert time.monotonic() < deadline
+            time.sleep(0.005)
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.kill()
+        proc.wait()
+    left = [p.name for p in out.iterdir()]
+    assert len(left) == 1 and left[0].startswith(".certify-staging-"), left
+    bad = tmp_path / "bad.json"
+    bad.write_text("[1, 2")
+    result = CliRunner().invoke(main, ["certify", str(bad), "--out", str(out)])
+    assert result.exit_code == 2, result.output
+    assert list(out.iterdir()) == []
