@@ -29,6 +29,7 @@ from pydrake.solvers import (
 )
 
 from amcp_drake.backends.base import GainResult, ProjectionResult, SetUpdateResult, TubeMPCData
+from amcp_drake.backends.projection_form import projection_form
 from amcp_drake.model.status import SolveStatus
 
 #: Drake's SolutionResult -> canonical status.
@@ -275,25 +276,24 @@ class DrakeBackend:
         H = np.asarray(H, float)
         h = np.asarray(h, float)
         _finite("project", point, H, h)
-        p = point.size
-        # Solved in the coordinates y = (θ − point)/s, s = the largest distance of the point to a
-        # facet plane: the solver then sees data of order 1. In θ itself the objective ‖θ − θ̃‖²
-        # and the set can be tiny (θ̃ 1e-5 outside a Θ_k of width 2e-6), and Clarabel's absolute gap
-        # tolerance then left the projection off by up to 1.7e-6 (property suite, lockstep).
-        slack = h - H @ point
-        scale = float(np.max(np.abs(slack) / np.maximum(np.linalg.norm(H, axis=1), 1e-300)))
-        scale = scale if np.isfinite(scale) and scale > 0.0 else 1.0
+        # Scaled coordinates and flat slabs as equalities, shared with the cvxpy backend
+        # (projection_form: both found on collapsed Θ_k, e.g. campaign problem 0-19).
+        form = projection_form(point, H, h)
         prog = MathematicalProgram()
-        y = prog.NewContinuousVariables(p, "y")
-        prog.AddLinearConstraint(H, np.full(len(h), -np.inf), slack / scale, y).evaluator().set_description(
-            "(12) theta in set")
-        prog.AddQuadraticErrorCost(np.eye(p), np.zeros(p), y)
+        y = prog.NewContinuousVariables(point.size, "y")
+        if len(form.b_in):
+            prog.AddLinearConstraint(form.G_in, np.full(len(form.b_in), -np.inf), form.b_in,
+                                     y).evaluator().set_description("(12) theta in set")
+        if len(form.b_eq):
+            prog.AddLinearEqualityConstraint(form.G_eq, form.b_eq, y).evaluator().set_description(
+                "(12) theta in flat slab (mid-plane)")
+        prog.AddQuadraticErrorCost(np.eye(point.size), np.zeros(point.size), y)
         # tight tolerances (as for the LPs): at the QP defaults the projection was off by 4e-6
         result, elapsed = self._lp.solve(prog)
         status = self._lp.status(result)
         if status is not SolveStatus.OPTIMAL:
             return ProjectionResult(status, None, elapsed)
-        return ProjectionResult(status, point + scale * result.GetSolution(y), elapsed)
+        return ProjectionResult(status, form.theta(result.GetSolution(y)), elapsed)
 
     # -- online: tube MPC QP (20) --------------------------------------------------------------
     def tube_mpc(self, data: TubeMPCData):

@@ -23,6 +23,7 @@ import cvxpy.settings as cps
 import numpy as np
 
 from amcp_drake.backends.base import ProjectionResult, SetUpdateResult, TubeMPCData
+from amcp_drake.backends.projection_form import projection_form
 from amcp_drake.model.status import SolveStatus
 
 #: cvxpy status string -> canonical status (cvxpy.settings). Inaccurate certificates of
@@ -43,8 +44,10 @@ STATUS_MAP: dict[str, SolveStatus] = {
 #: Formulations of the tube MPC QP (20): "plain" = (15a)-(15d) with Λ, "vertex" = (5b) at Θ_k's vertices.
 FORMULATIONS = ("plain", "vertex")
 
-#: Clarabel tolerances of the projection QP (see CvxpyBackend.__init__).
-CLARABEL_PROJECTION_OPTIONS = {"tol_gap_abs": 1e-11, "tol_gap_rel": 1e-11, "tol_feas": 1e-11}
+#: Clarabel tolerances of the projection QP (see CvxpyBackend.__init__). 1e-10 as Drake's: in the
+#: scaled form (backends.projection_form) the answer is as accurate as at 1e-11 (measured on collapsed
+#: Θ_k: same point to 1e-12), while 1e-11 ended "AlmostSolved" on sets of zero width.
+CLARABEL_PROJECTION_OPTIONS = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10}
 #: Number of parametrised problems kept per kind (support LP, LP (9), projection QP); shapes
 #: change rarely (redundancy removal, moving window), so a small LRU cache suffices.
 CACHE_SIZE = 32
@@ -133,9 +136,9 @@ class CvxpyBackend:
             raise ValueError(f"formulation {formulation!r} unknown to the cvxpy backend; choose one of {FORMULATIONS}")
         self.formulation = formulation
         self._call = SolverCall(solver, solver_options)
-        # The projection QP of (12) at Clarabel's default tolerances is off by up to 4e-5 when θ̃ is
-        # just outside the set (measured by the property suite's lockstep test); as for Drake's LPs,
-        # tighten it (a 2-3 variable QP, so the cost is nil).
+        # The projection QP of (12) at Clarabel's default tolerances was off by up to 4e-5 when θ̃ is
+        # just outside the set (measured by the property suite's lockstep test, before the scaled
+        # form); as for Drake's LPs, tighten it (a 2-3 variable QP, so the cost is nil).
         tight = dict(CLARABEL_PROJECTION_OPTIONS) if solver.upper() == "CLARABEL" else {}
         tight.update(solver_options or {})
         self._call_projection = SolverCall(solver, tight)
@@ -182,7 +185,10 @@ class CvxpyBackend:
         h = np.asarray(h, float).reshape(-1)
         if not all_finite(point, H, h) or H.shape != (len(h), len(point)):
             return ProjectionResult(SolveStatus.ERROR, None)
-        return self._project.get(H.shape).solve(self._call_projection, point, H, h)
+        # scaled coordinates and flat slabs as equalities, shared with the Drake backend (campaign
+        # problem 0-19: unscaled, this QP ended "inaccurate" on a Θ_k collapsed to a point)
+        form = projection_form(point, H, h)
+        return self._project.get((len(form.b_in), len(form.b_eq), len(point))).solve(self._call_projection, form)
 
     def tube_mpc(self, data: TubeMPCData):
         """Build the tube MPC QP (20) once; see :class:`amcp_reference.tube_mpc.CvxpyTubeMPC`
