@@ -50,7 +50,7 @@ class SetUpdateLP:
         h = np.einsum("ij,ij->i", H_theta, self.theta.value)
         # duals of a <= constraint in a minimisation are >= 0 up to solver round-off (~1e-12)
         Lambda = np.clip(np.asarray(self.rows.dual_value, float), 0.0, None)
-        return SetUpdateResult(status, h, Lambda, elapsed)
+        return SetUpdateResult(status, h, Lambda, elapsed, points=np.asarray(self.theta.value, float))
 
 
 class ProjectionQP:
