@@ -1,4 +1,4 @@
-"""Solver answers are verified before use (issue 13 item 1): each check of amcp_drake.answer_checks
+"""Solver answers are verified before use (issue 13 item 1): each check of amcp_drake.online.answer_checks
 fires on a backend stub that returns a wrong "optimal", the step records status "inaccurate" with the
 failed check in its detail, and the fallback is taken and recorded. Plus the campaign 0-19 replay.
 
@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from amcp_drake import answer_checks
+from amcp_drake.online import answer_checks
 from amcp_drake.backends import get_backend
-from amcp_drake.status import SolveStatus
+from amcp_drake.model.status import SolveStatus
 
 DATA = Path(__file__).parent / "data"
 BACKENDS = ("drake", "cvxpy")
@@ -71,8 +71,8 @@ class WrongTube:
 # -- fixtures: Example 1 (every step updates Θ_k) and campaign problem 0-19 (θ̃_1 outside Θ_1) ---------------
 @pytest.fixture(scope="module")
 def case_0_19():
-    from amcp_drake.design import design
-    from amcp_drake.problem_io import load_spec
+    from amcp_drake.offline.design import design
+    from amcp_drake.model.problem_io import load_spec
 
     spec = load_spec(DATA / "campaign-0-19-problem.json")
     w = np.array(json.loads((DATA / "campaign-0-19-disturbances.json").read_text())["w"])
@@ -80,13 +80,13 @@ def case_0_19():
 
 
 def _controller(spec, design, backend, options=None, **backend_options):
-    from amcp_drake.controller import AdaptiveMPC
+    from amcp_drake.online.controller import AdaptiveMPC
 
     return AdaptiveMPC(spec.problem, design, backend=backend, options=options or spec.online, **backend_options)
 
 
 def _run(ctrl, spec, steps, w="uniform"):
-    from amcp_drake.simulate import simulate
+    from amcp_drake.online.simulate import simulate
 
     sc = spec.scenario
     return simulate(ctrl, sc.x0, sc.theta_star, steps, w if isinstance(w, str) else w[:steps], seed=0,
@@ -116,7 +116,7 @@ def test_projection_outside_the_set_is_caught_and_replaced(case_0_19, backend):
 def test_feasible_but_not_optimal_projection_is_caught(case_0_19, backend):
     """A point of Θ_1 that is not the projection (the real one moved 1e-6 along a facet of the thin set
     is still inside it): membership passes, KKT does not."""
-    from amcp_drake import polytope
+    from amcp_drake.model import polytope
 
     spec, design, w = case_0_19
 
@@ -135,8 +135,8 @@ def test_feasible_but_not_optimal_projection_is_caught(case_0_19, backend):
 
 def test_projection_fallbacks_in_order(case_0_19, monkeypatch):
     """When the second solver fails too: θ̂_(k−1) if it is in S, else the Chebyshev centre of S."""
-    from amcp_drake import controller as controller_module
-    from amcp_drake import polytope
+    from amcp_drake.online import controller as controller_module
+    from amcp_drake.model import polytope
 
     spec, design, w = case_0_19
     monkeypatch.setattr(controller_module.polytope, "least_distance_point", lambda *a: None)
@@ -182,7 +182,7 @@ def test_wrong_set_update_is_caught_and_recomputed(example_spec, example_design,
 
 
 def test_set_update_keeps_previous_set_when_every_solver_fails(example_spec, example_design, monkeypatch):
-    from amcp_drake import controller as controller_module
+    from amcp_drake.online import controller as controller_module
 
     monkeypatch.setattr(controller_module.polytope, "support_certified", lambda *a: None)
     ctrl = _controller(example_spec, example_design, "drake", options=None)
@@ -196,7 +196,7 @@ def test_set_update_keeps_previous_set_when_every_solver_fails(example_spec, exa
 def test_exact_update_with_a_wrongly_removed_row_keeps_every_row(example_spec, example_design):
     """(7): a support LP that calls every row redundant would make Θ_k ⊄ Θ_(k−1); HiGHS re-checks the
     removed rows and the step keeps all rows."""
-    from amcp_drake.controller import OnlineOptions
+    from amcp_drake.model.options import OnlineOptions
 
     ctrl = _controller(example_spec, example_design, "drake", options=OnlineOptions(update="exact"))
     real = ctrl.backend
@@ -256,7 +256,7 @@ def test_wrong_tube_answer_is_replaced_by_the_other_formulation(example_spec, ex
 
 def test_wrong_tube_answer_without_another_formulation_is_not_solved(example_spec, example_design):
     """The min-max cost (19) exists in the plain form only: the step is reported as not solved."""
-    from amcp_drake.controller import OnlineOptions
+    from amcp_drake.model.options import OnlineOptions
 
     ctrl = _controller(example_spec, example_design, "drake", options=OnlineOptions(cost="minmax"))
     ctrl.mpc = WrongTube(ctrl.mpc, _shift_z0)

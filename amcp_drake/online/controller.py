@@ -362,13 +362,31 @@ class AdaptiveMPC:
         """answer_checks.check_tube with Θ_k's vertices (Qhull) when the answer has no Λ (vertex form)."""
         vertices = None
         if sol.Lambda is None and sol.v is not None:
-            H = self.design.H_theta if H_arg is None else H_arg
+            H = np.asarray(self.design.H_theta if H_arg is None else H_arg, float)
             h = np.asarray(h_arg, float)
-            try:
-                vertices = polytope.vertices(H, h if h.ndim == 1 else h[0])
-            except (ValueError, RuntimeError):  # flat Θ_k: Qhull needs an interior point (check not run)
-                vertices = None
+            vertices = self._theta_k_vertices(H, h if h.ndim == 1 else h[0])
         return answer_checks.check_tube(sol, self.data, x, h_arg, H_arg, vertices)
+
+    #: An interior point for Qhull must be this far inside every unit row of Θ_k (θ units); closer,
+    #: the Chebyshev centre is computed by an LP instead.
+    INTERIOR_MARGIN = 1e-6
+
+    def _theta_k_vertices(self, H: np.ndarray, h: np.ndarray) -> np.ndarray | None:
+        """Vertices of Θ_k by Qhull, for the vertex-form check of (5b); None when Θ_k is flat (the check
+        is then "not run"). θ̂_k serves as Qhull's interior point when it is INTERIOR_MARGIN inside Θ_k,
+        which saves the Chebyshev LP (1.6 of 1.7 ms per step on Example 1)."""
+        from scipy.spatial import HalfspaceIntersection
+
+        Hn, hn = polytope.normalize_rows(H, h)
+        if float(np.min(hn - Hn @ self.theta_hat)) >= self.INTERIOR_MARGIN:
+            try:
+                return HalfspaceIntersection(np.hstack([Hn, -hn[:, None]]), np.asarray(self.theta_hat, float)).intersections
+            except (ValueError, RuntimeError):
+                pass
+        try:
+            return polytope.vertices(H, h)
+        except (ValueError, RuntimeError):  # flat Θ_k: Qhull needs an interior point
+            return None
 
     def _other_formulation(self):
         """The tube QP (20) in the other formulation ("plain" <-> "vertex") of the same backend, or None

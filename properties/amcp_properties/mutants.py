@@ -126,11 +126,12 @@ def _lms(sign: float = 1.0, project: bool = True, regressor_now: bool = False):
         record.projection_status = SolveStatus.OPTIMAL
         if not project or np.all(pr.H_theta @ theta_tilde <= pr.h_theta):
             self.theta_hat = theta_tilde
-            return
+            return True
         result = self.backend.project(theta_tilde, pr.H_theta, pr.h_theta)
         record.projection_status = result.status
         if result.status is SolveStatus.OPTIMAL:
             self.theta_hat = np.asarray(result.theta, float)
+        return result.status is SolveStatus.OPTIMAL  # AdaptiveMPC.step goes on when True
 
     return update
 
@@ -147,6 +148,7 @@ def _update_from_prior(method):
 
 def _skip_update(self, H_delta, h_delta, record):
     record.set_status = SolveStatus.OPTIMAL
+    return True  # AdaptiveMPC.step goes on when True
 
 
 # -- the mutants ------------------------------------------------------------------------------------
