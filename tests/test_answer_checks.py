@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from amcp_drake.online import answer_checks
 from amcp_drake.backends import get_backend
 from amcp_drake.model.status import SolveStatus
+from amcp_drake.online import answer_checks
 
 DATA = Path(__file__).parent / "data"
 BACKENDS = ("drake", "cvxpy")
@@ -71,8 +71,8 @@ class WrongTube:
 # -- fixtures: Example 1 (every step updates Θ_k) and campaign problem 0-19 (θ̃_1 outside Θ_1) ---------------
 @pytest.fixture(scope="module")
 def case_0_19():
-    from amcp_drake.offline.design import design
     from amcp_drake.model.problem_io import load_spec
+    from amcp_drake.offline.design import design
 
     spec = load_spec(DATA / "campaign-0-19-problem.json")
     w = np.array(json.loads((DATA / "campaign-0-19-disturbances.json").read_text())["w"])
@@ -135,8 +135,8 @@ def test_feasible_but_not_optimal_projection_is_caught(case_0_19, backend):
 
 def test_projection_fallbacks_in_order(case_0_19, monkeypatch):
     """When the second solver fails too: θ̂_(k−1) if it is in S, else the Chebyshev centre of S."""
-    from amcp_drake.online import controller as controller_module
     from amcp_drake.model import polytope
+    from amcp_drake.online import controller as controller_module
 
     spec, design, w = case_0_19
     monkeypatch.setattr(controller_module.polytope, "least_distance_point", lambda *a: None)

@@ -368,11 +368,11 @@ def test_a_loose_solver_is_not_trusted(spec, monkeypatch):
     so the run stops). With those checks switched off, the certificate does not take the solver's word
     either: the recomputed residuals violate the tube and multiplier claims by more than QP_TOL, and the
     verdict is fail although recursive feasibility (the solver's own status) passes."""
+    from amcp_drake.model.status import SolveStatus
+    from amcp_drake.offline.design import design
     from amcp_drake.online import answer_checks
     from amcp_drake.online.controller import AdaptiveMPC
-    from amcp_drake.offline.design import design
     from amcp_drake.online.simulate import simulate
-    from amcp_drake.model.status import SolveStatus
 
     d = design(spec.problem, spec.design, backend="drake")
     sc = spec.scenario

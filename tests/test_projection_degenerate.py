@@ -117,9 +117,9 @@ def test_regression_campaign_0_19_closed_loop_certifies(backend):
     """`amcp campaign --systems 20 --seed 0` failed lms_update on 0-19 with cvxpy (margin −0.55 at step 1):
     the projection onto Θ_1 ended inaccurate and the controller silently projected onto Θ."""
     from amcp_drake.certificate.certify import certify
-    from amcp_drake.online.controller import AdaptiveMPC
-    from amcp_drake.offline.design import design
     from amcp_drake.model.problem_io import load_spec
+    from amcp_drake.offline.design import design
+    from amcp_drake.online.controller import AdaptiveMPC
     from amcp_drake.online.simulate import simulate
 
     spec = load_spec(DATA / "campaign-0-19-problem.json")
