@@ -64,6 +64,18 @@ def test_campaign_0_19_projection_onto_collapsed_theta_1(backend):
     assert np.linalg.norm(result.theta - np.array([0.084, -1.0, -0.6])) < 1e-5
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_campaign_0_13_point_outside_by_round_off(backend):
+    """θ̃ = −1.2 outside Θ_k = [−1.2 + 1.5e-13, −0.79] by round-off only: scaled by the violation alone,
+    the other offset became 3e12 and both backends ended "inaccurate" (SCALE_FLOOR keeps it <= 1e3)."""
+    case = json.loads((DATA / "campaign-0-13-projection.json").read_text())
+    point, H, h = (np.asarray(case[k], float) for k in ("point", "H", "h"))
+    result = _backend(backend).project(point, H, h)
+    assert result.status.value == "optimal"
+    assert np.max(H @ result.theta - h) <= MEMBERSHIP_TOL
+    assert np.linalg.norm(result.theta - exact_projection(point, H, h)) <= POINT_TOL
+
+
 def _collapsed_box(rng, widths, extra_rows: int, touching: bool):
     """A box of the given widths around a random centre (rows ±e_i, as the fixed shape of (9) has), and
     ``extra_rows`` random unit rows through a vertex of it (touching) or 0.1 outside it."""

@@ -7,8 +7,8 @@
 for two reasons, both found on sets Θ_k that the update (9) collapses to (nearly) a point or a
 lower-dimensional set (θ* pinned by vertex disturbances; campaign problem 0-19):
 
-* **Scale.** s is the largest distance of θ̃ to a facet plane, so the data the solver sees are of
-  order 1. In θ itself the cvxpy backend (which had no such scaling) ended Clarabel "AlmostSolved"
+* **Scale.** s is the largest violation of a row by θ̃ (at least :data:`SCALE_FLOOR` times the
+  largest distance to a facet plane), so the data the solver sees are of order 1 (offsets <= 1e3). In θ itself the cvxpy backend (which had no such scaling) ended Clarabel "AlmostSolved"
   on 0-19 (Θ_1 of width ~3e-6, θ̃ 0.55 away, tolerances 1e-11), and the controller then silently
   projected onto Θ instead of Θ_1: a point 0.55 outside Θ_1 recorded as optimal. The Drake backend
   used this scaling already (θ̃ 1e-5 outside a Θ_k of width 2e-6 was off by 1.7e-6 without it).
@@ -34,6 +34,12 @@ import numpy as np
 #: error of the projection (<= width/2 = 5e-9) an order below the certificate's PROJECTION_TOL
 #: (1e-7) and above the widths (~1e-9) at which Clarabel stalled in both backends.
 FLAT_SLAB_WIDTH = 1e-8
+#: The scale s is the largest violation of a row by θ̃ (so ‖y*‖ >= 1: the optimum is not lost in the
+#: solver's absolute tolerances when θ̃ is just outside a thin set; 3e-7 error at s = max |slack|), but
+#: at least this fraction of the largest |slack|: with θ̃ outside by round-off only (1e-12, campaign
+#: problem 13) s = violation made the other offsets 1e12 and Clarabel ended "inaccurate" in both
+#: backends. With the floor every offset is <= 1e3 in y.
+SCALE_FLOOR = 1e-3
 #: Two unit rows are "opposite" when their inner product is <= −1 + this (round-off of the
 #: normalisation only: 1e-12 means the mid-plane differs from the slab by < 1e-12 per unit length).
 OPPOSITE_COS_TOL = 1e-12
@@ -67,7 +73,8 @@ def projection_form(point: np.ndarray, H: np.ndarray, h: np.ndarray) -> Projecti
     Hn, hn = H / safe[:, None], h / safe
     slack = hn - Hn @ point
     violation = float(np.max(-slack[unit])) if np.any(unit) else 0.0
-    scale = violation if violation > 0.0 else (float(np.max(np.abs(slack[unit]))) if np.any(unit) else 1.0)
+    reach = float(np.max(np.abs(slack[unit]))) if np.any(unit) else 1.0
+    scale = max(violation, SCALE_FLOOR * reach)
     scale = scale if np.isfinite(scale) and scale > 0.0 else 1.0
     paired = np.zeros(len(h), dtype=bool)
     eq_rows, eq_rhs = [], []
