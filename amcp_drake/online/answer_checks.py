@@ -7,18 +7,18 @@ numpy only, against the original rows of the problem it claims to solve:
 * :func:`check_projection` — (12): the point lies in the target set S (Θ, or Θ_k under
   Remark 7), is no farther from θ̃ than a known point of S, and satisfies the KKT conditions of
   the projection (θ̃ − θ̂ is a non-negative combination of the normals of the rows active at θ̂).
-* :func:`check_set_update` — (7)/(9)/(25): the returned offsets are nested, h <= h_{k−1} (Lemma 3,
-  (10)); the multipliers Λ certify the outer bound Θ_{k−1} ∩ Δ_k ⊆ Θ_k row by row by LP duality
+* :func:`check_set_update` — (9), its moving window (Remark 4) and (25) before the dilation: the
+  returned offsets are nested, h <= h_{k−1} (Lemma 3, (10)); the multipliers Λ certify the outer bound Θ_{k−1} ∩ Δ_k ⊆ Θ_k row by row by LP duality
   ([H_θ]_i θ = λ_iᵀ H̃ θ <= λ_iᵀ h̃ <= h_i, with the residual of Λ H̃ = H_θ bounded on Θ0's box);
   and, when the backend returns the maximisers, each is feasible for the original rows and
   achieves its offset (so h is the support, not a loose bound). None of these uses θ*.
 * :func:`check_tube` — (20): the returned (v, z, α, Λ) satisfy (15a)-(15d), α >= 0 and the
   terminal set; for the vertex form (no Λ), (5b) at the vertices of Θ_k.
 
-Each check returns :class:`AnswerCheck` rows; :func:`failures` turns the failed ones into the text
-recorded in ``StepRecord.detail``. The controller (:mod:`amcp_drake.online.controller`) decides the
+Each check returns :class:`AnswerCheck` rows; :func:`describe_failures` turns the failed ones into
+the text recorded in ``StepRecord.detail``. The controller (:mod:`amcp_drake.online.controller`) decides the
 fallbacks (docs/decisions.md, "Verified solver answers"). The certificate re-checks the recorded
-run independently (certify_checks, certify_tube); these checks run *before* an answer is used.
+run independently (certificate.claims, certificate.tube); these checks run *before* an answer is used.
 """
 
 from __future__ import annotations
