@@ -79,7 +79,7 @@ def test_the_printed_command_reproduces_the_failure_bit_for_bit(failing_run, bac
     manifest = json.loads((folder / "replay.json").read_text())
     command = shlex.split(manifest["runs"][backend]["command"])
     assert command[:2] == ["amcp", "certify"]
-    proc = subprocess.run([sys.executable, "-m", "amcp_drake.cli", *command[1:]], capture_output=True, text=True,
+    proc = subprocess.run([sys.executable, "-m", "amcp_drake.cli", *command[1:]], check=False, capture_output=True, text=True,
                           timeout=300)
     assert proc.returncode == 1, proc.stderr[-2000:]
     assert "NOT CERTIFIED" in proc.stdout
@@ -134,7 +134,7 @@ def test_certify_refuses_more_steps_than_the_explicit_disturbance_has(tmp_path):
     base = lorenzen2019_spec()
     path = save_spec(ProblemSpec(base.problem, base.design, _scenario(W_SEQUENCE.tolist())), tmp_path / "p.json")
     proc = subprocess.run([sys.executable, "-m", "amcp_drake.cli", "certify", str(path), "--steps", "5", "--out",
-                           str(tmp_path / "out")], capture_output=True, text=True, timeout=300)
+                           str(tmp_path / "out")], check=False, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2, proc.stderr[-2000:]
     assert "steps: expected at most 4 (scenario.disturbance is a sequence of 4 rows)" in proc.stderr
     assert not (tmp_path / "out").exists()

@@ -8,7 +8,6 @@ and exits 2.
 
 from __future__ import annotations
 
-import html
 import sys
 from pathlib import Path
 
@@ -18,11 +17,14 @@ from amcp_drake.cli.common import (EXIT_BAD_INPUT, EXIT_FAIL, EXIT_OK, bad_input
                                    store_path_callback)
 
 
+def _counts_line(counts: dict[str, int]) -> str:
+    return f"problems stored: {sum(counts.values())} ({', '.join(f'{k}: {v}' for k, v in sorted(counts.items()))})"
+
+
 def summary_text(store) -> str:
     """The closing summary: claims x backends, coverage fractions, slowest and failing problems."""
     lines = []
-    counts = store.problem_counts()
-    lines.append(f"problems stored: {sum(counts.values())} ({', '.join(f'{k}: {v}' for k, v in sorted(counts.items()))})")
+    lines.append(_counts_line(store.problem_counts()))
     lines.append("")
     lines.append(f"{'claim':34s} {'backend':8s} {'pass':>6s} {'fail':>6s} {'not run':>8s}")
     for claim, backend, p, f, n in store.claim_table():
@@ -66,7 +68,7 @@ def report_html(store, damage: list[str] | None = None) -> str:
         "<h2>Failing problems</h2><ul id='failures'>{% for s, i, d, m, cmds in failures %}<li>seed {{ s }} #{{ i }}: "
         "{% if cmds %}{% for c in cmds %}<code>{{ c }}</code> {% endfor %}{% else %}{{ d or m }}{% endif %}</li>"
         "{% else %}<li>none</li>{% endfor %}</ul></body></html>")
-    return template.render(counts=html.escape(str(store.problem_counts())), claims=store.claim_table(),
+    return template.render(counts=_counts_line(store.problem_counts()), claims=store.claim_table(),
                            coverage=store.coverage_table(), failures=store.failures(), damage=damage or [])
 
 

@@ -110,6 +110,13 @@ def _truncation(path: Path) -> str | None:
     return None
 
 
+def _first_lines(messages: list[str], keep: int = 3) -> str:
+    """The first ``keep`` lines of quick_check's report (it can list every damaged cell)."""
+    lines = [line for message in messages for line in message.splitlines() if line.strip()]
+    more = f"; and {len(lines) - keep} more lines" if len(lines) > keep else ""
+    return "; ".join(lines[:keep]) + more
+
+
 def _remove_empty(paths: list[Path]) -> None:
     """Remove the sidecar files a read-only open created (only those that did not exist before and
     hold no data: an empty -wal, and the -shm index that goes with it)."""
@@ -171,7 +178,7 @@ def _classify(path: Path) -> StoreState:
         try:
             problems = [r[0] for r in db.execute("PRAGMA quick_check")]
             if problems != ["ok"]:
-                raise _error(path, "corrupted (PRAGMA quick_check: " + "; ".join(problems[:3]) + ")", DAMAGED_FIX)
+                raise _error(path, f"corrupted (PRAGMA quick_check: {_first_lines(problems)})", DAMAGED_FIX)
             app_id = db.execute("PRAGMA application_id").fetchone()[0]
             version = db.execute("PRAGMA user_version").fetchone()[0]
             columns = _table_columns(db)
@@ -392,7 +399,7 @@ def _salvage_rows(db: sqlite3.Connection, damage: list[str]) -> Salvage:
     try:
         checks = [r[0] for r in db.execute("PRAGMA quick_check")]
         if checks != ["ok"]:
-            damage.append("PRAGMA quick_check: " + "; ".join(checks[:3]))
+            damage.append(f"PRAGMA quick_check: {_first_lines(checks)}")
     except sqlite3.DatabaseError as exc:
         damage.append(f"PRAGMA quick_check: {exc}")
     try:
