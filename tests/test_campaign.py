@@ -56,8 +56,8 @@ def test_local_cluster_campaign_stores_every_problem_and_answers_the_summary(tmp
 
     store.close()
     with pytest.raises(ProblemError, match="--resume"):
-        run_campaign(store_path, systems=6, backends=("drake",), seed=3, progress=False)
-    again = run_campaign(store_path, systems=6, backends=("drake",), seed=3, resume=True, progress=False)
+        run_campaign(store_path, systems=6, backends=("drake",), seed=3, steps=6, progress=False)
+    again = run_campaign(store_path, systems=6, backends=("drake",), seed=3, steps=6, resume=True, progress=False)
     assert again == {"submitted": 0, "stored": 0, "skipped": 6}
 
 
