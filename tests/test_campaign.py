@@ -124,7 +124,7 @@ BASE_ARGS = ["--systems", "40", "--backends", "drake", "--seed", "0", "--steps",
 def _synthetic_store(path: Path, **changes) -> None:
     """A store of 40 results written through CampaignStore (the campaign's own writer), with the
     settings of BASE_ARGS (``changes`` replace some)."""
-    from amcp_drake.campaign import campaign_settings
+    from amcp_drake.studies.campaign import campaign_settings
 
     settings = {**campaign_settings(0, 40, ("drake",), 6), **changes}
     store = CampaignStore(path)

@@ -22,12 +22,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from amcp_drake.controller import OnlineOptions
-from amcp_drake.errors import ProblemError
-from amcp_drake.examples import lorenzen2019_spec
-from amcp_drake.problem import ProblemSpec, Scenario
-from amcp_drake.problem_io import load_spec, save_spec
-from amcp_drake.simulate import Trajectory
+from amcp_drake.model.errors import ProblemError
+from amcp_drake.model.examples import lorenzen2019_spec
+from amcp_drake.model.options import OnlineOptions
+from amcp_drake.model.problem import ProblemSpec, Scenario
+from amcp_drake.model.problem_io import load_spec, save_spec
+from amcp_drake.online.simulate import Trajectory
 
 DATA = Path(__file__).parent / "data" / "campaign-failures" / "0-19"
 STEPS = 4
@@ -48,7 +48,7 @@ def _failing_case():
 
 @pytest.fixture(scope="module")
 def failing_run(tmp_path_factory):
-    from amcp_drake.campaign import run_problem
+    from amcp_drake.studies.campaign import run_problem
 
     folder = tmp_path_factory.mktemp("failures")
     result = run_problem(4, 2, ("drake", "cvxpy"), str(folder), steps=STEPS, draw=lambda seed, idx, steps: _failing_case())
@@ -79,7 +79,7 @@ def test_the_printed_command_reproduces_the_failure_bit_for_bit(failing_run, bac
     manifest = json.loads((folder / "replay.json").read_text())
     command = shlex.split(manifest["runs"][backend]["command"])
     assert command[:2] == ["amcp", "certify"]
-    proc = subprocess.run([sys.executable, "-m", "amcp_drake.cli", *command[1:]], check=False, capture_output=True, text=True,
+    proc = subprocess.run([sys.executable, "-m", "amcp_drake", *command[1:]], check=False, capture_output=True, text=True,
                           timeout=300)
     assert proc.returncode == 1, proc.stderr[-2000:]
     assert "NOT CERTIFIED" in proc.stdout
@@ -133,7 +133,7 @@ def test_an_explicit_disturbance_round_trips_exactly_and_serves_shorter_runs(tmp
 def test_certify_refuses_more_steps_than_the_explicit_disturbance_has(tmp_path):
     base = lorenzen2019_spec()
     path = save_spec(ProblemSpec(base.problem, base.design, _scenario(W_SEQUENCE.tolist())), tmp_path / "p.json")
-    proc = subprocess.run([sys.executable, "-m", "amcp_drake.cli", "certify", str(path), "--steps", "5", "--out",
+    proc = subprocess.run([sys.executable, "-m", "amcp_drake", "certify", str(path), "--steps", "5", "--out",
                            str(tmp_path / "out")], check=False, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2, proc.stderr[-2000:]
     assert "steps: expected at most 4 (scenario.disturbance is a sequence of 4 rows)" in proc.stderr
@@ -146,7 +146,7 @@ def test_the_replay_of_campaign_problem_0_19_is_faithful_to_the_recorded_run():
     """problem.json of 0-19 holds what the recorded cvxpy run used (online options, x0, θ*, the
     explicit w, steps), and certifying the recorded run against it gives the recorded verdict and the
     recorded margins, among them lms_update −0.5526 (issue 13: the projection onto Θ_k)."""
-    from amcp_drake.certify import certify
+    from amcp_drake.certificate.certify import certify
 
     spec = load_spec(DATA / "problem.json")
     manifest = json.loads((DATA / "replay.json").read_text())

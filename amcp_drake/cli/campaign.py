@@ -90,8 +90,8 @@ def report_html(store, damage: list[str] | None = None) -> str:
 def campaign_cmd(systems, backends, seed, scheduler, workers, store_path, steps, resume, report_file):
     """Draw random problems from the property-suite generators, run every claim check on each closed
     loop for each backend, fan out on Dask, and keep every result in SQLite."""
-    from amcp_drake.studies.campaign_store import CampaignStore
     from amcp_drake.model.errors import ProblemError
+    from amcp_drake.studies.campaign_store import CampaignStore
 
     chosen = tuple(b.strip() for b in backends.split(",") if b.strip())
     if not chosen or any(b not in ("drake", "cvxpy") for b in chosen):
@@ -113,9 +113,9 @@ def campaign_cmd(systems, backends, seed, scheduler, workers, store_path, steps,
 def _report(store_path: str, report_file: str) -> int:
     """``--report``: render the store. A damaged store is salvaged row by row (read-only, from a copy):
     what could be read is rendered with the damage listed first, and the exit code is 2."""
-    from amcp_drake.studies.campaign_store import CampaignStore, inspect_store, salvage
     from amcp_drake.model.errors import CampaignStoreError, ProblemError
     from amcp_drake.model.problem_io import write_text_atomic
+    from amcp_drake.studies.campaign_store import CampaignStore, inspect_store, salvage
 
     try:
         state = inspect_store(store_path)

@@ -99,7 +99,7 @@ def certify_cmd(ctx, problem_file, example, backend, design_backend, formulation
 def _run(spec, backend: str, steps: int, seed: int, formulation: str = "plain", options=None,
          design_backend: str | None = None):
     """Offline design, then the closed loop with a progress bar (Drake/cvxpy imported only here); the
-    same path as a campaign run (:func:`amcp_drake.replay.run_scenario`), so a replay is exact."""
+    same path as a campaign run (:func:`amcp_drake.online.replay.run_scenario`), so a replay is exact."""
     from amcp_drake.online.replay import run_scenario
 
     return run_scenario(spec, backend, design_backend=design_backend, formulation=formulation, steps=steps,

@@ -258,7 +258,7 @@ class Scenario:
         raise ProblemError("steps", f"at most {rows} (scenario.theta_star is a sequence of {rows} rows)", str(steps))
 
     def disturbance_for(self, steps: int) -> str | np.ndarray:
-        """The ``disturbance`` argument of :func:`~amcp_drake.simulate.simulate` for a run of ``steps``
+        """The ``disturbance`` argument of :func:`~amcp_drake.online.simulate.simulate` for a run of ``steps``
         steps: the kind, or the first ``steps`` rows of the explicit sequence (ProblemError when it is
         shorter)."""
         if not self.explicit_disturbance:

@@ -13,7 +13,7 @@ was made with (:func:`campaign_settings`, recorded in the store).
 Replays (issue 17, item 3). Each drawn case becomes a complete problem file first
 (:func:`replay_spec`: problem, design options, ``online`` options, x0, θ*, steps and the explicit
 disturbance array), which is serialised and parsed back; the campaign then runs *that* file through
-:func:`amcp_drake.replay.run_scenario`, the function ``amcp certify PROBLEM`` runs, with the offline
+:func:`amcp_drake.online.replay.run_scenario`, the function ``amcp certify PROBLEM`` runs, with the offline
 design on :data:`DESIGN_BACKEND` and the formulation :data:`FORMULATION`. A failing problem is saved
 as that very file plus ``replay.json`` (the commands, settings, library versions and the recorded
 verdict and margins) and the trajectories; ``amcp certify D/problem.json --backend B
@@ -63,8 +63,9 @@ def problem_seed(campaign_seed: int, idx: int) -> int:
 
 def draw_case(campaign_seed: int, idx: int, steps: int = CAMPAIGN_STEPS):
     """Problem ``idx`` of campaign ``campaign_seed``: the same generator as the property suite."""
-    from amcp_properties.strategies import closed_loop_cases
     from hypothesis import HealthCheck, Phase, given, seed, settings
+
+    from amcp_properties.strategies import closed_loop_cases
 
     drawn: list = []
 
@@ -172,7 +173,7 @@ def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure
 
     ``draw(campaign_seed, idx, steps)`` returns the case (default :func:`draw_case`); the run is that
     of the case's complete problem file (:func:`replay_spec`, :func:`round_trip`), through the same
-    :func:`~amcp_drake.replay.run_scenario` as ``amcp certify``."""
+    :func:`~amcp_drake.online.replay.run_scenario` as ``amcp certify``."""
     from amcp_drake.certificate.certify import certify
     from amcp_drake.offline.design import design
     from amcp_drake.online.replay import run_scenario
@@ -221,8 +222,8 @@ def run_campaign(store_path: str | Path, systems: int, backends: Iterable[str] =
     """Run (or resume) a campaign; returns counts {"submitted", "stored", "skipped"}."""
     from dask.distributed import Client, LocalCluster, as_completed
 
-    from amcp_drake.studies.campaign_store import CampaignStore
     from amcp_drake.model.errors import ProblemError
+    from amcp_drake.studies.campaign_store import CampaignStore
 
     backends = tuple(backends)
     store = CampaignStore(store_path)  # CampaignStoreError (exit 2) on a damaged or foreign file

@@ -18,7 +18,7 @@ Tables (schema version :data:`SCHEMA_VERSION`, marked by ``PRAGMA application_id
 Every write is one transaction; a crash loses at most the problem being written. An existing file
 is inspected read-only before it is opened for writing (:func:`inspect_store`): a file that is not
 SQLite, is damaged (truncated, garbled: ``PRAGMA quick_check``) or holds another schema raises
-:class:`~amcp_drake.errors.CampaignStoreError` naming the file, and is never written to.
+:class:`~amcp_drake.model.errors.CampaignStoreError` naming the file, and is never written to.
 :func:`salvage` reads what it can of a damaged store for ``amcp campaign --report``.
 """
 
@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .errors import CampaignStoreError
+from amcp_drake.model.errors import CampaignStoreError
 
 #: ``PRAGMA application_id`` of a campaign store: "amcp" in ASCII (sqlite.org/fileformat.html, offset 68).
 APPLICATION_ID = 0x616D6370

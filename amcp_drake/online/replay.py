@@ -1,16 +1,16 @@
 """Run the scenario of a problem file: offline design, then the closed loop (issue 17, item 3).
 
 One function, :func:`run_scenario`, used both by ``amcp certify PROBLEM`` and by the campaign
-(:mod:`amcp_drake.campaign`), so that a campaign run and the replay of its saved problem file take
+(:mod:`amcp_drake.studies.campaign`), so that a campaign run and the replay of its saved problem file take
 exactly the same path: the same design call (on ``design_backend``), the same controller, the same
-arguments to :func:`~amcp_drake.simulate.simulate`. Given the same problem file, backend, design
+arguments to :func:`~amcp_drake.online.simulate.simulate`. Given the same problem file, backend, design
 backend and formulation, the two runs are the same computation and their certificates agree bit
 for bit (see docs/decisions.md, "Campaign replays").
 """
 
 from __future__ import annotations
 
-from .problem import ProblemSpec
+from amcp_drake.model.problem import ProblemSpec
 
 
 def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: str | None = None,
@@ -23,10 +23,10 @@ def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: s
     OfflineDesign to use instead of designing; ``steps``/``seed``: override the scenario's;
     ``options``: the OnlineOptions (default: the file's ``online`` section, else the defaults).
     """
-    from .controller import AdaptiveMPC
-    from .design import design
-    from .errors import InconsistentDataError, ProblemError
-    from .simulate import simulate
+    from amcp_drake.model.errors import InconsistentDataError, ProblemError
+    from amcp_drake.offline.design import design
+    from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_drake.online.simulate import simulate
 
     sc = spec.scenario
     if sc is None:
