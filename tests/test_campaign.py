@@ -133,7 +133,8 @@ def _synthetic_store(path: Path, **changes) -> None:
         store.add({"campaign_seed": 0, "idx": i, "status": "fail" if i % 7 == 3 else "pass", "digest": f"{i:040d}",
                    "seconds": 0.1 * i, "labels": {"n": "2", "note": "x" * 60},
                    "claims": {"drake": {f"claim {j:02d}": {"status": "pass", "margin": 0.5 - j / 64} for j in range(30)}},
-                   "coverage": {"drake": {"theta_shrank": 1.0, "constraints_active": 0.0}}})
+                   "coverage": {"drake": {"theta_shrank": 1.0, "constraints_active": 0.0}},
+                   **({"replay": [f"amcp certify f/0-{i}/problem.json --backend drake"]} if i % 7 == 3 else {})})
     store.close()
 
 
@@ -227,7 +228,28 @@ def test_a_damaged_or_foreign_store_is_refused_never_written_and_reported_as_far
     assert _snapshot(tmp_path) == before
 
 
+def test_a_store_of_issue_9_without_settings_is_read_by_report_but_not_resumed(tmp_path):
+    from amcp_drake.studies.campaign_store import LEGACY_TABLES
+
+    store_path = tmp_path / "old.sqlite"
+    with sqlite3.connect(store_path) as db:
+        for table, columns in LEGACY_TABLES.items():
+            db.execute(f"CREATE TABLE {table} ({', '.join(columns)})")
+        db.execute("INSERT INTO problems (campaign_seed, idx, status, seconds) VALUES (0, 0, 'pass', 1.0)")
+    db.close()
+    before = _snapshot(tmp_path)
+    result = _invoke(BASE_ARGS + ["--store", str(store_path), "--resume"])
+    assert result.exit_code == 2, result.output
+    assert "before settings were recorded" in result.stderr and str(store_path) in result.stderr
+    assert _snapshot(tmp_path) == before
+    result = _invoke(["--store", str(store_path), "--report", str(tmp_path / "out" / "r.html")])
+    assert result.exit_code == 0, result.output
+    assert "problems stored: 1 (pass: 1)" in (tmp_path / "out" / "r.html").read_text()
+
+
 def test_report_on_a_healthy_store_and_a_directory_as_store(tmp_path):
+    from amcp_drake.cli.campaign import summary_text
+
     store_path = tmp_path / "c.sqlite"
     _synthetic_store(store_path)
     report = tmp_path / "r.html"
@@ -235,6 +257,10 @@ def test_report_on_a_healthy_store_and_a_directory_as_store(tmp_path):
     assert result.exit_code == 0, result.output
     page = report.read_text()
     assert "damaged" not in page and "problems stored: 40 (fail: 6, pass: 34)" in page
+    assert "<code>amcp certify f/0-10/problem.json --backend drake</code>" in page
+    store = CampaignStore(store_path)
+    assert "  seed 0 #38: replay with\n    amcp certify f/0-38/problem.json --backend drake" in summary_text(store)
+    store.close()
     folder = tmp_path / "a-folder"
     folder.mkdir()
     for extra in ([], ["--resume"], ["--report", str(tmp_path / "x.html")]):
