@@ -13,8 +13,7 @@ from pathlib import Path
 
 import click
 
-from amcp_drake.cli.common import (EXIT_BAD_INPUT, EXIT_FAIL, EXIT_OK, bad_input_exits_2, output_file_callback,
-                                   store_path_callback)
+from amcp_drake.cli.common import EXIT_BAD_INPUT, EXIT_FAIL, EXIT_OK, bad_input_exits_2, output_file_callback, store_path_callback
 
 
 def _counts_line(counts: dict[str, int]) -> str:
