@@ -104,7 +104,7 @@ def _scenario(disturbance, steps=STEPS):
     (W_SEQUENCE.tolist() + [[0.0, 0.0]], "scenario.disturbance", "4 rows"),
     ([[0.1, -0.1], [0.0], [0.0, 0.0], [0.0, 0.0]], "scenario.disturbance[1]", "length 2"),
     ([[0.1, -0.1], [0.0, 0.0], [0.0, 0.2], [0.0, 0.0]], "scenario.disturbance[2]", "a point of W"),
-    ([[0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [float("nan"), 0.0]], "scenario.disturbance[3]", "finite"),
+    ([[0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [float("nan"), 0.0]], "scenario.disturbance[3][0]", "finite"),
     ([[0.0, 0.0], ["a", 0.0], [0.0, 0.0], [0.0, 0.0]], "scenario.disturbance[1]", "real numbers"),
     ({"w": 1}, "scenario.disturbance", "array of 4 rows"),
     ("gaussian", "scenario.disturbance", "array of 4 rows"),
