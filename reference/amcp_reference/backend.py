@@ -136,9 +136,12 @@ class CvxpyBackend:
             raise ValueError(f"formulation {formulation!r} unknown to the cvxpy backend; choose one of {FORMULATIONS}")
         self.formulation = formulation
         self._call = SolverCall(solver, solver_options)
-        # The projection QP of (12) at Clarabel's default tolerances was off by up to 4e-5 when θ̃ is
-        # just outside the set (measured by the property suite's lockstep test, before the scaled
-        # form); as for Drake's LPs, tighten it (a 2-3 variable QP, so the cost is nil).
+        # the LP (9) has its own call object (same solver and options) so that profilers can tell
+        # its solver time from the tube QP's (amcp_drake.bench_cpu)
+        self._call_lp = SolverCall(solver, solver_options)
+        # The projection QP of (12) at Clarabel's default tolerances is off by up to 4e-5 when θ̃ is
+        # just outside the set (measured by the property suite's lockstep test); as for Drake's LPs,
+        # tighten it (a 2-3 variable QP, so the cost is nil).
         tight = dict(CLARABEL_PROJECTION_OPTIONS) if solver.upper() == "CLARABEL" else {}
         tight.update(solver_options or {})
         self._call_projection = SolverCall(solver, tight)
@@ -176,7 +179,7 @@ class CvxpyBackend:
         if (not all_finite(H_theta, H_data, h_prev, h_data) or h_prev.shape != (q,)
                 or H_data.shape != (len(h_data), p)):
             return SetUpdateResult(SolveStatus.ERROR, None, None)
-        return self._set_update.get((q, len(h_data), p)).solve(self._call, H_theta, h_prev, H_data, h_data)
+        return self._set_update.get((q, len(h_data), p)).solve(self._call_lp, H_theta, h_prev, H_data, h_data)
 
     def project(self, point, H, h):
         """argmin ‖θ − point‖² s.t. H θ <= h, the projection of (12)."""
