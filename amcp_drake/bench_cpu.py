@@ -21,7 +21,8 @@ CPU time under load, so the performance figures of issue 16 are CPU time of the 
 from __future__ import annotations
 
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 #: Parts reported per step (ms of CPU time).
 PARTS = ("set_update", "lms", "lp_solver", "qp", "qp_solver", "total", "outside_solvers")
@@ -78,4 +79,4 @@ def _solver_objects(owner: Any, kind: str) -> list[Any]:
     return seen
 
 
-__all__ = ["CpuProfile", "PARTS"]
+__all__ = ["PARTS", "CpuProfile"]

@@ -12,41 +12,20 @@ Conventions (design.md; DEVELOPERS.md engineering facts):
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import scipy.sparse as sp
-from pydrake.solvers import (
-    ClarabelSolver,
-    ClpSolver,
-    CsdpSolver,
-    IpoptSolver,
-    MathematicalProgram,
-    OsqpSolver,
-    ScsSolver,
-    SolutionResult,
-    SolverOptions,
+from pydrake.solvers import MathematicalProgram
+
+from ..status import SolveStatus
+from .base import (
+    GainResult,
+    ProjectionResult,
+    SetUpdateResult,
+    TubeMPCData,
 )
-
-from amcp_drake.backends.base import GainResult, ProjectionResult, SetUpdateResult, TubeMPCData
-from amcp_drake.backends.projection_form import projection_form
-from amcp_drake.model.status import SolveStatus
-
-#: Drake's SolutionResult -> canonical status.
-STATUS_MAP = {
-    SolutionResult.kSolutionFound: SolveStatus.OPTIMAL,
-    SolutionResult.kInfeasibleConstraints: SolveStatus.INFEASIBLE,
-    SolutionResult.kInfeasibleOrUnbounded: SolveStatus.INFEASIBLE,
-    SolutionResult.kUnbounded: SolveStatus.UNBOUNDED,
-    SolutionResult.kDualInfeasible: SolveStatus.UNBOUNDED,
-    SolutionResult.kIterationLimit: SolveStatus.INACCURATE,
-    SolutionResult.kSolverSpecificError: SolveStatus.ERROR,
-    SolutionResult.kInvalidInput: SolveStatus.ERROR,
-    SolutionResult.kSolutionResultNotSet: SolveStatus.ERROR,
-}
-
-#: Clarabel statuses (solver details) that Drake reports as success but that are not exact.
-_CLARABEL_INACCURATE = {"AlmostSolved", "AlmostPrimalInfeasible", "AlmostDualInfeasible"}
+from .drake_solver import SOLVERS, STATUS_MAP, DrakeSolver  # noqa: F401 - SOLVERS, STATUS_MAP re-exported
+from .drake_solver import DrakeSolver as _Solver  # noqa: F401 - old name, used by amcp_properties.mutants
+from .drake_solver import finite_or_raise as _finite
 
 #: Clarabel tolerances for the LPs (support, set update (9)). With the defaults (1e-8) the optimal
 #: offsets of (9) drift above h_{k-1} by up to 1.2e-7 on Example 1, which Lemma 3 forbids; with
@@ -55,58 +34,6 @@ CLARABEL_LP_OPTIONS = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1
 
 #: Formulations of the tube MPC QP (20): "plain" = (15a)-(15d) with Λ, "vertex" = (5b) at Θ_k's vertices.
 FORMULATIONS = ("plain", "vertex")
-
-SOLVERS = {
-    "clarabel": ClarabelSolver,
-    "osqp": OsqpSolver,
-    "scs": ScsSolver,
-    "clp": ClpSolver,
-    "csdp": CsdpSolver,
-    "ipopt": IpoptSolver,
-}
-
-
-def _finite(name: str, *arrays: np.ndarray) -> None:
-    for arr in arrays:
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"{name}: non-finite coefficient passed to Drake (it would abort the interpreter)")
-
-
-class _Solver:
-    """One Drake solver with options; ``status`` maps a result to the canonical status."""
-
-    def __init__(self, name: str, options: dict | None) -> None:
-        key = name.lower()
-        if key not in SOLVERS:
-            raise ValueError(f"solver {name!r} unknown to the Drake backend; choose one of {sorted(SOLVERS)}")
-        self.name = key
-        self.solver = SOLVERS[key]()
-        if not self.solver.available() or not self.solver.enabled():
-            raise ValueError(f"Drake solver {name!r} is not available or not enabled (license?)")
-        self.option_values = dict(options or {})
-        self.options = self._solver_options(self.option_values)
-
-    def _solver_options(self, values: dict) -> SolverOptions:
-        opts = SolverOptions()
-        for opt, value in values.items():
-            opts.SetOption(self.solver.solver_id(), opt, value)
-        return opts
-
-    def solve(self, prog: MathematicalProgram, extra_options: dict | None = None):
-        """Solve ``prog``; ``extra_options`` override this solver's options for this call only."""
-        options = self.options if not extra_options else self._solver_options({**self.option_values, **extra_options})
-        start = time.perf_counter()
-        result = self.solver.Solve(prog, None, options)
-        return result, time.perf_counter() - start
-
-    def status(self, result) -> SolveStatus:
-        status = STATUS_MAP.get(result.get_solution_result(), SolveStatus.ERROR)
-        if status is SolveStatus.OPTIMAL and self.name == "clarabel":
-            details = result.get_solver_details()
-            if getattr(details, "status", "Solved") in _CLARABEL_INACCURATE:
-                return SolveStatus.INACCURATE
-        return status
-
 
 class DrakeBackend:
     """All problems of the algorithm with Drake's ``MathematicalProgram``.
@@ -129,12 +56,12 @@ class DrakeBackend:
             raise ValueError(f"formulation {formulation!r} unknown to the Drake backend; choose one of {FORMULATIONS}")
         self.formulation = formulation
         self._solver_options = dict(solver_options or {})
-        self._solver = _Solver(solver, solver_options)
+        self._solver = DrakeSolver(solver, solver_options)
         lp_options = dict(CLARABEL_LP_OPTIONS) if solver.lower() == "clarabel" else {}
         lp_options.update(solver_options or {})
-        self._lp = _Solver(solver, lp_options)
-        self._lp_fallback = _Solver("clp", None) if solver.lower() == "clarabel" else None
-        self._sdp = _Solver(sdp_solver, None)
+        self._lp = DrakeSolver(solver, lp_options)
+        self._lp_fallback = DrakeSolver("clp", None) if solver.lower() == "clarabel" else None
+        self._sdp = DrakeSolver(sdp_solver, None)
         self._set_update_cache: dict[tuple[int, int, int], tuple] = {}
         self.solver_name = self._solver.name
 

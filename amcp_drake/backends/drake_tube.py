@@ -18,9 +18,11 @@ import numpy as np
 import scipy.sparse as sp
 from pydrake.solvers import MathematicalProgram
 
-from amcp_drake.backends.base import MPCSolution, TubeMPCData
-from amcp_drake.backends.clarabel_retry import solve_with_retries
-from amcp_drake.model.status import SolveStatus
+from ..status import SolveStatus
+from .base import MPCSolution, TubeMPCData
+from .clarabel_retry import solve_with_retries
+from .condensed_cost import CondensedCost
+from .drake_solver import infeasible_constraint_names
 
 
 def _sqrtm(M: np.ndarray) -> np.ndarray:
@@ -59,6 +61,7 @@ class DrakeTubeMPC:
     def __init__(self, data: TubeMPCData, solver) -> None:
         self.data = data
         self._solver = solver
+        self._cost_model = CondensedCost(data)
         self._build(np.asarray(data.H_theta, float))
 
     # -- construction ------------------------------------------------------------------------
@@ -210,36 +213,6 @@ class DrakeTubeMPC:
         left = self._C15c[:, : lay.L0]
         return sp.hstack([left, lam_block], format="csc")
 
-    # -- cost (17)-(18), condensed ------------------------------------------------------------
-    def _cost_matrices(self, x: np.ndarray, theta_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        """J = vᵀ H v + 2 xᵀ S v + xᵀ T x with x̂ from (18): x̂_{l+1} = A_cl(θ̂) x̂_l + B(θ̂) v_l."""
-        d = self.data
-        n, m, N = self.layout.n, self.layout.m, self.layout.N
-        A_hat = d.A0 + np.tensordot(theta_hat, d.A, axes=1)
-        B_hat = d.B0 + np.tensordot(theta_hat, d.B, axes=1)
-        Acl = A_hat + B_hat @ d.K
-        Phi = np.zeros(((N + 1) * n, n))
-        Gam = np.zeros(((N + 1) * n, N * m))
-        power = np.eye(n)
-        powers = [power]
-        for l in range(1, N + 1):
-            power = Acl @ power
-            powers.append(power)
-        for l in range(N + 1):
-            Phi[l * n:(l + 1) * n] = powers[l]
-            for i in range(l):
-                Gam[l * n:(l + 1) * n, i * m:(i + 1) * m] = powers[l - 1 - i] @ B_hat
-        Qbar = np.kron(np.eye(N + 1), d.Q)
-        Qbar[N * n:, N * n:] = d.P
-        Kbar = np.hstack([np.kron(np.eye(N), d.K), np.zeros((N * m, n))])
-        Rbar = np.kron(np.eye(N), d.R)
-        Mu_x = Kbar @ Phi
-        Mu_v = Kbar @ Gam + np.eye(N * m)
-        H = Gam.T @ Qbar @ Gam + Mu_v.T @ Rbar @ Mu_v
-        S = Phi.T @ Qbar @ Gam + Mu_x.T @ Rbar @ Mu_v
-        T = Phi.T @ Qbar @ Phi + Mu_x.T @ Rbar @ Mu_x
-        return 0.5 * (H + H.T), S.T @ x, float(x @ T @ x)
-
     # -- solve ---------------------------------------------------------------------------------
     def _solve(self):
         """(result, status, solver time, retry note): Clarabel with the retry ladder of
@@ -281,16 +254,12 @@ class DrakeTubeMPC:
             lo, hi = (np.broadcast_to(np.asarray(b, float), (lay.m,)) for b in u0_bounds)
             self._c_u0.set_bounds(lo - Kx, hi - Kx)
         if not self._minmax:
-            Hv, g, const = self._cost_matrices(x, theta_hat)
+            Hv, g, const = self._cost_model.matrices(x, theta_hat)
             self._cost.UpdateCoefficients(2.0 * Hv, 2.0 * g, const, is_convex=True)
         update_time = time.perf_counter() - start
         result, status, solver_time, detail = self._solve()
         if status is not SolveStatus.OPTIMAL:
-            names: tuple[str, ...] = ()
-            try:
-                names = tuple(result.GetInfeasibleConstraintNames(self.prog, 1e-6))
-            except Exception:  # noqa: BLE001 - diagnostics only; a failed report must not hide the status
-                names = ()
+            names = infeasible_constraint_names(result, self.prog)
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names,
                                detail=f"{result.get_solution_result()} ({detail})" if detail
                                else str(result.get_solution_result()))

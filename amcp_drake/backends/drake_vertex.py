@@ -30,53 +30,13 @@ import numpy as np
 import scipy.sparse as sp
 from pydrake.solvers import MathematicalProgram
 
-from amcp_drake.backends.base import MPCSolution, TubeMPCData
-from amcp_drake.backends.vertex_form import CLARABEL_OPTIONS, VertexEnumerationError, theta_vertices
-from amcp_drake.model.status import SolveStatus
+from ..status import SolveStatus
+from .base import MPCSolution, TubeMPCData
+from .condensed_cost import CondensedCost
+from .drake_solver import DrakeSolver, infeasible_constraint_names
+from .vertex_form import CLARABEL_OPTIONS, VertexEnumerationError, theta_vertices
 
 TUBE_ROWS = "(5b) tube propagation at the vertices of Theta_k (vertex form of (15c)-(15d))"
-
-
-class CondensedCost:
-    """Cost (17)-(18) as a quadratic in v: J = vᵀ H v + 2 gᵀ v + c, with x̂_{l+1} = A_cl(θ̂) x̂_l + B(θ̂) v_l.
-
-    The block matrices Q̄ = diag(Q, ..., Q, P), K̄ and R̄ are formed once; per step only the
-    powers of A_cl(θ̂_k) change.
-    """
-
-    def __init__(self, data: TubeMPCData) -> None:
-        self.data = data
-        n, m = np.shape(data.B0)
-        N = int(data.N)
-        self.n, self.m, self.N = n, m, N
-        Qbar = np.kron(np.eye(N + 1), data.Q)
-        Qbar[N * n:, N * n:] = data.P
-        self.Qbar = Qbar
-        self.Kbar = np.hstack([np.kron(np.eye(N), data.K), np.zeros((N * m, n))])
-        self.Rbar = np.kron(np.eye(N), data.R)
-        lag = np.arange(N + 1)[:, None] - 1 - np.arange(N)[None, :]   # l − 1 − i
-        self._lag = np.where(lag >= 0, lag, N)                         # index N: zero block
-
-    def matrices(self, x: np.ndarray, theta_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        d, n, m, N = self.data, self.n, self.m, self.N
-        B_hat = d.B0 + np.tensordot(theta_hat, d.B, axes=1)
-        A_cl = d.A0 + np.tensordot(theta_hat, d.A, axes=1) + B_hat @ d.K
-        powers = np.empty((N + 1, n, n))
-        powers[0] = np.eye(n)
-        for l in range(1, N + 1):
-            powers[l] = A_cl @ powers[l - 1]
-        Phi = powers.reshape((N + 1) * n, n)
-        PB = np.zeros((N + 1, n, m))
-        PB[:N] = powers[:N] @ B_hat
-        Gam = PB[self._lag].transpose(0, 2, 1, 3).reshape((N + 1) * n, N * m)
-        Mu_x = self.Kbar @ Phi
-        Mu_v = self.Kbar @ Gam + np.eye(N * m)
-        QG = self.Qbar @ Gam
-        RMv = self.Rbar @ Mu_v
-        H = Gam.T @ QG + Mu_v.T @ RMv
-        S = Phi.T @ QG + Mu_x.T @ RMv
-        T = Phi.T @ self.Qbar @ Phi + Mu_x.T @ self.Rbar @ Mu_x
-        return 0.5 * (H + H.T), S.T @ x, float(x @ T @ x)
 
 
 class DrakeVertexTubeMPC:
@@ -90,9 +50,7 @@ class DrakeVertexTubeMPC:
         self.data = data
         self._plain_solver = solver
         if solver.name == "clarabel":
-            from amcp_drake.backends.drake_ import _Solver
-
-            solver = _Solver("clarabel", {**CLARABEL_OPTIONS, **(solver_options or {})})
+            solver = DrakeSolver("clarabel", {**CLARABEL_OPTIONS, **(solver_options or {})})
         self._solver = solver
         self._plain = None  # the plain form, built only if a step needs the fallback
         self._cost_model = CondensedCost(data)
@@ -218,11 +176,7 @@ class DrakeVertexTubeMPC:
             solver_time += extra
             detail += "; re-solved with iterative refinement"
         if status is not SolveStatus.OPTIMAL:
-            names: tuple[str, ...] = ()
-            try:
-                names = tuple(result.GetInfeasibleConstraintNames(self.prog, 1e-6))
-            except Exception:  # noqa: BLE001 - diagnostics only; a failed report must not hide the status
-                names = ()
+            names = infeasible_constraint_names(result, self.prog)
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names,
                                detail=f"{result.get_solution_result()}; {detail}")
         yv = result.GetSolution(self.y)

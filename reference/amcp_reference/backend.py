@@ -12,34 +12,17 @@ Conventions (design.md):
 
 from __future__ import annotations
 
-import time
-import warnings
 from collections import OrderedDict
 from collections.abc import Callable
 from typing import Any
 
-import cvxpy as cp
-import cvxpy.settings as cps
 import numpy as np
 
 from amcp_drake.backends.base import ProjectionResult, SetUpdateResult, TubeMPCData
 from amcp_drake.backends.projection_form import projection_form
 from amcp_drake.model.status import SolveStatus
 
-#: cvxpy status string -> canonical status (cvxpy.settings). Inaccurate certificates of
-#: infeasibility / unboundedness count as such (no solution is returned either way);
-#: ``user_limit`` (iteration or time limit) is reported as inaccurate, as Drake's kIterationLimit.
-STATUS_MAP: dict[str, SolveStatus] = {
-    cps.OPTIMAL: SolveStatus.OPTIMAL,
-    cps.OPTIMAL_INACCURATE: SolveStatus.INACCURATE,
-    cps.INFEASIBLE: SolveStatus.INFEASIBLE,
-    cps.INFEASIBLE_INACCURATE: SolveStatus.INFEASIBLE,
-    cps.UNBOUNDED: SolveStatus.UNBOUNDED,
-    cps.UNBOUNDED_INACCURATE: SolveStatus.UNBOUNDED,
-    cps.INFEASIBLE_OR_UNBOUNDED: SolveStatus.INFEASIBLE,
-    cps.USER_LIMIT: SolveStatus.INACCURATE,
-    cps.SOLVER_ERROR: SolveStatus.ERROR,
-}
+from .solver_call import STATUS_MAP, SolverCall, all_finite, map_status  # noqa: F401 - re-exported
 
 #: Formulations of the tube MPC QP (20): "plain" = (15a)-(15d) with Λ, "vertex" = (5b) at Θ_k's vertices.
 FORMULATIONS = ("plain", "vertex")
@@ -51,46 +34,6 @@ CLARABEL_PROJECTION_OPTIONS = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_
 #: Number of parametrised problems kept per kind (support LP, LP (9), projection QP); shapes
 #: change rarely (redundancy removal, moving window), so a small LRU cache suffices.
 CACHE_SIZE = 32
-
-
-def map_status(status: str | None) -> SolveStatus:
-    """Canonical status of a cvxpy status string (unknown or None -> ERROR)."""
-    return STATUS_MAP.get(status, SolveStatus.ERROR) if status is not None else SolveStatus.ERROR
-
-
-def all_finite(*arrays: Any) -> bool:
-    """True when every entry of every array is finite."""
-    return all(np.all(np.isfinite(np.asarray(a, float))) for a in arrays)
-
-
-class SolverCall:
-    """A cvxpy solver name plus options; :meth:`solve` never raises ``SolverError``."""
-
-    def __init__(self, solver: str, options: dict | None) -> None:
-        name = str(solver).upper()
-        if name not in cp.installed_solvers():
-            raise ValueError(f"solver {solver!r} is not installed for cvxpy; installed: {cp.installed_solvers()}")
-        self.name = name
-        self.options = dict(options or {})
-
-    def solve(self, problem: cp.Problem) -> tuple[SolveStatus, float, str]:
-        """Solve ``problem``; return (canonical status, solver time in s, detail).
-
-        The solver time is ``problem.solver_stats.solve_time`` when the solver reports it, else
-        the wall time of ``Problem.solve`` (which then includes cvxpy's parameter application).
-        """
-        start = time.perf_counter()
-        try:
-            with warnings.catch_warnings():
-                # cvxpy warns "Solution may be inaccurate"; the status already says so
-                warnings.filterwarnings("ignore", message="Solution may be inaccurate", category=UserWarning)
-                problem.solve(solver=self.name, **self.options)
-        except cp.error.SolverError as exc:
-            return SolveStatus.ERROR, time.perf_counter() - start, f"SolverError: {exc}"
-        wall = time.perf_counter() - start
-        stats = problem.solver_stats
-        elapsed = stats.solve_time if stats is not None and stats.solve_time is not None else wall
-        return map_status(problem.status), float(elapsed), str(problem.status)
 
 
 class ProblemCache:

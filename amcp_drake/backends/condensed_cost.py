@@ -1,0 +1,67 @@
+"""The certainty-equivalence cost (17)-(18) condensed into a quadratic in v, written once for every
+Drake formulation of the tube QP (20) (``drake_tube`` plain (15), ``drake_vertex``) and the fast
+path (``daqp_fast``). The cvxpy backend keeps the nominal prediction x̂ as variables instead
+(``amcp_reference.nominal_cost``), so that the two backends cross-check the cost.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .base import TubeMPCData
+
+
+class CondensedCost:
+    """Cost (17)-(18) as a quadratic in v: J = vᵀ H v + 2 gᵀ v + c, with x̂_{l+1} = A_cl(θ̂) x̂_l + B(θ̂) v_l.
+
+    The block matrices Q̄ = diag(Q, ..., Q, P), K̄ and R̄ are formed once; per step only the
+    powers of A_cl(θ̂_k) change.
+    """
+
+    def __init__(self, data: TubeMPCData) -> None:
+        self.data = data
+        n, m = np.shape(data.B0)
+        N = int(data.N)
+        self.n, self.m, self.N = n, m, N
+        Qbar = np.kron(np.eye(N + 1), data.Q)
+        Qbar[N * n:, N * n:] = data.P
+        self.Qbar = Qbar
+        self.Kbar = np.hstack([np.kron(np.eye(N), data.K), np.zeros((N * m, n))])
+        self.Rbar = np.kron(np.eye(N), data.R)
+        lag = np.arange(N + 1)[:, None] - 1 - np.arange(N)[None, :]   # l − 1 − i
+        self._lag = np.where(lag >= 0, lag, N)                         # index N: zero block
+        self._last: tuple | None = None                                # (θ̂, H, S, T) of the last call
+
+    def matrices(self, x: np.ndarray, theta_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """(H, g, c) with J_N(x_k, v) of (17) = vᵀ H v + 2 gᵀ v + c for the stacked v (N·m,), x̂_0 = x_k
+        and x̂ rolled out by (18) with θ̂_k: x̂ = Φ x_k + Γ v, û = K̄ x̂ + v. H (N·m, N·m) is symmetric;
+        it depends on θ̂_k only and is reused while θ̂_k does not change."""
+        theta_hat = np.asarray(theta_hat, float)
+        if self._last is None or not np.array_equal(self._last[0], theta_hat):
+            self._last = (theta_hat.copy(), *self._blocks(theta_hat))
+        _, H, S, T = self._last
+        return H, S.T @ x, float(x @ T @ x)
+
+    def _blocks(self, theta_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        d, n, m, N = self.data, self.n, self.m, self.N
+        B_hat = d.B0 + np.tensordot(theta_hat, d.B, axes=1)
+        A_cl = d.A0 + np.tensordot(theta_hat, d.A, axes=1) + B_hat @ d.K
+        powers = np.empty((N + 1, n, n))
+        powers[0] = np.eye(n)
+        for l in range(1, N + 1):
+            powers[l] = A_cl @ powers[l - 1]
+        Phi = powers.reshape((N + 1) * n, n)
+        PB = np.zeros((N + 1, n, m))
+        PB[:N] = powers[:N] @ B_hat
+        Gam = PB[self._lag].transpose(0, 2, 1, 3).reshape((N + 1) * n, N * m)
+        Mu_x = self.Kbar @ Phi
+        Mu_v = self.Kbar @ Gam + np.eye(N * m)
+        QG = self.Qbar @ Gam
+        RMv = self.Rbar @ Mu_v
+        H = Gam.T @ QG + Mu_v.T @ RMv
+        S = Phi.T @ QG + Mu_x.T @ RMv
+        T = Phi.T @ self.Qbar @ Phi + Mu_x.T @ self.Rbar @ Mu_x
+        return 0.5 * (H + H.T), S, T
+
+
+__all__ = ["CondensedCost"]
