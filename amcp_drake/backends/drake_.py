@@ -12,6 +12,8 @@ Conventions (design.md; DEVELOPERS.md engineering facts):
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import scipy.sparse as sp
 from pydrake.solvers import MathematicalProgram
@@ -26,6 +28,8 @@ from .base import (
 from .drake_solver import SOLVERS, STATUS_MAP, DrakeSolver  # noqa: F401 - SOLVERS, STATUS_MAP re-exported
 from .drake_solver import DrakeSolver as _Solver  # noqa: F401 - old name, used by amcp_properties.mutants
 from .drake_solver import finite_or_raise as _finite
+from .drake_set_update import DrakeSetUpdateLP
+from .set_update_vertices import VertexSetUpdate
 
 #: Clarabel tolerances for the LPs (support, set update (9)). With the defaults (1e-8) the optimal
 #: offsets of (9) drift above h_{k-1} by up to 1.2e-7 on Example 1, which Lemma 3 forbids; with
@@ -34,6 +38,8 @@ CLARABEL_LP_OPTIONS = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1
 
 #: Formulations of the tube MPC QP (20): "plain" = (15a)-(15d) with Λ, "vertex" = (5b) at Θ_k's vertices.
 FORMULATIONS = ("plain", "vertex")
+#: How the update (9) is solved: "auto" = by vertices where that applies, else the LP; "lp" = the LP.
+SET_UPDATE_METHODS = ("auto", "lp")
 
 class DrakeBackend:
     """All problems of the algorithm with Drake's ``MathematicalProgram``.
@@ -46,12 +52,14 @@ class DrakeBackend:
     formulation: tube MPC QP (20) with the multipliers Λ of (15c)-(15d) ("plain", the reference
         and default) or with (5b) at the vertices of Θ_k ("vertex", same optimum, no Λ:
         ``MPCSolution.Lambda`` is None; see ``drake_vertex``).
+    set_update_method: "auto" (default): the update (9) by the vertices of Θ_{k−1} ∩ Δ_k with a dual
+        certificate per row where that applies, else the LP; "lp": always the LP (issue 16).
     """
 
     name = "drake"
 
     def __init__(self, solver: str = "clarabel", solver_options: dict | None = None,
-                 sdp_solver: str = "clarabel", formulation: str = "plain") -> None:
+                 sdp_solver: str = "clarabel", formulation: str = "plain", set_update_method: str = "auto") -> None:
         if formulation not in FORMULATIONS:
             raise ValueError(f"formulation {formulation!r} unknown to the Drake backend; choose one of {FORMULATIONS}")
         self.formulation = formulation
@@ -62,7 +70,11 @@ class DrakeBackend:
         self._lp = DrakeSolver(solver, lp_options)
         self._lp_fallback = DrakeSolver("clp", None) if solver.lower() == "clarabel" else None
         self._sdp = DrakeSolver(sdp_solver, None)
-        self._set_update_cache: dict[tuple[int, int, int], tuple] = {}
+        if set_update_method not in SET_UPDATE_METHODS:
+            raise ValueError(f"set_update_method {set_update_method!r} unknown; choose one of {SET_UPDATE_METHODS}")
+        self.set_update_method = set_update_method
+        self._vertex_update = VertexSetUpdate()
+        self._set_update_cache: dict[tuple[int, int, int], DrakeSetUpdateLP] = {}
         self.solver_name = self._solver.name
 
     # -- offline: gain LMI for Assumption 8 and (16) -----------------------------------------
@@ -143,58 +155,36 @@ class DrakeBackend:
 
     # -- online: fixed-complexity set-membership update, LP (9) ------------------------------
     def set_update(self, H_theta, h_prev, H_data, h_data):
-        """LP (9) in its matrix (dual) form:
+        """The update (9): h_k and its multipliers Λ (Λ H̃ = H_θ, Λ h̃ <= h_k, Λ >= 0) with
+        H̃ = [H_θ; H_data], h̃ = [h_prev; h_data].
 
-        min 1ᵀh over h ∈ ℝ^q, Λ ∈ ℝ^{q×(q+r)}_{>=0}  s.t.  Λ H̃ = H_θ,  Λ h̃ <= h,
-        with H̃ = [H_θ; H_data], h̃ = [h_prev; h_data]. (The cvxpy backend solves the per-row
-        primal instead, so that the two backends cross-check each other.)
+        ``set_update_method="auto"`` (default): the per-facet maximum over the vertices of
+        Θ_{k−1} ∩ Δ_k, each row certified by its multipliers, the vertices of Θ_{k−1} reused when Δ_k
+        cuts none of them (:class:`.set_update_vertices.VertexSetUpdate`), and the LP of
+        :mod:`.drake_set_update` where that does not apply; ``"lp"``: always the LP.
         """
         H_theta = np.asarray(H_theta, float)
-        H_tilde = np.vstack([H_theta, np.asarray(H_data, float)])
-        h_tilde = np.concatenate([np.asarray(h_prev, float), np.asarray(h_data, float)])
+        H_data, h_prev, h_data = (np.asarray(a, float) for a in (H_data, h_prev, h_data))
+        H_tilde = np.vstack([H_theta, H_data])
+        h_tilde = np.concatenate([h_prev, h_data])
         _finite("set_update", H_tilde, h_tilde)
+        if self.set_update_method == "auto":
+            start = time.perf_counter()
+            answer = self._vertex_update.solve(H_theta, h_prev, H_data, h_data)
+            if answer is not None:
+                return SetUpdateResult(SolveStatus.OPTIMAL, answer[0], answer[1], time.perf_counter() - start,
+                                       method="vertices")
         q, p = H_theta.shape
-        r = H_tilde.shape[0]
-        prog, h, Lam = self._set_update_program(q, r, p, H_tilde, h_tilde, H_theta)
-        result, elapsed = self._lp.solve(prog)
-        status = self._lp.status(result)
-        if status is not SolveStatus.OPTIMAL and self._lp_fallback is not None:
-            # Θ_{k-1} ∩ Δ_k with empty interior (θ* pinned at a vertex by vertex disturbances) makes
-            # this LP degenerate: its dual optimal face is unbounded and Clarabel (interior point)
-            # then ends in NumericalError, AlmostSolved or even a false "unbounded" (found by the
-            # property suite). The simplex method of CLP is exact on degenerate LPs.
-            result, extra = self._lp_fallback.solve(prog)
-            status = self._lp_fallback.status(result)
-            elapsed += extra
-        if status is not SolveStatus.OPTIMAL:
-            return SetUpdateResult(status, None, None, elapsed)
-        return SetUpdateResult(status, result.GetSolution(h), result.GetSolution(Lam), elapsed)
-
-    def _set_update_program(self, q, r, p, H_tilde, h_tilde, H_theta):
-        """The program of (9) for shape (q, r, p), built once and updated in place
-        (``UpdateCoefficients``): building it anew each step cost ~2-3 ms of a ~4 ms step."""
-        key = (q, r, p)
-        cached = self._set_update_cache.get(key)
-        if cached is None:
-            prog = MathematicalProgram()
-            h = prog.NewContinuousVariables(q, "h")
-            Lam = prog.NewContinuousVariables(q, r, "Lambda")
-            lam_flat = Lam.reshape(-1)  # row-major: Lambda[i, j] at i*r + j
-            prog.AddBoundingBoxConstraint(0.0, np.inf, lam_flat).evaluator().set_description("(9) Lambda >= 0")
-            eq = prog.AddLinearEqualityConstraint(sp.csc_matrix((q * p, q * r)), np.zeros(q * p), lam_flat).evaluator()
-            eq.set_description("(9) Lambda H_tilde = H_theta")
-            ineq = prog.AddLinearConstraint(sp.csc_matrix((q, q * r + q)), np.full(q, -np.inf), np.zeros(q),
-                                            np.concatenate([lam_flat, h])).evaluator()
-            ineq.set_description("(9) Lambda h_tilde <= h")
-            prog.AddLinearCost(np.ones(q), 0.0, h)
-            cached = self._set_update_cache[key] = (prog, h, Lam, eq, ineq)
-        prog, h, Lam, eq, ineq = cached
-        # Λ H̃ = H_θ: row i of Λ times H̃ equals row i of H_θ -> kron(I_q, H̃ᵀ) vec_row(Λ) = vec_row(H_θ)
-        eq.UpdateCoefficients(sp.kron(sp.eye(q), sp.csc_matrix(H_tilde.T), format="csc"), H_theta.reshape(-1))
-        # Λ h̃ - h <= 0
-        A_in = sp.hstack([sp.kron(sp.eye(q), sp.csc_matrix(h_tilde[None, :])), -sp.eye(q)], format="csc")
-        ineq.UpdateCoefficients(A_in, np.full(q, -np.inf), np.zeros(q))
-        return prog, h, Lam
+        key = (q, len(h_tilde), p)
+        if key not in self._set_update_cache:
+            self._set_update_cache[key] = DrakeSetUpdateLP(*key)
+        # Θ_{k-1} ∩ Δ_k with empty interior (θ* pinned at a vertex by vertex disturbances) makes
+        # this LP degenerate: its dual optimal face is unbounded and Clarabel (interior point)
+        # then ends in NumericalError, AlmostSolved or even a false "unbounded" (found by the
+        # property suite). The simplex method of CLP (the fallback) is exact on degenerate LPs.
+        solvers = (self._lp,) if self._lp_fallback is None else (self._lp, self._lp_fallback)
+        status, h, Lam, elapsed = self._set_update_cache[key].solve(solvers, H_theta, H_tilde, h_tilde)
+        return SetUpdateResult(status, h, Lam, elapsed, method="lp")
 
     # -- online: projection QP of (12) -------------------------------------------------------
     def project(self, point, H, h):

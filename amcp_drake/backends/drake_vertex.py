@@ -39,6 +39,33 @@ from .vertex_form import CLARABEL_OPTIONS, VertexEnumerationError, theta_vertice
 TUBE_ROWS = "(5b) tube propagation at the vertices of Theta_k (vertex form of (15c)-(15d))"
 
 
+class _TubeRows:
+    """The N·S·u tube rows for S vertices of Θ_k as one preallocated CSC matrix.
+
+    Row (l, s, i) has the columns z_l, z_{l+1} (contiguous), α_l, α_{l+1}, v_l. The pattern depends
+    only on S; each step writes the (S, u, width) block of coefficients (the same for every l)
+    into ``A.data`` through ``source``, the index into the block of each stored entry."""
+
+    def __init__(self, mpc: "DrakeVertexTubeMPC", S: int) -> None:
+        n, m, N, u, a0, v0 = mpc.n, mpc.m, mpc.N, mpc.u, mpc.a0, mpc.v0
+        width = 2 * n + 2 + m
+        per_l = np.array([np.concatenate([np.arange(l * n, (l + 2) * n), [a0 + l, a0 + l + 1],
+                                          np.arange(v0 + l * m, v0 + (l + 1) * m)]) for l in range(N)])
+        indices = np.repeat(per_l[:, None, :], S * u, axis=1).reshape(-1)
+        indptr = np.arange(0, N * S * u * width + 1, width)
+        block_entries = S * u * width
+        # stored entry e of the CSR form (row-major over (l, s, i, column)) is block entry e mod S·u·width
+        order = np.arange(N * block_entries, dtype=float) + 1.0
+        csc = sp.csr_matrix((order, indices, indptr), shape=(N * S * u, mpc.size)).tocsc()
+        self.source = (csc.data.astype(np.int64) - 1) % block_entries
+        self.A = csc
+        self.lb = np.full(N * S * u, -np.inf)
+        self.ub = np.tile(-mpc.w_bar, N * S)
+
+    def write(self, block: np.ndarray) -> None:
+        self.A.data[:] = block.reshape(-1)[self.source]
+
+
 class DrakeVertexTubeMPC:
     """QP (20) in vertex form, built once; :meth:`solve` updates x_k, the rows of Θ_k's vertices, θ̂_k."""
 
@@ -54,7 +81,9 @@ class DrakeVertexTubeMPC:
         self._solver = solver
         self._plain = None  # the plain form, built only if a step needs the fallback
         self._cost_model = CondensedCost(data)
-        self._patterns: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._rows: dict[int, _TubeRows] = {}
+        self._last_vertices: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._tube_S = -1  # number of vertices whose rows are in the program now (-1: none yet)
         self._build()
 
     # -- construction ------------------------------------------------------------------------
@@ -95,6 +124,8 @@ class DrakeVertexTubeMPC:
         A15b[:, 0:n] = -H_x
         A15b[:, a0] = -np.ones((u, 1))
         self._c15b = prog.AddLinearConstraint(A15b.tocsc(), np.full(u, -np.inf), np.zeros(u), y).evaluator()
+        self._c15b_ub = np.zeros(u)
+        self._minus_H_x = -H_x
         self._c15b.set_description("(15b) x_k in X_0|k")
 
         # (5b) at the vertices of Θ_k: matrix replaced per step (placeholder: one void row)
@@ -115,34 +146,41 @@ class DrakeVertexTubeMPC:
         self._cost = prog.AddQuadraticCost(np.eye(N * m), np.zeros(N * m), 0.0, y[v0:], is_convex=True).evaluator()
         self._cost.set_description("(17) certainty-equivalence cost")
 
-    def _pattern(self, S: int) -> tuple[np.ndarray, np.ndarray]:
-        """CSR indices and indptr of the N·S·u tube rows; row (l, s, i) has the columns
-        z_l, z_{l+1} (contiguous), α_l, α_{l+1}, v_l, in increasing order."""
-        if S not in self._patterns:
-            n, m, N, u, a0, v0 = self.n, self.m, self.N, self.u, self.a0, self.v0
-            width = 2 * n + 2 + m
-            per_l = np.array([np.concatenate([np.arange(l * n, (l + 2) * n), [a0 + l, a0 + l + 1],
-                                              np.arange(v0 + l * m, v0 + (l + 1) * m)]) for l in range(N)])
-            indices = np.repeat(per_l[:, None, :], S * u, axis=1).reshape(-1).astype(np.int32)
-            indptr = np.arange(0, N * S * u * width + 1, width, dtype=np.int32)
-            self._patterns[S] = (indices, indptr)
-        return self._patterns[S]
+    def _rows_for(self, S: int) -> _TubeRows:
+        """The preallocated tube rows for S vertices of Θ_k (built on first use for this S)."""
+        if S not in self._rows:
+            self._rows[S] = _TubeRows(self, S)
+        return self._rows[S]
 
     def tube_rows(self, vertices: np.ndarray) -> tuple[sp.csc_matrix, np.ndarray]:
-        """Matrix (N·S·u, size) and upper bound of the vertex-form rows for Θ_k's vertices (S, p)."""
+        """Matrix (N·S·u, size) and upper bound of the vertex-form rows for Θ_k's vertices (S, p),
+        written into the preallocated matrix for S (the returned matrix is that one, not a copy)."""
+        rows = self._rows_for(len(vertices))
+        rows.write(self._block(vertices))
+        return rows.A, rows.ub
+
+    def _block(self, vertices: np.ndarray) -> np.ndarray:
+        """(S, u, width) coefficients of the rows of one prediction step l (they repeat over l):
+        [H_x A_cl(θ^s) | −H_x | c^s | −1 | H_x B(θ^s)] on (z_l, z_{l+1}, α_l, α_{l+1}, v_l)."""
         S = len(vertices)
-        n, N, u = self.n, self.N, self.u
+        n, u = self.n, self.u
         A_cl = self.Acl0 + np.tensordot(vertices, self.Acl_i, axes=1)                 # (S, n, n)
         B_s = self.data.B0 + np.tensordot(vertices, self.data.B, axes=1)              # (S, n, m)
         HA = self.H_x @ A_cl                                                          # (S, u, n)
         HB = self.H_x @ B_s                                                           # (S, u, m)
         c_alpha = np.max(HA @ self.Xv.T, axis=2)                                      # (S, u)
-        block = np.concatenate([HA, np.broadcast_to(-self.H_x, (S, u, n)), c_alpha[..., None],
-                                np.full((S, u, 1), -1.0), HB], axis=2)              # (S, u, width)
-        data = np.broadcast_to(block, (N,) + block.shape).reshape(-1)
-        indices, indptr = self._pattern(S)
-        A = sp.csr_matrix((data, indices, indptr), shape=(N * S * u, self.size)).tocsc()
-        return A, np.tile(-self.w_bar, N * S)
+        return np.concatenate([HA, np.broadcast_to(-self.H_x, (S, u, n)), c_alpha[..., None],
+                               np.full((S, u, 1), -1.0), HB], axis=2)
+
+    def _vertices(self, H: np.ndarray, h_theta: np.ndarray) -> tuple[np.ndarray, bool]:
+        """Vertices of Θ_k = {H θ <= h_theta}, and whether they are those of the previous step
+        (Θ_k unchanged: same H and h to the bit), in which case they are not enumerated again."""
+        last = self._last_vertices
+        if last is not None and np.array_equal(last[0], h_theta) and np.array_equal(last[1], H):
+            return last[2], True
+        vertices = theta_vertices(H, h_theta)
+        self._last_vertices = (h_theta.copy(), H.copy(), vertices)
+        return vertices, False
 
     # -- solve ---------------------------------------------------------------------------------
     def solve(self, x, h_theta, theta_hat, H_theta=None) -> MPCSolution:
@@ -156,12 +194,16 @@ class DrakeVertexTubeMPC:
             if not np.all(np.isfinite(arr)):
                 return MPCSolution(SolveStatus.ERROR, None, None, None, None, None, detail=f"non-finite {name}")
         try:
-            vertices = theta_vertices(H, h_theta)
+            vertices, unchanged = self._vertices(H, h_theta)
         except VertexEnumerationError as exc:
             return self._solve_plain(x, h_theta, theta_hat, H_theta, str(exc))
-        A, ub = self.tube_rows(vertices)
-        self._tube.UpdateCoefficients(A, np.full(len(ub), -np.inf), ub)
-        self._c15b.set_bounds(np.full(self.u, -np.inf), -self.H_x @ x)
+        if not (unchanged and self._tube_S == len(vertices)):
+            rows = self._rows_for(len(vertices))
+            rows.write(self._block(vertices))
+            self._tube.UpdateCoefficients(rows.A, rows.lb, rows.ub)
+            self._tube_S = len(vertices)
+        self._c15b_ub[:] = self._minus_H_x @ x
+        self._c15b.UpdateUpperBound(self._c15b_ub)
         Hv, g, const = self._cost_model.matrices(x, theta_hat)
         self._cost.UpdateCoefficients(2.0 * Hv, 2.0 * g, const, is_convex=True)
         update_time = time.perf_counter() - start
@@ -179,7 +221,7 @@ class DrakeVertexTubeMPC:
             names = infeasible_constraint_names(result, self.prog)
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names,
                                detail=f"{result.get_solution_result()}; {detail}")
-        yv = result.GetSolution(self.y)
+        yv = result.get_x_val()  # y is the program's only decision vector, in order
         N, n, m = self.N, self.n, self.m
         z = yv[: self.a0].reshape(N + 1, n)
         alpha = yv[self.a0:self.v0]

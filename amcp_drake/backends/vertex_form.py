@@ -62,7 +62,7 @@ class VertexEnumerationError(ValueError):
 
 
 @lru_cache(maxsize=64)
-def _combinations(q: int, p: int) -> np.ndarray:
+def combinations(q: int, p: int) -> np.ndarray:
     return np.array(list(itertools.combinations(range(q), p)), dtype=np.intp).reshape(-1, p)
 
 
@@ -90,7 +90,7 @@ def theta_vertices(H: np.ndarray, h: np.ndarray) -> np.ndarray:
         raise VertexEnumerationError(f"theta_vertices: {q} rows cannot bound a set in R^{p}")
     if _n_choose_k(q, p) > MAX_COMBINATIONS:
         return _qhull_vertices(Hn, hn)
-    combos = _combinations(q, p)
+    combos = combinations(q, p)
     M = Hn[combos]                       # (C, p, p)
     b = hn[combos]                       # (C, p)
     basis = np.abs(np.linalg.det(M)) > SINGULAR_DET
