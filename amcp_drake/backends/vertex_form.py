@@ -35,6 +35,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from .clarabel_retry import NO_REFINEMENT
+
 #: Largest number of row choices C(q, p) enumerated by basis enumeration (20 for Example 1;
 #: 20 000 p×p solves take about 10 ms, beyond that Qhull is faster).
 MAX_COMBINATIONS = 20_000
@@ -51,10 +53,10 @@ DUPLICATE_TOL = 1e-12
 
 
 #: Clarabel settings of the vertex form in both backends (the user's ``solver_options`` override
-#: them). Iterative refinement off: on Example 1 (8-facet X0, 80-step lockstep run) the solver
-#: time fell from 1.91 to 1.37 ms (Drake) and 3.84 to 2.70 ms (cvxpy) with v unchanged to 1e-11;
-#: the plain form keeps Clarabel's defaults.
-CLARABEL_OPTIONS = {"iterative_refinement_enable": False}
+#: them): :data:`.clarabel_retry.NO_REFINEMENT` (iterative refinement off; on Example 1, 8-facet X0,
+#: 80-step lockstep run, solver time 1.91 -> 1.37 ms (Drake) and 3.84 -> 2.70 ms (cvxpy), v unchanged
+#: to 1e-11).
+CLARABEL_OPTIONS = NO_REFINEMENT
 
 
 class VertexEnumerationError(ValueError):

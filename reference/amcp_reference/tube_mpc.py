@@ -26,8 +26,8 @@ import cvxpy as cp
 import numpy as np
 
 from amcp_drake.backends.base import MPCSolution, TubeMPCData
-from amcp_drake.backends.clarabel_retry import solve_with_retries
-from amcp_drake.model.status import SolveStatus
+from amcp_drake.backends.clarabel_retry import NO_REFINEMENT, solve_with_retries
+from amcp_drake.status import SolveStatus
 
 from .nominal_cost import certainty_equivalence_cost, nominal_cost
 from .offline import sqrtm_psd
@@ -293,15 +293,21 @@ class CvxpyTubeMPC:
         :mod:`amcp_drake.backends.clarabel_retry`, any other solver once."""
         from .solver_call import SolverCall
 
+        calls = self.__dict__.setdefault("_calls", {})  # one SolverCall per extra option set, made once
+
         def once(extra_options):
-            call = self._call if not extra_options else SolverCall(self._call.name,
-                                                                   {**self._call.options, **extra_options})
-            status, elapsed, detail = call.solve(problem)
+            key = tuple(sorted((extra_options or {}).items()))
+            if key not in calls:
+                calls[key] = SolverCall(self._call.name, {**self._call.options, **dict(key)}) if key else self._call
+            status, elapsed, detail = calls[key].solve(problem)
             return detail, status, elapsed
 
         if self._call.name != "CLARABEL":
             return self._call.solve(problem)
-        detail, status, elapsed, note = solve_with_retries(once)
+        # certainty-equivalence cost: no iterative refinement first, as in the Drake backend
+        minmax = getattr(self.data, "cost", "certainty_equivalence") == "minmax"
+        first = None if minmax else {k: v for k, v in NO_REFINEMENT.items() if k not in self._call.options}
+        detail, status, elapsed, note = solve_with_retries(once, first)
         return status, elapsed, f"{detail} ({note})" if note else detail
 
     def _u0_form(self) -> _Formulation:
