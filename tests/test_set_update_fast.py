@@ -15,9 +15,13 @@ from scipy.optimize import linprog
 
 pytest.importorskip("pydrake")
 
-from amcp_drake.backends.drake_ import DrakeBackend  # noqa: E402
-from amcp_drake.backends.set_update_vertices import MAX_BASES, VertexSetUpdate, solve_by_vertices  # noqa: E402
-from amcp_drake.status import SolveStatus  # noqa: E402
+from amcp_drake.backends.drake_ import DrakeBackend
+from amcp_drake.backends.set_update_vertices import (
+    MAX_BASES,
+    VertexSetUpdate,
+    solve_by_vertices,
+)
+from amcp_drake.status import SolveStatus
 
 #: issue 16: the in-place and vertex updates give the same h_θ as the rebuilt LP to 1e-9
 H_TOL = 1e-9

@@ -25,10 +25,10 @@ from .base import (
     SetUpdateResult,
     TubeMPCData,
 )
+from .drake_set_update import DrakeSetUpdateLP
 from .drake_solver import SOLVERS, STATUS_MAP, DrakeSolver  # noqa: F401 - SOLVERS, STATUS_MAP re-exported
 from .drake_solver import DrakeSolver as _Solver  # noqa: F401 - old name, used by amcp_properties.mutants
 from .drake_solver import finite_or_raise as _finite
-from .drake_set_update import DrakeSetUpdateLP
 from .set_update_vertices import VertexSetUpdate
 
 #: Clarabel tolerances for the LPs (support, set update (9)). With the defaults (1e-8) the optimal
@@ -54,12 +54,16 @@ class DrakeBackend:
         ``MPCSolution.Lambda`` is None; see ``drake_vertex``).
     set_update_method: "auto" (default): the update (9) by the vertices of Θ_{k−1} ∩ Δ_k with a dual
         certificate per row where that applies, else the LP; "lp": always the LP (issue 16).
+    qp_solver: None (default: ``solver`` for the tube QP) or "daqp": the fast path of the vertex form
+        (:mod:`.daqp_fast`): DAQP warm-started from the previous active set, every answer checked by
+        its KKT residuals and primal feasibility against the original rows, Clarabel on any doubt.
     """
 
     name = "drake"
 
     def __init__(self, solver: str = "clarabel", solver_options: dict | None = None,
-                 sdp_solver: str = "clarabel", formulation: str = "plain", set_update_method: str = "auto") -> None:
+                 sdp_solver: str = "clarabel", formulation: str = "plain", set_update_method: str = "auto",
+                 qp_solver: str | None = None) -> None:
         if formulation not in FORMULATIONS:
             raise ValueError(f"formulation {formulation!r} unknown to the Drake backend; choose one of {FORMULATIONS}")
         self.formulation = formulation
@@ -70,6 +74,11 @@ class DrakeBackend:
         self._lp = DrakeSolver(solver, lp_options)
         self._lp_fallback = DrakeSolver("clp", None) if solver.lower() == "clarabel" else None
         self._sdp = DrakeSolver(sdp_solver, None)
+        if qp_solver not in (None, "daqp"):
+            raise ValueError(f"qp_solver {qp_solver!r} unknown; choose None (the solver above) or 'daqp' (fast path)")
+        if qp_solver == "daqp" and formulation != "vertex":
+            raise ValueError("qp_solver='daqp' (the fast path) needs formulation='vertex'")
+        self.qp_solver = qp_solver
         if set_update_method not in SET_UPDATE_METHODS:
             raise ValueError(f"set_update_method {set_update_method!r} unknown; choose one of {SET_UPDATE_METHODS}")
         self.set_update_method = set_update_method
@@ -217,8 +226,8 @@ class DrakeBackend:
         if self.formulation == "vertex":
             from amcp_drake.backends.drake_vertex import DrakeVertexTubeMPC
 
-            return DrakeVertexTubeMPC(data, self._solver, self._solver_options)
-        from amcp_drake.backends.drake_tube import DrakeTubeMPC
+            return DrakeVertexTubeMPC(data, self._solver, self._solver_options, fast=self.qp_solver == "daqp")
+        from .drake_tube import DrakeTubeMPC
 
         return DrakeTubeMPC(data, self._solver)
 

@@ -33,6 +33,7 @@ from pydrake.solvers import MathematicalProgram
 from ..status import SolveStatus
 from .base import MPCSolution, TubeMPCData
 from .condensed_cost import CondensedCost
+from .daqp_fast import DaqpFastPath
 from .drake_solver import DrakeSolver, infeasible_constraint_names
 from .vertex_form import CLARABEL_OPTIONS, VertexEnumerationError, theta_vertices
 
@@ -46,7 +47,7 @@ class _TubeRows:
     only on S; each step writes the (S, u, width) block of coefficients (the same for every l)
     into ``A.data`` through ``source``, the index into the block of each stored entry."""
 
-    def __init__(self, mpc: "DrakeVertexTubeMPC", S: int) -> None:
+    def __init__(self, mpc: DrakeVertexTubeMPC, S: int) -> None:
         n, m, N, u, a0, v0 = mpc.n, mpc.m, mpc.N, mpc.u, mpc.a0, mpc.v0
         width = 2 * n + 2 + m
         per_l = np.array([np.concatenate([np.arange(l * n, (l + 2) * n), [a0 + l, a0 + l + 1],
@@ -71,9 +72,10 @@ class DrakeVertexTubeMPC:
 
     formulation = "vertex"
 
-    def __init__(self, data: TubeMPCData, solver, solver_options: dict | None = None) -> None:
+    def __init__(self, data: TubeMPCData, solver, solver_options: dict | None = None, fast: bool = False) -> None:
         """``solver``: the backend's ``_Solver``; with Clarabel, a copy with
-        :data:`~.vertex_form.CLARABEL_OPTIONS` under the user's ``solver_options`` is used."""
+        :data:`~.vertex_form.CLARABEL_OPTIONS` under the user's ``solver_options`` is used.
+        ``fast``: try the DAQP fast path of :mod:`.daqp_fast` first at every step (off by default)."""
         self.data = data
         self._plain_solver = solver
         if solver.name == "clarabel":
@@ -84,7 +86,14 @@ class DrakeVertexTubeMPC:
         self._rows: dict[int, _TubeRows] = {}
         self._last_vertices: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._tube_S = -1  # number of vertices whose rows are in the program now (-1: none yet)
+        self._vertex_version = 0   # incremented whenever Θ_k's vertices are enumerated anew
+        self._drake_version = -1   # the version whose tube rows are in the Drake program
+        self._fast: DaqpFastPath | None = None
         self._build()
+        if fast:
+            order = np.concatenate([np.arange(self.a0, self.v0), np.arange(self.a0), np.arange(self.v0, self.size)])
+            self._fast = DaqpFastPath(order, self.v0 - self.a0, slice(self.v0, self.size), self._fixed_A,
+                                      self._fixed_b, self._A15b, self.N * self.u)
 
     # -- construction ------------------------------------------------------------------------
     def _build(self) -> None:
@@ -123,6 +132,7 @@ class DrakeVertexTubeMPC:
         A15b = sp.lil_matrix((u, size))
         A15b[:, 0:n] = -H_x
         A15b[:, a0] = -np.ones((u, 1))
+        self._A15b = A15b.toarray()
         self._c15b = prog.AddLinearConstraint(A15b.tocsc(), np.full(u, -np.inf), np.zeros(u), y).evaluator()
         self._c15b_ub = np.zeros(u)
         self._minus_H_x = -H_x
@@ -140,6 +150,9 @@ class DrakeVertexTubeMPC:
         AT[:, a0 + N] = np.asarray(d.h_T, float).reshape(-1, 1)
         prog.AddLinearConstraint(AT.tocsc(), np.full(r, -np.inf), np.ones(r), y
                                  ).evaluator().set_description("terminal set (z_N, alpha_N) in Xf")
+        # the rows that never change, densely, for the fast path
+        self._fixed_A = sp.vstack([A15a, AT]).toarray()
+        self._fixed_b = np.ones(N * c + r)
 
         prog.AddBoundingBoxConstraint(0.0, np.inf, y[a0:v0]).evaluator().set_description("alpha >= 0")
 
@@ -197,19 +210,28 @@ class DrakeVertexTubeMPC:
             vertices, unchanged = self._vertices(H, h_theta)
         except VertexEnumerationError as exc:
             return self._solve_plain(x, h_theta, theta_hat, H_theta, str(exc))
-        if not (unchanged and self._tube_S == len(vertices)):
-            rows = self._rows_for(len(vertices))
+        if not unchanged:
+            self._vertex_version += 1
+        S = len(vertices)
+        b15b = self._minus_H_x @ x
+        Hv, g, const = self._cost_model.matrices(x, theta_hat)
+        fast_note = ""
+        if self._fast is not None:
+            sol, fast_note = self._solve_fast(S, vertices, b15b, Hv, g, const, start)
+            if sol is not None:
+                return sol
+        if self._drake_version != self._vertex_version or self._tube_S != S:
+            rows = self._rows_for(S)
             rows.write(self._block(vertices))
             self._tube.UpdateCoefficients(rows.A, rows.lb, rows.ub)
-            self._tube_S = len(vertices)
-        self._c15b_ub[:] = self._minus_H_x @ x
+            self._tube_S, self._drake_version = S, self._vertex_version
+        self._c15b_ub[:] = b15b
         self._c15b.UpdateUpperBound(self._c15b_ub)
-        Hv, g, const = self._cost_model.matrices(x, theta_hat)
         self._cost.UpdateCoefficients(2.0 * Hv, 2.0 * g, const, is_convex=True)
         update_time = time.perf_counter() - start
         result, solver_time = self._solver.solve(self.prog)
         status = self._solver.status(result)
-        detail = f"vertex form, {len(vertices)} vertices of Theta_k"
+        detail = f"vertex form, {S} vertices of Theta_k{fast_note}"
         if status is SolveStatus.INACCURATE and self._solver is not self._plain_solver:
             # near-degenerate steps (states at the edge of the feasible set, tight tolerances) can end
             # AlmostSolved without iterative refinement: solve again with the user's settings
@@ -222,13 +244,38 @@ class DrakeVertexTubeMPC:
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names,
                                detail=f"{result.get_solution_result()}; {detail}")
         yv = result.get_x_val()  # y is the program's only decision vector, in order
+        return self._solution(yv, Hv, g, const, solver_time, update_time, detail)
+
+    @property
+    def fast_path_counts(self) -> dict[str, int] | None:
+        """Fast path only: steps answered by DAQP (checked) and steps that fell back to Clarabel."""
+        return None if self._fast is None else dict(self._fast.counts)
+
+    def _solution(self, yv, Hv, g, const, solver_time, update_time, detail) -> MPCSolution:
         N, n, m = self.N, self.n, self.m
         z = yv[: self.a0].reshape(N + 1, n)
         alpha = yv[self.a0:self.v0]
         v = yv[self.v0:].reshape(N, m)
         vf = v.reshape(-1)
         cost = float(vf @ Hv @ vf + 2 * g @ vf + const)
-        return MPCSolution(status, v, z, alpha, None, cost, solver_time, update_time, detail=detail)
+        return MPCSolution(SolveStatus.OPTIMAL, v, z, alpha, None, cost, solver_time, update_time, detail=detail)
+
+    def _solve_fast(self, S, vertices, b15b, Hv, g, const, start) -> tuple[MPCSolution | None, str]:
+        """The fast path (:mod:`.daqp_fast`): (solution, "") when DAQP's answer passed its checks,
+        else (None, note for the detail of the Clarabel solve that follows); counted in
+        ``fast_path_counts``."""
+        model = self._fast.model(S)
+        if model.version != self._vertex_version:
+            rows = self._rows_for(S)
+            rows.write(self._block(vertices))
+            model.write_tube(rows.A.toarray(), rows.ub)
+            model.version = self._vertex_version
+        update_time = time.perf_counter() - start
+        yv, detail, elapsed = self._fast.solve(model, b15b, Hv, g)
+        if yv is None:
+            return None, f"; fast path fell back to Clarabel: {detail}"
+        return self._solution(yv, Hv, g, const, elapsed, update_time,
+                              f"vertex form, {S} vertices of Theta_k; fast path: {detail}"), ""
 
     def _solve_plain(self, x, h_theta, theta_hat, H_theta, reason: str) -> MPCSolution:
         """Fallback for a step whose Θ_k vertices cannot be enumerated: the plain form (15)."""
