@@ -136,7 +136,8 @@ class DaqpVertexQP:
             self._ready = False  # start the next step cold
             return None, f"DAQP exit flag {exitflag}", elapsed
         w = np.asarray(w, float)
-        reason = self.check(w, np.asarray(info["lam"], float))
+        self.last_w, self.last_lam = w, np.asarray(info["lam"], float)  # kept for diagnostics and tests
+        reason = self.check(w, self.last_lam)
         if reason:
             self._ready = False
             return None, reason, elapsed
