@@ -31,6 +31,9 @@ class CondensedCost:
         lag = np.arange(N + 1)[:, None] - 1 - np.arange(N)[None, :]   # l − 1 − i
         self._lag = np.where(lag >= 0, lag, N)                         # index N: zero block
         self._last: tuple | None = None                                # (θ̂, H, S, T) of the last call
+        p = np.shape(data.A)[0]
+        self._A_flat = np.asarray(data.A, float).reshape(p, n * n)     # A(θ) − A0 = θ @ A_flat (row-major)
+        self._B_flat = np.asarray(data.B, float).reshape(p, n * m)
 
     def matrices(self, x: np.ndarray, theta_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """(H, g, c) with J_N(x_k, v) of (17) = vᵀ H v + 2 gᵀ v + c for the stacked v (N·m,), x̂_0 = x_k
@@ -44,8 +47,8 @@ class CondensedCost:
 
     def _blocks(self, theta_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         d, n, m, N = self.data, self.n, self.m, self.N
-        B_hat = d.B0 + np.tensordot(theta_hat, d.B, axes=1)
-        A_cl = d.A0 + np.tensordot(theta_hat, d.A, axes=1) + B_hat @ d.K
+        B_hat = d.B0 + (theta_hat @ self._B_flat).reshape(n, m)
+        A_cl = d.A0 + (theta_hat @ self._A_flat).reshape(n, n) + B_hat @ d.K
         powers = np.empty((N + 1, n, n))
         powers[0] = np.eye(n)
         for l in range(1, N + 1):

@@ -78,7 +78,9 @@ class DaqpVertexQP:
         self.b[u:u + len(fixed_b)] = fixed_b
         self._u, self._tube0 = u, u + len(fixed_b)
         self.P = np.zeros((size, size))
-        self.P[np.arange(size - len(self.v)), np.arange(size - len(self.v))] = REGULARISATION
+        self._v0 = size - len(self.v)                      # v is the trailing block of w
+        self.P[np.arange(self._v0), np.arange(self._v0)] = REGULARISATION
+        self._Pvv = self.P[self._v0:, self._v0:]
         self.q = np.zeros(size)
         self._q_prox = np.zeros(size)
         self._zalpha = np.arange(size - len(self.v))        # positions of (α, z) in w
@@ -103,9 +105,8 @@ class DaqpVertexQP:
         start = time.perf_counter()
         self.b[: self._u] = b15b
         self.upper[self.n_alpha: self.n_alpha + self._u] = b15b
-        v = self.v
-        self.P[np.ix_(v, v)] = 2.0 * H
-        self.q[v] = 2.0 * g
+        self._Pvv[:] = 2.0 * H            # the v block of P (a view); (z, α) keep the regularisation
+        self.q[self._v0:] = 2.0 * g
         try:
             if not self._ready:
                 flag, _ = self._model.setup(self.P, self.q, self.A, self.upper, self.lower)
@@ -155,7 +156,7 @@ class DaqpVertexQP:
         if np.any(lam_rows < -DUAL_TOL) or np.any(lam_bounds > DUAL_TOL):
             return "multiplier of the wrong sign"
         P0w = np.zeros_like(w)
-        P0w[self.v] = self.P[np.ix_(self.v, self.v)] @ w[self.v]   # the cost without regularisation
+        P0w[self._v0:] = self._Pvv @ w[self._v0:]   # the cost without regularisation
         grad = P0w + self.q
         residual = grad + self.A.T @ lam_rows
         residual[:na] += lam_bounds
