@@ -4,7 +4,7 @@
 
 Every configuration runs its own closed loop (same disturbances, seed 0), interleaved step by step
 (step k of each, then step k+1), so they share the machine's noise. Medians over steps 1..steps of
-the thread CPU time of each part (amcp_drake.bench_cpu) and of the wall time of the whole step.
+the thread CPU time of each part (amcp_drake.studies.bench_cpu) and of the wall time of the whole step.
 """
 
 from __future__ import annotations
@@ -16,11 +16,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from amcp_drake.bench_cpu import PARTS, CpuProfile
-from amcp_drake.controller import AdaptiveMPC
-from amcp_drake.design import design
-from amcp_drake.examples import lorenzen2019_spec
-from amcp_drake.simulate import disturbance_sequence
+from amcp_drake.model.examples import lorenzen2019_spec
+from amcp_drake.offline.design import design
+from amcp_drake.online.controller import AdaptiveMPC
+from amcp_drake.online.simulate import disturbance_sequence
+from amcp_drake.studies.bench_cpu import PARTS, CpuProfile
 
 
 def main() -> None:

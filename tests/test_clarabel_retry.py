@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from amcp_drake.backends.clarabel_retry import CLARABEL_RETRY_LADDER, NO_REFINEMENT
-from amcp_drake.controller import AdaptiveMPC
-from amcp_drake.status import SolveStatus
+from amcp_drake.model.status import SolveStatus
+from amcp_drake.online.controller import AdaptiveMPC
 
 X = np.array([2.0, 3.0])
 

@@ -11,9 +11,9 @@ pytest.importorskip("daqp")
 
 from amcp_drake.backends import daqp_fast
 from amcp_drake.backends.drake_ import DrakeBackend
-from amcp_drake.controller import AdaptiveMPC
-from amcp_drake.simulate import disturbance_sequence
-from amcp_drake.status import SolveStatus
+from amcp_drake.model.status import SolveStatus
+from amcp_drake.online.controller import AdaptiveMPC
+from amcp_drake.online.simulate import disturbance_sequence
 
 #: issue 16: the fast path gives the same v as Clarabel at tight tolerance to 1e-6
 V_TOL = 1e-6

@@ -21,7 +21,7 @@ from amcp_drake.backends.set_update_vertices import (
     VertexSetUpdate,
     solve_by_vertices,
 )
-from amcp_drake.status import SolveStatus
+from amcp_drake.model.status import SolveStatus
 
 #: issue 16: the in-place and vertex updates give the same h_θ as the rebuilt LP to 1e-9
 H_TOL = 1e-9

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import TubeMPCData
+from amcp_drake.backends.base import TubeMPCData
 
 
 class CondensedCost:

@@ -18,18 +18,18 @@ import numpy as np
 import scipy.sparse as sp
 from pydrake.solvers import MathematicalProgram
 
-from ..status import SolveStatus
-from .base import (
+from amcp_drake.backends.base import (
     GainResult,
     ProjectionResult,
     SetUpdateResult,
     TubeMPCData,
 )
-from .drake_set_update import DrakeSetUpdateLP
-from .drake_solver import SOLVERS, STATUS_MAP, DrakeSolver  # noqa: F401 - SOLVERS, STATUS_MAP re-exported
-from .drake_solver import DrakeSolver as _Solver  # noqa: F401 - old name, used by amcp_properties.mutants
-from .drake_solver import finite_or_raise as _finite
-from .set_update_vertices import VertexSetUpdate
+from amcp_drake.backends.drake_set_update import DrakeSetUpdateLP
+from amcp_drake.backends.drake_solver import SOLVERS, STATUS_MAP, DrakeSolver  # noqa: F401 - SOLVERS, STATUS_MAP re-exported
+from amcp_drake.backends.drake_solver import DrakeSolver as _Solver  # noqa: F401 - old name, used by amcp_properties.mutants
+from amcp_drake.backends.drake_solver import finite_or_raise as _finite
+from amcp_drake.backends.set_update_vertices import VertexSetUpdate
+from amcp_drake.model.status import SolveStatus
 
 #: Clarabel tolerances for the LPs (support, set update (9)). With the defaults (1e-8) the optimal
 #: offsets of (9) drift above h_{k-1} by up to 1.2e-7 on Example 1, which Lemma 3 forbids; with
@@ -227,7 +227,7 @@ class DrakeBackend:
             from amcp_drake.backends.drake_vertex import DrakeVertexTubeMPC
 
             return DrakeVertexTubeMPC(data, self._solver, self._solver_options, fast=self.qp_solver == "daqp")
-        from .drake_tube import DrakeTubeMPC
+        from amcp_drake.backends.drake_tube import DrakeTubeMPC
 
         return DrakeTubeMPC(data, self._solver)
 

@@ -18,7 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 from pydrake.solvers import MathematicalProgram
 
-from ..status import SolveStatus
+from amcp_drake.model.status import SolveStatus
 
 
 class DrakeSetUpdateLP:

@@ -19,7 +19,7 @@ from pydrake.solvers import (
     SolverOptions,
 )
 
-from ..status import SolveStatus
+from amcp_drake.model.status import SolveStatus
 
 #: Drake's SolutionResult -> canonical status.
 STATUS_MAP = {

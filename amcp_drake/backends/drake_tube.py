@@ -18,11 +18,11 @@ import numpy as np
 import scipy.sparse as sp
 from pydrake.solvers import MathematicalProgram
 
-from ..status import SolveStatus
-from .base import MPCSolution, TubeMPCData
-from .clarabel_retry import NO_REFINEMENT, solve_with_retries
-from .condensed_cost import CondensedCost
-from .drake_solver import infeasible_constraint_names
+from amcp_drake.backends.base import MPCSolution, TubeMPCData
+from amcp_drake.backends.clarabel_retry import NO_REFINEMENT, solve_with_retries
+from amcp_drake.backends.condensed_cost import CondensedCost
+from amcp_drake.backends.drake_solver import infeasible_constraint_names
+from amcp_drake.model.status import SolveStatus
 
 
 def _sqrtm(M: np.ndarray) -> np.ndarray:

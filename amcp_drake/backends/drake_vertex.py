@@ -30,12 +30,12 @@ import numpy as np
 import scipy.sparse as sp
 from pydrake.solvers import MathematicalProgram
 
-from ..status import SolveStatus
-from .base import MPCSolution, TubeMPCData
-from .condensed_cost import CondensedCost
-from .daqp_fast import DaqpFastPath
-from .drake_solver import DrakeSolver, infeasible_constraint_names
-from .vertex_form import CLARABEL_OPTIONS, VertexEnumerationError, theta_vertices
+from amcp_drake.backends.base import MPCSolution, TubeMPCData
+from amcp_drake.backends.condensed_cost import CondensedCost
+from amcp_drake.backends.daqp_fast import DaqpFastPath
+from amcp_drake.backends.drake_solver import DrakeSolver, infeasible_constraint_names
+from amcp_drake.backends.vertex_form import CLARABEL_OPTIONS, VertexEnumerationError, theta_vertices
+from amcp_drake.model.status import SolveStatus
 
 TUBE_ROWS = "(5b) tube propagation at the vertices of Theta_k (vertex form of (15c)-(15d))"
 

@@ -25,7 +25,7 @@ from math import comb
 
 import numpy as np
 
-from .vertex_form import SINGULAR_DET, combinations
+from amcp_drake.backends.vertex_form import SINGULAR_DET, combinations
 
 #: Largest number of row choices C(R, p) enumerated (Example 1: C(10, 3) = 120, about 60 µs);
 #: the LP is cheaper beyond a few thousand.

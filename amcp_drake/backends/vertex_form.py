@@ -35,7 +35,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .clarabel_retry import NO_REFINEMENT
+from amcp_drake.backends.clarabel_retry import NO_REFINEMENT
 
 #: Largest number of row choices C(q, p) enumerated by basis enumeration (20 for Example 1;
 #: 20 000 p×p solves take about 10 ms, beyond that Qhull is faster).

@@ -32,7 +32,7 @@ def bench_cmd(quick, steps, scaling_steps, only, backends, formulations, seed, o
     outside the solvers and the total per step (median, p90), Example 1 with X0 of 4 and 8 facets,
     both backends, plain / vertex / fast path, run in lockstep (ratios from the same run); then sweeps
     over N, the facets of X0, p and n with design times. Writes JSON, a PNG and scaling.md."""
-    from .bench import BenchSettings, format_summary, run_benchmarks, write_outputs
+    from amcp_drake.studies.bench import BenchSettings, format_summary, run_benchmarks, write_outputs
 
     changes = {"seed": seed, "only": only}
     if steps is not None:

@@ -1,10 +1,10 @@
 """Performance harness (issues 8 and 16): per-step times of the online loop, both backends, the
 plain (15) and vertex forms of the tube MPC QP (20) and the DAQP fast path ("fast", Drake only), on
-Example 1 and on size sweeps (:mod:`amcp_drake.bench_scaling`).
+Example 1 and on size sweeps (:mod:`amcp_drake.studies.bench_scaling`).
 
 What is measured. CPU time (``time.thread_time``) of each part of one closed-loop step of
-:class:`~amcp_drake.controller.AdaptiveMPC` (k >= 1), as ``cpu_<part>`` (see
-:mod:`amcp_drake.bench_cpu`: set update, LMS, QP, QP solver, LP solvers, outside the solvers,
+:class:`~amcp_drake.online.controller.AdaptiveMPC` (k >= 1), as ``cpu_<part>`` (see
+:mod:`amcp_drake.studies.bench_cpu`: set update, LMS, QP, QP solver, LP solvers, outside the solvers,
 total): on this shared machine wall time was 2–6× (under heavy load 10×) CPU time, so the targets
 of issue 16 are CPU time. Beside them, the wall times as the controller records them
 (``StepRecord.times``):
@@ -33,17 +33,24 @@ with sweeps, ``scaling.md``.
 
 from __future__ import annotations
 
-import gc
 import json
 import platform
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from amcp_drake.studies.bench_run import (  # noqa: F401 - FORMULATION_OPTIONS, RunResult, lockstep re-exported
+    FORMULATION_OPTIONS,
+    TIME_KEYS,
+    RunResult,
+    lockstep,
+    summaries,
+)
 
 BENCH_FORMAT = "amcp-bench"
 #: version 2 (issue 16): CPU-time columns (``cpu_*``), the fast path ("fast"), the n sweep, design
@@ -64,25 +71,6 @@ TARGETS_16 = {
     "drake_plain_total": ("Drake plain (15) full step", 12.0, "ms"),
     "drake_fast_total": ("fast path (DAQP) full step", 1.2, "ms"),
 }
-#: Formulations the bench knows: the QP (20) forms, plus "fast" = the vertex form with the DAQP fast
-#: path (Drake only): name -> keyword arguments of AdaptiveMPC.
-FORMULATION_OPTIONS = {"plain": {"formulation": "plain"}, "vertex": {"formulation": "vertex"},
-                       "fast": {"formulation": "vertex", "qp_solver": "daqp"}}
-#: Per-step wall-time keys: name in the output -> key of ``StepRecord.times``. The CPU-time keys are
-#: ``cpu_<part>`` for the parts of :data:`amcp_drake.bench_cpu.PARTS`.
-TIME_KEYS = {
-    "set_update": "set_update_total",
-    "set_update_solver": "set_update",
-    "lms": "lms_total",
-    "qp_update": "qp_update",
-    "solver": "solver",
-    "total": "total",
-}
-#: The extra parameter of the p = 4 sweep point (the first three are Example 1's).
-A4 = np.array([[0.02, 0.0], [0.01, 0.02]])
-B4 = np.array([[0.02], [0.0]])
-
-
 @dataclass(frozen=True)
 class BenchSettings:
     """What to run. ``quick`` shortens everything (CI, tests); explicit lists override."""
@@ -102,118 +90,15 @@ class BenchSettings:
     quick: bool = False
 
     @classmethod
-    def quick_settings(cls, **changes: Any) -> "BenchSettings":
+    def quick_settings(cls, **changes: Any) -> BenchSettings:
         base = cls(steps=10, scaling_steps=3, sweep_N=(5, 20), sweep_p=(2, 3), sweep_facets=(4, 8), sweep_n=(2,),
                    quick=True)
         return replace(base, **changes)
 
-
-@dataclass
-class RunResult:
-    """One configuration's closed-loop run: per-step times (s) and the inputs v_0 it applied."""
-
-    backend: str
-    formulation: str
-    build_s: float
-    times: dict[str, list[float]] = field(default_factory=dict)
-    v: list[np.ndarray | None] = field(default_factory=list)
-    status: str = "completed"
-    build_cpu_s: float = 0.0
-    fast_path: dict[str, int] | None = None   # fast path: steps answered by DAQP and fallbacks
-
-    @property
-    def label(self) -> str:
-        return f"{self.backend}/{self.formulation}"
-
-
-# -- running -----------------------------------------------------------------------------------
-
-def lockstep(problem, design, configs: list[tuple[str, str]], x0, theta_star, steps: int, seed: int) -> list[RunResult]:
-    """Run the closed loop of every (backend, formulation) in ``configs`` for ``steps`` + 1 steps,
-    interleaved step by step, with the same disturbance sequence (uniform on W, ``seed``).
-
-    Per full step: the wall times of ``StepRecord.times`` (:data:`TIME_KEYS`) and the thread CPU
-    time of each part (``cpu_<part>``, :class:`~amcp_drake.bench_cpu.CpuProfile`)."""
-    from .bench_cpu import PARTS, CpuProfile
-    from .controller import AdaptiveMPC
-    from .errors import AmcpError
-    from .simulate import disturbance_sequence
-
-    w = disturbance_sequence(problem, "uniform", steps + 1, seed=seed)
-    theta_star = np.asarray(theta_star, float)
-    runs, profiles, states = [], [], []
-    for backend, formulation in configs:
-        start, cpu = time.perf_counter(), time.thread_time()
-        ctrl = AdaptiveMPC(problem, design, backend=backend, **FORMULATION_OPTIONS[formulation])
-        run = RunResult(backend, formulation, time.perf_counter() - start,
-                        {name: [] for name in (*TIME_KEYS, *(f"cpu_{p}" for p in PARTS))})
-        run.build_cpu_s = time.thread_time() - cpu
-        runs.append(run)
-        profiles.append(CpuProfile(ctrl))
-        states.append(np.asarray(x0, float))
-    active = [True] * len(runs)
-    was_enabled = gc.isenabled()
-    gc.collect()
-    gc.disable()
-    try:
-        for k in range(steps + 1):
-            for c, (run, prof) in enumerate(zip(runs, profiles)):
-                if not active[c]:
-                    continue
-                try:
-                    u, rec, cpu_parts = prof.step(states[c])
-                except AmcpError as exc:
-                    run.status, active[c] = f"error at k={k}: {exc}", False
-                    continue
-                run.v.append(None if rec.v is None else np.asarray(rec.v, float))
-                if u is None:
-                    run.status, active[c] = f"{rec.status.value} at k={k}", False
-                    continue
-                if k >= 1:  # full steps only: update + LMS + QP
-                    for name, key in TIME_KEYS.items():
-                        run.times[name].append(float(rec.times.get(key, 0.0)))
-                    for part, value in cpu_parts.items():
-                        run.times[f"cpu_{part}"].append(value)
-                states[c] = problem.step(states[c], u, theta_star, w[k])
-    finally:
-        if was_enabled:
-            gc.enable()
-    for run, prof in zip(runs, profiles):
-        run.fast_path = getattr(prof.ctrl.mpc, "fast_path_counts", None)
-    return runs
-
-
-def _stats(values: list[float]) -> dict[str, float | int | None]:
-    if not values:
-        return {"median": None, "p90": None, "mean": None, "max": None, "n": 0}
-    ms = 1e3 * np.asarray(values, float)
-    return {"median": float(np.median(ms)), "p90": float(np.percentile(ms, 90)), "mean": float(np.mean(ms)),
-            "max": float(np.max(ms)), "n": int(len(ms))}
-
-
-def _max_dv(a: RunResult, b: RunResult) -> float | None:
-    diffs = [float(np.max(np.abs(va - vb))) for va, vb in zip(a.v, b.v) if va is not None and vb is not None]
-    return max(diffs) if diffs else None
-
-
-def _summaries(runs: list[RunResult], extra: dict[str, Any]) -> list[dict[str, Any]]:
-    out = []
-    for run in runs:
-        plain = next((r for r in runs if r.backend == run.backend and r.formulation == "plain"), None)
-        row = dict(extra)
-        row.update({"backend": run.backend, "formulation": run.formulation, "status": run.status,
-                    "build_s": run.build_s, "build_cpu_s": run.build_cpu_s,
-                    "times_ms": {name: _stats(vals) for name, vals in run.times.items()},
-                    "max_abs_dv_vs_plain": _max_dv(run, plain) if plain is not None and plain is not run else None,
-                    "fast_path": run.fast_path})
-        out.append(row)
-    return out
-
-
-def _configs(settings: BenchSettings, backends: tuple[str, ...] | None = None) -> list[tuple[str, str]]:
-    """(backend, formulation) pairs; the fast path exists for Drake only."""
-    return [(b, f) for b in (backends or settings.backends) for f in settings.formulations
-            if not (f == "fast" and b != "drake")]
+    def configs(self, backends: tuple[str, ...] | None = None) -> list[tuple[str, str]]:
+        """(backend, formulation) pairs to run; the fast path exists for Drake only."""
+        return [(b, f) for b in (backends or self.backends) for f in self.formulations
+                if not (f == "fast" and b != "drake")]
 
 
 def _design_or_reason(problem, options):
@@ -239,8 +124,8 @@ def example_benchmark(settings: BenchSettings, progress: Callable[[str], None] =
         if d is None:
             runs_out.append({"x0_facets": facets, "status": reason})
             continue
-        runs = lockstep(spec.problem, d, _configs(settings), sc.x0, sc.theta_star, settings.steps, settings.seed)
-        runs_out.extend(_summaries(runs, {"x0_facets": facets, "x0_vertices": int(len(d.X0_vertices)),
+        runs = lockstep(spec.problem, d, settings.configs(), sc.x0, sc.theta_star, settings.steps, settings.seed)
+        runs_out.extend(summaries(runs, {"x0_facets": facets, "x0_vertices": int(len(d.X0_vertices)),
                                           "steps": settings.steps}))
     return {"problem": "lorenzen2019", "x0": np.asarray(sc.x0).tolist(), "theta_star": np.asarray(sc.theta_star).tolist(),
             "runs": runs_out, "ratios": _ratios(runs_out)}
@@ -281,17 +166,9 @@ def _ratios(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
-def problem_with_p(problem, p: int):
-    """Example 1 with its first p parameters (p = 4 adds A_4 = A4, B_4 = B4); Θ = [-1, 1]^p."""
-    A = np.concatenate([problem.A, A4[None]])[:p]
-    B = np.concatenate([problem.B, B4[None]])[:p]
-    return problem.with_changes(A=A, B=B, H_theta=np.vstack([np.eye(p), -np.eye(p)]), h_theta=np.ones(2 * p),
-                                theta_hat0=np.zeros(p))
-
-
 def scaling_benchmark(settings: BenchSettings, progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
-    """Sweeps around Example 1, one factor at a time; see :mod:`amcp_drake.bench_scaling`."""
-    from .bench_scaling import scaling_benchmark as run
+    """Sweeps around Example 1, one factor at a time; see :mod:`amcp_drake.studies.bench_scaling`."""
+    from amcp_drake.studies.bench_scaling import scaling_benchmark as run
 
     return run(settings, progress)
 
@@ -394,7 +271,7 @@ def write_outputs(result: dict[str, Any], out_dir: str | Path, plot: bool = True
     paths = {"json": out_dir / "bench.json"}
     paths["json"].write_text(json.dumps(_clean(result), indent=1, allow_nan=False) + "\n")
     if result.get("scaling"):
-        from .bench_scaling import scaling_markdown
+        from amcp_drake.studies.bench_scaling import scaling_markdown
 
         paths["markdown"] = out_dir / "scaling.md"
         paths["markdown"].write_text(scaling_markdown(result["scaling"]))

@@ -80,7 +80,7 @@ class CvxpyBackend:
         self.formulation = formulation
         self._call = SolverCall(solver, solver_options)
         # the LP (9) has its own call object (same solver and options) so that profilers can tell
-        # its solver time from the tube QP's (amcp_drake.bench_cpu)
+        # its solver time from the tube QP's (amcp_drake.studies.bench_cpu)
         self._call_lp = SolverCall(solver, solver_options)
         # The projection QP of (12) at Clarabel's default tolerances is off by up to 4e-5 when θ̃ is
         # just outside the set (measured by the property suite's lockstep test); as for Drake's LPs,

@@ -13,7 +13,7 @@ import cvxpy as cp
 import cvxpy.settings as cps
 import numpy as np
 
-from amcp_drake.status import SolveStatus
+from amcp_drake.model.status import SolveStatus
 
 #: cvxpy status string -> canonical status (cvxpy.settings). Inaccurate certificates of
 #: infeasibility / unboundedness count as such (no solution is returned either way);

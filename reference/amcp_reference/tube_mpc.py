@@ -27,7 +27,7 @@ import numpy as np
 
 from amcp_drake.backends.base import MPCSolution, TubeMPCData
 from amcp_drake.backends.clarabel_retry import NO_REFINEMENT, solve_with_retries
-from amcp_drake.status import SolveStatus
+from amcp_drake.model.status import SolveStatus
 
 from .nominal_cost import certainty_equivalence_cost, nominal_cost
 from .offline import sqrtm_psd

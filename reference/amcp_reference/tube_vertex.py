@@ -38,7 +38,7 @@ from amcp_drake.backends.vertex_form import (
     VertexEnumerationError,
     theta_vertices,
 )
-from amcp_drake.status import SolveStatus
+from amcp_drake.model.status import SolveStatus
 
 from .nominal_cost import certainty_equivalence_cost, nominal_cost
 from .tube_mpc import GROUP_15A, GROUP_15B, GROUP_TERMINAL, relaxed_groups

@@ -11,7 +11,7 @@ Defaults (Example 1, spec §9): N = 10, X0 with 8 facets, n = 2, p = 3, x0 = [2,
 
 Every point is designed (its CPU and wall time reported: ``design_cpu_s``, ``design_s``), then the
 configurations (default: Drake plain (15), vertex, vertex + DAQP fast path) run in lockstep with
-the per-step CPU and wall times of :func:`amcp_drake.bench.lockstep`. :func:`scaling_markdown`
+the per-step CPU and wall times of :func:`amcp_drake.studies.bench.lockstep`. :func:`scaling_markdown`
 renders the table of benchmarks/README.md (``amcp bench --only scaling`` writes it as
 ``scaling.md`` next to bench.json and bench.png).
 """
@@ -19,16 +19,28 @@ renders the table of benchmarks/README.md (``amcp bench --only scaling`` writes 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import replace
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
+#: The extra parameter of the p = 4 sweep point (the first three are Example 1's).
+A4 = np.array([[0.02, 0.0], [0.01, 0.02]])
+B4 = np.array([[0.02], [0.0]])
 #: θ* of the p = 4 sweep point (the first three are Example 1's).
 THETA_STAR_4 = np.array([0.8, 0.2, -0.5, 0.3])
 #: Disturbance bound of the n >= 3 points, |w_i| <= 0.05: with Example 1's 0.1 the terminal set of
 #: the n = 3 and n = 4 systems below is empty for every X0 template tried (4 to 18 facets).
 W_BOUND_N = 0.05
+
+
+def problem_with_p(problem, p: int):
+    """Example 1 with its first p parameters (p = 4 adds A_4 = A4, B_4 = B4); Θ = [-1, 1]^p."""
+    A = np.concatenate([problem.A, A4[None]])[:p]
+    B = np.concatenate([problem.B, B4[None]])[:p]
+    return problem.with_changes(A=A, B=B, H_theta=np.vstack([np.eye(p), -np.eye(p)]), h_theta=np.ones(2 * p),
+                                theta_hat0=np.zeros(p))
 
 
 def problem_with_n(problem, n: int):
@@ -55,8 +67,7 @@ def problem_with_n(problem, n: int):
 
 def sweep_points(settings) -> dict[str, list[tuple[int, Any, Any, np.ndarray, np.ndarray]]]:
     """axis -> [(value, problem, design options, x0, θ*)] for the sweeps of ``settings``."""
-    from .bench import problem_with_p
-    from .examples import lorenzen2019_spec
+    from amcp_drake.model.examples import lorenzen2019_spec
 
     spec = lorenzen2019_spec()
     sc, base, options = spec.scenario, spec.problem, spec.design
@@ -75,11 +86,11 @@ def sweep_points(settings) -> dict[str, list[tuple[int, Any, Any, np.ndarray, np
 
 def scaling_benchmark(settings, progress: Callable[[str], None] = lambda s: None) -> dict[str, list[dict[str, Any]]]:
     """Run every sweep point of ``settings`` (see the module docstring)."""
-    from .bench import _configs, _summaries, lockstep
-    from .design import design
-    from .errors import AmcpError
+    from amcp_drake.model.errors import AmcpError
+    from amcp_drake.offline.design import design
+    from amcp_drake.studies.bench_run import lockstep, summaries
 
-    configs = _configs(settings, settings.scaling_backends)
+    configs = settings.configs(settings.scaling_backends)
     out: dict[str, list[dict[str, Any]]] = {}
     for axis, items in sweep_points(settings).items():
         rows: list[dict[str, Any]] = []
@@ -93,7 +104,7 @@ def scaling_benchmark(settings, progress: Callable[[str], None] = lambda s: None
                 continue
             timing = {"design_s": time.perf_counter() - wall, "design_cpu_s": time.thread_time() - cpu}
             runs = lockstep(problem, d, configs, x0, theta_star, settings.scaling_steps, settings.seed)
-            rows.extend(_summaries(runs, {axis: value, "N": problem.N, "p": problem.p, "n": problem.n,
+            rows.extend(summaries(runs, {axis: value, "N": problem.N, "p": problem.p, "n": problem.n,
                                           "x0_facets": int(len(d.H_x)), "steps": settings.scaling_steps, **timing}))
         out[axis] = rows
     return out
@@ -126,4 +137,4 @@ def _fmt(value: float | None, digits: int = 2) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
 
 
-__all__ = ["W_BOUND_N", "problem_with_n", "scaling_benchmark", "scaling_markdown", "sweep_points"]
+__all__ = ["A4", "B4", "THETA_STAR_4", "W_BOUND_N", "problem_with_n", "problem_with_p", "scaling_benchmark", "scaling_markdown", "sweep_points"]
