@@ -38,7 +38,7 @@ def test_quick_bench_writes_json_and_png(quick_result):
     assert data["reference_ms"]["paper"]["median_solver"] == 68.0
     png = (out / "bench.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
-    assert "Example 1, ms per step" in output and "bench.json" in output
+    assert "Example 1, ms per full step" in output and "total CPU" in output and "bench.json" in output
 
 
 def test_example_runs_cover_both_backends_formulations_and_x0_sizes(quick_result):

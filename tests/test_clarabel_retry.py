@@ -76,9 +76,9 @@ def test_cvxpy_retries_in_order_and_never_promotes(monkeypatch, cvxpy_mpc):
     calls: list = []
     failures = {"n": 2}
 
-    def solve(self, problem):
-        calls.append(dict(self.options))
-        status, t, detail = real(self, problem)
+    def solve(self, problem, extra_options=None):
+        calls.append({**self.options, **(extra_options or {})})
+        status, t, detail = real(self, problem, extra_options)
         if len(calls) <= failures["n"]:
             return SolveStatus.INACCURATE, t, "optimal_inaccurate"
         return status, t, detail

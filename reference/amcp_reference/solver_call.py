@@ -50,8 +50,9 @@ class SolverCall:
         self.name = name
         self.options = dict(options or {})
 
-    def solve(self, problem: cp.Problem) -> tuple[SolveStatus, float, str]:
-        """Solve ``problem``; return (canonical status, solver time in s, detail).
+    def solve(self, problem: cp.Problem, extra_options: dict | None = None) -> tuple[SolveStatus, float, str]:
+        """Solve ``problem``; return (canonical status, solver time in s, detail). ``extra_options``
+        override this call's options for this solve only (e.g. a rung of the Clarabel retry ladder).
 
         The solver time is ``problem.solver_stats.solve_time`` when the solver reports it, else
         the wall time of ``Problem.solve`` (which then includes cvxpy's parameter application).
@@ -61,7 +62,8 @@ class SolverCall:
             with warnings.catch_warnings():
                 # cvxpy warns "Solution may be inaccurate"; the status already says so
                 warnings.filterwarnings("ignore", message="Solution may be inaccurate", category=UserWarning)
-                problem.solve(solver=self.name, **self.options)
+                problem.solve(solver=self.name, **(self.options if not extra_options
+                                                   else {**self.options, **extra_options}))
         except cp.error.SolverError as exc:
             return SolveStatus.ERROR, time.perf_counter() - start, f"SolverError: {exc}"
         wall = time.perf_counter() - start

@@ -291,15 +291,8 @@ class CvxpyTubeMPC:
     def _solve(self, problem: cp.Problem) -> tuple[SolveStatus, float, str]:
         """(status, solver time, detail): Clarabel with the retry ladder of
         :mod:`amcp_drake.backends.clarabel_retry`, any other solver once."""
-        from .solver_call import SolverCall
-
-        calls = self.__dict__.setdefault("_calls", {})  # one SolverCall per extra option set, made once
-
         def once(extra_options):
-            key = tuple(sorted((extra_options or {}).items()))
-            if key not in calls:
-                calls[key] = SolverCall(self._call.name, {**self._call.options, **dict(key)}) if key else self._call
-            status, elapsed, detail = calls[key].solve(problem)
+            status, elapsed, detail = self._call.solve(problem, extra_options)
             return detail, status, elapsed
 
         if self._call.name != "CLARABEL":

@@ -125,6 +125,8 @@ class CvxpyVertexTubeMPC:
         self._forms: dict[int, _VertexFormulation] = {}
         self._elastic: dict[int, _VertexFormulation] = {}
         self._plain = None
+        self._last_vertices: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (h_θ, H_θ, vertices)
+        self._last_form: _VertexFormulation | None = None  # the problem whose vertex parameters are current
         self.H_theta = np.asarray(data.H_theta, float)
         # capacity guess: the vertex count of {H_θ θ <= 1}; grows when Θ_k has more vertices
         try:
@@ -154,16 +156,18 @@ class CvxpyVertexTubeMPC:
         return self._forms[self.capacity].problem
 
     def _set_parameters(self, form: _VertexFormulation, x, vertices, theta_hat) -> None:
+        """Parameters of ``form`` for x_k, Θ_k's vertices (None: keep the vertex parameters) and θ̂_k."""
         d = self.data
-        H_x, Xv = np.asarray(d.H_x, float), np.asarray(d.X0_vertices, float)
-        n, m = np.shape(d.B0)
-        slots = np.asarray(vertices, float)[np.minimum(np.arange(form.capacity), len(vertices) - 1)]  # repeat the last
-        B_v = d.B0 + np.tensordot(slots, d.B, axes=1)                                  # (S_cap, n, m)
-        A_cl = d.A0 + np.tensordot(slots, d.A, axes=1) + B_v @ d.K                       # (S_cap, n, n)
         form.params["x_k"].value = x
-        form.params["A_cl_stack"].value = A_cl.reshape(-1, n)
-        form.params["B_stack"].value = B_v.reshape(-1, m)
-        form.params["c_stack"].value = np.max(H_x @ A_cl @ Xv.T, axis=2).reshape(-1, 1)  # c^s_i = max_j
+        if vertices is not None:
+            H_x, Xv = np.asarray(d.H_x, float), np.asarray(d.X0_vertices, float)
+            n, m = np.shape(d.B0)
+            slots = np.asarray(vertices, float)[np.minimum(np.arange(form.capacity), len(vertices) - 1)]  # repeat last
+            B_v = d.B0 + np.tensordot(slots, d.B, axes=1)                                  # (S_cap, n, m)
+            A_cl = d.A0 + np.tensordot(slots, d.A, axes=1) + B_v @ d.K                       # (S_cap, n, n)
+            form.params["A_cl_stack"].value = A_cl.reshape(-1, n)
+            form.params["B_stack"].value = B_v.reshape(-1, m)
+            form.params["c_stack"].value = np.max(H_x @ A_cl @ Xv.T, axis=2).reshape(-1, 1)  # c^s_i = max_j
         if "A_cl_hat" in form.params:
             B_hat = d.B0 + np.tensordot(theta_hat, d.B, axes=1)
             form.params["A_cl_hat"].value = d.A0 + np.tensordot(theta_hat, d.A, axes=1) + B_hat @ d.K
@@ -184,13 +188,19 @@ class CvxpyVertexTubeMPC:
             if arr.shape != shape:
                 return MPCSolution(SolveStatus.ERROR, None, None, None, None, None,
                                    detail=f"{name} has shape {arr.shape}, expected {shape}")
+        last = self._last_vertices
+        unchanged = last is not None and np.array_equal(last[0], h_theta) and np.array_equal(last[1], H)
         try:
-            vertices = theta_vertices(H, h_theta)
+            # Θ_k's vertices are enumerated only when Θ_k changed (to the bit), as in the Drake backend
+            vertices = last[2] if unchanged else theta_vertices(H, h_theta)
         except VertexEnumerationError as exc:
             return self._solve_plain(x, h_theta, theta_hat, H_theta, str(exc))
+        self._last_vertices = (h_theta.copy(), H.copy(), vertices)
         self.capacity = max(self.capacity, len(vertices))
         form = self._form(self.capacity)
-        self._set_parameters(form, x, vertices, theta_hat)
+        # the vertex parameters keep their values while Θ_k and the problem are those of the last step
+        self._set_parameters(form, x, None if unchanged and form is self._last_form else vertices, theta_hat)
+        self._last_form = form
         update_time = time.perf_counter() - start
         status, solver_time, detail = self._call.solve(form.problem)
         detail = f"{detail}; vertex form, {len(vertices)} vertices of Theta_k"
