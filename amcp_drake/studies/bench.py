@@ -408,19 +408,10 @@ def format_summary(result: dict[str, Any]) -> str:
             verdict = "met" if t["met"] else "NOT met"
             lines.append(f"target (issue 16, CPU): {t['what']}: {t['measured']:.2f} {t['unit']} "
                          f"(<= {t['limit']} {t['unit']}: {verdict})")
-    scaling = result.get("scaling")
-    if scaling:
-        lines.append("scaling, CPU median ms per full step (wall) / QP solver CPU; design CPU s:")
-        for axis, rows in scaling.items():
-            for r in rows:
-                if "times_ms" not in r:
-                    lines.append(f"  {axis} = {r[axis]}: {r['status']}")
-                    continue
-                t = r["times_ms"]
-                lines.append(f"  {axis} = {r[axis]:>3}  {r['backend']:6s} {r['formulation']:7s} "
-                             f"{_fmt(t['cpu_total']['median'])} ({_fmt(t['total']['median'])}) / "
-                             f"{_fmt(t['cpu_qp_solver']['median'])}; design {r['design_cpu_s']:.1f} s"
-                             + ("" if r["status"] == "completed" else f"  [{r['status']}]"))
+    if result.get("scaling"):
+        from amcp_drake.studies.bench_scaling import scaling_markdown
+
+        lines += ["scaling (one factor at a time around Example 1):", scaling_markdown(result["scaling"]).rstrip()]
     if result.get("section4"):
         from amcp_drake.studies.bench_section4 import format_section4
 
