@@ -79,15 +79,20 @@ def _drop_drake_constraint(description: str) -> Iterator[None]:
     """Remove every Drake constraint with this description just before it is solved."""
     from amcp_drake.backends import drake_
 
+    from amcp_drake.backends import set_update_vertices
+
     original = drake_._Solver.solve
 
-    def solve(self, prog):
+    def solve(self, prog, extra_options=None):
         for binding in list(prog.GetAllConstraints()):
             if binding.evaluator().get_description() == description:
                 prog.RemoveConstraint(binding)
-        return original(self, prog)
+        return original(self, prog, extra_options)
 
-    with patch.object(drake_._Solver, "solve", solve):
+    # the Drake backend answers (9) by vertices where it can (issue 16): the LP, and with it this
+    # mutant, would then never run; the mutant forces the LP so that it mutates what it names
+    with patch.object(drake_._Solver, "solve", solve), \
+            patch.object(set_update_vertices.VertexSetUpdate, "solve", lambda self, *args: None):
         yield
 
 
