@@ -66,13 +66,17 @@ def random_case(rng, flat=False):
     return H, h, Hd, hd
 
 
-def assert_certificate(H_theta, h_prev, H_data, h_data, h, Lam):
+def assert_certificate(H_theta, h_prev, H_data, h_data, h, Lam, points=None):
     H_tilde = np.vstack([H_theta, H_data])
     h_tilde = np.concatenate([h_prev, h_data])
     assert Lam.shape == (len(H_theta), len(H_tilde))
     assert np.all(Lam >= -CERT_TOL)  # interior-point multipliers may be -1e-11; the vertex ones are clipped to 0
     assert np.max(np.abs(Lam @ H_tilde - H_theta)) <= CERT_TOL
     assert np.all(Lam @ h_tilde <= h + CERT_TOL)
+    if points is not None:  # maximisers: in Θ_{k−1} ∩ Δ_k and attaining h row by row
+        assert points.shape == H_theta.shape
+        assert np.all(points @ H_tilde.T <= h_tilde + CERT_TOL)
+        np.testing.assert_allclose(np.einsum("ij,ij->i", H_theta, points), h, rtol=0, atol=CERT_TOL)
 
 
 @pytest.fixture(scope="module")
@@ -105,7 +109,7 @@ def test_vertex_update_equals_the_rebuilt_lp_on_random_data(auto_backend):
         assert res.status is SolveStatus.OPTIMAL
         methods.add(res.method)
         np.testing.assert_allclose(res.h, rebuilt_lp(H, h, Hd, hd), rtol=0, atol=H_TOL)
-        assert_certificate(H, h, Hd, hd, res.h, res.Lambda)
+        assert_certificate(H, h, Hd, hd, res.h, res.Lambda, res.points)
     assert "vertices" in methods  # the fast path was exercised, not only its fallback
 
 

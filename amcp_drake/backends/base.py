@@ -44,6 +44,7 @@ class SetUpdateResult:
     h: np.ndarray | None
     Lambda: np.ndarray | None
     solve_time: float = 0.0
+    points: np.ndarray | None = None
     #: "lp" (an LP solver) or "vertices" (basis enumeration with its dual certificate, Drake only)
     method: str = "lp"
 

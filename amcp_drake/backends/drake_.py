@@ -28,6 +28,7 @@ from amcp_drake.backends.drake_set_update import DrakeSetUpdateLP
 from amcp_drake.backends.drake_solver import SOLVERS, STATUS_MAP, DrakeSolver  # noqa: F401 - SOLVERS, STATUS_MAP re-exported
 from amcp_drake.backends.drake_solver import DrakeSolver as _Solver  # noqa: F401 - old name, used by amcp_properties.mutants
 from amcp_drake.backends.drake_solver import finite_or_raise as _finite
+from amcp_drake.backends.projection_form import projection_form
 from amcp_drake.backends.set_update_vertices import VertexSetUpdate
 from amcp_drake.model.status import SolveStatus
 
@@ -182,7 +183,7 @@ class DrakeBackend:
             answer = self._vertex_update.solve(H_theta, h_prev, H_data, h_data)
             if answer is not None:
                 return SetUpdateResult(SolveStatus.OPTIMAL, answer[0], answer[1], time.perf_counter() - start,
-                                       method="vertices")
+                                       points=answer[2], method="vertices")
         q, p = H_theta.shape
         key = (q, len(h_tilde), p)
         if key not in self._set_update_cache:

@@ -43,11 +43,12 @@ AGREEMENT_TOL = 1e-10
 
 
 def solve_by_vertices(H_theta: np.ndarray, h_prev: np.ndarray, H_data: np.ndarray,
-                      h_data: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """(h_k (q,), Λ (q, q + r)) of (9) by basis enumeration, each row certified by its
-    multipliers; None when the enumeration does not apply (see the module docstring)."""
+                      h_data: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(h_k (q,), Λ (q, q + r), maximisers (q, p)) of (9) by basis enumeration, each row certified
+    by its multipliers (dual) and its maximising vertex (primal); None when the enumeration does
+    not apply (see the module docstring)."""
     answer = _solve(H_theta, h_prev, H_data, h_data)
-    return None if answer is None else answer[:2]
+    return None if answer is None else answer[:3]
 
 
 class VertexSetUpdate:
@@ -62,27 +63,29 @@ class VertexSetUpdate:
     """
 
     def __init__(self) -> None:
-        # (H_θ, h_{k−1}, vertices (F, p), h, Λ (q, q)) of Θ_{k−1} alone, or None
+        # (H_θ, h_{k−1}, vertices (F, p), h, Λ (q, q), maximisers (q, p)) of Θ_{k−1} alone, or None
         self._last: tuple[np.ndarray, ...] | None = None
 
     def solve(self, H_theta: np.ndarray, h_prev: np.ndarray, H_data: np.ndarray,
-              h_data: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+              h_data: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """As :func:`solve_by_vertices`."""
         H_theta, h_prev = np.asarray(H_theta, float), np.asarray(h_prev, float)
         H_data, h_data = np.atleast_2d(np.asarray(H_data, float)), np.asarray(h_data, float)
         last = self._last
         if last is None or not (np.array_equal(last[1], h_prev) and np.array_equal(last[0], H_theta)):
             alone = _solve(H_theta, h_prev, np.zeros((0, H_theta.shape[1])), np.zeros(0))
-            last = self._last = None if alone is None else (H_theta.copy(), h_prev.copy(), alone[2], *alone[:2])
+            last = self._last = None if alone is None else (H_theta.copy(), h_prev.copy(), alone[3], *alone[:3])
         if last is not None and np.all(last[2] @ H_data.T <= h_data):
             Lambda = np.zeros((len(h_prev), len(h_prev) + len(h_data)))
             Lambda[:, : len(h_prev)] = last[4]
-            return last[3].copy(), Lambda
+            return last[3].copy(), Lambda, last[5].copy()
         return solve_by_vertices(H_theta, h_prev, H_data, h_data)
 
 
 def _solve(H_theta: np.ndarray, h_prev: np.ndarray, H_data: np.ndarray,
-           h_data: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """(h_k, Λ, the primal-feasible basic solutions (F, p)) or None; see :func:`solve_by_vertices`."""
+           h_data: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """(h_k, Λ, maximisers (q, p), the primal-feasible basic solutions (F, p)) or None; see
+    :func:`solve_by_vertices`."""
     H_theta = np.asarray(H_theta, float)
     H_tilde = np.vstack([H_theta, np.asarray(H_data, float)])
     h_tilde = np.concatenate([np.asarray(h_prev, float), np.asarray(h_data, float)])
@@ -117,7 +120,7 @@ def _solve(H_theta: np.ndarray, h_prev: np.ndarray, H_data: np.ndarray,
     cols = combos[chosen]                                       # (q, p)
     Lambda[np.arange(q)[:, None], cols] = np.clip(mu[chosen, np.arange(q)], 0.0, None) / norms[cols]
     # Θ_{k−1} ∩ Δ_k ⊆ Θ_{k−1}: [h_k]_i <= [h_{k−1}]_i exactly (Lemma 3); min removes round-off above it
-    return np.minimum(h, h_tilde[:q]), Lambda, points
+    return np.minimum(h, h_tilde[:q]), Lambda, points[chosen], points
 
 
 __all__ = ["MAX_BASES", "VertexSetUpdate", "solve_by_vertices"]

@@ -82,9 +82,9 @@ class CvxpyBackend:
         # the LP (9) has its own call object (same solver and options) so that profilers can tell
         # its solver time from the tube QP's (amcp_drake.studies.bench_cpu)
         self._call_lp = SolverCall(solver, solver_options)
-        # The projection QP of (12) at Clarabel's default tolerances is off by up to 4e-5 when θ̃ is
-        # just outside the set (measured by the property suite's lockstep test); as for Drake's LPs,
-        # tighten it (a 2-3 variable QP, so the cost is nil).
+        # The projection QP of (12) at Clarabel's default tolerances was off by up to 4e-5 when θ̃ is
+        # just outside the set (measured by the property suite's lockstep test, before the scaled
+        # form); as for Drake's LPs, tighten it (a 2-3 variable QP, so the cost is nil).
         tight = dict(CLARABEL_PROJECTION_OPTIONS) if solver.upper() == "CLARABEL" else {}
         tight.update(solver_options or {})
         self._call_projection = SolverCall(solver, tight)
