@@ -77,9 +77,7 @@ def _qp_inputs(edit: Callable[[AdaptiveMPC, np.ndarray, np.ndarray, np.ndarray],
 @contextmanager
 def _drop_drake_constraint(description: str) -> Iterator[None]:
     """Remove every Drake constraint with this description just before it is solved."""
-    from amcp_drake.backends import drake_
-
-    from amcp_drake.backends import set_update_vertices
+    from amcp_drake.backends import drake_, set_update_vertices
 
     original = drake_._Solver.solve
 
