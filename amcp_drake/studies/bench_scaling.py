@@ -100,7 +100,8 @@ def scaling_benchmark(settings, progress: Callable[[str], None] = lambda s: None
             try:
                 d = design(problem, options, backend="drake")
             except AmcpError as exc:
-                rows.append({axis: value, "status": f"design failed: {exc}"})
+                rows.append({axis: value, "status": f"design failed: {exc}", "design_s": time.perf_counter() - wall,
+                             "design_cpu_s": time.thread_time() - cpu})
                 continue
             timing = {"design_s": time.perf_counter() - wall, "design_cpu_s": time.thread_time() - cpu}
             runs = lockstep(problem, d, configs, x0, theta_star, settings.scaling_steps, settings.seed)
@@ -118,7 +119,8 @@ def scaling_markdown(scaling: dict[str, list[dict[str, Any]]]) -> str:
     for axis, rows in scaling.items():
         for r in rows:
             if "times_ms" not in r:
-                lines.append(f"| {axis} = {r[axis]} | | | | | {r['status']} | | | | | |")
+                spent = f"{r['design_cpu_s']:.1f} ({r['design_s']:.1f})" if "design_cpu_s" in r else ""
+                lines.append(f"| {axis} = {r[axis]} | | | | | {spent} | {r['status']} | | | | |")
                 continue
             t = r["times_ms"]
             fp = r.get("fast_path")
