@@ -124,6 +124,9 @@ class AdaptiveMPC:
         self._prev: tuple[np.ndarray, np.ndarray] | None = None
         self._window: list[tuple[np.ndarray, np.ndarray]] = []
         self._u_hist: list[float] = []
+        #: (H, h, vertices) of the last Θ_k whose vertices the tube check enumerated (issue 16: reused
+        #: while Θ_k is unchanged to the bit, which is most steps once Θ_k has settled)
+        self._checked_vertices: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
 
     # -- (ii) set-membership update ------------------------------------------------------------
     def _delta(self, x_prev, u_prev, x) -> tuple[np.ndarray, np.ndarray]:
@@ -364,7 +367,13 @@ class AdaptiveMPC:
         if sol.Lambda is None and sol.v is not None:
             H = np.asarray(self.design.H_theta if H_arg is None else H_arg, float)
             h = np.asarray(h_arg, float)
-            vertices = self._theta_k_vertices(H, h if h.ndim == 1 else h[0])
+            h = h if h.ndim == 1 else h[0]
+            last = self._checked_vertices
+            if last is not None and np.array_equal(last[1], h) and np.array_equal(last[0], H):
+                vertices = last[2]
+            else:
+                vertices = self._theta_k_vertices(H, h)
+                self._checked_vertices = (H.copy(), h.copy(), vertices)
         return answer_checks.check_tube(sol, self.data, x, h_arg, H_arg, vertices)
 
     #: An interior point for Qhull must be this far inside every unit row of Θ_k (θ units); closer,
