@@ -96,8 +96,6 @@ class SupportLP:
     """
 
     def __init__(self, shape: tuple[int, int]) -> None:
-        # Its parameter declarations have the shape of those of online.ProjectionQP (``duplicates``
-        # pairs them): two different problems that only share the H, h parameters of a polytope.
         rows, dim = shape
         self.H = cp.Parameter((rows, dim), name="H")
         self.h = cp.Parameter(rows, name="h")
