@@ -25,10 +25,10 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, replace
 
-from amcp_drake.offline import templates as x0_templates
 from amcp_drake.backends import get_backend
 from amcp_drake.model.errors import DesignError
-from amcp_drake.model.problem import DesignOptions, Problem
+from amcp_drake.model.problem import DEFAULT_X0_LAMBDA, DesignOptions, Problem
+from amcp_drake.offline import templates as x0_templates
 
 #: λ of the contractive template, tried in this order: 0.9 leaves the tube room to shrink
 #: (α⁺ <= 0.9 α + w̄) with a set close to the maximal robust control-invariant set; larger λ give
@@ -91,12 +91,13 @@ def candidate_options(problem: Problem, options: DesignOptions) -> list[DesignOp
     return out
 
 
-def design_auto(problem: Problem, options: DesignOptions, backend="drake", log=None):
-    """The first candidate of :func:`candidate_options` whose design passes every check of
-    :func:`~amcp_drake.offline.checks.verify_design`; ``log(line)`` is called after each attempt."""
-    from amcp_drake.offline.design import design_fixed, robust_gain, template_label
-    from amcp_drake.offline.checks import verify_design
+def design_auto(problem: Problem, options: DesignOptions, backend, design_fixed, robust_gain, verify, log=None):
+    """The first candidate of :func:`candidate_options` whose design passes every check of ``verify``
+    (:func:`~amcp_drake.offline.checks.verify_design`); ``log(line)`` is called after each attempt.
 
+    ``design_fixed`` and ``robust_gain`` are those of offline/design.py, passed in by
+    :func:`~amcp_drake.offline.design.design` (this module sits below design.py: no import cycle).
+    """
     be = get_backend(backend)
     gains: dict = {}
     attempts: list[Attempt] = []
@@ -112,7 +113,7 @@ def design_auto(problem: Problem, options: DesignOptions, backend="drake", log=N
             attempts.append(Attempt(label, "design failed", _short(exc), time.perf_counter() - start))
             _emit(log, attempts[-1])
             continue
-        checks = verify_design(problem, d, candidate.mu_state_bound)
+        checks = verify(problem, d, candidate.mu_state_bound)
         failed = [c for c in checks if not c.passed]
         if failed:
             reason = "; ".join(f"{c.name}: {c.status}" + (f" (margin {c.margin:.3g})" if c.margin is not None else "")
@@ -129,6 +130,23 @@ def design_auto(problem: Problem, options: DesignOptions, backend="drake", log=N
         info["attempts"] = [a.to_dict() for a in attempts]
         return replace(d, info=info)
     raise AutoDesignError(attempts)
+
+
+def template_label(options: DesignOptions, facets: int | None = None) -> str:
+    """A short human name of the template of ``options`` ("mrpi, 8 facets", "contractive, lambda 0.9",
+    "..., K from R x 10")."""
+    kind = options.x0_template
+    if kind == "mrpi":
+        text = f"mrpi, {options.x0_facets} facets"
+    elif kind == "contractive":
+        text = f"contractive, lambda {options.x0_lambda if options.x0_lambda is not None else DEFAULT_X0_LAMBDA:g}"
+        if facets is not None:
+            text += f", {facets} facets"
+    else:
+        text = f"{kind}" + (f", {facets} facets" if facets is not None else "")
+    if options.gain_R_scale != 1.0 and options.K is None:
+        text += f", K from R x {options.gain_R_scale:g}"
+    return text
 
 
 def chosen_options(options: DesignOptions, design) -> DesignOptions:

@@ -238,7 +238,7 @@ def _small_polytopic_problem() -> ProblemSpec:
                       A=[[[0.05, 0.0], [0.02, 0.03]], [[0.0, 0.03], [-0.02, 0.0]]], B=[[[0.0], [0.04]], [[0.03], [0.0]]],
                       H_w=H_w, H_theta=H_theta, h_theta=h_theta, F=F, G=G, Q=np.eye(2), R=[[0.5]], N=6,
                       theta_hat0=[0.0, 0.0], name="mutant-target")
-    return ProblemSpec(problem, DesignOptions(x0_facets=8))
+    return ProblemSpec(problem, DesignOptions(x0_template="mrpi", x0_facets=8))
 
 
 def targeted_scenarios(steps: int = 30, seed: int = 0) -> list[Scenario]:
