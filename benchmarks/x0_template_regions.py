@@ -37,7 +37,8 @@ from amcp_drake.offline.design import design, design_fixed
 from amcp_drake.online.controller import AdaptiveMPC
 
 BEFORE_FACETS = (8, 12, 16, 20, 24, 32, 48, 64, 96)
-ALTERNATIVES = {"contractive 0.95, R x 100": dict(x0_template="contractive", x0_lambda=0.95, gain_R_scale=100.0),
+ALTERNATIVES = {"contractive 0.99": dict(x0_template="contractive", x0_lambda=0.99),
+                "contractive 0.95, R x 100": dict(x0_template="contractive", x0_lambda=0.95, gain_R_scale=100.0),
                 "contractive 0.98, R x 100": dict(x0_template="contractive", x0_lambda=0.98, gain_R_scale=100.0)}
 
 

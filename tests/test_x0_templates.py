@@ -171,20 +171,20 @@ def test_auto_order_is_documented_order():
     labels = [(o.x0_template, o.x0_facets if o.x0_template == "mrpi" else o.x0_lambda, o.gain_R_scale)
               for o in candidate_options(problem, DesignOptions())]
     assert labels[0] == ("mrpi", 8, 1.0)
-    assert labels[1:4] == [("contractive", 0.9, 1.0), ("contractive", 0.95, 1.0), ("contractive", 0.98, 1.0)]
-    assert [lab[2] for lab in labels[4:10]] == [10.0] * 3 + [100.0] * 3
+    assert labels[1:4] == [("contractive", 0.9, 100.0), ("contractive", 0.95, 100.0), ("contractive", 0.98, 100.0)]
+    assert [lab[2] for lab in labels[4:10]] == [10.0] * 3 + [1.0] * 3  # lowest gain first, LMI gain last
     assert [lab[1] for lab in labels[10:]] == list(AUTO_FACETS)
 
 
-def test_auto_takes_the_second_candidate_when_the_first_diverges_and_records_why():
-    problem = sls_mpc_2d_problem(0.25)
+def test_auto_takes_the_second_candidate_when_the_first_fails_and_records_why():
+    problem = sls_mpc_2d_problem(0.15)
     d = design(problem, DesignOptions())
     attempts = d.info["attempts"]
-    assert [a["label"] for a in attempts] == ["mrpi, 8 facets", "contractive, lambda 0.9"]
-    assert attempts[0]["outcome"] == "design failed" and "diverged" in attempts[0]["reason"]
-    assert "Next:" in attempts[0]["reason"]  # divergence comes with the next thing to try
+    assert [a["label"] for a in attempts] == ["mrpi, 8 facets", "contractive, lambda 0.9, K from R x 100"]
+    assert attempts[0]["outcome"] == "design failed" and "not converged" in attempts[0]["reason"]
+    assert "Next:" in attempts[0]["reason"]
     assert attempts[1]["outcome"] == "pass"
-    assert d.info["options"]["x0_template"] == "contractive"
+    assert d.info["options"] == {"x0_template": "contractive", "x0_facets": 8, "x0_lambda": 0.9, "gain_R_scale": 100.0}
 
 
 def test_cli_design_prints_every_attempt(tmp_path):
@@ -194,8 +194,11 @@ def test_cli_design_prints_every_attempt(tmp_path):
 
     result = CliRunner().invoke(main, ["design", str(EXAMPLES / "sls_mpc_2d_eps0.25.json")])
     assert result.exit_code == 0, result.output
+    # divergence is reported as divergence, with the next thing to try
     assert "design attempt 1: mrpi, 8 facets: design failed (X0 template mrpi (8 facets): diverged" in result.output
-    assert "design attempt 2: contractive, lambda 0.9: pass" in result.output
+    assert "Next: more facets (design.x0_facets), or x0_template = 'contractive'" in result.output
+    assert "design attempt 2: contractive, lambda 0.9, K from R x 100: design failed" in result.output
+    assert "design attempt 3: contractive, lambda 0.95, K from R x 100: pass" in result.output
     assert "all design checks pass" in result.output
 
 

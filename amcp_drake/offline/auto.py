@@ -9,13 +9,15 @@ Order (:func:`candidate_options`):
 2. ``mrpi`` with ``design.x0_facets`` (default 8) and the LMI gain: the design of the paper and of
    every earlier version of this project, so problems that designed before (Example 1) keep
    exactly the same design.
-3. ``contractive`` with the LMI gain, λ in :data:`AUTO_LAMBDAS`.
-4. ``contractive`` with a lower-gain K (R scaled by each of :data:`AUTO_R_SCALES` in the LMI),
-   λ in :data:`AUTO_LAMBDAS`.
-5. ``mrpi`` with more facets, :data:`AUTO_FACETS` (those the dimension allows).
+3. ``contractive`` with a lower-gain K first (the LMI solved with R scaled by each of
+   :data:`AUTO_R_SCALES`, largest first), then the LMI gain, each with λ in :data:`AUTO_LAMBDAS`:
+   a lower gain makes the input constraint bite less and gave the larger region on the SLS-MPC
+   family (benchmarks/x0_template_regions.py: 0.26 instead of 0.16 at ε_A = 0.25).
+4. ``mrpi`` with more facets, :data:`AUTO_FACETS` (those the dimension allows).
 
-A user-given K, P (``design.K``/``design.P``) skips step 4; a user-given ``x0_lambda`` replaces the
-λ list; ``gain_R_scale`` other than 1 is used in steps 2-3 (and step 4 uses larger scales only).
+A user-given K, P (``design.K``/``design.P``) skips the lower-gain K's; a user-given ``x0_lambda``
+replaces the λ list; a ``gain_R_scale`` other than 1 is used in step 2 and replaces the LMI gain in
+step 3 (only larger scales are added).
 Each attempt is recorded as (label, outcome, reason, seconds); the returned design carries them in
 ``info["attempts"]``; when none passes, :class:`AutoDesignError` lists them all.
 """
@@ -34,10 +36,10 @@ from amcp_drake.offline import templates as x0_templates
 #: (α⁺ <= 0.9 α + w̄) with a set close to the maximal robust control-invariant set; larger λ give
 #: larger sets but a slower tube.
 AUTO_LAMBDAS = (0.9, 0.95, 0.98)
-#: R multipliers of the lower-gain K (step 4): each decade lowers the gain visibly on the 2-D
+#: R multipliers of the lower-gain K (step 3): each decade lowers the gain visibly on the 2-D
 #: benchmarks without making A_cl(θ) nearly unstable.
 AUTO_R_SCALES = (10.0, 100.0)
-#: Facet counts of the last resort (step 5); the issue-14 measurements needed up to 96 in 2-D.
+#: Facet counts of the last resort (step 4); the issue-14 measurements needed up to 96 in 2-D.
 AUTO_FACETS = (12, 16, 20, 24, 32, 48, 64, 96)
 
 
@@ -79,8 +81,8 @@ def candidate_options(problem: Problem, options: DesignOptions) -> list[DesignOp
     out.append(replace(base, x0_H=None))
     lambdas = (options.x0_lambda,) if options.x0_lambda is not None else AUTO_LAMBDAS
     gains = [options.gain_R_scale]
-    if options.K is None:
-        gains += [s for s in AUTO_R_SCALES if s > options.gain_R_scale]
+    if options.K is None:  # the lowest gain first: the input constraint bites least (docs/decisions.md)
+        gains = sorted({options.gain_R_scale, *(s for s in AUTO_R_SCALES if s > options.gain_R_scale)}, reverse=True)
     for scale in gains:
         for lam in lambdas:
             out.append(replace(options, x0_template="contractive", x0_lambda=lam, gain_R_scale=scale, x0_H=None))
