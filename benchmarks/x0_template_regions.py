@@ -68,12 +68,12 @@ def _checked(problem, d) -> str:
     return "pass" if not failed else "checks failed: " + ", ".join(failed)
 
 
-def measure(eps_A: float, states: np.ndarray) -> list[dict]:
+def measure(eps_A: float, states: np.ndarray, choices=("before", "auto", "alternatives")) -> list[dict]:
     spec = sls_mpc_2d_spec(eps_A)
     pr = spec.problem
     rows = []
     start = time.perf_counter()
-    for facets in BEFORE_FACETS:
+    for facets in BEFORE_FACETS if "before" in choices else ():
         try:
             d = design_fixed(pr, replace(spec.design, x0_template="mrpi", x0_facets=facets))
         except DesignError:
@@ -83,12 +83,15 @@ def measure(eps_A: float, states: np.ndarray) -> list[dict]:
                          "seconds": time.perf_counter() - start, **region(pr, d, states)})
             break
     else:
-        rows.append({"eps_A": eps_A, "choice": "before", "template": "none designs", "seconds": time.perf_counter() - start})
+        if "before" in choices:
+            rows.append({"eps_A": eps_A, "choice": "before", "template": "none designs",
+                         "seconds": time.perf_counter() - start})
     start = time.perf_counter()
     d = design(pr, spec.design)
-    rows.append({"eps_A": eps_A, "choice": "auto", "template": d.info["x0_template"],
+    if "auto" in choices:
+        rows.append({"eps_A": eps_A, "choice": "auto", "template": d.info["x0_template"],
                  "seconds": time.perf_counter() - start, "attempts": len(d.info["attempts"]), **region(pr, d, states)})
-    for name, changes in ALTERNATIVES.items():
+    for name, changes in ALTERNATIVES.items() if "alternatives" in choices else ():
         start = time.perf_counter()
         try:
             d = design_fixed(pr, DesignOptions(**changes))
@@ -109,11 +112,12 @@ def main() -> None:
     parser.add_argument("--grid", type=int, default=10)
     parser.add_argument("--eps", type=float, nargs="*", default=list(SLS_EPS_A_SWEEP))
     parser.add_argument("--out", default="benchmarks/results/x0_template_regions.json")
+    parser.add_argument("--choices", nargs="*", default=["before", "auto", "alternatives"])
     args = parser.parse_args()
     states = grid_states(args.grid)
     rows = []
     for eps_A in args.eps:
-        for row in measure(eps_A, states):
+        for row in measure(eps_A, states, tuple(args.choices)):
             rows.append(row)
             print(f"eps_A {row['eps_A']:.2f}  {row['choice']:26s} {row['template']:44s} "
                   f"{row.get('seconds', float('nan')):6.1f} s  region QP {row.get('fraction_qp', float('nan')):.2f} "
