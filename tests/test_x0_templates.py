@@ -171,9 +171,10 @@ def test_auto_order_is_documented_order():
     labels = [(o.x0_template, o.x0_facets if o.x0_template == "mrpi" else o.x0_lambda, o.gain_R_scale)
               for o in candidate_options(problem, DesignOptions())]
     assert labels[0] == ("mrpi", 8, 1.0)
-    assert labels[1:4] == [("contractive", 0.9, 100.0), ("contractive", 0.95, 100.0), ("contractive", 0.98, 100.0)]
-    assert [lab[2] for lab in labels[4:10]] == [10.0] * 3 + [1.0] * 3  # lowest gain first, LMI gain last
-    assert [lab[1] for lab in labels[10:]] == list(AUTO_FACETS)
+    lambdas = [0.9, 0.95, 0.98, 0.99]
+    # lowest gain first (K from 100 R), the LMI gain last, each with the λ list
+    assert labels[1:13] == [("contractive", lam, scale) for scale in (100.0, 10.0, 1.0) for lam in lambdas]
+    assert labels[13:] == [("mrpi", facets, 1.0) for facets in AUTO_FACETS]
 
 
 def test_auto_takes_the_second_candidate_when_the_first_fails_and_records_why():
