@@ -235,7 +235,6 @@ def test_the_same_system_with_a_small_disturbance_designs():
     assert d.info["attempts"][-1]["outcome"] == "pass"
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("eps_A", SLS_EPS_A_SWEEP)
 def test_sls_family_designs_at_default_settings(eps_A):
     """Issue 14: the default (auto) design succeeds and passes every design check for every ε_A."""
