@@ -245,6 +245,12 @@ def test_sls_family_designs_at_default_settings(eps_A):
     assert all(c.passed for c in verify_design(spec.problem, d))
     lam, inv = contraction_and_invariance(spec.problem, d)
     assert lam < 1.0 and inv <= 1.0 + TOL
+    # the default scenario starts where the first QP is feasible (vertex-form LP of the property suite,
+    # independent of both backends)
+    from amcp_properties.feasible import TubeGeometry, feasibility_margin
+
+    geo = TubeGeometry.build(spec.problem, d, spec.problem.theta_vertices())
+    assert feasibility_margin(geo, spec.scenario.x0) > 0.0
 
 
 # -- bad input -------------------------------------------------------------------------------------
