@@ -289,3 +289,24 @@ def test_example_files_match_the_constructor():
         assert np.array_equal(spec.problem.A, ref.A) and np.array_equal(spec.problem.B, ref.B)
         assert spec.problem.A[0, 0, 0] == eps_A and spec.problem.B[1, 1, 0] == 0.1
         assert spec.design.x0_template == "auto"
+
+
+def three_state_problem() -> Problem:
+    """A 3-state chain x⁺ = (A0 + 0.05 θ E11) x + B u + w, θ ∈ [-1, 1], ‖x‖∞ <= 5, |u| <= 2, ‖w‖∞ <= 0.05."""
+    A0 = np.array([[0.9, 0.2, 0.0], [0.0, 0.9, 0.2], [0.0, 0.0, 0.9]])
+    E = np.zeros((3, 3))
+    E[0, 0] = 0.05
+    return Problem(A0=A0, B0=np.array([[0.0], [0.0], [1.0]]), A=[E], B=[np.zeros((3, 1))],
+                   H_w=np.vstack([np.eye(3), -np.eye(3)]) / 0.05, H_theta=[[1.0], [-1.0]], h_theta=[1.0, 1.0],
+                   F=np.vstack([np.eye(3), -np.eye(3), np.zeros((2, 3))]) / 5.0,
+                   G=np.vstack([np.zeros((6, 1)), [[0.5], [-0.5]]]), Q=np.eye(3), R=np.eye(1), N=3,
+                   theta_hat0=[0.0], name="chain3")
+
+
+def test_contractive_template_in_three_dimensions_is_checked_independently():
+    problem = three_state_problem()
+    lam = 0.95
+    d = design_fixed(problem, DesignOptions(x0_template="contractive", x0_lambda=lam))
+    lam_bar, inv = contraction_and_invariance(problem, d)
+    assert lam_bar <= lam + TOL and inv <= lam + TOL
+    assert sampled_invariance_violation(problem, d, samples=500) <= TOL
