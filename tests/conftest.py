@@ -32,6 +32,18 @@ def example_run(example_spec, example_design):
                     mu_state_bound=example_spec.design.mu_state_bound)
 
 
+@pytest.fixture(scope="session")
+def example_run_cvxpy(example_spec, example_design):
+    """The run of ``example_run`` (Example 1, 50 steps, seed 0) with the cvxpy backend."""
+    from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_drake.online.simulate import simulate
+
+    sc = example_spec.scenario
+    ctrl = AdaptiveMPC(example_spec.problem, example_design, backend="cvxpy")
+    return simulate(ctrl, sc.x0, sc.theta_star, 50, "uniform", seed=0,
+                    mu_state_bound=example_spec.design.mu_state_bound)
+
+
 def scalar_problem(**changes):
     """A scalar system x+ = (0.5 + 0.2 θ) x + u + w, θ ∈ [-1, 1], |w| <= 0.1, |x| <= 5, |u| <= 2."""
     from amcp_drake.model.problem import Problem

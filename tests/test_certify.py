@@ -39,7 +39,7 @@ ALL_IDS = [
     "lms_update", "lemma5",
     "tube_contains_state", "tube_contains_next_state", "tube_propagation", "tube_constraints", "tube_alpha_nonneg",
     "terminal_set", "multipliers_nonneg", "multipliers_15c", "multipliers_15d",
-    "cost_value",
+    "cost_value", "qp_optimality",
 ]
 
 
@@ -171,7 +171,9 @@ def test_state_pushed_outside_z(recorded, spec):
     * x_T ∈ X_1|T-1 fails for the same reason (X_1|T-1 satisfies (15a) at l = 1);
     * the states no longer follow (1) with the recorded w_(T-1) ∈ W;
     * θ̂_T no longer follows (12): the LMS step uses x_T;
-    * the recorded cost of step T is no longer (17): the nominal prediction (18) starts at x_T.
+    * the recorded cost of step T is no longer (17): the nominal prediction (18) starts at x_T;
+    * the recorded tube of step T is not a minimiser of the QP (20) at the new x_T: it is not even
+      feasible for it ((15b) holds x_T), so qp_optimality fails on primal infeasibility.
     Θ_(T-1) ∩ Δ_T is then empty, so the Lemma 3 inclusion holds vacuously (reported in its detail).
     """
     tr = fresh(recorded)
@@ -184,7 +186,8 @@ def test_state_pushed_outside_z(recorded, spec):
     last.u = tr.design.K @ x + last.v[0]
     cert = certify(tr, spec)
     assert_fails_exactly(cert, {"state_input_constraints", "tube_contains_state", "tube_contains_next_state",
-                                "model_consistent", "lms_update", "cost_value"})
+                                "model_consistent", "lms_update", "cost_value", "qp_optimality"})
+    assert cert.claim("qp_optimality").data["worst_step"] == T
     z_claim = cert.claim("state_input_constraints")
     assert z_claim.data["worst_step"] == T
     assert z_claim.margin == pytest.approx(1.0 + x[1] / 0.3, abs=1e-9)  # row x2 >= −0.3 is −x2/0.3 <= 1
@@ -225,8 +228,9 @@ def test_negative_multiplier_alone_also_breaks_15d(recorded, spec):
 def test_theta_hat_moved_breaks_lemma5(recorded, spec):
     """θ̂_T moved (inside Θ) to [−0.9, −0.9, 0.9], far from θ*: the term (1/μ)‖θ̂_T − θ*‖² of Lemma 5
     alone exceeds the right side at m = T−1, so Lemma 5 fails; θ̂_T no longer follows (12) either
-    (Lemma 5 is a consequence of (12)); and the recorded cost of step T is no longer (17), whose
-    nominal prediction (18) uses θ̂_T. Nothing else uses θ̂_T."""
+    (Lemma 5 is a consequence of (12)); the recorded cost of step T is no longer (17), whose
+    nominal prediction (18) uses θ̂_T; and for the same reason the recorded v is no longer the
+    minimiser of (20) at step T (qp_optimality). Nothing else uses θ̂_T."""
     tr = fresh(recorded)
     moved = np.array([-0.9, -0.9, 0.9])
     mu = tr.design.mu
@@ -234,7 +238,8 @@ def test_theta_hat_moved_breaks_lemma5(recorded, spec):
     assert np.sum((moved - tr.theta_star) ** 2) / mu > rhs  # the tampering must break the inequality
     tr.records[-1].theta_hat = moved
     cert = certify(tr, spec)
-    assert_fails_exactly(cert, {"lemma5", "lms_update", "cost_value"})
+    assert_fails_exactly(cert, {"lemma5", "lms_update", "cost_value", "qp_optimality"})
+    assert cert.claim("qp_optimality").data["worst_step"] == STEPS
     assert cert.claim("lemma5").data["worst_step"] == STEPS - 1
     assert cert.claim("cost_value").data["worst_step"] == STEPS
     assert cert.claim("lms_update").data["worst_step"] == STEPS
@@ -245,7 +250,8 @@ def test_tube_no_longer_contains_state(recorded, spec):
     with Λ_0|3 replaced by the same convex combinations of the recorded multipliers.
 
     The new cross-section lies inside the old one and its vertices are convex combinations of the old
-    vertices, so (5b), (5c), (15c), (15d) and Λ >= 0 all still hold; only x_3 ∈ X_0|3 (15b) fails.
+    vertices, so (5b), (5c), (15c), (15d) and Λ >= 0 all still hold; only x_3 ∈ X_0|3 (15b) fails, and
+    with it the optimality of the recorded decision of step 3 for (20), which it no longer satisfies.
     """
     tr = fresh(recorded)
     k, s = 3, 0.3
@@ -259,8 +265,9 @@ def test_tube_no_longer_contains_state(recorded, spec):
     lam[0] = (1 - s) * rec.Lambda[0, far][None] + s * rec.Lambda[0]
     rec.z, rec.alpha, rec.Lambda = z, alpha, lam
     cert = certify(tr, spec)
-    assert_fails_exactly(cert, {"tube_contains_state"})
+    assert_fails_exactly(cert, {"tube_contains_state", "qp_optimality"})
     assert cert.claim("tube_contains_state").data["worst_step"] == k
+    assert cert.claim("qp_optimality").data["worst_step"] == k
 
 
 def test_failed_qp_fails_recursive_feasibility(recorded, spec):

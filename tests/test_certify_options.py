@@ -93,7 +93,7 @@ def test_certainty_equivalence_cost_known_answer():
 def test_pe_run_certifies_with_pe_claims(pe_run, spec):
     cert = certify(fresh(pe_run), spec)
     assert cert.verdict == "pass", (cert.ids("fail"), cert.ids("not_run"))
-    assert cert.ids()[-3:] == ["cost_value", "pe_level", "pe_bounds"]
+    assert cert.ids()[-4:] == ["cost_value", "qp_optimality", "pe_level", "pe_bounds"]
     enforced = [k for k, s in enumerate(pe_run_statuses(pe_run)) if s.startswith("enforced")]
     assert len(enforced) >= 5  # the claim is exercised, not vacuous
     assert len(cert.claim("pe_level").data["per_step"]) == len(enforced)

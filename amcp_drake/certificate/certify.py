@@ -13,7 +13,9 @@ backend that ran the loop):
 * Proposition 9 at every solved step: tube containment by vertex enumeration, (5c), α >= 0,
   the terminal set, and the multipliers Λ as dual certificates (Λ >= 0, (15c), (15d));
 * the recorded cost against (17) or (19) and, when the run enforces persistent excitation, the
-  PE window level and input bounds of spec §8 (:mod:`amcp_drake.certificate.section4`).
+  PE window level and input bounds of spec §8 (:mod:`amcp_drake.certificate.section4`);
+* the optimality of the recorded (z, α, v) for the QP (20) rebuilt from the record, by KKT
+  residuals (:mod:`amcp_drake.certificate.optimality`).
 
 Each claim is a :class:`~amcp_drake.model.check_result.CheckResult` (margin, tolerance, worst step in
 ``data["worst_step"]``). :attr:`Certificate.passed` is True only when every claim passed: a claim
@@ -33,7 +35,8 @@ import numpy as np
 
 from amcp_drake import __version__
 from amcp_drake.certificate.claims import RunView, run_checks, tag
-from amcp_drake.certificate.section4 import option_checks, pe_figure
+from amcp_drake.certificate.optimality import qp_optimality
+from amcp_drake.certificate.section4 import cost_value, excitation_checks, pe_figure
 from amcp_drake.certificate.tube import GROUP_DESIGN, tube_checks, x0_vertex_list
 from amcp_drake.model.check_result import FAIL, NOT_RUN, PASS, CheckResult, not_run
 from amcp_drake.model.errors import TrajectoryError
@@ -139,7 +142,7 @@ def certify(traj: Trajectory, problem_spec: ProblemSpec | None = None) -> Certif
     claims = _design_claims(traj, state_bound)
     view = RunView(traj)
     run, lemma = run_checks(view, state_bound)
-    claims += run + tube_checks(view) + option_checks(view)
+    claims += run + tube_checks(view) + [cost_value(view), qp_optimality(view)] + excitation_checks(view)
     figures, series = _figures(view, lemma)
     info = _run_info(traj, state_bound)
     info["not_claimed"] = [{"id": c.data["id"], "name": c.name, "reason": c.detail}

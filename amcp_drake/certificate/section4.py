@@ -173,7 +173,12 @@ def pe_bounds(view: RunView) -> CheckResult:
 
 def option_checks(view: RunView) -> list[CheckResult]:
     """The claims of this module that apply to the run's options, in reading order."""
-    checks = [cost_value(view)]
+    return [cost_value(view)] + excitation_checks(view)
+
+
+def excitation_checks(view: RunView) -> list[CheckResult]:
+    """``pe_level`` and ``pe_bounds`` when the run enforces persistent excitation, else nothing."""
+    checks: list[CheckResult] = []
     if pe_enabled(view):
         if view.problem.m != 1:
             checks.append(tag(not_run("PE window level", "spec §8 PE constraint", "PE needs m = 1"), "pe_level",

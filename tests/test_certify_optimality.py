@@ -1,0 +1,226 @@
+"""Certificate claim ``qp_optimality`` (issue 13, failure kind 4): the recorded (z, α, v) of every solved
+step is a minimiser of the QP (20) rebuilt from the record, shown by KKT residuals with numpy/scipy.
+
+Honest runs pass (both backends, min–max cost, Example 2 with PE bounds and the predicted sets (26));
+a design P edited within (16), a recorded decision replaced by another feasible one, and the same
+with u and the cost made consistent all fail, the last two surgically (only this claim fails). The
+feasible replacements are produced by the backend (a test may use one; the certificate never does).
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from amcp_drake.certificate.certify import certify
+from amcp_drake.certificate.optimality import OPTIMALITY_TOL, ce_gradient, kkt_residuals
+from amcp_drake.certificate.section4 import ENFORCED
+from amcp_drake.online.controller import AdaptiveMPC
+from amcp_drake.model.options import OnlineOptions
+from amcp_drake.online.simulate import Trajectory, simulate
+
+CLAIM = "qp_optimality"
+
+
+def as_file(traj: Trajectory) -> dict:
+    """The trajectory as the JSON dict of its file (what a user could edit)."""
+    return json.loads(json.dumps(traj.to_dict()))
+
+
+def load(data: dict) -> Trajectory:
+    return Trajectory.from_dict(json.loads(json.dumps(data)))
+
+
+def assert_fails_exactly(cert, expected: set[str]) -> None:
+    assert set(cert.ids("fail")) == expected, f"failed {cert.ids('fail')}, expected {sorted(expected)}"
+    assert cert.ids("not_run") == []
+
+
+def run(spec, design, options, steps, backend="drake", theta_star=None) -> Trajectory:
+    ctrl = AdaptiveMPC(spec.problem, design, backend=backend, options=options)
+    sc = spec.scenario
+    traj = simulate(ctrl, sc.x0, sc.theta_star if theta_star is None else theta_star, steps, "uniform", seed=0,
+                    mu_state_bound=spec.design.mu_state_bound)
+    assert traj.stop_reason == "completed"
+    return traj
+
+
+@pytest.fixture(scope="module")
+def drake_file(example_run) -> dict:
+    return as_file(example_run)
+
+
+@pytest.fixture(scope="module")
+def minmax_run(example_spec, example_design) -> Trajectory:
+    return run(example_spec, example_design, OnlineOptions(cost="minmax"), 10)
+
+
+@pytest.fixture(scope="module")
+def ex2_run(example_design) -> tuple:
+    """Example 2 (d_θ = 0.01, PE window 3, level 0.8, drifting θ*_k), 15 steps, Drake."""
+    from amcp_drake.model.examples import lorenzen2019_ex2_spec
+
+    spec = lorenzen2019_ex2_spec()
+    assert (spec.online.d_theta, spec.online.pe_window, spec.online.pe_level) == (0.01, 3, 0.8)
+    traj = run(spec, example_design, spec.online, 15, theta_star=spec.scenario.theta_star_for(15))
+    return spec, traj
+
+
+# -- honest runs pass -----------------------------------------------------------------------------
+@pytest.mark.parametrize("fixture", ["example_run", "example_run_cvxpy"])
+def test_example_1_runs_of_both_backends_are_optimal(fixture, request, example_spec):
+    traj = request.getfixturevalue(fixture)
+    cert = certify(traj, example_spec)
+    claim = cert.claim(CLAIM)
+    assert claim.status == "pass" and claim.tolerance == OPTIMALITY_TOL
+    assert claim.margin >= -OPTIMALITY_TOL / 10  # headroom, see docs/certificate.md (observed <= 1e-6)
+    assert [k for k, _ in claim.data["per_step"]] == list(range(51))  # every solved step was checked
+    assert cert.passed
+
+
+def test_minmax_run_is_optimal(minmax_run, example_spec):
+    claim = certify(minmax_run, example_spec).claim(CLAIM)
+    assert claim.status == "pass" and claim.data["cost"] == "minmax"
+    assert len(claim.data["per_step"]) == 11
+
+
+def test_example_2_with_pe_bounds_and_predicted_sets_is_optimal(ex2_run):
+    spec, traj = ex2_run
+    assert any(r.pe_status in ENFORCED and r.pe_bounds is not None for r in traj.records)  # bound rows used
+    assert all(r.h_theta_stages is not None for r in traj.records)                       # (26) per stage
+    cert = certify(traj, spec)
+    assert cert.claim(CLAIM).status == "pass"
+    assert cert.ids("fail") == []
+
+
+# -- tampering fails -------------------------------------------------------------------------------
+def test_terminal_weight_raised_within_16_fails_only_optimality(drake_file, example_spec):
+    """The issue's case: design P[0][0] raised by 0.1. P enters neither a constraint nor (16) in a way
+    that breaks it (the design claim still passes), and the recorded cost moves by ~1e-7 relative
+    (below cost_value's tolerance); only the recorded v is no longer the minimiser of (17)."""
+    data = json.loads(json.dumps(drake_file))
+    data["design"]["P"][0][0] += 0.1
+    cert = certify(load(data), example_spec)
+    assert_fails_exactly(cert, {CLAIM})
+    assert cert.claim("design.terminal_cost_16").status == "pass"
+    assert cert.claim(CLAIM).margin < -2 * OPTIMALITY_TOL  # measured −6.1e-5
+
+
+def test_minmax_terminal_weight_raised_fails_optimality(minmax_run, example_spec):
+    data = as_file(minmax_run)
+    data["design"]["P"][0][0] += 0.1
+    assert certify(load(data), example_spec).claim(CLAIM).status == "fail"
+
+
+def _feasible_replacement(spec, design, record) -> dict:
+    """Another feasible decision of step T's QP: the midpoint of the recorded one and the Drake solution of
+    the same QP with θ̂ = [−1, −1, 1] (θ̂ enters only the cost (17), so that solution is feasible too, and
+    (15) is convex, so the midpoint is feasible; by strict convexity in v it is not optimal)."""
+    ctrl = AdaptiveMPC(spec.problem, design, backend="drake")
+    other = ctrl.mpc.solve(record["x"], np.asarray(record["h_theta"]), np.array([-1.0, -1.0, 1.0]))
+    assert other.status.value == "optimal"
+    mid = {name: 0.5 * (np.asarray(record[name]) + getattr(other, name)) for name in ("v", "z", "alpha", "Lambda")}
+    assert np.max(np.abs(mid["v"] - np.asarray(record["v"]))) > 1e-3
+    return mid
+
+
+def _ce_cost(problem, design, x, theta_hat, v) -> float:
+    """(17)-(18) written out (independent of the certificate's own evaluation)."""
+    A = problem.A0 + sum(t * Ai for t, Ai in zip(theta_hat, problem.A))
+    B = problem.B0 + sum(t * Bi for t, Bi in zip(theta_hat, problem.B))
+    K, P = np.asarray(design.K), np.asarray(design.P)
+    xh, J = np.asarray(x, float), 0.0
+    for vl in v:
+        u = K @ xh + vl
+        J += xh @ problem.Q @ xh + u @ problem.R @ u
+        xh = A @ xh + B @ u
+    return float(J + xh @ P @ xh)
+
+
+def test_decision_replaced_by_another_feasible_one_fails(drake_file, example_spec, example_design):
+    """The last record's (v, z, α, Λ) replaced by a feasible, non-optimal one, u and cost left as recorded:
+    the tube and multiplier claims hold (it is feasible); (21) and the cost no longer match; and it is
+    not optimal."""
+    data = json.loads(json.dumps(drake_file))
+    record = data["records"][-1]
+    for name, value in _feasible_replacement(example_spec, example_design, record).items():
+        record[name] = value.tolist()
+    cert = certify(load(data), example_spec)
+    assert_fails_exactly(cert, {CLAIM, "control_law", "cost_value"})
+    assert cert.claim(CLAIM).data["worst_step"] == len(data["records"]) - 1
+
+
+def test_cost_altered_consistently_with_a_tampered_decision_fails_only_optimality(drake_file, example_spec,
+                                                                                   example_design):
+    """As above, with u_T = K x_T + v_0 and the cost of the new v written in as well: every other claim
+    is satisfied by the forgery; only optimality exposes it."""
+    data = json.loads(json.dumps(drake_file))
+    record = data["records"][-1]
+    mid = _feasible_replacement(example_spec, example_design, record)
+    for name, value in mid.items():
+        record[name] = value.tolist()
+    record["u"] = (np.asarray(data["design"]["K"]) @ np.asarray(record["x"]) + mid["v"][0]).tolist()
+    record["cost"] = _ce_cost(example_spec.problem, example_design, record["x"], record["theta_hat"], mid["v"])
+    assert record["cost"] > drake_file["records"][-1]["cost"]  # a worse decision, passed off as the optimum
+    cert = certify(load(data), example_spec)
+    assert_fails_exactly(cert, {CLAIM})
+
+
+def test_cli_exits_1_naming_the_claim(drake_file, tmp_path):
+    from amcp_drake.cli import main
+
+    data = json.loads(json.dumps(drake_file))
+    data["design"]["P"][0][0] += 0.1
+    path = load(data).save(tmp_path / "tampered.json.gz")
+    result = CliRunner().invoke(main, ["certify", "--trajectory", str(path), "--out", str(tmp_path / "out")],
+                                catch_exceptions=False)
+    assert result.exit_code == 1, result.output
+    assert "NOT CERTIFIED: 1 claim(s) failed: qp_optimality" in result.output
+    row = next(line for line in result.output.splitlines() if line.startswith(CLAIM))
+    assert " fail " in row
+    saved = json.loads((tmp_path / "out" / "certificate.json").read_text())
+    assert [c["id"] for c in saved["claims"] if c["status"] == "fail"] == [CLAIM]
+
+
+def test_unenumerable_theta_k_is_not_run_never_pass(drake_file, example_spec):
+    """Θ_3 made empty (θ1 <= −2 against θ1 >= −1): its vertices do not exist, so the QP cannot be rebuilt
+    at step 3; the claim is not_run (not pass), whatever the other claims say."""
+    data = json.loads(json.dumps(drake_file))
+    assert data["records"][3]["H_theta"][0] == [1.0, 0.0, 0.0]
+    data["records"][3]["h_theta"][0] = -2.0
+    claim = certify(load(data), example_spec).claim(CLAIM)
+    assert claim.status == "not_run" and claim.margin is None
+    assert "3" in claim.detail
+
+
+# -- building blocks against known answers ---------------------------------------------------------
+def test_ce_gradient_matches_finite_differences_of_17(example_spec, example_design, rng):
+    """(17) is quadratic in v, so central differences are exact up to rounding."""
+    pr = example_spec.problem
+    x, theta_hat = np.array([1.5, -0.2]), np.array([0.3, -0.7, 0.4])
+    v = rng.normal(size=(pr.N, pr.m))
+    grad = ce_gradient(pr, example_design, x, theta_hat, v)
+    h = 1e-5
+    for l in range(pr.N):
+        up, down = v.copy(), v.copy()
+        up[l, 0] += h
+        down[l, 0] -= h
+        fd = (_ce_cost(pr, example_design, x, theta_hat, up) - _ce_cost(pr, example_design, x, theta_hat, down)) / (2 * h)
+        assert grad[l, 0] == pytest.approx(fd, rel=1e-7, abs=1e-8)
+
+
+def test_kkt_residuals_of_a_one_dimensional_qp():
+    """min (v − 2)² s.t. v <= 1. At v = 1: ∇f = −2, the row is active with ω = 2, residual 0. At v = 0.5:
+    ∇f = −3, no active row, relative residual 3/3 = 1. At v = 1.5 (infeasible by 0.5): ω = 1, residual 0,
+    infeasibility 0.5."""
+    A, b = np.array([[1.0]]), np.array([1.0])
+    at_bound = kkt_residuals(A, b, np.array([1.0]), [np.array([-2.0])])
+    assert at_bound["stationarity"] == pytest.approx(0.0, abs=1e-15) and at_bound["active"] == 1
+    assert at_bound["infeasibility"] == 0.0
+    inside = kkt_residuals(A, b, np.array([0.5]), [np.array([-3.0])])
+    assert inside["stationarity"] == pytest.approx(1.0) and inside["active"] == 0
+    outside = kkt_residuals(A, b, np.array([1.5]), [np.array([-1.0])])
+    assert outside["stationarity"] == pytest.approx(0.0, abs=1e-15) and outside["infeasibility"] == pytest.approx(0.5)
