@@ -76,7 +76,7 @@ def test_default_run_certifies_example_1(tmp_path):
     run = data["run"]
     assert (run["steps"], run["seed"], run["backend"]) == (50, 0, "drake")
     assert run["x0"] == [2.0, 3.0] and run["theta_star"] == [0.8, 0.2, -0.5]
-    assert "CERTIFIED: all 34 claims hold" in result.stdout
+    assert "CERTIFIED: all 35 claims hold" in result.stdout
     for claim in data["claims"]:
         assert claim["id"] in result.stdout
     no_leftovers(tmp_path)
@@ -135,36 +135,17 @@ def test_failed_claim_exits_1_and_writes_the_bundle(saved, tmp_path):
     assert "CERTIFIED: all" not in result.stdout
 
 
-def _recompute_costs(data: dict) -> None:
-    """Rewrite every record's cost as J_N of (17)-(18) with the dict's (tampered) R: a plain loop here,
-    not the certificate's function."""
-    import numpy as np
-
-    from amcp_drake.online.simulate import Trajectory
-
-    tr = Trajectory.from_dict(json.loads(json.dumps(data)))
-    pr, K, P = tr.problem, np.asarray(tr.design.K), np.asarray(tr.design.P)
-    for rec, r in zip(data["records"], tr.records):
-        if r.v is None:
-            continue
-        A = pr.A0 + sum(t * Ai for t, Ai in zip(r.theta_hat, pr.A))
-        B = pr.B0 + sum(t * Bi for t, Bi in zip(r.theta_hat, pr.B))
-        x, J = np.array(r.x, float), 0.0
-        for v in r.v:
-            u = K @ x + v
-            J += x @ pr.Q @ x + u @ pr.R @ u
-            x = A @ x + B @ u
-        rec["cost"] = float(J + x @ P @ x)
-
-
 def test_claim_not_run_exits_1_and_never_says_pass(saved, tmp_path):
     """A run of a problem that is not a built-in example and records no μ box: the (11) check cannot
     run. The verdict is 'incomplete', the exit code 1, and nothing claims the run is certified."""
     data = json.loads(json.dumps(saved["dict"]))
-    data["problem"]["cost"]["R"] = [[0.999]]  # no longer Example 1 (and (16) still holds: R smaller)
+    # no longer Example 1's data, yet the same Θ (a facet row and its offset scaled by 2): the QP (20),
+    # its minimiser and every other claim are unchanged, so only (11) is at issue (a changed R, the
+    # earlier variant, also moves the minimiser of (17), which qp_optimality rightly reports)
+    data["problem"]["Theta"]["H"][0] = [2.0 * a for a in data["problem"]["Theta"]["H"][0]]
+    data["problem"]["Theta"]["h"][0] *= 2.0
     data["problem"]["name"] = "example1-variant"
     data["mu_state_bound"] = None
-    _recompute_costs(data)  # the recorded costs (17) of the variant's R, so that only (11) is at issue
     path = write_trajectory(data, tmp_path / "variant.json")
     out = tmp_path / "out"
     result = invoke("--trajectory", path, "--out", out)

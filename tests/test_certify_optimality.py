@@ -18,8 +18,8 @@ from click.testing import CliRunner
 from amcp_drake.certificate.certify import certify
 from amcp_drake.certificate.optimality import OPTIMALITY_TOL, ce_gradient, kkt_residuals
 from amcp_drake.certificate.section4 import ENFORCED
-from amcp_drake.online.controller import AdaptiveMPC
 from amcp_drake.model.options import OnlineOptions
+from amcp_drake.online.controller import AdaptiveMPC
 from amcp_drake.online.simulate import Trajectory, simulate
 
 CLAIM = "qp_optimality"

@@ -125,22 +125,25 @@ def test_raised_pe_level_fails_only_pe_level(pe_run, spec):
 
 
 def test_bounds_that_exclude_the_input_fail_only_pe_bounds(pe_run, spec):
-    """pe_bounds of an enforced step moved to [u_k + 0.01, ∞): the applied input lies outside."""
+    """pe_bounds of an enforced step moved to [u_k + 0.01, ∞): the applied input lies outside, and the
+    recorded decision is then not even feasible for the QP (20) with that bound (qp_optimality)."""
     tr = fresh(pe_run)
     k = next(r.k for r in tr.records if r.pe_status == "enforced")
     u = float(tr.records[k].u[0])
     tr.records[k].pe_bounds = (u + 0.01, float("inf"))
     cert = certify(tr, spec)
-    assert failed_and_not_run(cert) == ({"pe_bounds"}, [])
+    assert failed_and_not_run(cert) == ({"pe_bounds", "qp_optimality"}, [])
     assert cert.claim("pe_bounds").margin == pytest.approx(-0.01 / max(1.0, abs(u + 0.01)), rel=1e-9)
 
 
 def test_enforced_step_without_bounds_or_level_fails(pe_run, spec):
-    """A record that says "enforced" but holds no bounds (or no level) contradicts itself: a failure."""
+    """A record that says "enforced" but holds no bounds (or no level) contradicts itself: a failure.
+    Without the bound, the QP (20) rebuilt for that step lacks the constraint that held its solution
+    (the bound binds at an enforced step), so the recorded decision is not its minimiser either."""
     tr = fresh(pe_run)
     k = next(r.k for r in tr.records if r.pe_status == "enforced")
     tr.records[k].pe_bounds = None
-    assert failed_and_not_run(certify(tr, spec)) == ({"pe_bounds"}, [])
+    assert failed_and_not_run(certify(tr, spec)) == ({"pe_bounds", "qp_optimality"}, [])
     tr = fresh(pe_run)
     tr.records[k].pe_level = None
     assert failed_and_not_run(certify(tr, spec)) == ({"pe_level"}, [])
@@ -180,11 +183,12 @@ def test_tampered_minmax_cost_fails_only_cost_value(minmax_run, spec):
 
 def test_minmax_costs_are_not_certainty_equivalence_costs(minmax_run, spec):
     """The same recorded run read as a certainty-equivalence run: its costs are (19), not (17), so
-    cost_value fails; the check depends on the formula it claims."""
+    cost_value fails; the check depends on the formula it claims. Its decisions minimise (19), not
+    (17), so qp_optimality fails too."""
     data = json.loads(json.dumps(minmax_run))
     data["options"]["cost"] = "certainty_equivalence"
     cert = certify(fresh(data), spec)
-    assert failed_and_not_run(cert) == ({"cost_value"}, [])
+    assert failed_and_not_run(cert) == ({"cost_value", "qp_optimality"}, [])
 
 
 def test_unattainable_level_falls_back_to_the_plain_qp_and_claims_nothing(spec, designed):
