@@ -70,7 +70,7 @@ CLAIM_ID = "qp_optimality"
 
 #: Judged KKT residual (dimensionless, see module docstring). The run's QPs are solved by Clarabel to
 #: its default 1e-8 gap and feasibility tolerances. Measured (issue 13 note in docs/certificate.md):
-#: honest runs <= 3.7e-6 (206 runs: 60 random campaign problems of seed 0 on both backends, 20 of
+#: honest runs <= 3.7e-6 (446 runs: problems 0-59 of campaign seeds 0, 1, 2 on both backends, 20 of
 #: them again with min–max, exact update, vertex formulation, PE; Example 1 with every option);
 #: Example 1 with design P[0][0] raised by 0.1 (still satisfying (16)) 4.6e-5..6.1e-5 (the terminal
 #: weight reaches the gradient only through A_cl(θ̂)^N x_k ~ 1e-3 x_k). 1e-5 sits between them with a
