@@ -38,7 +38,8 @@ CLAIMS = {
     "test_claim_checks_catch_seeded_bug": "checks catch seeded bug",
 }
 FRACTIONS = (("constraints_active", "Z act"), ("theta_shrank", "Θ shr"), ("theta_star_on_boundary", "θ*∈∂"),
-             ("theta_star_near_boundary", "θ*≈∂"))
+             ("theta_star_near_boundary", "θ*≈∂"), ("theta_k_lower_dim", "Θk↓d"), ("theta_star_vertex", "θ*vx"),
+             ("theta_star_facet", "θ*fc"))
 
 
 def _results(junit: Path) -> dict[str, tuple[str, str]]:
@@ -83,7 +84,8 @@ def _print_table(results: dict[str, tuple[str, str]], coverage: dict) -> None:
                    f"{coverage.get('runs', {}).get('simulated', 0)} simulated, "
                    f"{coverage.get('runs', {}).get('reused', 0)} reused")
     click.echo("coverage: Z act = a constraint of Z active in the run; Θ shr = Θk shrank; θ*∈∂ / θ*≈∂ = θ* within "
-               "1e-6 / 1e-2 of the boundary of Θk (fractions of the examples)")
+               "1e-6 / 1e-2 of the boundary of Θk; Θk↓d = some Θk lower-dimensional (Chebyshev radius <= 1e-6); "
+               "θ*vx / θ*fc = θ* at a vertex of Θ / elsewhere on its boundary (fractions of the examples)")
 
 
 def _run_mutants(backends: list[str]) -> bool:
