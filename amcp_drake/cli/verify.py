@@ -84,7 +84,7 @@ def _print_table(results: dict[str, tuple[str, str]], coverage: dict) -> None:
                    f"{coverage.get('runs', {}).get('simulated', 0)} simulated, "
                    f"{coverage.get('runs', {}).get('reused', 0)} reused")
     click.echo("coverage: Z act = a constraint of Z active in the run; Θ shr = Θk shrank; θ*∈∂ / θ*≈∂ = θ* within "
-               "1e-6 / 1e-2 of the boundary of Θk; Θk↓d = some Θk lower-dimensional (Chebyshev radius <= 1e-6); "
+               "1e-6 / 1e-2 of the boundary of Θk; Θk↓d = some Θk lower-dimensional (Chebyshev radius <= 1e-5); "
                "θ*vx / θ*fc = θ* at a vertex of Θ / elsewhere on its boundary (fractions of the examples)")
 
 

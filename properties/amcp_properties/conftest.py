@@ -103,7 +103,7 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
     tr.write_line(f"generator: {len(stats.distinct)} distinct problems, {distinct:.1%} rejected by the design "
                   f"({stats.attempts} draws, {rate:.1%} rejected); by reason: "
                   + ", ".join(f"{k[10:]}={v}" for k, v in sorted(stats.counts.items()) if k.startswith("rejected:")))
-    tr.write_line("Θk↓d = some Θ_k lower-dimensional (Chebyshev radius <= 1e-6); θ*vx / θ*fc = θ* at a vertex / "
+    tr.write_line("Θk↓d = some Θ_k lower-dimensional (Chebyshev radius <= 1e-5); θ*vx / θ*fc = θ* at a vertex / "
                   "elsewhere on ∂Θ (fractions of the runs)")
     run_cache = config.stash[_RUNNER]
     tr.write_line(f"closed-loop runs: {run_cache.misses} simulated, {run_cache.hits} reused from the cache")

@@ -5,7 +5,8 @@ F x_k + G u_k within :data:`ACTIVE_TOL` of 1), whether Θ_k shrank, how close θ
 boundary of Θ_k, and the generator's labels (Θ and W kind, θ* kind, x0 kind, disturbance, ...).
 The hard cases of issue 13 are measured from the run, not taken from the labels: whether some Θ_k
 is lower-dimensional (the Chebyshev radius of the last Θ_k, k >= 1, with rows of unit norm, is at
-most :data:`amcp_drake.studies.random_problems.LOWER_DIM_TOL` = 1e-6; the sets are nested by Lemma 3, so
+most :data:`amcp_drake.studies.random_problems.LOWER_DIM_TOL` = 1e-5, ten times the controller's 1e-6
+widening of Δ_k; the sets are nested by Lemma 3, so
 the last is the thinnest), and whether θ* sits on a vertex of Θ (the rows of H_θ active at θ*,
 normalised slack <= 1e-9, span R^p) or on ∂Θ elsewhere ("facet": a face of dimension >= 1).
 Each feature is reported with ``hypothesis.event`` (see ``--hypothesis-show-statistics``) and
