@@ -151,3 +151,24 @@ def test_random_case_is_reproducible_and_labels_what_it_built():
     assert a.w.shape == (5, a.problem.n)
     assert theta_star_face(a.problem, a.theta_star) in ("vertex", "facet", "interior")
     assert a.labels["pin"] in ("none", "point", "thin")
+
+
+def test_hard_case_coverage_of_a_pinned_run_and_of_a_plain_one():
+    """A run whose w_0 pins Θ_1 at a vertex θ* reports a lower-dimensional Θ_k and θ* at a vertex;
+    the same run with w = 0 (no information) reports neither."""
+    from amcp_drake.offline.design import design
+    from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_drake.online.simulate import simulate
+    from amcp_drake.studies.random_problems import hard_case_coverage
+
+    spec, _ = random_problem(np.random.default_rng(5), ProblemShape(n=2, m=1, p=2, N=3, input_uncertainty=False))
+    problem = spec.problem
+    offline = design(problem, spec.design)
+    theta_star = problem.theta_vertices()[0]
+    x0 = np.array([0.3, -0.2])
+    pinned = apply_pin(problem, x0, theta_star, np.zeros((3, 2)), "point")
+    ctrl = AdaptiveMPC(problem, offline)
+    cov = hard_case_coverage(simulate(ctrl, x0, theta_star, 3, pinned))
+    assert cov == {"theta_k_lower_dim": 1.0, "theta_star_vertex": 1.0, "theta_star_facet": 0.0}
+    plain = hard_case_coverage(simulate(ctrl, x0, np.zeros(2), 3, np.zeros((3, 2))))
+    assert plain == {"theta_k_lower_dim": 0.0, "theta_star_vertex": 0.0, "theta_star_facet": 0.0}

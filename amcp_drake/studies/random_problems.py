@@ -513,3 +513,15 @@ def last_theta_k_radius(traj) -> float:
         return float("nan")
     H, h = polytope.normalize_rows(np.asarray(updated[-1].H_theta, float), np.asarray(updated[-1].h_theta, float))
     return polytope.chebyshev_center(H, h)[1]
+
+
+def hard_case_coverage(traj) -> dict[str, float]:
+    """The hard-case coverage figures of one run (1.0 / 0.0, nan when not measurable), as the
+    property suite reports them: ``theta_k_lower_dim`` (the last Θ_k has Chebyshev radius <=
+    :data:`LOWER_DIM_TOL`), ``theta_star_vertex`` and ``theta_star_facet`` (:func:`theta_star_face`)."""
+    radius = last_theta_k_radius(traj)
+    face = theta_star_face(traj.problem, traj.theta_star)
+    known = face in ("vertex", "facet", "interior")
+    return {"theta_k_lower_dim": float("nan") if np.isnan(radius) else float(radius <= LOWER_DIM_TOL),
+            "theta_star_vertex": float(face == "vertex") if known else float("nan"),
+            "theta_star_facet": float(face == "facet") if known else float("nan")}
