@@ -41,8 +41,8 @@ ACTIVE_TOL = 0.02
 TASK_RETRIES = 2
 #: The generator of campaign problems and its version: a store records it (``generator`` setting), so a
 #: store made with another generator is never resumed. Change it whenever problem ``idx`` of a seed
-#: would come out different (another generator, strategy, or DRAWN_EXAMPLE).
-GENERATOR_VERSION = "amcp_properties.closed_loop_cases/hypothesis-seeded/example-2"
+#: would come out different (another generator, or a change of random_problems' draws).
+GENERATOR_VERSION = "amcp_drake.studies.random_problems.random_case/1"
 #: The offline design of every campaign problem is computed on this backend; every online backend
 #: then runs on that design (as the property suite does), and the replay command names it.
 DESIGN_BACKEND = "drake"

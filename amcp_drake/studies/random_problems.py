@@ -9,6 +9,8 @@ fail (:class:`~amcp_drake.model.errors.DesignError`): :func:`random_case` then d
 generator, so a campaign stays a deterministic function of its (seed, index).
 
 Numbers sit on coarse grids (:func:`grid`) so that problems print readably.
+Any change that alters what a given generator state draws must bump ``GENERATOR_VERSION`` in
+:mod:`amcp_drake.studies.campaign` (stores made with other draws are then never resumed).
 
 The hard cases of issue 13 are *built*, behind explicit parameters, never filtered for:
 
