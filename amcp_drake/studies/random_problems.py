@@ -182,14 +182,15 @@ class ProblemShape:
 
 
 def random_shape(rng: np.random.Generator, max_n: int = 3, max_m: int = 2, max_p: int = 3, min_N: int = 2,
-                 max_N: int = 10) -> ProblemShape:
+                 max_N: int = 10, min_p: int = 1) -> ProblemShape:
     """A :class:`ProblemShape` with the probabilities of the Hypothesis strategy
     ``amcp_properties.strategies.problem_shapes`` (one boolean: 1/2; two: 1/4)."""
     coin = lambda: bool(rng.integers(2))  # a fair coin, read like draw(booleans())
     n = int(rng.integers(1, max_n + 1))
     m = int(rng.integers(1, max_m + 1))
     input_uncertainty = coin()
-    p = int(rng.integers(1, (max_p if input_uncertainty else min(max_p, n)) + 1))
+    low_p = min(min_p, max_p)
+    p = int(rng.integers(low_p, max(low_p, max_p if input_uncertainty else min(max_p, n)) + 1))
     N = int(rng.integers(min_N, max_N + 1))
     expansive = coin() and coin()
     return ProblemShape(n=n, m=m, p=p, N=N, expansive=expansive, unstable_mode=expansive and coin(),
@@ -453,17 +454,19 @@ def apply_pin(problem: Problem, x0: np.ndarray, theta_star: np.ndarray, w: np.nd
 
 def random_case(rng: np.random.Generator, steps: int, max_N: int = 10) -> RandomCase:
     """A designed problem and a scenario, everything drawn from ``rng`` with the probabilities of
-    ``amcp_properties.strategies.closed_loop_cases`` (θ* vertex / facet / inside 1/3 each; x0 on
-    the boundary 1/2; pinning 2/3 of the runs that allow it, half of them thin). A problem the
+    ``amcp_properties.strategies.closed_loop_cases`` (θ* on a facet (then p >= 2) / at a vertex 3/8
+    each, inside 1/4; x0 on
+    the boundary 1/2; pinning 3/4 of the runs that allow it, half of them thin). A problem the
     offline design rejects is replaced by the next draw (at most :data:`MAX_DESIGN_ATTEMPTS`);
     ``labels["design attempts"]`` says how many it took."""
+    coin = lambda: bool(rng.integers(2))  # noqa: E731 - read like draw(booleans())
     for attempt in range(1, MAX_DESIGN_ATTEMPTS + 1):
-        shape = random_shape(rng, max_N=max_N)
+        theta_kind = "interior" if coin() and coin() else ("facet", "vertex")[int(rng.integers(2))]
+        shape = random_shape(rng, max_N=max_N, min_p=2 if theta_kind == "facet" else 1)
         spec, labels = random_problem(rng, shape)
         try:
             offline = design(spec.problem, spec.design, backend=DESIGN_BACKEND)
             problem = spec.problem
-            theta_kind = THETA_STAR_KINDS[int(rng.integers(3))]
             theta_star = random_theta_star(rng, problem, theta_kind)
             x0_kind = "boundary" if rng.integers(2) == 0 else ("interior" if rng.integers(4) == 0 else "near boundary")
             x0, s_max = random_initial_state(rng, problem, offline, x0_kind)
@@ -473,7 +476,7 @@ def random_case(rng: np.random.Generator, steps: int, max_N: int = 10) -> Random
         w, seed = random_disturbances(rng, problem, steps, w_kind)
         pin = "none"
         if shape.can_pin and theta_kind != "interior":
-            pin = PIN_MODES[int(rng.integers(3))]
+            pin = "none" if coin() and coin() else ("point", "thin")[int(rng.integers(2))]
         w = apply_pin(problem, x0, theta_star, w, pin)
         options = random_online_options(rng)
         labels = dict(labels, theta_star=theta_kind, x0=x0_kind, disturbance=w_kind, pin=pin,
