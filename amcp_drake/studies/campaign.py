@@ -1,9 +1,9 @@
 """Verification campaigns on Dask distributed (issues 9 and 17).
 
-``run_campaign`` draws problem ``idx`` of campaign ``seed`` from the property suite's generators
-(:func:`amcp_properties.strategies.closed_loop_cases`, made reproducible per problem with
-Hypothesis' ``@seed``), runs the closed loop on every requested backend, certifies each run with
-the independent checks of :func:`amcp_drake.certificate.certify.certify`, and stores the result in SQLite as
+``run_campaign`` draws problem ``idx`` of campaign ``seed`` from the library's numpy generator
+(:func:`amcp_drake.studies.random_problems.random_case`, seeded per problem by :func:`problem_seed`;
+the property suite's Hypothesis strategies build on it), runs the closed loop on every requested
+backend, certifies each run with the independent checks of :func:`amcp_drake.certificate.certify.certify`, and stores the result in SQLite as
 soon as it arrives (:mod:`amcp_drake.studies.campaign_store`). The work fans out on a Dask
 ``LocalCluster`` (default) or an existing scheduler (``scheduler="tcp://..."``); no home-made
 queue. A task whose worker dies is re-run by Dask (``retries``); an interrupted campaign resumes
@@ -37,14 +37,12 @@ import numpy as np
 CAMPAIGN_STEPS = 15
 #: A state/input constraint row within this of 1 counts as "active" in the coverage figures.
 ACTIVE_TOL = 0.02
-#: Which generated example of the seeded Hypothesis run is the campaign's problem (see draw_case).
-DRAWN_EXAMPLE = 2
 #: Dask re-runs a task this many times when its worker dies.
 TASK_RETRIES = 2
 #: The generator of campaign problems and its version: a store records it (``generator`` setting), so a
 #: store made with another generator is never resumed. Change it whenever problem ``idx`` of a seed
-#: would come out different (another generator, strategy, or DRAWN_EXAMPLE).
-GENERATOR_VERSION = "amcp_properties.closed_loop_cases/hypothesis-seeded/example-2"
+#: would come out different (another generator, or a change of random_problems' draws).
+GENERATOR_VERSION = "amcp_drake.studies.random_problems.random_case/1"
 #: The offline design of every campaign problem is computed on this backend; every online backend
 #: then runs on that design (as the property suite does), and the replay command names it.
 DESIGN_BACKEND = "drake"
@@ -57,29 +55,17 @@ REPLAY_FORMAT, REPLAY_VERSION = "amcp-campaign-replay", 1
 
 
 def problem_seed(campaign_seed: int, idx: int) -> int:
-    """The Hypothesis seed of problem ``idx`` (reproducible, distinct across campaigns)."""
+    """The numpy seed of problem ``idx`` (reproducible, distinct across campaigns)."""
     return (int(campaign_seed) * 1_000_003 + int(idx)) % (2**32)
 
 
 def draw_case(campaign_seed: int, idx: int, steps: int = CAMPAIGN_STEPS):
-    """Problem ``idx`` of campaign ``campaign_seed``: the same generator as the property suite."""
-    from hypothesis import HealthCheck, Phase, given, seed, settings
+    """Problem ``idx`` of campaign ``campaign_seed``: the library's numpy generator
+    (:func:`amcp_drake.studies.random_problems.random_case`, the one the property suite's strategies
+    build on) with the generator seeded by :func:`problem_seed` (reproducible per (seed, index))."""
+    from amcp_drake.studies.random_problems import random_case
 
-    from amcp_properties.strategies import closed_loop_cases
-
-    drawn: list = []
-
-    # Hypothesis always tries the simplest example first, whatever the seed; the second example is the
-    # first random one, and with a fixed @seed and no database it is the same on every call.
-    @seed(problem_seed(campaign_seed, idx))
-    @settings(max_examples=DRAWN_EXAMPLE, database=None, deadline=None, phases=[Phase.generate],
-              suppress_health_check=list(HealthCheck))
-    @given(closed_loop_cases(steps=steps))
-    def capture(case):
-        drawn.append(case)
-
-    capture()
-    return drawn[-1]
+    return random_case(np.random.default_rng(problem_seed(campaign_seed, idx)), steps)
 
 
 def library_versions() -> dict[str, str]:

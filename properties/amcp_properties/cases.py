@@ -1,6 +1,6 @@
 """A closed-loop experiment (:class:`Case`) and how to run it on a backend (:class:`Runner`).
 
-A case is fully explicit (problem, design, x0, θ*, the whole disturbance array, online
+A case (:class:`amcp_drake.studies.random_problems.RandomCase`) is fully explicit (problem, design, x0, θ*, the whole disturbance array, online
 options), so a run is a deterministic function of (case, backend); :class:`Runner` memoises runs
 and controllers by content hash, which lets every property of the ci profile check its claim
 on the same runs without re-simulating them.
@@ -8,18 +8,12 @@ on the same runs without re-simulating them.
 
 from __future__ import annotations
 
-import hashlib
 from collections import OrderedDict
-from dataclasses import dataclass, field
-
-import numpy as np
 
 from amcp_drake.model.errors import InconsistentDataError
-from amcp_drake.model.options import OnlineOptions
-from amcp_drake.model.problem import Problem, ProblemSpec, Scenario
-from amcp_drake.offline.design import OfflineDesign
 from amcp_drake.online.controller import AdaptiveMPC
 from amcp_drake.online.simulate import Trajectory, simulate
+from amcp_drake.studies.random_problems import RandomCase
 
 #: Trajectories and controllers kept in memory by a Runner (a trajectory of 20-80 steps with its
 #: multipliers is 0.1-2 MB; the ci profile needs about 2 x max_examples of them at a time).
@@ -27,58 +21,9 @@ RUN_CACHE_SIZE = 96
 CONTROLLER_CACHE_SIZE = 32
 
 
-@dataclass(frozen=True, eq=False)
-class Case:
-    """One closed-loop experiment. ``w`` (T, n) is the whole disturbance sequence (T steps);
-    ``zero_from`` is the step from which w = 0 (None: never forced); ``seed`` generated ``w``;
-    ``ray_length`` is the distance from 0 to the feasible-set boundary along x0's direction."""
-
-    spec: ProblemSpec
-    design: OfflineDesign
-    x0: np.ndarray
-    theta_star: np.ndarray
-    w: np.ndarray
-    options: OnlineOptions
-    labels: dict = field(default_factory=dict)
-    seed: int = 0
-    zero_from: int | None = None
-    ray_length: float = float("nan")
-
-    @property
-    def problem(self) -> Problem:
-        return self.spec.problem
-
-    @property
-    def steps(self) -> int:
-        return len(self.w)
-
-    def design_key(self) -> str:
-        """Hash of the problem and its design (identifies a controller)."""
-        h = hashlib.sha1()
-        for name in ("A0", "B0", "A", "B", "H_w", "H_theta", "h_theta", "F", "G", "Q", "R", "theta_hat0"):
-            h.update(np.ascontiguousarray(getattr(self.problem, name)).tobytes())
-        h.update(str(self.problem.N).encode())
-        for name in ("K", "P", "H_x", "H_T", "h_T", "H_theta", "h_theta0"):
-            h.update(np.ascontiguousarray(getattr(self.design, name)).tobytes())
-        h.update(repr(self.design.mu).encode())
-        return h.hexdigest()
-
-    def key(self) -> str:
-        """Hash of everything that determines a run."""
-        h = hashlib.sha1(self.design_key().encode())
-        for arr in (self.x0, self.theta_star, self.w):
-            h.update(np.ascontiguousarray(arr, float).tobytes())
-        h.update(repr((self.options.update, self.options.window, self.options.projection)).encode())
-        return h.hexdigest()
-
-    def to_spec(self) -> ProblemSpec:
-        """The problem file of this case (its scenario names the disturbance kind and seed; the
-        exact disturbance array is in the trajectory file written next to it)."""
-        kind = self.labels.get("disturbance", "uniform")
-        scenario = Scenario(x0=self.x0, theta_star=self.theta_star, steps=self.steps,
-                            disturbance=kind if kind in ("uniform", "vertices", "zero") else "uniform",
-                            seed=int(self.seed) % (2**31))
-        return ProblemSpec(self.problem, self.spec.design, scenario)
+#: One closed-loop experiment: the library's case type (the numpy generator builds it for campaigns,
+#: the Hypothesis strategies for the property suite).
+Case = RandomCase
 
 
 def run(case: Case, backend: str, controller: AdaptiveMPC | None = None) -> Trajectory:

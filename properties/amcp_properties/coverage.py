@@ -3,6 +3,12 @@
 For every run the suite records whether a constraint of Z was active (max_k max_i of
 F x_k + G u_k within :data:`ACTIVE_TOL` of 1), whether Θ_k shrank, how close θ* came to the
 boundary of Θ_k, and the generator's labels (Θ and W kind, θ* kind, x0 kind, disturbance, ...).
+The hard cases of issue 13 are measured from the run, not taken from the labels: whether some Θ_k
+is lower-dimensional (the Chebyshev radius of the last Θ_k, k >= 1, with rows of unit norm, is at
+most :data:`amcp_drake.studies.random_problems.LOWER_DIM_TOL` = 1e-5, ten times the controller's 1e-6
+widening of Δ_k; the sets are nested by Lemma 3, so
+the last is the thinnest), and whether θ* sits on a vertex of Θ (the rows of H_θ active at θ*,
+normalised slack <= 1e-9, span R^p) or on ∂Θ elsewhere ("facet": a face of dimension >= 1).
 Each feature is reported with ``hypothesis.event`` (see ``--hypothesis-show-statistics``) and
 collected by a :class:`CoverageRecorder`, whose summary the suite prints and writes as JSON
 (``AMCP_COVERAGE_FILE``) for ``amcp verify``.
@@ -17,6 +23,12 @@ from pathlib import Path
 
 import numpy as np
 from hypothesis import event
+
+from amcp_drake.studies.random_problems import (
+    LOWER_DIM_TOL,
+    last_theta_k_radius,
+    theta_star_face,
+)
 
 #: A constraint row of Z is "active" when F x + G u >= 1 − ACTIVE_TOL at some step.
 ACTIVE_TOL = 1e-3
@@ -33,6 +45,9 @@ FEATURES = {
     "theta_star_on_boundary": f"θ* within {ON_BOUNDARY_TOL:g} of ∂Θ_k",
     "theta_star_near_boundary": f"θ* within {NEAR_TOL:g} of ∂Θ_k",
     "completed": "the run completed every step",
+    "theta_k_lower_dim": f"some Θ_k lower-dimensional (Chebyshev radius <= {LOWER_DIM_TOL:g})",
+    "theta_star_vertex": "θ* at a vertex of Θ",
+    "theta_star_facet": "θ* on ∂Θ, not at a vertex",
 }
 
 
@@ -46,12 +61,23 @@ class RunFeatures:
     theta_star_distance: float
     completed: bool
     labels: dict = field(default_factory=dict)
+    #: Chebyshev radius of the last Θ_k (nan: not measured, e.g. no update recorded)
+    theta_k_radius: float = float("nan")
+    #: "vertex", "facet", "interior" ("" : not measured)
+    theta_star_face: str = ""
 
     def flags(self) -> dict[str, bool]:
-        return {"constraints_active": self.constraints_active, "theta_shrank": self.theta_shrank,
-                "theta_star_on_boundary": self.theta_star_distance <= ON_BOUNDARY_TOL,
-                "theta_star_near_boundary": self.theta_star_distance <= NEAR_TOL,
-                "completed": self.completed}
+        """Feature -> covered; features that were not measured for this run are left out."""
+        out = {"constraints_active": self.constraints_active, "theta_shrank": self.theta_shrank,
+               "theta_star_on_boundary": self.theta_star_distance <= ON_BOUNDARY_TOL,
+               "theta_star_near_boundary": self.theta_star_distance <= NEAR_TOL,
+               "completed": self.completed}
+        if not np.isnan(self.theta_k_radius):
+            out["theta_k_lower_dim"] = bool(self.theta_k_radius <= LOWER_DIM_TOL)
+        if self.theta_star_face in ("vertex", "facet", "interior"):
+            out["theta_star_vertex"] = self.theta_star_face == "vertex"
+            out["theta_star_facet"] = self.theta_star_face == "facet"
+        return out
 
 
 def features(traj, labels: dict | None = None) -> RunFeatures:
@@ -71,7 +97,8 @@ def features(traj, labels: dict | None = None) -> RunFeatures:
         distance = min(distance, float(np.min((r.h_theta - r.H_theta @ traj.theta_star) / norms)))
     return RunFeatures(constraints_active=bool(max_constraint >= 1.0 - ACTIVE_TOL), max_constraint=max_constraint,
                        theta_shrank=bool(shrank), theta_star_distance=max(distance, 0.0),
-                       completed=traj.stop_reason == "completed", labels=dict(labels or {}))
+                       completed=traj.stop_reason == "completed", labels=dict(labels or {}),
+                       theta_k_radius=last_theta_k_radius(traj), theta_star_face=theta_star_face(pr, traj.theta_star))
 
 
 def _bucket(distance: float) -> str:
@@ -86,7 +113,12 @@ def emit_events(f: RunFeatures) -> None:
     event(f"Z active: {f.constraints_active}")
     event(f"Theta_k shrank: {f.theta_shrank}")
     event(f"theta* distance to boundary of Theta_k: {_bucket(f.theta_star_distance)}")
-    for key in ("Theta", "W", "theta_star", "x0", "disturbance"):
+    flags = f.flags()
+    if "theta_k_lower_dim" in flags:
+        event(f"Theta_k lower-dimensional: {flags['theta_k_lower_dim']}")
+    if f.theta_star_face:
+        event(f"theta* in Theta: {f.theta_star_face}")
+    for key in ("Theta", "W", "theta_star", "x0", "disturbance", "pin"):
         if key in f.labels:
             event(f"{key}: {f.labels[key]}")
 
@@ -97,12 +129,14 @@ class CoverageRecorder:
     def __init__(self) -> None:
         self.examples: Counter[str] = Counter()
         self.flags: dict[str, Counter[str]] = defaultdict(Counter)
+        self.measured: dict[str, Counter[str]] = defaultdict(Counter)  # runs on which a feature was measured
         self.labels: dict[str, Counter[str]] = defaultdict(Counter)
 
     def record(self, test: str, f: RunFeatures) -> None:
         self.examples[test] += 1
         for name, value in f.flags().items():
             self.flags[test][name] += int(value)
+            self.measured[test][name] += 1
         for key, value in f.labels.items():
             self.labels[test][f"{key}={value}"] += 1
 
@@ -111,10 +145,12 @@ class CoverageRecorder:
         self.examples[test] += 1
 
     def summary(self) -> dict[str, dict]:
-        """test -> {"examples": n, "fractions": {feature: fraction}, "labels": {label: count}}."""
+        """test -> {"examples": n, "fractions": {feature: fraction}, "labels": {label: count}}; a
+        feature's fraction is over the runs on which it was measured (absent when none)."""
         out = {}
         for test, n in self.examples.items():
-            fractions = {k: self.flags[test][k] / n for k in FEATURES} if self.flags.get(test) else {}
+            measured = self.measured.get(test, {})
+            fractions = {k: self.flags[test][k] / measured[k] for k in FEATURES if measured.get(k)}
             out[test] = {"examples": n, "fractions": fractions, "labels": dict(self.labels.get(test, {}))}
         return out
 

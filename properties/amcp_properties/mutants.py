@@ -362,3 +362,38 @@ def run_mutants(backend: str = "drake", mutants: list[Mutant] | None = None,
             report.failures = {"(crashed)": [str(exc)[:120]]}
         reports.append(report)
     return baseline, reports
+
+
+def print_report(backends: list[str]) -> bool:
+    """Run the mutants on each backend and print the table ``amcp verify --mutants`` shows; True
+    when the unmutated baseline passes and every claim-breaking mutant is caught."""
+    scenarios = targeted_scenarios()
+    ok = True
+    for backend in backends:
+        print(f"\nmutants on the {backend} backend ({len(scenarios)} targeted scenarios):", flush=True)
+        baseline, reports = run_mutants(backend, scenarios=scenarios)
+        if baseline:
+            ok = False
+            print(f"  baseline (no mutant) FAILS: {baseline}; mutant results are not meaningful")
+        print(f"  {'mutant':34s} {'verdict':12s} caught by")
+        for r in reports:
+            verdict = {"caught": "caught", "MISSED": "MISSED"}.get(r.verdict, "conservative" if not r.caught else "flagged")
+            by = ", ".join(sorted(r.failures)) if r.caught else (r.mutant.why_not or "-")
+            print(f"  {r.mutant.name:34s} {verdict:12s} {by}", flush=True)
+            ok = ok and r.ok
+    return ok
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m amcp_properties.mutants BACKEND...``: exit 0 when every claim-breaking mutant is
+    caught (``amcp verify --mutants`` runs this in a child process, so that the library never
+    imports the test package)."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m amcp_properties.mutants", description=main.__doc__)
+    parser.add_argument("backends", nargs="+", choices=("drake", "cvxpy"))
+    return 0 if print_report(parser.parse_args(argv).backends) else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

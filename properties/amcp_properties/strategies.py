@@ -1,5 +1,11 @@
 """Hypothesis strategies that BUILD valid closed-loop experiments (no filtering on validity).
 
+The numbers come from the library's plain-numpy generator :mod:`amcp_drake.studies.random_problems`
+(which campaigns use too); these strategies draw the *structure* — dimensions, flags, kinds of
+θ*, x0 and disturbance, pinning — and one seed per piece, so that shrinking moves towards small
+dimensions, the simple flags and seed 0, and a drawn case is reproducible from its structure and
+seeds alone. Rare nasty cases sit behind ``draw(booleans())``.
+
 Every generated problem meets Assumption 1 by construction (W and Θ bounded polytopes, 0 in the
 interior of W, θ̂0 and θ* in Θ); Assumptions 8 and 11 and (16) are then obtained from the
 project's offline design (:func:`amcp_drake.offline.design.design`), which can still fail (no robust
@@ -8,14 +14,17 @@ in :data:`GENERATOR_STATS` and reported by the suite, and the generator is tuned
 rare (systems are "nice" by construction: ‖A0‖∞ < 1 most of the time, small ‖[A_i B_i]‖, W small
 relative to Z).
 
-Numbers are drawn on coarse grids (``_grid``) so that shrunk counterexamples are readable and the
-shrinker moves towards simple values; rare nasty cases sit behind ``draw(booleans())``.
+Hard cases (issue 13), built: θ* on a facet (of a problem with p >= 2) / at a vertex of Θ (3/8 each); w_0 at the vertex of W
+that pins Θ_1 to {θ*} or into a facet's hyperplane (``pin="point"``), or leaves it thinner than
+the solvers' tolerances (``pin="thin"``), in 3/4 of the runs whose problem allows it (B_i = 0,
+p <= n, θ* on ∂Θ); x0 on the boundary of the feasible set of (20); tight state boxes.
 
 Layers:
 
+* :func:`problem_shapes` -> :class:`~amcp_drake.studies.random_problems.ProblemShape`;
 * :func:`problem_specs` -> :class:`GeneratedProblem` (a :class:`ProblemSpec` plus labels);
 * :func:`designed_problems` -> :class:`DesignedProblem` (adds the offline design, Drake backend);
-* :func:`theta_stars`, :func:`initial_states`, :func:`disturbances`, :func:`online_options`;
+* :func:`theta_stars`, :func:`initial_states`, :func:`disturbances`, :func:`pins`, :func:`online_options`;
 * :func:`closed_loop_cases` -> :class:`~amcp_properties.cases.Case`, everything for one run.
 """
 
@@ -32,26 +41,33 @@ from hypothesis import strategies as st
 
 from amcp_drake.model.errors import DesignError
 from amcp_drake.model.options import OnlineOptions
-from amcp_drake.model.problem import DesignOptions, Problem, ProblemSpec
+from amcp_drake.model.problem import Problem, ProblemSpec
 from amcp_drake.model.problem_io import spec_to_dict
 from amcp_drake.offline.design import OfflineDesign, design
-from amcp_drake.online.simulate import disturbance_sequence
+from amcp_drake.studies.random_problems import (
+    BOUNDARY_BACKOFF,
+    DESIGN_BACKEND,
+    DISTURBANCE_KINDS,
+    INITIAL_STATE_KINDS,
+    THETA_STAR_KINDS,
+    GenerationError,
+    ProblemShape,
+    apply_pin,
+    random_disturbances,
+    random_initial_state,
+    random_problem,
+    random_theta_star,
+)
 
 from .cases import Case
-from .feasible import TubeGeometry, max_ray_length
 
-#: Initial states "on" the boundary of the feasible set of (20) are placed at this fraction of
-#: the LP's maximal ray length: HiGHS' primal feasibility tolerance is 1e-7 (absolute), so the LP
-#: optimum may overshoot the true boundary by ~1e-7; backing off by 1e-5 (relative, for ray
-#: lengths of order 1-10) keeps the point inside for the backends' QPs (Clarabel, 1e-8) while it
-#: is still on the boundary for every practical purpose.
-BOUNDARY_BACKOFF = 1e-5
+__all__ = ["BOUNDARY_BACKOFF", "DESIGN_BACKEND", "GENERATOR_STATS", "closed_loop_cases", "designed_problems",
+           "disturbances", "initial_states", "online_options", "pins", "problem_shapes", "problem_specs",
+           "theta_stars"]
+
 #: Offline designs kept in memory (a design costs 0.1-2 s; the same problems recur across tests
 #: because every test of the ci profile uses the same seed).
 DESIGN_CACHE_SIZE = 256
-#: The offline design of every generated case uses this backend; both online backends then run
-#: on the same design (so that they can be compared, and the boundary LP refers to one design).
-DESIGN_BACKEND = "drake"
 
 
 class GeneratorStats:
@@ -93,45 +109,7 @@ GENERATOR_STATS = GeneratorStats()
 
 def _grid(lo: float, hi: float, step: float) -> st.SearchStrategy[float]:
     """Floats on the grid {lo, lo+step, ..., hi}; shrinks towards the grid point nearest 0."""
-    return st.integers(int(round(lo / step)), int(round(hi / step))).map(lambda i: round(i * step, 10))
-
-
-def _matrix(draw, rows: int, cols: int, lo: float = -1.0, hi: float = 1.0, step: float = 0.05) -> np.ndarray:
-    values = draw(st.lists(_grid(lo, hi, step), min_size=rows * cols, max_size=rows * cols))
-    return np.array(values, float).reshape(rows, cols)
-
-
-def _unit(draw, dim: int) -> np.ndarray:
-    """A unit vector from a grid vector (e_1 when the grid vector is zero)."""
-    vec = _matrix(draw, 1, dim, -1.0, 1.0, 0.1)[0]
-    norm = np.linalg.norm(vec)
-    if norm == 0.0:
-        vec = np.zeros(dim)
-        vec[0] = 1.0
-        return vec
-    return vec / norm
-
-
-def _scaled(M: np.ndarray, size: float, fallback: np.ndarray, norm=2) -> np.ndarray:
-    """M rescaled to induced ``norm`` (2: spectral, inf: max row sum) ``size`` (``fallback`` when M is zero)."""
-    s = np.linalg.norm(M, norm)
-    return size * (M / s if s > 0 else fallback)
-
-
-def _box_with_cuts(draw, lower: np.ndarray, upper: np.ndarray, polytope: bool) -> tuple[np.ndarray, np.ndarray]:
-    """{lower <= x <= upper} (lower < 0 < upper), intersected with 1-3 random half-spaces
-    a·x <= b, b = fraction · (support of the box along a) > 0, when ``polytope``: a general
-    polytope that keeps 0 in its interior."""
-    dim = len(lower)
-    H = np.vstack([np.eye(dim), -np.eye(dim)])
-    h = np.concatenate([upper, -lower])
-    if polytope:
-        for _ in range(draw(st.integers(1, 3))):
-            a = _unit(draw, dim)
-            support = float(np.sum(np.where(a > 0, a * upper, a * lower)))
-            H = np.vstack([H, a])
-            h = np.append(h, draw(_grid(0.3, 0.9, 0.05)) * support)
-    return H, h
+    return st.integers(round(lo / step), round(hi / step)).map(lambda i: round(i * step, 10))
 
 
 @dataclass(frozen=True, eq=False)
@@ -140,6 +118,7 @@ class GeneratedProblem:
 
     spec: ProblemSpec
     labels: dict = field(default_factory=dict)
+    shape: ProblemShape | None = None
 
     @property
     def problem(self) -> Problem:
@@ -153,105 +132,41 @@ class DesignedProblem(GeneratedProblem):
     design: OfflineDesign | None = None
 
 
-@st.composite
-def problem_specs(draw, max_n: int = 3, max_m: int = 2, max_p: int = 3, min_N: int = 2, max_N: int = 10,
-                  delta_range: tuple[float, float] = (0.01, 0.12)):
-    """Random uncertain systems meeting Assumption 1, with a Z that binds.
+def _seeds() -> st.SearchStrategy[int]:
+    """The seed of the library's numpy generator for one piece (shrinks towards 0)."""
+    return st.integers(0, 2**32 - 1)
 
-    * A0 = ρ M/‖M‖∞ with ρ ∈ [0.2, 0.95], or (two booleans) ρ ∈ [1.02, 1.12], open-loop unstable
-      for sure when M is shifted by ‖M‖₂ I (a third boolean). The ∞-norm (max row sum) keeps the
-      template iteration of X0 convergent: scaled by the spectral norm instead, 13 % of the
-      problems were rejected (X0 templates diverging for n = 3), with the ∞-norm 0 % of 300;
-      B0 of norm 0.3-1; ‖[A_i B_i]‖₂ = δ/p with δ ∈ ``delta_range`` (default [0.01, 0.12], so the
-      robust LMI is feasible; larger δ make the parametric uncertainty dominate W, at the price of
-      more designs rejected).
-    * Θ: a box lo < 0 < hi, or (boolean) the box cut by 1-3 random half-spaces; H_θ rows kept as drawn.
-    * W: a box with half-widths 0.005-0.06 (asymmetric), or (boolean) such a box with cuts.
-    * Z: a state box |x_i| within 1-4 and an input box within 0.3-2 (saturation is the binding
-      constraint from boundary initial states), plus (boolean) one mixed row a·x + g·u <= 1.
-    """
+
+@st.composite
+def problem_shapes(draw, max_n: int = 3, max_m: int = 2, max_p: int = 3, min_N: int = 2, max_N: int = 10,
+                   delta_range: tuple[float, float] = (0.01, 0.12), min_p: int = 1):
+    """The structure of a random problem (:class:`amcp_drake.studies.random_problems.ProblemShape`):
+    dimensions, then the flags, each behind ``draw(booleans())`` (two booleans for the rarer ones:
+    expansive A0, tight state box). Without input uncertainty (B_i = 0, which the shrinker moves
+    towards) p <= n, so that the first regressor D(x_0) can pin Θ_1 (:func:`closed_loop_cases`).
+    The probabilities are those of :func:`amcp_drake.studies.random_problems.random_shape`."""
     n = draw(st.integers(1, max_n))
     m = draw(st.integers(1, max_m))
-    p = draw(st.integers(1, max_p))
+    input_uncertainty = draw(st.booleans())
+    p = draw(st.integers(min(min_p, max_p), max(min(min_p, max_p), max_p if input_uncertainty else min(max_p, n))))
     N = draw(st.integers(min_N, max_N))
-    labels: dict[str, str] = {"n": str(n), "m": str(m), "p": str(p), "N": str(N)}
-
     expansive = draw(st.booleans()) and draw(st.booleans())
-    rho = draw(_grid(1.02, 1.12, 0.02)) if expansive else draw(_grid(0.2, 0.95, 0.05))
-    M = _matrix(draw, n, n)
-    if expansive and draw(st.booleans()):  # a real unstable mode for sure: M + its norm times I
-        M = M + np.linalg.norm(M, 2) * np.eye(n)
-    A0 = _scaled(M, rho, np.eye(n), norm=np.inf)
-    labels["open loop"] = "unstable" if np.max(np.abs(np.linalg.eigvals(A0))) >= 1.0 else "stable"
-    e11 = np.zeros((n, m))
-    e11[0, 0] = 1.0
-    B0 = _scaled(_matrix(draw, n, m), draw(_grid(0.3, 1.0, 0.05)), e11)
-
-    delta = draw(_grid(delta_range[0], delta_range[1], 0.01))
-    A_list, B_list = [], []
-    for _ in range(p):
-        AB = _matrix(draw, n, n + m)
-        fallback = np.zeros((n, n + m))
-        fallback[0, 0] = 1.0
-        AB = _scaled(AB, delta / p, fallback)
-        A_list.append(AB[:, :n])
-        B_list.append(AB[:, n:])
-
-    theta_poly = draw(st.booleans())
-    lo = -np.array([draw(_grid(0.2, 1.5, 0.1)) for _ in range(p)])
-    hi = np.array([draw(_grid(0.2, 1.5, 0.1)) for _ in range(p)])
-    H_theta, h_theta = _box_with_cuts(draw, lo, hi, theta_poly)
-    labels["Theta"] = "polytope" if theta_poly else "box"
-
-    w_poly = draw(st.booleans())
-    w_lo = -np.array([draw(_grid(0.005, 0.06, 0.005)) for _ in range(n)])
-    w_hi = np.array([draw(_grid(0.005, 0.06, 0.005)) for _ in range(n)])
-    H_w, h_w = _box_with_cuts(draw, w_lo, w_hi, w_poly)
-    H_w = H_w / h_w[:, None]  # W = {H_w w <= 1}
-    labels["W"] = "polytope" if w_poly else "box"
-
-    x_up = np.array([draw(_grid(1.0, 4.0, 0.5)) for _ in range(n)])
-    x_lo = np.array([draw(_grid(1.0, 4.0, 0.5)) for _ in range(n)])
-    u_up = np.array([draw(_grid(0.3, 2.0, 0.1)) for _ in range(m)])
-    u_lo = np.array([draw(_grid(0.3, 2.0, 0.1)) for _ in range(m)])
-    F = np.vstack([np.eye(n) / x_up[:, None], -np.eye(n) / x_lo[:, None], np.zeros((2 * m, n))])
-    G = np.vstack([np.zeros((2 * n, m)), np.eye(m) / u_up[:, None], -np.eye(m) / u_lo[:, None]])
-    if draw(st.booleans()):
-        row = _unit(draw, n + m) / draw(_grid(0.5, 2.0, 0.25))
-        F = np.vstack([F, row[:n]])
-        G = np.vstack([G, row[n:]])
-        labels["Z"] = "box + mixed row"
-    else:
-        labels["Z"] = "box"
-
-    Q = np.diag([draw(_grid(0.2, 2.0, 0.1)) for _ in range(n)])
-    if draw(st.booleans()):
-        L = _matrix(draw, n, n, -0.5, 0.5, 0.1)
-        Q = Q + L @ L.T
-    R = np.diag([draw(_grid(0.05, 2.0, 0.05)) for _ in range(m)])
-
-    theta_hat0 = np.zeros(p)
-    if draw(st.booleans()):  # θ̂0 = λ·(point on the boundary along a grid direction) ∈ Θ
-        d = _unit(draw, p)
-        theta_hat0 = draw(_grid(0.0, 1.0, 0.1)) * _ray_to_boundary(H_theta, h_theta, d) * d
-        labels["theta_hat0"] = "off-centre"
-    else:
-        labels["theta_hat0"] = "0"
-
-    problem = Problem(A0=A0, B0=B0, A=np.array(A_list), B=np.array(B_list), H_w=H_w, H_theta=H_theta,
-                      h_theta=h_theta, F=F, G=G, Q=Q, R=R, N=N, theta_hat0=theta_hat0, name="generated")
-    facets = {1: (2,), 2: (4, 6, 8), 3: (6,)}[n]
-    options = DesignOptions(x0_template="mrpi", x0_facets=draw(st.sampled_from(facets)),
-                            centre_dynamics=draw(st.sampled_from(("nominal", "zero"))),
-                            mu_fraction=draw(_grid(0.5, 0.99, 0.01)))
-    return GeneratedProblem(ProblemSpec(problem, options), labels)
+    unstable_mode = expansive and draw(st.booleans())
+    return ProblemShape(n=n, m=m, p=p, N=N, expansive=expansive, unstable_mode=unstable_mode,
+                        theta_cuts=draw(st.booleans()), w_cuts=draw(st.booleans()), mixed_row=draw(st.booleans()),
+                        tight_state_box=draw(st.booleans()) and draw(st.booleans()), coupled_Q=draw(st.booleans()),
+                        theta_hat0_off_centre=draw(st.booleans()), input_uncertainty=input_uncertainty,
+                        zero_centre=draw(st.booleans()), delta_range=delta_range)
 
 
-def _ray_to_boundary(H: np.ndarray, h: np.ndarray, d: np.ndarray) -> float:
-    """max{t >= 0 | H (t d) <= h} for a set with 0 in its interior (closed form, no LP)."""
-    rates = H @ d
-    positive = rates > 1e-12
-    return float(np.min(h[positive] / rates[positive])) if np.any(positive) else 0.0
+@st.composite
+def problem_specs(draw, **shape_kwargs):
+    """Random uncertain systems meeting Assumption 1, with a Z that binds: the shape from
+    :func:`problem_shapes`, the numbers from :func:`amcp_drake.studies.random_problems.random_problem`
+    (see there for the ranges) with a drawn seed."""
+    shape = draw(problem_shapes(**shape_kwargs))
+    spec, labels = random_problem(np.random.default_rng(draw(_seeds())), shape)
+    return GeneratedProblem(spec, labels, shape)
 
 
 def spec_digest(spec: ProblemSpec) -> str:
@@ -303,59 +218,72 @@ def designed_problems(draw, **kwargs):
         reject()
     GENERATOR_STATS.add("accepted")
     GENERATOR_STATS.outcome(digest, "accepted")
-    return DesignedProblem(gen.spec, gen.labels, d)
+    return DesignedProblem(gen.spec, gen.labels, gen.shape, d)
+
+
+def theta_star_kinds() -> st.SearchStrategy[str]:
+    """On a facet or at a vertex (3/8 each: the hard cases), or (two booleans, 1/4) inside Θ.
+    "facet" comes first, where Hypothesis' generation leans and its shrinker goes."""
+    return st.booleans().flatmap(lambda a: st.booleans().flatmap(
+        lambda b: st.just("interior") if (a and b) else st.sampled_from(("facet", "vertex"))))
 
 
 @st.composite
-def theta_stars(draw, problem: Problem):
-    """θ* ∈ Θ: a vertex or a boundary point (two booleans: 25 % each) or an interior point."""
-    H, h = problem.H_theta, problem.h_theta
-    if draw(st.booleans()):
-        if draw(st.booleans()):
-            verts = problem.theta_vertices()
-            return verts[draw(st.integers(0, len(verts) - 1))], "vertex"
-        d = _unit(draw, problem.p)
-        return _ray_to_boundary(H, h, d) * d, "boundary"
-    d = _unit(draw, problem.p)
-    return draw(_grid(0.0, 0.95, 0.05)) * _ray_to_boundary(H, h, d) * d, "interior"
+def theta_stars(draw, problem: Problem, kind: str | None = None):
+    """θ* ∈ Θ of a ``kind`` (when None: vertex, facet or interior, 1/3 each, as the Section 4
+    generators have always drawn it); numbers from
+    :func:`amcp_drake.studies.random_problems.random_theta_star`."""
+    kind = kind if kind is not None else draw(st.sampled_from(THETA_STAR_KINDS))
+    assert kind in THETA_STAR_KINDS
+    return random_theta_star(np.random.default_rng(draw(_seeds())), problem, kind), kind
 
 
 @st.composite
 def initial_states(draw, problem: Problem, offline: OfflineDesign):
     """x0 on the boundary of {x | 𝔻(x, Θ0) ≠ ∅} (boolean), near it (90-99.5 % of the way), or
     (two more booleans) in the interior, found by the vertex-form LP of
-    :mod:`amcp_properties.feasible` along a random ray from 0 (no luck involved)."""
-    d = _unit(draw, problem.n)
-    geo = TubeGeometry.build(problem, offline, offline.theta_vertices)
-    s_max = max_ray_length(geo, d)
-    if not np.isfinite(s_max) or s_max <= 0.0:
+    :mod:`amcp_drake.studies.tube_feasibility` along a random ray from 0 (no luck involved)."""
+    if not draw(st.booleans()):  # (False is what the shrinker moves towards: the boundary)
+        kind = "boundary"
+    elif draw(st.booleans()) and draw(st.booleans()):
+        kind = "interior"
+    else:
+        kind = "near boundary"
+    assert kind in INITIAL_STATE_KINDS
+    try:
+        x0, s_max = random_initial_state(np.random.default_rng(draw(_seeds())), problem, offline, kind)
+    except GenerationError:
         GENERATOR_STATS.add("rejected: boundary LP")
         event("generator: boundary LP failed")
         reject()
-    if not draw(st.booleans()):  # (False is what the shrinker moves towards: the boundary)
-        return (1.0 - BOUNDARY_BACKOFF) * s_max * d, "boundary", s_max
-    if draw(st.booleans()) and draw(st.booleans()):
-        return draw(_grid(0.1, 0.9, 0.05)) * s_max * d, "interior", s_max
-    return draw(_grid(0.9, 0.995, 0.005)) * s_max * d, "near boundary", s_max
+    return x0, kind, s_max
 
 
 def disturbance_kinds() -> st.SearchStrategy[str]:
     """Vertices of W first (the nastiest, and what shrinking moves towards), uniform, zero."""
-    return st.sampled_from(("vertices", "uniform", "zero"))
+    return st.sampled_from(DISTURBANCE_KINDS)
 
 
 @st.composite
 def disturbances(draw, problem: Problem, steps: int, kinds: st.SearchStrategy[str] | None = None,
                  zero_from: int | None = None):
-    """w_0..w_{steps-1}: i.i.d. uniform on W, on the vertices of W, or zero (explicit seed);
+    """w_0..w_{steps-1}: on the vertices of W, i.i.d. uniform on W, or zero (explicit seed);
     zero from step ``zero_from`` on when given (Corollary 16)."""
     kind = draw(kinds if kinds is not None else disturbance_kinds())
-    seed = draw(st.integers(0, 2**32 - 1))
-    w = disturbance_sequence(problem, kind, steps, seed)
-    if zero_from is not None:
-        w = w.copy()
-        w[zero_from:] = 0.0
+    w, seed = random_disturbances(np.random.default_rng(draw(_seeds())), problem, steps, kind, zero_from)
     return w, kind, seed
+
+
+@st.composite
+def pins(draw, shape: ProblemShape | None, theta_kind: str):
+    """Whether w_0 pins Θ_1 (:func:`amcp_drake.studies.random_problems.pinning_disturbance`): "point"
+    (zero volume) or "thin" (thinner than the solvers' tolerances), 3/8 each, or (two booleans) "none", when the
+    problem allows it (B_i = 0, p <= n) and θ* is on ∂Θ; "none" otherwise (nothing drawn)."""
+    if shape is None or not shape.can_pin or theta_kind == "interior":
+        return "none"
+    if draw(st.booleans()) and draw(st.booleans()):
+        return "none"
+    return draw(st.sampled_from(("point", "thin")))
 
 
 def online_options() -> st.SearchStrategy[OnlineOptions]:
@@ -367,18 +295,29 @@ def online_options() -> st.SearchStrategy[OnlineOptions]:
 @st.composite
 def closed_loop_cases(draw, steps: int, kinds: st.SearchStrategy[str] | None = None,
                       zero_after: st.SearchStrategy[int] | None = None, **problem_kwargs):
-    """Everything for one closed-loop run: a designed problem, θ*, x0, w, online options.
+    """Everything for one closed-loop run: a designed problem, θ*, x0, w (w_0 pinning Θ_1 when
+    drawn, see :func:`pins`), online options.
 
     ``zero_after``: a strategy for the step after which w = 0 (Corollary 16, finite energy).
     """
+    # θ*'s kind first: a facet that is not a vertex needs p >= 2 (for p = 1 every boundary point is
+    # a vertex), so "facet" draws a problem with p >= 2 (measured in the ci profile with the kind drawn
+    # after the problem: facets in only 4-20 % of the runs, depending on the draws)
+    theta_kind = draw(theta_star_kinds())
+    if theta_kind == "facet":
+        problem_kwargs = dict(problem_kwargs, min_p=max(2, problem_kwargs.get("min_p", 1)))
     gen = draw(designed_problems(**problem_kwargs))
     problem = gen.problem
-    theta_star, theta_kind = draw(theta_stars(problem))
+    theta_star, theta_kind = draw(theta_stars(problem, theta_kind))
     x0, x0_kind, s_max = draw(initial_states(problem, gen.design))
     zero_from = draw(zero_after) if zero_after is not None else None
     w, w_kind, seed = draw(disturbances(problem, steps, kinds, zero_from))
+    pin = draw(pins(gen.shape, theta_kind))
+    if zero_from == 0:  # w = 0 from the start: nothing to pin with
+        pin = "none"
+    w = apply_pin(problem, x0, theta_star, w, pin)
     options = draw(online_options())
-    labels = dict(gen.labels, theta_star=theta_kind, x0=x0_kind, disturbance=w_kind,
+    labels = dict(gen.labels, theta_star=theta_kind, x0=x0_kind, disturbance=w_kind, pin=pin,
                   update=options.update, projection=options.projection)
     return Case(spec=gen.spec, design=gen.design, x0=x0, theta_star=theta_star, w=w, options=options,
                 labels=labels, seed=seed, zero_from=zero_from, ray_length=s_max)

@@ -4,6 +4,7 @@ feasible set of (20), with θ* anywhere in Θ and disturbances uniform on W, at 
 
 from __future__ import annotations
 
+import pytest
 from hypothesis import given
 
 from . import claims, profiles
@@ -42,3 +43,24 @@ def test_theorem14_iii_state_and_input_constraints_hold(case, backend, runner, c
     traj = runner.run(case, backend)
     observe(case, traj, "test_theorem14_iii_state_and_input_constraints_hold", backend, coverage)
     require(claims.constraints_satisfied(traj), test="theorem14_iii", backend=backend, case=case, traj=traj)
+
+
+#: Minimum fractions of the closed-loop runs that reach the hard cases of issue 13 (both profiles);
+#: measured from the runs by :mod:`amcp_properties.coverage` (see there for the definitions).
+MIN_HARD_CASE_COVERAGE = {"theta_k_lower_dim": 0.10, "theta_star_vertex": 0.10, "theta_star_facet": 0.10}
+#: The property whose runs are measured (every closed-loop claim shares them under ci).
+MEASURED_TEST = "test_theorem14_i_recursive_feasibility"
+
+
+def test_hard_cases_are_reached(backend, coverage):
+    """Runs after the closed-loop properties of the same backend (pytest groups the session-scoped
+    backend parameter): at least 10 % of their runs had a lower-dimensional Θ_k, θ* at a vertex of
+    Θ, and θ* on a facet, so the claims were checked on the degenerate sets, not only on nice ones."""
+    data = coverage.summary().get(f"{MEASURED_TEST}[{backend}]")
+    if data is None or not data["examples"]:
+        pytest.skip(f"{MEASURED_TEST}[{backend}] did not run in this session (deselected)")
+    fractions = data["fractions"]
+    print(f"hard-case coverage [{backend}] over {data['examples']} runs: "
+          + ", ".join(f"{k}={fractions.get(k, float('nan')):.2f}" for k in MIN_HARD_CASE_COVERAGE))
+    low = {k: fractions.get(k, 0.0) for k, minimum in MIN_HARD_CASE_COVERAGE.items() if fractions.get(k, 0.0) < minimum}
+    assert not low, f"hard-case coverage below the minimum {MIN_HARD_CASE_COVERAGE} on {backend}: {low}"

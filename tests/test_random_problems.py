@@ -1,0 +1,174 @@
+"""The library's numpy problem generator (amcp_drake.studies.random_problems): explicit seeds, the paper's
+Assumption 1 by construction, and the hard cases it builds (pinning, θ* on vertices and facets).
+
+Expected values are computed here from the definitions with scipy's LP (Θ ∩ Δ_1 written out from
+spec §3), never by the generator's own helpers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import linprog
+
+from amcp_drake.model.errors import ProblemError
+from amcp_drake.studies.random_problems import (
+    ProblemShape,
+    apply_pin,
+    pinning_disturbance,
+    random_case,
+    random_problem,
+    random_shape,
+    random_theta_star,
+    theta_star_face,
+)
+
+
+def _problem(seed: int, **shape):
+    spec, labels = random_problem(np.random.default_rng(seed), ProblemShape(**shape))
+    return spec.problem, labels
+
+
+def _chebyshev_radius(H, h) -> float:
+    """Largest ball in {H θ <= h} (signed: negative when empty), scipy HiGHS."""
+    norms = np.linalg.norm(H, axis=1)
+    p = H.shape[1]
+    res = linprog(np.r_[np.zeros(p), -1.0], A_ub=np.hstack([H, norms[:, None]]), b_ub=h,
+                  bounds=[(None, None)] * (p + 1), method="highs")
+    assert res.status == 0, res.message
+    return float(res.x[-1])
+
+
+def _theta_1(problem, x0, theta_star, w0):
+    """Θ ∩ Δ_1 for the data x_1 = A(θ*) x0 + w0 (B_i = 0, u0 = 0 wlog since B(θ) u0 is known):
+    Δ_1 = {θ | H_w (x_1 − A0 x0 − D(x0) θ) <= 1}, written from spec §3."""
+    D = np.stack([A_i @ x0 for A_i in problem.A], axis=1)
+    x1 = (problem.A0 + np.tensordot(theta_star, problem.A, axes=1)) @ x0 + w0
+    H = np.vstack([problem.H_theta, -problem.H_w @ D])
+    h = np.concatenate([problem.h_theta, 1.0 - problem.H_w @ (x1 - problem.A0 @ x0)])
+    return H, h
+
+
+def test_same_seed_same_problem_and_different_seed_different_problem():
+    shape = ProblemShape(n=2, m=1, p=2, theta_cuts=True, w_cuts=True, mixed_row=True)
+    a, _ = _problem(7, **shape.__dict__)
+    b, _ = _problem(7, **shape.__dict__)
+    c, _ = _problem(8, **shape.__dict__)
+    for name in ("A0", "B0", "A", "B", "H_w", "H_theta", "h_theta", "F", "G", "Q", "R"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert not np.array_equal(a.A0, c.A0)
+
+
+@pytest.mark.parametrize("seed", range(25))
+def test_random_problems_meet_assumption_1(seed):
+    rng = np.random.default_rng(seed)
+    shape = random_shape(rng)
+    problem = random_problem(rng, shape)[0].problem
+    # θ̂0 ∈ Θ, 0 strictly inside Θ and W = {H_w w <= 1}, both bounded (every LP max ±e_i finite)
+    assert np.all(problem.H_theta @ problem.theta_hat0 <= problem.h_theta + 1e-12)
+    assert np.all(problem.h_theta > 0)
+    for H, h in ((problem.H_theta, problem.h_theta), (problem.H_w, np.ones(len(problem.H_w)))):
+        for d in np.vstack([np.eye(H.shape[1]), -np.eye(H.shape[1])]):
+            res = linprog(-d, A_ub=H, b_ub=h, bounds=[(None, None)] * H.shape[1], method="highs")
+            assert res.status == 0, "unbounded or infeasible"
+    if not shape.input_uncertainty:
+        assert not np.any(problem.B)
+        assert problem.p <= problem.n
+
+
+def test_bad_shape_is_a_typed_error_naming_the_field():
+    with pytest.raises(ProblemError, match="shape.n"):
+        ProblemShape(n=0)
+    with pytest.raises(ProblemError, match="shape.delta_range"):
+        ProblemShape(delta_range=(0.1, 0.05))
+
+
+@pytest.mark.parametrize("kind", ["vertex", "facet", "interior"])
+def test_theta_star_kinds_are_where_their_name_says(kind):
+    problem, _ = _problem(3, n=2, m=1, p=2, theta_cuts=True)
+    theta = random_theta_star(np.random.default_rng(1), problem, kind)
+    slack = (problem.h_theta - problem.H_theta @ theta) / np.linalg.norm(problem.H_theta, axis=1)
+    assert np.all(slack >= -1e-12)
+    active = np.flatnonzero(slack <= 1e-9)
+    rank = np.linalg.matrix_rank(problem.H_theta[active]) if len(active) else 0
+    assert {"vertex": rank == 2, "facet": rank == 1, "interior": rank == 0}[kind]
+    assert theta_star_face(problem, theta) == kind
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("theta_cuts, w_cuts", [(False, False), (True, True)])
+def test_pinning_at_a_vertex_collapses_theta_1_to_theta_star(seed, theta_cuts, w_cuts):
+    problem, _ = _problem(seed, n=3, m=1, p=2, input_uncertainty=False, theta_cuts=theta_cuts, w_cuts=w_cuts)
+    rng = np.random.default_rng(seed)
+    theta_star = random_theta_star(rng, problem, "vertex")
+    x0 = rng.uniform(-2, 2, size=problem.n)
+    w0 = pinning_disturbance(problem, problem.regressor(x0, np.zeros(problem.m)), theta_star)
+    assert np.all(problem.H_w @ w0 <= 1 + 1e-12)  # a point of W ...
+    assert np.sum(np.abs(problem.H_w @ w0 - 1) <= 1e-9) >= problem.n  # ... at a vertex
+    H, h = _theta_1(problem, x0, theta_star, w0)
+    assert abs(_chebyshev_radius(H, h)) <= 1e-9
+    # the intersection is {θ*}: every support value equals θ*'s
+    for d in np.vstack([np.eye(problem.p), -np.eye(problem.p)]):
+        res = linprog(-d, A_ub=H, b_ub=h + 1e-9, bounds=[(None, None)] * problem.p, method="highs")
+        assert res.status == 0
+        assert -res.fun == pytest.approx(d @ theta_star, abs=1e-6)
+    # a random vertex of W instead of the pinning one leaves a full-dimensional set in most draws:
+    # the collapse is the construction's doing, not chance (negative control)
+    other = [v for v in problem.w_vertices() if not np.allclose(v, w0)]
+    radii = [_chebyshev_radius(*_theta_1(problem, x0, theta_star, v)) for v in other]
+    assert max(radii) > 1e-4
+
+
+def test_pinning_on_a_facet_keeps_theta_1_in_the_facet_hyperplane_and_thin_leaves_a_sliver():
+    problem, _ = _problem(11, n=2, m=1, p=2, input_uncertainty=False)
+    rng = np.random.default_rng(2)
+    theta_star = random_theta_star(rng, problem, "facet")
+    x0 = np.array([1.3, -0.7])
+    D = problem.regressor(x0, np.zeros(1))
+    w0 = pinning_disturbance(problem, D, theta_star)
+    H, h = _theta_1(problem, x0, theta_star, w0)
+    assert abs(_chebyshev_radius(H, h)) <= 1e-9
+    thin = pinning_disturbance(problem, D, theta_star, thin=True)
+    radius = _chebyshev_radius(*_theta_1(problem, x0, theta_star, thin))
+    assert 0.0 < radius <= 1e-6
+
+
+def test_pinning_needs_theta_star_on_the_boundary_and_a_regressor_of_full_rank():
+    problem, _ = _problem(4, n=2, m=1, p=2, input_uncertainty=False)
+    with pytest.raises(ProblemError, match="theta_star"):
+        pinning_disturbance(problem, np.eye(2), np.zeros(2))
+    vertex = problem.theta_vertices()[0]
+    with pytest.raises(ProblemError, match="regressor"):
+        pinning_disturbance(problem, np.zeros((2, 2)), vertex)
+    with_b, _ = _problem(4, n=2, m=1, p=2, input_uncertainty=True)
+    with pytest.raises(ProblemError, match="pin"):
+        apply_pin(with_b, np.ones(2), with_b.theta_vertices()[0], np.zeros((3, 2)), "point")
+
+
+def test_random_case_is_reproducible_and_labels_what_it_built():
+    a = random_case(np.random.default_rng(12), steps=5)
+    b = random_case(np.random.default_rng(12), steps=5)
+    assert a.key() == b.key()
+    assert a.w.shape == (5, a.problem.n)
+    assert theta_star_face(a.problem, a.theta_star) in ("vertex", "facet", "interior")
+    assert a.labels["pin"] in ("none", "point", "thin")
+
+
+def test_hard_case_coverage_of_a_pinned_run_and_of_a_plain_one():
+    """A run whose w_0 pins Θ_1 at a vertex θ* reports a lower-dimensional Θ_k and θ* at a vertex;
+    the same run with w = 0 (no information) reports neither."""
+    from amcp_drake.offline.design import design
+    from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_drake.online.simulate import simulate
+    from amcp_drake.studies.random_problems import hard_case_coverage
+
+    spec, _ = random_problem(np.random.default_rng(5), ProblemShape(n=2, m=1, p=2, N=3, input_uncertainty=False))
+    problem = spec.problem
+    offline = design(problem, spec.design)
+    theta_star = problem.theta_vertices()[0]
+    x0 = np.array([0.3, -0.2])
+    pinned = apply_pin(problem, x0, theta_star, np.zeros((3, 2)), "point")
+    ctrl = AdaptiveMPC(problem, offline)
+    cov = hard_case_coverage(simulate(ctrl, x0, theta_star, 3, pinned))
+    assert cov == {"theta_k_lower_dim": 1.0, "theta_star_vertex": 1.0, "theta_star_facet": 0.0}
+    plain = hard_case_coverage(simulate(ctrl, x0, np.zeros(2), 3, np.zeros((3, 2))))
+    assert plain == {"theta_k_lower_dim": 0.0, "theta_star_vertex": 0.0, "theta_star_facet": 0.0}
