@@ -13,7 +13,9 @@ solution. Each point is decided twice:
       H_x (A_cl(θ^s)(z_l + α_l x^j) + B(θ^s) v_l − z_{l+1}) − α_{l+1} 1 <= −w̄        (5b)
 
   with (15a) (F + GK) z_l + G v_l + f̄ α_l <= 1, (15b) H_x (x0 − z_0) <= α_0 1, the terminal set
-  H_T z_N + h_T α_N <= 1 and α >= 0. w̄ and f̄ are recomputed from the vertices of W and X0 and the
+  H_T z_N + h_T α_N <= 1 and α >= 0. Since α_l >= 0, the rows of the vertices x^j are implied by
+  the one whose coefficient [H_x A_cl(θ^s) x^j]_i of α_l is largest, so one row per (l, s, i) is
+  written (its coefficient the row-wise maximum over the vertices of X0). w̄ and f̄ are recomputed from the vertices of W and X0 and the
   vertices of Θ are enumerated by the certificate's own routine, so neither a backend nor an
   offline constant of the design is trusted. The LP maximises a common slack t (t <= 1) of all rows
   scaled to unit norm: t >= 0 if and only if 𝔻(x0, Θ) ≠ ∅, and |t| measures the distance to the
@@ -215,11 +217,12 @@ class TubeLP:
             for theta in verts:
                 HA = H_x @ (problem.A_of(theta) + problem.B_of(theta) @ K)
                 HB = H_x @ problem.B_of(theta)
-                for xj in X0v:
-                    A = np.zeros((u, size))
-                    A[:, z(l)], A[:, a(l)], A[:, v(l)] = HA, HA @ xj, HB
-                    A[:, z(l + 1)], A[:, a(l + 1)] = -H_x, -1.0
-                    blocks.append(A), rhs.append(-w_bar), rhs_x.append(np.zeros((u, n)))
+                # the rows of the vertices x^j differ only in the coefficient HA x^j of α_l >= 0, so
+                # the row with the largest coefficient implies the others (row-wise max over j)
+                A = np.zeros((u, size))
+                A[:, z(l)], A[:, a(l)], A[:, v(l)] = HA, np.max(HA @ X0v.T, axis=1), HB
+                A[:, z(l + 1)], A[:, a(l + 1)] = -H_x, -1.0
+                blocks.append(A), rhs.append(-w_bar), rhs_x.append(np.zeros((u, n)))
         H_T, h_T = np.asarray(design.H_T, float), np.asarray(design.h_T, float)
         A = np.zeros((len(H_T), size))  # terminal set X_f (Assumption 11)
         A[:, z(N)], A[:, a(N)] = H_T, h_T
