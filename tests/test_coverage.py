@@ -1,4 +1,4 @@
-"""``amcp coverage`` (amcp_drake.coverage_region) on a problem whose feasible region is known by hand.
+"""``amcp coverage`` (amcp_drake.studies.coverage) on a problem whose feasible region is known by hand.
 
 The system (decoupled, two states, two inputs, one parameter per axis):
 
@@ -25,12 +25,12 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from amcp_drake import coverage_region
+import amcp_drake.studies.coverage as coverage_region
 from amcp_drake.cli import main
-from amcp_drake.coverage_region import TubeLP, grid_points, run_coverage
-from amcp_drake.design import design
-from amcp_drake.problem import DesignOptions, Problem, ProblemSpec, Scenario
-from amcp_drake.problem_io import save_spec
+from amcp_drake.model.problem import DesignOptions, Problem, ProblemSpec, Scenario
+from amcp_drake.model.problem_io import save_spec
+from amcp_drake.offline.design import design
+from amcp_drake.studies.coverage import TubeLP, grid_points, run_coverage
 
 A_GAIN, W_MAX = 0.5, 0.1
 X1_EDGE = (1.0 - W_MAX) / A_GAIN  # 1.8, the hand-computed boundary in x1

@@ -11,8 +11,8 @@ import pytest
 from click.testing import CliRunner
 
 from amcp_drake.cli import main
-from amcp_drake.examples import EXAMPLES, LITERATURE_EXAMPLES, get_example
-from amcp_drake.problem_io import spec_from_dict
+from amcp_drake.model.examples import EXAMPLES, LITERATURE_EXAMPLES, get_example
+from amcp_drake.model.problem_io import spec_from_dict
 
 #: Steps of the certified runs in these tests (the file scenarios run 10-30 steps).
 STEPS = 6
