@@ -182,3 +182,16 @@ def test_polytope_points_file_keeps_grid_points_inside(tmp_path):
     pts, _ = coverage_region.load_points(path, 2, 5)
     assert np.all(pts[:, 0] + pts[:, 1] <= 1e-12) and np.all(np.abs(pts) <= 1.0)
     assert len(pts) == 15  # 5×5 grid on [−1, 1]²: the 15 points with x1 + x2 <= 0
+
+
+@pytest.mark.parametrize("n, drawn", [(1, True), (2, True), (3, False)])
+def test_png_for_n_up_to_2_only(tmp_path, n, drawn):
+    from amcp_drake.studies.coverage import CoverageResult, PointVerdict, write_coverage
+
+    points = np.zeros((2, n))
+    points[1, 0] = 1.0
+    res = CoverageResult(problem="p", n=n, points=points, source="s", axes=None, backend="drake",
+                         formulation="vertex", robust=[PointVerdict("optimal", 0.5), PointVerdict("infeasible", -0.5)])
+    js, png = write_coverage(res, tmp_path)
+    assert json.loads(js.read_text())["classes"] == ["robust", "infeasible"]
+    assert (png is not None) == drawn and (tmp_path / "coverage.png").exists() == drawn
