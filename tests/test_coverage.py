@@ -195,3 +195,16 @@ def test_png_for_n_up_to_2_only(tmp_path, n, drawn):
     js, png = write_coverage(res, tmp_path)
     assert json.loads(js.read_text())["classes"] == ["robust", "infeasible"]
     assert (png is not None) == drawn and (tmp_path / "coverage.png").exists() == drawn
+
+
+def test_cli_adapt_x0_and_warning_when_the_run_stops(problem_file, tmp_path):
+    """--adapt-x0 outside the region: the run stops at step 0, which is said (exit 0: no disagreement)."""
+    out = tmp_path / "out"
+    r = CliRunner().invoke(main, ["coverage", problem_file, "--grid", "3", "--adapt", "5", "--adapt-x0", "1.9,0",
+                                  "--out", str(out), "--no-progress"])
+    assert r.exit_code == 0, r.output
+    assert "WARNING: the adaptive run from x0 = [1.9, 0.0] stopped after 0 of 5 steps" in r.output
+    data = json.loads((out / "coverage.json").read_text())
+    assert data["adapt"]["steps_run"] == 0 and data["adapt"]["x0"] == [1.9, 0.0]
+    r = CliRunner().invoke(main, ["coverage", problem_file, "--adapt", "5", "--adapt-x0", "1,2,3", "--out", str(out)])
+    assert r.exit_code == 2 and "--adapt-x0" in r.output

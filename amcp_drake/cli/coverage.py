@@ -33,13 +33,15 @@ from amcp_drake.cli.common import (
               help='JSON file: {"points": [[..], ..]} or {"polytope": {"H": [[..]], "h": [..]}} (grid points inside).')
 @click.option("--adapt", "adapt_steps", type=click.IntRange(min=1), default=None,
               help="Also evaluate the region for Θ_T learned on a closed loop of this many steps (the scenario).")
+@click.option("--adapt-x0", "adapt_x0", default=None, metavar="X1,X2,...",
+              help="Initial state of the --adapt run (default: the problem file's scenario x0).")
 @update_options
 @click.option("--out", "out_dir", default="amcp-out", show_default=True, type=click.Path(file_okay=False),
               help="Folder for coverage.json and coverage.png.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 @bad_input_exits_2
-def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, points_file, adapt_steps, update,
-                 window, projection, out_dir, no_progress):
+def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, points_file, adapt_steps, adapt_x0,
+                 update, window, projection, out_dir, no_progress):
     """Feasible fraction of a grid of initial states (QP (20), confirmed by an LP).
 
     Writes coverage.json (every point, both verdicts, every disagreement) and coverage.png (n <= 2).
@@ -72,6 +74,13 @@ def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, po
         box = parse_box(box_text, pr.n) if box_text else default_box(pr, spec.design.mu_state_bound)
         points, axes = grid_points(box, grid or DEFAULT_GRID)
         source = "grid " + " x ".join(f"[{lo:g}, {hi:g}]" for lo, hi in box) + f", {grid or DEFAULT_GRID} per axis"
+    if adapt_x0 is not None:
+        try:
+            adapt_x0 = [float(v) for v in adapt_x0.split(",")]
+        except ValueError:
+            raise ProblemError("--adapt-x0", f"{pr.n} numbers separated by commas", repr(adapt_x0)) from None
+        if len(adapt_x0) != pr.n:
+            raise ProblemError("--adapt-x0", f"{pr.n} numbers separated by commas", f"{len(adapt_x0)} numbers")
     d = design(pr, spec.design, backend=backend)
 
     def progress_factory(total, label):
@@ -82,7 +91,7 @@ def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, po
         return tqdm(total=total, desc=label, unit="pt", file=sys.stderr, leave=False)
 
     res = run_coverage(spec, d, points, source=source, axes=axes, adapt_steps=adapt_steps, backend=backend,
-                       formulation=formulation, options=online, progress_factory=progress_factory)
+                       formulation=formulation, options=online, adapt_x0=adapt_x0, progress_factory=progress_factory)
     js, png = write_coverage(res, out_dir)
     s = res.summary()
     click.echo(f"{pr.name}: {s['points']} initial states ({source}); backend {backend}, formulation {formulation}")
@@ -92,6 +101,10 @@ def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, po
         click.echo(f"Θ_T after {info['steps_run']}/{adapt_steps} steps ({info['update']} update, stop: "
                    f"{info['stop_reason']}): feasible fraction {s['adaptive_fraction']:.4f} "
                    f"(feasible only after adaptation {s['adaptive_only_fraction']:.4f})")
+        if info["steps_run"] < adapt_steps:
+            click.echo(f"WARNING: the adaptive run from x0 = {info['x0']} stopped after {info['steps_run']} of "
+                       f"{adapt_steps} steps ({info['stop_reason']}); Θ_T is the set of its last step. Choose a "
+                       "feasible start with --adapt-x0.")
     t = res.timings
     click.echo("timings: " + ", ".join(f"{k} {v:.2f}" for k, v in t.items()))
     issues = res.issues()

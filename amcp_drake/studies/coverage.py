@@ -400,17 +400,24 @@ def _finite(value: float):
 
 
 def learned_set(spec: ProblemSpec, design: OfflineDesign, steps: int, backend: str, formulation: str,
-                options: OnlineOptions) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Θ_T after a closed loop of ``steps`` steps on the problem's scenario (x0, θ*, disturbance,
-    seed). A run that stops early gives the set of its last step (reported in the dict)."""
+                options: OnlineOptions, x0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Θ_T after a closed loop of ``steps`` steps on the problem's scenario (x0 — or the given
+    ``x0`` — θ*, disturbance, seed). A run that stops early gives the set of its last step
+    (``steps_run`` < ``steps`` in the dict)."""
     sc = spec.scenario
     if sc is None:
         raise ProblemError("scenario", "a scenario in the problem file (x0, theta_star) for --adapt", "none")
+    if x0 is None:
+        x0 = sc.x0
+    else:
+        x0 = np.asarray(x0, float)
+        if x0.shape != (spec.problem.n,) or not np.all(np.isfinite(x0)):
+            raise ProblemError("--adapt-x0", f"{spec.problem.n} finite numbers", repr(x0.tolist()))
     ctrl = AdaptiveMPC(spec.problem, design, backend=backend, options=options, formulation=formulation)
-    traj = simulate(ctrl, sc.x0, sc.theta_star_for(steps), steps, sc.disturbance, seed=sc.seed)
+    traj = simulate(ctrl, x0, sc.theta_star_for(steps), steps, sc.disturbance, seed=sc.seed)
     last = traj.records[-1]
     info = {"steps": steps, "steps_run": len(traj.u), "stop_reason": traj.stop_reason, "update": options.update,
-            "x0": np.asarray(sc.x0).tolist(), "theta_star": np.asarray(sc.theta_star).tolist(),
+            "x0": np.asarray(x0).tolist(), "theta_star": np.asarray(sc.theta_star).tolist(),
             "disturbance": sc.disturbance, "seed": sc.seed,
             "H_theta": np.asarray(last.H_theta).tolist(), "h_theta": np.asarray(last.h_theta).tolist(),
             "h_theta0": np.asarray(design.h_theta0).tolist()}
@@ -419,12 +426,12 @@ def learned_set(spec: ProblemSpec, design: OfflineDesign, steps: int, backend: s
 
 def run_coverage(spec: ProblemSpec, design: OfflineDesign, points: np.ndarray, source: str = "points",
                  axes: list | None = None, adapt_steps: int | None = None, backend: str = "drake",
-                 formulation: str = "vertex", options: OnlineOptions | None = None,
+                 formulation: str = "vertex", options: OnlineOptions | None = None, adapt_x0=None,
                  progress_factory: Callable[[int, str], object] | None = None) -> CoverageResult:
     """The region for Θ (and for the learned Θ_T when ``adapt_steps``); see the module docstring.
 
     ``progress_factory(total, label)`` returns a progress object for :func:`evaluate_region` (e.g. a
-    tqdm bar); ``options``: the online options of the adaptive run (default: the file's, else fixed)."""
+    tqdm bar); ``adapt_x0``: initial state of the adaptive run instead of the scenario's.; ``options``: the online options of the adaptive run (default: the file's, else fixed)."""
     options = options or spec.online or OnlineOptions()
     if options.d_theta > 0:
         raise ProblemError("online.d_theta", "0 for amcp coverage (the region is evaluated for one constant "
@@ -441,7 +448,7 @@ def run_coverage(spec: ProblemSpec, design: OfflineDesign, points: np.ndarray, s
                             formulation=formulation, robust=robust, timings=timings)
     if adapt_steps:
         t_wall, t_cpu = time.perf_counter(), time.process_time()
-        H_T, h_T, info = learned_set(spec, design, adapt_steps, backend, formulation, options)
+        H_T, h_T, info = learned_set(spec, design, adapt_steps, backend, formulation, options, adapt_x0)
         timings.update({"adapt_run_wall_s": time.perf_counter() - t_wall, "adapt_run_cpu_s": time.process_time() - t_cpu})
         t_wall, t_cpu = time.perf_counter(), time.process_time()
         bar = progress_factory(len(points), f"Θ_{info['steps_run']}") if progress_factory else None
