@@ -11,13 +11,14 @@ import pytest
 from click.testing import CliRunner
 
 from amcp_drake.cli import main
-from amcp_drake.model.examples import EXAMPLES, LITERATURE_EXAMPLES, get_example
-from amcp_drake.model.problem_io import spec_from_dict
+from amcp_drake.model.examples import EXAMPLES, LITERATURE_EXAMPLES, SLSMPC2D_EXAMPLES, get_example
+from amcp_drake.model.problem_io import spec_from_dict, spec_to_dict
 
 #: Steps of the certified runs in these tests (the file scenarios run 10-30 steps).
 STEPS = 6
 #: Examples whose design takes tens of seconds (24-facet X0, p = 4): marked slow, kept in the suite.
-SLOW = {"bujarbaruah2022"}
+SLOW = {"bujarbaruah2022", "slsmpc2d_eps0.35", "slsmpc2d_eps0.45"}
+ALL = LITERATURE_EXAMPLES + SLSMPC2D_EXAMPLES
 
 
 def _param(name):
@@ -59,7 +60,21 @@ def test_parameters_fit_the_model_class():
         np.testing.assert_allclose(pr.B_of(th), truth[name][1], atol=1e-12, err_msg=name)
 
 
-@pytest.mark.parametrize("name", [_param(n) for n in LITERATURE_EXAMPLES])
+def test_slsmpc_files_match_the_constructor():
+    """examples/slsmpc2d_eps*.json are the constructor's specs (plus their source object)."""
+    from importlib import resources
+
+    for name in SLSMPC2D_EXAMPLES:
+        raw = json.loads((resources.files("amcp_drake").parent / "examples" / f"{name}.json").read_text())
+        assert "Polytopic-SLSMPC" in raw.pop("source")["data"]
+        assert raw == json.loads(json.dumps(spec_to_dict(get_example(name))))
+        pr = get_example(name).problem
+        eps_a = float(name.removeprefix("slsmpc2d_eps"))
+        np.testing.assert_allclose(pr.A_of([1.0, 0.0]) - pr.A0, [[eps_a, 0.0], [0.0, 0.0]])
+        np.testing.assert_allclose(pr.B_of([0.0, -1.0]), [[0.1], [1.0]])
+
+
+@pytest.mark.parametrize("name", [_param(n) for n in ALL])
 def test_design_succeeds_at_default_settings(name):
     r = CliRunner().invoke(main, ["design", "--example", name])
     assert r.exit_code == 0, r.output
@@ -67,7 +82,7 @@ def test_design_succeeds_at_default_settings(name):
 
 
 @pytest.mark.parametrize("backend", ["drake", "cvxpy"])
-@pytest.mark.parametrize("name", [_param(n) for n in LITERATURE_EXAMPLES])
+@pytest.mark.parametrize("name", [_param(n) for n in ALL])
 def test_certify_passes_every_claim(name, backend, tmp_path):
     out = tmp_path / "out"
     r = CliRunner().invoke(main, ["certify", "--example", name, "--backend", backend, "--steps", str(STEPS),
