@@ -68,9 +68,10 @@ def offline(spec):
     return design(spec.problem, spec.design, backend="drake")
 
 
-def test_robust_region_is_the_hand_computed_rectangle(spec, offline):
+@pytest.mark.parametrize("backend, formulation", [("drake", "vertex"), ("drake", "plain"), ("cvxpy", "vertex")])
+def test_robust_region_is_the_hand_computed_rectangle(spec, offline, backend, formulation):
     points, axes = grid_points(BOX, GRID)
-    res = run_coverage(spec, offline, points, axes=axes)
+    res = run_coverage(spec, offline, points, axes=axes, backend=backend, formulation=formulation)
     expected = hand_region(points)
     assert 0 < expected.sum() < len(points)  # the box cuts the region on both sides
     np.testing.assert_array_equal([v.feasible for v in res.robust], expected)
