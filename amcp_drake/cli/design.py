@@ -16,6 +16,8 @@ from amcp_drake.cli.common import (
     example_option,
     load_problem_spec,
     problem_argument,
+    with_x0_template,
+    x0_template_option,
 )
 
 
@@ -26,15 +28,16 @@ def _fmt(a) -> str:
 @click.command("design")
 @problem_argument
 @example_option
+@x0_template_option
 @backend_option
 @click.option("--json", "as_json", is_flag=True, help="Print the design and checks as JSON.")
 @bad_input_exits_2
-def design_cmd(problem_file, example, backend, as_json):
+def design_cmd(problem_file, example, x0_template, backend, as_json):
     """Compute K, P, X0, w_bar, f_bar, Xf and mu (spec §4-§6) and verify them independently."""
     from amcp_drake.offline.checks import verify_design
     from amcp_drake.offline.design import design
 
-    spec = load_problem_spec(problem_file, example)
+    spec = with_x0_template(load_problem_spec(problem_file, example), x0_template)
     pr = spec.problem
     d = design(pr, spec.design, backend=backend)
     checks = verify_design(pr, d, spec.design.mu_state_bound)
@@ -45,6 +48,10 @@ def design_cmd(problem_file, example, backend, as_json):
         click.echo(f"problem {pr.name}: n={pr.n}, m={pr.m}, p={pr.p}, N={pr.N}; backend {backend}")
         click.echo(f"K ({d.gain_source}) = {_fmt(d.K)}")
         click.echo(f"P = {_fmt(d.P)}")
+        for i, attempt in enumerate((d.info or {}).get("attempts", [])):
+            reason = f" ({attempt['reason']})" if attempt["reason"] else ""
+            click.echo(f"design attempt {i + 1}: {attempt['label']}: {attempt['outcome']}{reason} [{attempt['seconds']:.1f} s]")
+        click.echo(f"X0 template: {(d.info or {}).get('x0_template', 'n/a')}")
         click.echo(f"X0: {len(d.H_x)} facets, {len(d.X0_vertices)} vertices, lambda_bar = {d.lambda_bar:.5f}")
         click.echo(f"w_bar = {_fmt(d.w_bar)}")
         click.echo(f"f_bar = {_fmt(d.f_bar)}")

@@ -16,6 +16,8 @@ from amcp_drake.cli.common import (
     formulation_option,
     load_problem_spec,
     problem_argument,
+    with_x0_template,
+    x0_template_option,
     resolve_online,
     section4_options,
     update_options,
@@ -25,6 +27,7 @@ from amcp_drake.cli.common import (
 @click.command("run")
 @problem_argument
 @example_option
+@x0_template_option
 @backend_option
 @formulation_option
 @click.option("--steps", type=int, default=None, help="Number of steps (default: the problem's scenario).")
@@ -35,7 +38,7 @@ from amcp_drake.cli.common import (
 @click.option("--every", type=int, default=1, show_default=True, help="Print every n-th step.")
 @click.option("--save", type=click.Path(), default=None, help="Save the trajectory (JSON, .gz allowed).")
 @bad_input_exits_2
-def run_cmd(problem_file, example, backend, formulation, steps, seed, disturbance, update, window, projection, d_theta,
+def run_cmd(problem_file, example, x0_template, backend, formulation, steps, seed, disturbance, update, window, projection, d_theta,
             pe_window, pe_level, cost, every, save):
     """Design, then run the adaptive MPC closed loop and print one line per step."""
     from amcp_drake.cli.summary import format_table, step_table
@@ -44,7 +47,7 @@ def run_cmd(problem_file, example, backend, formulation, steps, seed, disturbanc
     from amcp_drake.online.controller import AdaptiveMPC
     from amcp_drake.online.simulate import simulate
 
-    spec = load_problem_spec(problem_file, example)
+    spec = with_x0_template(load_problem_spec(problem_file, example), x0_template)
     sc = spec.scenario
     if sc is None:
         raise ProblemError("scenario", "a scenario in the problem file (x0, theta_star)", "none")

@@ -275,8 +275,8 @@ class DesignOptions:
     * ``centre_dynamics``: A_z of spec §5.1 step 2: ``"nominal"`` = A_cl(θ̂0), ``"zero"`` = 0.
     * ``terminal_max_iter``: iteration cap of the terminal set recursion.
     * ``theta_extra_directions``: extra facet normals (k, p) for the fixed-complexity shape H_θ of (9).
-    * ``x0_template``: the cross-section template (x0_templates.py, docs/decisions.md "X0 templates"):
-      ``"auto"`` (default: the order of design_auto.py, first design passing every design check),
+    * ``x0_template``: the cross-section template (offline/templates.py, docs/decisions.md "X0 templates"):
+      ``"auto"`` (default: the order of offline/auto.py, first design passing every design check),
       ``"mrpi"`` (minimal-RPI outer approximation with ``x0_facets`` directions), ``"contractive"``
       (maximal ``x0_lambda``-contractive set in Z under u = Kx, scaled to be robustly invariant),
       ``"given"`` (``x0_H``, rows of X0 = {x | x0_H x <= 1}).

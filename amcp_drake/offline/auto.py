@@ -131,6 +131,17 @@ def design_auto(problem: Problem, options: DesignOptions, backend="drake", log=N
     raise AutoDesignError(attempts)
 
 
+def chosen_options(options: DesignOptions, design) -> DesignOptions:
+    """The DesignOptions that reproduce ``design`` with a fixed template: ``options`` with the
+    template, facets, λ and gain scale the automatic mode chose (``design.info["options"]``);
+    ``options`` unchanged for a design made with a fixed template. Used to design with a second
+    backend on the same template (amcp compare)."""
+    chosen = (getattr(design, "info", None) or {}).get("options")
+    if not chosen:
+        return options
+    return replace(options, **chosen, x0_H=options.x0_H if chosen["x0_template"] == "given" else None)
+
+
 def _short(exc: Exception) -> str:
     text = str(exc).replace("\n", " ")
     return text if len(text) <= 300 else text[:297] + "..."

@@ -152,7 +152,7 @@ def design_fixed(problem: Problem, options: DesignOptions, backend="drake", gain
     if source != "given":
         _require_terminal_cost(problem, K, P, A_cl)
 
-    # X0: the cross-section template (x0_templates.py)
+    # X0: the cross-section template (offline/templates.py)
     FGK = problem.F + problem.G @ K
     H_x = _x0(problem, A_cl, FGK, be, options)
     X0_vertices = polytope.vertices(H_x, np.ones(len(H_x)))
@@ -225,10 +225,11 @@ def _require_finite_support(name: str, values: np.ndarray) -> None:
 
 
 def _x0(problem: Problem, A_cl: np.ndarray, FGK: np.ndarray, be, options: DesignOptions) -> np.ndarray:
-    """Tube shape X0 = {H_x x <= 1} by the template of ``options.x0_template`` (x0_templates.py)."""
+    """Tube shape X0 = {H_x x <= 1} by the template of ``options.x0_template`` (offline/templates.py)."""
     kind = options.x0_template
     if kind == "mrpi":
-        return x0_templates.mrpi_template(problem.H_w, A_cl, be, options.x0_facets, options.mrpi_max_iter)
+        return x0_templates.mrpi_template(problem.H_w, A_cl, be, options.x0_facets, options.mrpi_max_iter,
+                                          Z_rows=np.hstack([problem.F, problem.G]))
     if kind == "contractive":
         lam = options.x0_lambda if options.x0_lambda is not None else DEFAULT_X0_LAMBDA
         return x0_templates.contractive_template(FGK, problem.H_w, A_cl, be, lam)

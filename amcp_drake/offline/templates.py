@@ -34,11 +34,13 @@ from amcp_drake.model.errors import DesignError, ProblemError
 #: h by X0_INFLATION then makes the template exactly invariant: T(ch) = c T(h) - (c-1) w̄ <= c h.
 MRPI_RESIDUAL_FRACTION = 1e-3
 X0_INFLATION = 1.01
-#: The minimal-RPI iteration is declared divergent when h exceeds this multiple of the radius
-#: bound of the constraint set (or 1e6 σ_W when Z is unbounded): a converging iteration stays
-#: inside the smallest RPI set, whose size is of the order of w̄/(1 - λ); 1e8 (seen on the
-#: SLS-MPC family at ε_A = 0.25) is far past any useful tube.
+#: The minimal-RPI iteration is declared divergent when h exceeds this multiple of max σ_W where Z
+#: does not bound the state: a converging iteration stays of the order of w̄/(1 - λ); values near
+#: 1e8 (seen on the SLS-MPC family at ε_A = 0.25, main before issue 14) are far past any useful tube.
 MRPI_DIVERGENCE_FACTOR = 1e6
+#: ... or when h_i exceeds this multiple of the state extent of Z in direction d_i (Z bounded in x):
+#: a cross-section 10 times larger than the constraint set can never give a non-empty terminal set.
+MRPI_Z_FACTOR = 10.0
 #: Iteration and complexity caps of the λ-contractive backward iteration (2-D sets of the
 #: literature need 5-30 iterations and 10-40 rows; more rows make the tube QP large: N·v·u·q Λ's).
 CONTRACTIVE_MAX_ITER = 200
@@ -105,13 +107,17 @@ def max_template_facets(n: int) -> int:
 # -- (a) minimal-RPI outer approximation -----------------------------------------------------------
 
 def mrpi_template(H_w: np.ndarray, A_cl: np.ndarray, be, facets: int, max_iter: int,
-                  scale_bound: float | None = None) -> np.ndarray:
+                  Z_rows: np.ndarray | None = None) -> np.ndarray:
     """Template outer approximation of the minimal RPI set of x⁺ = A_cl(θ)x + w, θ ∈ Θ, w ∈ W.
 
     Least fixed point of h ↦ max_k σ_{X(h)}(A_cl(θ^k)ᵀ d_i) + σ_W(d_i), X(h) = {D x <= h},
     started from h = σ_W(D) (monotone increasing). Stopped when T(h) - h <= 1e-3 w̄ per row,
-    then inflated by 1.01 (see :data:`X0_INFLATION`). ``scale_bound`` is the size beyond which
-    the iteration is called divergent (default 1e6 max σ_W).
+    then inflated by 1.01 (see :data:`X0_INFLATION`).
+
+    Divergence: the iterates increase monotonically; they are called divergent when some h_i
+    exceeds :data:`MRPI_Z_FACTOR` times the support of the state projection of Z in direction d_i
+    (``Z_rows`` = [F G]; such a tube cannot fit in Z, so no design can follow), or, when Z does not
+    bound the state in every template direction, 1e6 max σ_W (:data:`MRPI_DIVERGENCE_FACTOR`).
     """
     n = A_cl.shape[1]
     name = f"mrpi ({facets} facets)"
@@ -119,13 +125,18 @@ def mrpi_template(H_w: np.ndarray, A_cl: np.ndarray, be, facets: int, max_iter: 
     w_sup = be.support(H_w, np.ones(len(H_w)), D)
     if not np.all(np.isfinite(w_sup)):
         raise TemplateError(name, "LP failed", f"sigma_W = {w_sup.tolist()}")
-    limit = (scale_bound if scale_bound is not None else 1.0) * MRPI_DIVERGENCE_FACTOR * float(np.max(w_sup))
+    limit = np.full(len(D), MRPI_DIVERGENCE_FACTOR * float(np.max(w_sup)))
+    if Z_rows is not None:
+        z_sup = be.support(Z_rows, np.ones(len(Z_rows)), np.hstack([D, np.zeros((len(D), Z_rows.shape[1] - n))]))
+        if np.all(np.isfinite(z_sup)):
+            limit = MRPI_Z_FACTOR * z_sup
     h = w_sup.copy()
     for iteration in range(1, max_iter + 1):
         images = np.array([be.support(D, h, D @ Ak) for Ak in A_cl])
-        if not np.all(np.isfinite(images)) or float(np.max(np.abs(images))) > limit:
+        if not np.all(np.isfinite(images)) or np.any(np.max(images, axis=0) > limit):
             raise TemplateError(name, "diverged",
-                                f"the template iteration grew past {limit:.3g} (iteration {iteration}); these "
+                                f"the template iteration grew past {MRPI_Z_FACTOR:g} x the state constraints "
+                                f"(or 1e6 sigma_W where Z is unbounded) at iteration {iteration}; these "
                                 f"{facets} facet directions admit no invariant template for A_cl(Theta)",
                                 "more facets (design.x0_facets), or x0_template = 'contractive'")
         h_next = np.max(images, axis=0) + w_sup
