@@ -30,12 +30,15 @@ from amcp_drake.cli.common import (
     seed_option,
     steps_option,
     update_options,
+    with_x0_template,
+    x0_template_option,
 )
 
 
 @click.command("certify")
 @problem_argument
 @example_option
+@x0_template_option
 @backend_option
 @formulation_option
 @steps_option("Closed-loop steps (default: the scenario's; 50 for Example 1).")
@@ -49,7 +52,7 @@ from amcp_drake.cli.common import (
 @max_memory_option
 @click.pass_context
 @bad_input_exits_2
-def certify_cmd(ctx, problem_file, example, backend, formulation, steps, seed, out_dir, trajectory_file, update,
+def certify_cmd(ctx, problem_file, example, x0_template, backend, formulation, steps, seed, out_dir, trajectory_file, update,
                 window, projection, d_theta, pe_window, pe_level, cost, max_memory):
     """Run the adaptive MPC on PROBLEM (default: --example lorenzen2019, x0 = [2, 3],
     θ* = [0.8, 0.2, -0.5], 50 steps, uniform disturbance, seed 0), check every claim of the paper
@@ -68,14 +71,14 @@ def certify_cmd(ctx, problem_file, example, backend, formulation, steps, seed, o
 
         given = [f"--{name.replace('_', '-')}" for name in ("backend", "steps", "seed", "update", "window",
                                                                   "projection", "d_theta", "pe_window",
-                                                                  "pe_level", "cost", "max_memory")
+                                                                  "pe_level", "cost", "max_memory", "x0_template")
                  if ctx.get_parameter_source(name) is ParameterSource.COMMANDLINE]
         if given:
             raise ProblemError(", ".join(given), "no run options together with --trajectory (the run is not repeated)",
                                "both")
         traj, spec = _load_trajectory(trajectory_file, problem_file, example)
     else:
-        spec = load_problem_spec(problem_file, example)
+        spec = with_x0_template(load_problem_spec(problem_file, example), x0_template)
         if spec.scenario is None:
             raise ProblemError("scenario", "a scenario (x0, theta_star, ...) in the problem file to run", "none",
                                "Add a \"scenario\" object, or pass --trajectory.")

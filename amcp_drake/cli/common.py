@@ -100,6 +100,23 @@ def bad_input_exits_2(func: Callable) -> Callable:
     return wrapper
 
 
+x0_template_option = click.option(
+    "--x0-template", "x0_template", type=click.Choice(["auto", "mrpi", "contractive", "given"]), default=None,
+    help="Cross-section template of the tube (docs/decisions.md, 'X0 templates'): auto tries them in a documented "
+         "order and keeps the first design passing every check. Default: the problem file's design.x0_template, "
+         "else auto. 'given' needs design.x0_H in the file.")
+
+
+def with_x0_template(spec, x0_template: str | None):
+    """``spec`` with design.x0_template replaced by ``x0_template`` (None: unchanged), validated again."""
+    import dataclasses
+
+    if x0_template is None:
+        return spec
+    options = dataclasses.replace(spec.design, x0_template=x0_template).validate_for(spec.problem)
+    return dataclasses.replace(spec, design=options)
+
+
 backend_option = click.option("--backend", type=click.Choice(["drake", "cvxpy"]), default="drake", show_default=True,
                               help="Optimisation backend.")
 problem_argument = click.argument("problem_file", metavar="[PROBLEM]", required=False, type=click.Path())

@@ -23,12 +23,15 @@ from amcp_drake.cli.common import (
     seed_option,
     steps_option,
     update_options,
+    with_x0_template,
+    x0_template_option,
 )
 
 
 @click.command("compare")
 @problem_argument
 @example_option
+@x0_template_option
 @steps_option("Steps (default: the scenario's).")
 @seed_option("Disturbance seed (default: the scenario's).")
 @click.option("--mode", type=click.Choice(["lockstep", "independent"]), default="lockstep", show_default=True)
@@ -43,14 +46,14 @@ from amcp_drake.cli.common import (
 @click.option("--quiet", is_flag=True, help="Only the summary, no per-step table.")
 @max_memory_option
 @bad_input_exits_2
-def compare_cmd(problem_file, example, steps, seed, mode, drake_solver, cvxpy_solver, update, window, projection,
+def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_solver, cvxpy_solver, update, window, projection,
                 d_theta, pe_window, pe_level, cost, out_file, formulation, quiet, max_memory):
     """Compare u, v, cost, h_theta and theta_hat (and report z, alpha) of both backends per step."""
     from amcp_drake.comparison.compare import INFORMATIONAL, TOLERANCES, independent, lockstep
     from amcp_drake.model.errors import ProblemError
     from amcp_drake.model.problem_io import write_json_atomic
 
-    spec = load_problem_spec(problem_file, example)
+    spec = with_x0_template(load_problem_spec(problem_file, example), x0_template)
     if spec.scenario is None:
         raise ProblemError("scenario", "a scenario in the problem file (x0, theta_star)", "none")
     steps = spec.scenario.steps if steps is None else steps

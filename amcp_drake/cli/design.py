@@ -18,6 +18,8 @@ from amcp_drake.cli.common import (
     load_problem_spec,
     max_memory_option,
     problem_argument,
+    with_x0_template,
+    x0_template_option,
 )
 
 
@@ -28,16 +30,17 @@ def _fmt(a) -> str:
 @click.command("design")
 @problem_argument
 @example_option
+@x0_template_option
 @backend_option
 @click.option("--json", "as_json", is_flag=True, help="Print the design and checks as JSON.")
 @max_memory_option
 @bad_input_exits_2
-def design_cmd(problem_file, example, backend, as_json, max_memory):
+def design_cmd(problem_file, example, x0_template, backend, as_json, max_memory):
     """Compute K, P, X0, w_bar, f_bar, Xf and mu (spec §4-§6) and verify them independently."""
     from amcp_drake.offline.checks import verify_design
     from amcp_drake.offline.design import design
 
-    spec = load_problem_spec(problem_file, example)
+    spec = with_x0_template(load_problem_spec(problem_file, example), x0_template)
     pr = spec.problem
     check_run_size(spec, 1, None, max_memory)  # the design builds the tube QP's sets, not a run
     d = design(pr, spec.design, backend=backend)
@@ -49,6 +52,10 @@ def design_cmd(problem_file, example, backend, as_json, max_memory):
         click.echo(f"problem {pr.name}: n={pr.n}, m={pr.m}, p={pr.p}, N={pr.N}; backend {backend}")
         click.echo(f"K ({d.gain_source}) = {_fmt(d.K)}")
         click.echo(f"P = {_fmt(d.P)}")
+        for i, attempt in enumerate((d.info or {}).get("attempts", [])):
+            reason = f" ({attempt['reason']})" if attempt["reason"] else ""
+            click.echo(f"design attempt {i + 1}: {attempt['label']}: {attempt['outcome']}{reason} [{attempt['seconds']:.1f} s]")
+        click.echo(f"X0 template: {(d.info or {}).get('x0_template', 'n/a')}")
         click.echo(f"X0: {len(d.H_x)} facets, {len(d.X0_vertices)} vertices, lambda_bar = {d.lambda_bar:.5f}")
         click.echo(f"w_bar = {_fmt(d.w_bar)}")
         click.echo(f"f_bar = {_fmt(d.f_bar)}")

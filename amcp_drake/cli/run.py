@@ -24,12 +24,15 @@ from amcp_drake.cli.common import (
     seed_option,
     steps_option,
     update_options,
+    with_x0_template,
+    x0_template_option,
 )
 
 
 @click.command("run")
 @problem_argument
 @example_option
+@x0_template_option
 @backend_option
 @formulation_option
 @steps_option("Number of steps (default: the problem's scenario).")
@@ -42,7 +45,7 @@ from amcp_drake.cli.common import (
               help="Save the trajectory (JSON, .gz allowed).")
 @max_memory_option
 @bad_input_exits_2
-def run_cmd(problem_file, example, backend, formulation, steps, seed, disturbance, update, window, projection, d_theta,
+def run_cmd(problem_file, example, x0_template, backend, formulation, steps, seed, disturbance, update, window, projection, d_theta,
             pe_window, pe_level, cost, every, save, max_memory):
     """Design, then run the adaptive MPC closed loop and print one line per step."""
     from amcp_drake.cli.summary import format_table, step_table
@@ -51,7 +54,7 @@ def run_cmd(problem_file, example, backend, formulation, steps, seed, disturbanc
     from amcp_drake.online.controller import AdaptiveMPC
     from amcp_drake.online.simulate import simulate
 
-    spec = load_problem_spec(problem_file, example)
+    spec = with_x0_template(load_problem_spec(problem_file, example), x0_template)
     sc = spec.scenario
     if sc is None:
         raise ProblemError("scenario", "a scenario in the problem file (x0, theta_star)", "none")

@@ -129,10 +129,13 @@ def compare_designs(spec: ProblemSpec, backends=("drake", "cvxpy")) -> tuple[lis
     Returns the differences and the two independent designs."""
     from dataclasses import replace
 
+    from amcp_drake.offline.auto import chosen_options
+
     a = design(spec.problem, spec.design, backends[0])
-    b = design(spec.problem, spec.design, backends[1])
+    same_template = chosen_options(spec.design, a)  # backend B designs on the template A's auto mode chose
+    b = design(spec.problem, same_template, backends[1])
     out = [_diff("K", None, a.K, b.K), _diff("P", None, a.P, b.P), _diff("mu", None, a.mu, b.mu)]
-    b_same_gain = design(spec.problem, replace(spec.design, K=a.K, P=a.P), backends[1])
+    b_same_gain = design(spec.problem, replace(same_template, K=a.K, P=a.P), backends[1])
     out += _compare_sets(a, b_same_gain)
     return out, [a, b]
 

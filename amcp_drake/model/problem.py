@@ -264,6 +264,9 @@ def check_theta_rate(theta_star: np.ndarray, d_theta: float, field: str = "theta
 
 DISTURBANCE_KINDS = frozenset({"uniform", "vertices", "zero"})
 
+#: λ of the contractive template when x0_template = "contractive" and x0_lambda is not given.
+DEFAULT_X0_LAMBDA = 0.9
+
 
 @dataclass(frozen=True, eq=False)
 class DesignOptions:
@@ -279,6 +282,15 @@ class DesignOptions:
     * ``centre_dynamics``: A_z of spec §5.1 step 2: ``"nominal"`` = A_cl(θ̂0), ``"zero"`` = 0.
     * ``terminal_max_iter``: iteration cap of the terminal set recursion.
     * ``theta_extra_directions``: extra facet normals (k, p) for the fixed-complexity shape H_θ of (9).
+    * ``x0_template``: the cross-section template (offline/templates.py, docs/decisions.md "X0 templates"):
+      ``"auto"`` (default: the order of offline/auto.py, first design passing every design check),
+      ``"mrpi"`` (minimal-RPI outer approximation with ``x0_facets`` directions), ``"contractive"``
+      (maximal ``x0_lambda``-contractive set in Z under u = Kx, scaled to be robustly invariant),
+      ``"given"`` (``x0_H``, rows of X0 = {x | x0_H x <= 1}).
+    * ``x0_lambda``: λ of the contractive template (None: 0.9 for "contractive"; auto tries its list).
+    * ``x0_H`` (u, n): the user's X0 for ``"given"``.
+    * ``gain_R_scale`` (>= 1): the gain LMI (16) is solved with R multiplied by this (a lower-gain K,
+      whose P still satisfies (16) with the true R); 1 = the LMI of the paper.
     """
 
     x0_facets: int = 8
@@ -291,6 +303,10 @@ class DesignOptions:
     terminal_max_iter: int = 60
     theta_extra_directions: np.ndarray | None = None
     mrpi_max_iter: int = 500
+    x0_template: str = "auto"
+    x0_lambda: float | None = None
+    x0_H: np.ndarray | None = None
+    gain_R_scale: float = 1.0
 
     def validate_for(self, problem: Problem) -> DesignOptions:
         """Check values and shapes against ``problem``; return self."""
@@ -317,7 +333,32 @@ class DesignOptions:
         if self.theta_extra_directions is not None:
             object.__setattr__(self, "theta_extra_directions",
                                as_matrix("design.theta_extra_directions", self.theta_extra_directions, cols=problem.p))
+        self._validate_template(problem)
         return self
+
+    def _validate_template(self, problem: Problem) -> None:
+        kinds = ("auto", "mrpi", "contractive", "given")
+        if not isinstance(self.x0_template, str) or self.x0_template not in kinds:
+            raise ProblemError("design.x0_template", f"one of {list(kinds)}", repr(self.x0_template))
+        if self.x0_lambda is not None and not (isinstance(self.x0_lambda, (int, float))
+                                               and not isinstance(self.x0_lambda, bool) and 0 < self.x0_lambda < 1):
+            raise ProblemError("design.x0_lambda", "a number in (0, 1) (the contraction factor λ)", repr(self.x0_lambda))
+        if self.x0_template == "given":
+            if self.x0_H is None:
+                raise ProblemError("design.x0_H", "the rows of X0 = {x | H x <= 1} (x0_template is 'given')", "nothing",
+                                   "Give design.x0_H or choose another design.x0_template.")
+        if self.x0_H is not None:
+            if self.x0_template not in ("given", "auto"):
+                raise ProblemError("design.x0_H", f"no value unless x0_template is 'given' (it is {self.x0_template!r})",
+                                   "a matrix")
+            H = as_matrix("design.x0_H", self.x0_H, cols=problem.n)
+            if H.shape[0] < problem.n + 1:
+                raise ProblemError("design.x0_H", f"at least n + 1 = {problem.n + 1} rows (a bounded X0)", f"{H.shape[0]} rows")
+            object.__setattr__(self, "x0_H", H)
+        if isinstance(self.gain_R_scale, bool) or not (isinstance(self.gain_R_scale, (int, float))
+                                                       and np.isfinite(self.gain_R_scale) and self.gain_R_scale >= 1):
+            raise ProblemError("design.gain_R_scale", "a finite number >= 1 (R is scaled up, never down, so that (16) "
+                               "holds with the true R)", repr(self.gain_R_scale))
 
 
 @dataclass(frozen=True, eq=False)

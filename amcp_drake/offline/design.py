@@ -14,16 +14,17 @@ import numpy as np
 from amcp_drake.backends import get_backend
 from amcp_drake.model import polytope
 from amcp_drake.model.errors import DesignError, ProblemError, TerminalSetError
-from amcp_drake.model.problem import DesignOptions, Problem
+from amcp_drake.model.problem import DEFAULT_X0_LAMBDA, DesignOptions, Problem
 from amcp_drake.model.status import SolveStatus
+from amcp_drake.offline import templates as x0_templates
 
 #: A candidate row of the terminal-set recursion is redundant if the current set keeps it below
 #: 1 + this (LP accuracy of Clarabel is ~1e-8; looser than that would keep duplicates).
 TERMINAL_REDUNDANCY_TOL = 1e-7
-#: The minimal-RPI template iteration stops when the residual T(h) - h is below this fraction of
-#: w̄ per row; inflating h by X0_INFLATION then makes the template exactly invariant (see _x0).
-MRPI_RESIDUAL_FRACTION = 1e-3
-X0_INFLATION = 1.01
+#: Kept importable from here (moved to offline/templates.py with the template code).
+template_directions = x0_templates.template_directions
+MRPI_RESIDUAL_FRACTION = x0_templates.MRPI_RESIDUAL_FRACTION
+X0_INFLATION = x0_templates.X0_INFLATION
 
 
 @dataclass(frozen=True, eq=False)
@@ -91,64 +92,71 @@ def closed_loop_vertices(problem: Problem, K: np.ndarray, theta_vertices: np.nda
     return np.array([problem.A_of(t) + problem.B_of(t) @ K for t in theta_vertices])
 
 
-def template_directions(n: int, count: int) -> np.ndarray:
-    """Facet normals of X0: 2-D equally spaced angles; n-D ±e_i then ±(e_i ± e_j)/√2 (unit rows)."""
-    if count < 2 * n:
-        raise ProblemError("design.x0_facets", f"at least 2n = {2 * n} directions", str(count))
-    if n == 1:
-        return np.array([[1.0], [-1.0]])[:count]
-    if n == 2:
-        angles = 2 * np.pi * np.arange(count) / count
-        return np.column_stack([np.cos(angles), np.sin(angles)])
-    rows = [s * e for e in np.eye(n) for s in (1.0, -1.0)]
-    for i in range(n):
-        for j in range(i + 1, n):
-            for si in (1.0, -1.0):
-                for sj in (1.0, -1.0):
-                    d = np.zeros(n)
-                    d[i], d[j] = si, sj
-                    rows.append(d / np.sqrt(2))
-    if count > len(rows):
-        raise ProblemError("design.x0_facets", f"at most {len(rows)} directions for n = {n}", str(count))
-    return np.array(rows[:count])
-
-
 def design(problem: Problem, options: DesignOptions | None = None, backend="drake") -> OfflineDesign:
     """Compute the offline design of the algorithm (spec §6, "Offline").
 
-    Raises DesignError (or TerminalSetError) naming the step and the condition that failed.
+    With ``options.x0_template == "auto"`` (the default) the templates of
+    :mod:`amcp_drake.offline.auto` are tried in their documented order and the first design that
+    passes every check of :func:`~amcp_drake.offline.checks.verify_design` is returned (the
+    attempts are in ``design.info["attempts"]``). Otherwise the named template is used.
+
+    Raises DesignError (or TerminalSetError, TemplateError) naming the step and the condition that
+    failed; in auto mode a :class:`~amcp_drake.offline.auto.AutoDesignError` listing every attempt.
     """
     options = (options or DesignOptions()).validate_for(problem)
+    if options.x0_template == "auto":
+        from amcp_drake.offline.auto import design_auto
+
+        return design_auto(problem, options, backend=backend)
+    return design_fixed(problem, options, backend=backend)
+
+
+def robust_gain(problem: Problem, options: DesignOptions, be) -> tuple[np.ndarray, np.ndarray, str]:
+    """K and P of Assumption 8 and (16): given, or from the robust LMI with R scaled by
+    ``options.gain_R_scale`` (>= 1). A larger R gives a lower-gain K; the P of that LMI satisfies
+    A_clᵀPA_cl + Q + c KᵀRK ⪯ P, hence (16) with the true R as well (c KᵀRK ⪰ KᵀRK for c >= 1).
+    Returns (K, P, source) with source "given", "lmi" or "lmi (R x c)"."""
+    if options.K is not None and options.P is not None:
+        return np.asarray(options.K), np.asarray(options.P), "given"
+    if options.K is not None or options.P is not None:
+        raise ProblemError("design.K, design.P", "both K and P, or neither", "only one of them")
+    theta_vertices = problem.theta_vertices()
+    A_v = np.array([problem.A_of(t) for t in theta_vertices])
+    B_v = np.array([problem.B_of(t) for t in theta_vertices])
+    scale = float(options.gain_R_scale)
+    gain = be.robust_gain(A_v, B_v, problem.Q, scale * problem.R, options.lmi_margin)
+    if gain.status is not SolveStatus.OPTIMAL:
+        raise DesignError(f"gain LMI (16) for K, P: solver status {gain.status.value}; no robustly "
+                          "stabilising state feedback with a common quadratic Lyapunov function was found "
+                          "for the vertices of Theta (Assumption 8)")
+    return gain.K, gain.P, "lmi" if scale == 1.0 else f"lmi (R x {scale:g})"
+
+
+def design_fixed(problem: Problem, options: DesignOptions, backend="drake", gain=None) -> OfflineDesign:
+    """The offline design with the template named by ``options.x0_template`` (not "auto").
+
+    ``gain``: an already computed (K, P, source) of :func:`robust_gain` for these options (the
+    automatic mode reuses it across templates); None computes it.
+    """
+    options = options.validate_for(problem)
     be = get_backend(backend)
     # μ, eq. (11), first: it needs no solver and fails fast on a missing state box
     mu_sup, region = regressor_bound(problem, options.mu_state_bound)
     mu = options.mu_fraction / mu_sup
     theta_vertices = problem.theta_vertices()
-    A_v = np.array([problem.A_of(t) for t in theta_vertices])
-    B_v = np.array([problem.B_of(t) for t in theta_vertices])
 
     # K and P: Assumption 8 and (16)
-    if options.K is not None and options.P is not None:
-        K, P, source = np.asarray(options.K), np.asarray(options.P), "given"
-    elif options.K is not None or options.P is not None:
-        raise ProblemError("design.K, design.P", "both K and P, or neither", "only one of them")
-    else:
-        gain = be.robust_gain(A_v, B_v, problem.Q, problem.R, options.lmi_margin)
-        if gain.status is not SolveStatus.OPTIMAL:
-            raise DesignError(f"gain LMI (16) for K, P: solver status {gain.status.value}; no robustly "
-                              "stabilising state feedback with a common quadratic Lyapunov function was found "
-                              "for the vertices of Theta (Assumption 8)")
-        K, P, source = gain.K, gain.P, "lmi"
+    K, P, source = gain if gain is not None else robust_gain(problem, options, be)
     A_cl = closed_loop_vertices(problem, K, theta_vertices)
     _require_stable(A_cl)
-    if source == "lmi":
+    if source != "given":
         _require_terminal_cost(problem, K, P, A_cl)
 
-    # X0: template outer approximation of the minimal RPI set
-    H_x = _x0(problem, A_cl, be, options)
+    # X0: the cross-section template (offline/templates.py)
+    FGK = problem.F + problem.G @ K
+    H_x = _x0(problem, A_cl, FGK, be, options)
     X0_vertices = polytope.vertices(H_x, np.ones(len(H_x)))
     w_bar = be.support(problem.H_w, np.ones(len(problem.H_w)), H_x)
-    FGK = problem.F + problem.G @ K
     f_bar = be.support(H_x, np.ones(len(H_x)), FGK)
     h_bar = np.array([be.support(H_x, np.ones(len(H_x)), H_x @ Ak) for Ak in A_cl])
     _require_finite_support("w_bar", w_bar)
@@ -164,7 +172,7 @@ def design(problem: Problem, options: DesignOptions | None = None, backend="drak
     lambda_bar = float(np.max(h_bar))
     if lambda_bar >= 1.0:
         raise DesignError(f"X0 is not contractive: lambda_bar = {lambda_bar:.4f} >= 1 (spec §5.1 conditions); "
-                          "increase design.x0_facets")
+                          "try more facets (design.x0_facets) or x0_template = 'contractive'")
 
     # terminal set X_f, spec §5.1
     if options.centre_dynamics == "nominal":
@@ -181,10 +189,27 @@ def design(problem: Problem, options: DesignOptions | None = None, backend="drak
     h_theta0 = be.support(problem.H_theta, problem.h_theta, H_theta_n)
     _require_finite_support("h_theta0", h_theta0)
 
+    info = {"x0_template": template_label(options, len(H_x))}
     return OfflineDesign(K=K, P=P, H_x=H_x, X0_vertices=X0_vertices, w_bar=w_bar, f_bar=f_bar, h_bar=h_bar,
                          lambda_bar=lambda_bar, A_z=A_z, H_T=H_T, h_T=h_T, mu=float(mu), mu_sup=float(mu_sup),
                          mu_region=region, H_theta=H_theta_n, h_theta0=h_theta0, theta_vertices=theta_vertices,
-                         terminal_iterations=iterations, backend=be.name, gain_source=source)
+                         terminal_iterations=iterations, backend=be.name, gain_source=source, info=info)
+
+
+def template_label(options: DesignOptions, facets: int | None = None) -> str:
+    """A short human name of the template of ``options`` ("mrpi, 8 facets", "contractive, lambda 0.9, K: lmi (R x 10)")."""
+    kind = options.x0_template
+    if kind == "mrpi":
+        text = f"mrpi, {options.x0_facets} facets"
+    elif kind == "contractive":
+        text = f"contractive, lambda {options.x0_lambda if options.x0_lambda is not None else DEFAULT_X0_LAMBDA:g}"
+        if facets is not None:
+            text += f", {facets} facets"
+    else:
+        text = f"{kind}" + (f", {facets} facets" if facets is not None else "")
+    if options.gain_R_scale != 1.0 and options.K is None:
+        text += f", K from R x {options.gain_R_scale:g}"
+    return text
 
 
 def _require_stable(A_cl: np.ndarray) -> None:
@@ -206,31 +231,18 @@ def _require_finite_support(name: str, values: np.ndarray) -> None:
         raise DesignError(f"{name}: a support-function LP was unbounded or failed ({values.tolist()})")
 
 
-def _x0(problem: Problem, A_cl: np.ndarray, be, options: DesignOptions) -> np.ndarray:
-    """Tube shape X0 = {H_x x <= 1}: least fixed point of the template map
-
-    h ↦ max_k σ_{X(h)}(A_cl(θ^k)ᵀ d_i) + σ_W(d_i),  X(h) = {D x <= h},
-
-    started from h = σ_W(D) (a template outer approximation of the minimal robust positively
-    invariant set, spec §5 "Choice of X0"). Stopped when T(h) - h <= 1e-3 w̄, then inflated by
-    c = 1.01, which makes X(c h) robustly invariant: T(ch) = c T(h) - (c-1) w̄ <= c h.
-    """
-    D = template_directions(problem.n, options.x0_facets)
-    ones_w = np.ones(len(problem.H_w))
-    w_sup = be.support(problem.H_w, ones_w, D)
-    _require_finite_support("sigma_W", w_sup)
-    h = w_sup.copy()
-    for _ in range(options.mrpi_max_iter):
-        images = np.array([be.support(D, h, D @ Ak) for Ak in A_cl])
-        _require_finite_support("X0 template iteration", images)
-        h_next = np.max(images, axis=0) + w_sup
-        residual = np.max((h_next - h) / w_sup)
-        h = h_next
-        if residual <= MRPI_RESIDUAL_FRACTION:
-            return D / (X0_INFLATION * h)[:, None]
-    raise DesignError(f"X0: the minimal-RPI template iteration did not converge in {options.mrpi_max_iter} "
-                      f"iterations with {options.x0_facets} facet directions; the template is not invariant "
-                      "for this A_cl(Theta). Increase design.x0_facets or design.mrpi_max_iter.")
+def _x0(problem: Problem, A_cl: np.ndarray, FGK: np.ndarray, be, options: DesignOptions) -> np.ndarray:
+    """Tube shape X0 = {H_x x <= 1} by the template of ``options.x0_template`` (offline/templates.py)."""
+    kind = options.x0_template
+    if kind == "mrpi":
+        return x0_templates.mrpi_template(problem.H_w, A_cl, be, options.x0_facets, options.mrpi_max_iter,
+                                          Z_rows=np.hstack([problem.F, problem.G]))
+    if kind == "contractive":
+        lam = options.x0_lambda if options.x0_lambda is not None else DEFAULT_X0_LAMBDA
+        return x0_templates.contractive_template(FGK, problem.H_w, A_cl, be, lam)
+    if kind == "given":
+        return x0_templates.given_template(options.x0_H, problem.H_w, A_cl)
+    raise ProblemError("design.x0_template", f"one of {list(x0_templates.TEMPLATE_KINDS)}", repr(kind))
 
 
 def terminal_set(FGK, f_bar, H_x, A_cl, A_z, w_bar, h_bar, be, max_iter: int):
