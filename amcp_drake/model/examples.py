@@ -13,6 +13,7 @@ from importlib import resources
 
 from amcp_drake.model.problem import Problem, ProblemSpec
 from amcp_drake.model.problem_io import load_spec
+from amcp_drake.model.sls_mpc_2d import SLS_EPS_A_SWEEP, sls_mpc_2d_spec
 
 
 def _data_spec(name: str) -> ProblemSpec:
@@ -77,50 +78,15 @@ def lorenzen2019_ex2_theta_star(steps: int = 100, amplitude: float = 0.3, period
     return seq
 
 
-#: ε_A of the SLS-MPC family built in as ``slsmpc2d_eps<ε_A>`` (issue 14's sweep).
-SLSMPC2D_EPS_A = (0.05, 0.15, 0.25, 0.35, 0.45)
-#: Facet count of the minimal-RPI template X0 that designs for each ε_A of the sweep (issue 14's
-#: measurement: 8 facets diverge beyond ε_A = 0.05, and at 0.25 12-16 facets leave X_f empty). An
-#: ε_A outside the sweep gets the count of the next larger ε_A of the sweep (96 beyond 0.45).
-SLSMPC2D_FACETS = {0.05: 8, 0.15: 12, 0.25: 20, 0.35: 48, 0.45: 96}
-
-
-def slsmpc2d_spec(eps_a: float = 0.05) -> ProblemSpec:
-    """The 2-D system of the polytopic SLS-MPC comparison (Chen, Preciado, Morari & Matni, Automatica
-    2024; public code ShaoruChen/Polytopic-SLSMPC, examples/example_2d/main_feasibility_comparison_2d_eps_A.m
-    @ 4ae465a): x⁺ = (A + ε_A θ1 E11) x + (B + ε_B θ2 e2) u + w with A = [1 0.15; 0.1 1], B = [0.1; 1.1],
-    θ ∈ [−1, 1]² (the code's four vertices (±ΔA, ±ΔB)), ε_B = 0.1, ‖w‖∞ <= 0.1, ‖x‖∞ <= 8, |u| <= 4,
-    Q = 10 I, R = 1, N = 3. Reconstruction choices (docs/decisions.md, "Literature examples"): θ̂0 = 0;
-    the scenario x0 = [0, 2] (inside the robust feasible region for every ε_A of the sweep; the code's
-    x0 = [3, 0] is not for ε_A >= 0.25), θ* = [0.5, −0.5], 30 steps, uniform disturbances, seed 0;
-    X0 facets per ε_A from :data:`SLSMPC2D_FACETS`."""
-    from amcp_drake.model.errors import ProblemError
-    from amcp_drake.model.problem import DesignOptions, Scenario
-
-    if isinstance(eps_a, bool) or not isinstance(eps_a, (int, float)) or not 0.0 < eps_a < 1.0:
-        raise ProblemError("eps_a", "a number in (0, 1) (ε_A of the SLS-MPC family)", repr(eps_a))
-    eps_b = 0.1
-    problem = Problem(
-        A0=[[1.0, 0.15], [0.1, 1.0]], B0=[[0.1], [1.1]],
-        A=[[[eps_a, 0.0], [0.0, 0.0]], [[0.0, 0.0], [0.0, 0.0]]], B=[[[0.0], [0.0]], [[0.0], [eps_b]]],
-        H_w=[[10.0, 0.0], [0.0, 10.0], [-10.0, 0.0], [0.0, -10.0]],
-        H_theta=[[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]], h_theta=[1.0, 1.0, 1.0, 1.0],
-        F=[[0.125, 0.0], [0.0, 0.125], [-0.125, 0.0], [0.0, -0.125], [0.0, 0.0], [0.0, 0.0]],
-        G=[[0.0], [0.0], [0.0], [0.0], [0.25], [-0.25]],
-        Q=[[10.0, 0.0], [0.0, 10.0]], R=[[1.0]], N=3, theta_hat0=[0.0, 0.0], name=f"slsmpc2d_eps{eps_a:g}")
-    facets = next((f for e, f in sorted(SLSMPC2D_FACETS.items()) if eps_a <= e + 1e-12), 96)
-    scenario = Scenario(x0=[0.0, 2.0], theta_star=[0.5, -0.5], steps=30, disturbance="uniform", seed=0)
-    return ProblemSpec(problem=problem, design=DesignOptions(x0_facets=facets), scenario=scenario)
-
-
 EXAMPLES = {"lorenzen2019": lorenzen2019_spec, "lorenzen2019_ex2": lorenzen2019_ex2_spec,
             "parsi2020_siso": parsi2020_siso_spec, "parsi2020_mimo": parsi2020_mimo_spec,
             "bujarbaruah2022": bujarbaruah2022_spec,
-            **{f"slsmpc2d_eps{e:g}": (lambda e=e: slsmpc2d_spec(e)) for e in SLSMPC2D_EPS_A}}
+            **{f"sls_mpc_2d_eps{e:g}": (lambda e=e: sls_mpc_2d_spec(e)) for e in SLS_EPS_A_SWEEP}}
 #: The built-in systems taken from other publications than Lorenzen et al. (2019) (issue 14).
 LITERATURE_EXAMPLES = ("parsi2020_siso", "parsi2020_mimo", "bujarbaruah2022")
-#: The SLS-MPC family (Chen et al. 2024) at the ε_A of issue 14's sweep.
-SLSMPC2D_EXAMPLES = tuple(f"slsmpc2d_eps{e:g}" for e in SLSMPC2D_EPS_A)
+#: The SLS-MPC 2-D family (Chen et al. 2024; constructor amcp_drake.model.sls_mpc_2d) at the ε_A of
+#: issue 14's sweep; any ε_A through ``sls_mpc_2d_spec(eps_A)``.
+SLSMPC2D_EXAMPLES = tuple(f"sls_mpc_2d_eps{e:g}" for e in SLS_EPS_A_SWEEP)
 
 
 def get_example(name: str) -> ProblemSpec:
