@@ -331,6 +331,7 @@ class CoverageResult:
     adaptive: list[PointVerdict] | None = None
     adapt_info: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
+    design_info: dict = field(default_factory=dict)
 
     def _fraction(self, verdicts) -> float:
         return float(np.mean([v.feasible for v in verdicts]))
@@ -385,7 +386,7 @@ class CoverageResult:
         return {
             "problem": self.problem, "n": self.n, "source": self.source, "backend": self.backend,
             "formulation": self.formulation, "agreement_tol": AGREEMENT_TOL,
-            "summary": self.summary(), "adapt": self.adapt_info, "timings": self.timings,
+            "summary": self.summary(), "adapt": self.adapt_info, "timings": self.timings, "design": self.design_info,
             "issues": self.issues(),
             "points": self.points.tolist(), "axes": None if self.axes is None else [a.tolist() for a in self.axes],
             "classes": self.classes(),
@@ -445,7 +446,10 @@ def run_coverage(spec: ProblemSpec, design: OfflineDesign, points: np.ndarray, s
     robust = evaluate_region(ctrl, points, design.H_theta, design.h_theta0, False, bar)
     timings = {"robust_wall_s": time.perf_counter() - t_wall, "robust_cpu_s": time.process_time() - t_cpu}
     result = CoverageResult(problem=pr.name, n=pr.n, points=points, source=source, axes=axes, backend=backend,
-                            formulation=formulation, robust=robust, timings=timings)
+                            formulation=formulation, robust=robust, timings=timings,
+                            design_info={"x0_facets": len(design.H_x), "lambda_bar": float(design.lambda_bar),
+                                         "x0_template": (design.info or {}).get("x0_template"),
+                                         "terminal_rows": len(design.H_T)})
     if adapt_steps:
         t_wall, t_cpu = time.perf_counter(), time.process_time()
         H_T, h_T, info = learned_set(spec, design, adapt_steps, backend, formulation, options, adapt_x0)
