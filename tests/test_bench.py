@@ -14,7 +14,11 @@ from click.testing import CliRunner
 from amcp_drake.cli import main
 
 STAT_KEYS = {"median", "p90", "mean", "max", "n"}
-TIME_NAMES = {"set_update", "set_update_solver", "lms", "qp_update", "solver", "total"}
+WALL_NAMES = {"set_update", "set_update_solver", "lms", "qp_update", "solver", "total"}
+CPU_NAMES = {f"cpu_{part}" for part in ("set_update", "lms", "lp_solver", "qp", "qp_solver", "total", "outside_solvers")}
+TIME_NAMES = WALL_NAMES | CPU_NAMES
+#: (backend, formulation) of a default run: the fast path exists for Drake only
+CONFIGS = {("drake", "plain"), ("drake", "vertex"), ("drake", "fast"), ("cvxpy", "plain"), ("cvxpy", "vertex")}
 
 
 @pytest.fixture(scope="module")
@@ -27,34 +31,47 @@ def quick_result(tmp_path_factory):
 
 def test_quick_bench_writes_json_and_png(quick_result):
     out, output, data = quick_result
-    assert data["format"] == "amcp-bench" and data["version"] == 1
+    assert data["format"] == "amcp-bench" and data["version"] == 2
     assert {"created", "machine", "settings", "time_keys", "reference_ms", "example", "scaling", "target",
             "elapsed_s"} <= set(data)
     assert data["settings"]["quick"] is True and data["settings"]["steps"] == 3
     assert data["reference_ms"]["paper"]["median_solver"] == 68.0
     png = (out / "bench.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
-    assert "Example 1, ms per step" in output and "bench.json" in output
+    assert "Example 1, ms per full step" in output and "total CPU" in output and "bench.json" in output
 
 
 def test_example_runs_cover_both_backends_formulations_and_x0_sizes(quick_result):
     _, _, data = quick_result
     runs = data["example"]["runs"]
     assert {(r["backend"], r["formulation"], r["x0_facets"]) for r in runs} == {
-        (b, f, x) for b in ("drake", "cvxpy") for f in ("plain", "vertex") for x in (4, 8)}
+        (b, f, x) for b, f in CONFIGS for x in (4, 8)}
     for r in runs:
         assert r["status"] == "completed"
         assert set(r["times_ms"]) == TIME_NAMES
         for stats in r["times_ms"].values():
             assert set(stats) == STAT_KEYS and stats["n"] == 3
             assert stats["median"] >= 0 and stats["p90"] >= 0
-        if r["formulation"] == "vertex":
+        # CPU time of the parts never exceeds the whole step's (medians of sums of one thread's time)
+        assert stats_cpu_parts_fit(r["times_ms"])
+        if r["formulation"] != "plain":
             assert r["max_abs_dv_vs_plain"] is not None and np.isfinite(r["max_abs_dv_vs_plain"])
         else:
             assert r["max_abs_dv_vs_plain"] is None
-    kinds = {(q["kind"], q["x0_facets"]) for q in data["example"]["ratios"]}
-    assert kinds == {(k, x) for k in ("plain/vertex", "cvxpy/drake") for x in (4, 8)}
-    assert all(q["total"] > 0 and q["solver"] > 0 for q in data["example"]["ratios"])
+        if r["formulation"] == "fast":
+            assert r["fast_path"]["daqp"] + r["fast_path"]["fallback"] == 4  # steps 0..3
+        else:
+            assert r["fast_path"] is None
+    kinds = {(q["kind"], q.get("backend") or q.get("formulation"), q["x0_facets"]) for q in data["example"]["ratios"]}
+    assert kinds == {(k, who, x) for k, who in (("plain/vertex", "drake"), ("plain/vertex", "cvxpy"),
+                                                ("vertex/fast", "drake"), ("cvxpy/drake", "plain"),
+                                                ("cvxpy/drake", "vertex")) for x in (4, 8)}
+    assert all(q[key] > 0 for q in data["example"]["ratios"] for key in ("total", "solver", "total_cpu", "solver_cpu"))
+
+
+def stats_cpu_parts_fit(times_ms) -> bool:
+    return all(times_ms[f"cpu_{part}"]["max"] <= times_ms["cpu_total"]["max"] + 1e-9
+               for part in ("set_update", "lms", "qp", "qp_solver"))
 
 
 def test_target_block_reports_the_drake_vertex_median_without_judging_speed(quick_result):
@@ -63,18 +80,46 @@ def test_target_block_reports_the_drake_vertex_median_without_judging_speed(quic
     assert target["target_ms"] == 7.0 and target["cvxpy_target_ratio"] == 2.0
     assert target["drake_ms"] > 0 and isinstance(target["met"], bool)
     assert target["cvxpy_over_drake"] > 0 and isinstance(target["cvxpy_met"], bool)
+    issue16 = {t["name"]: t for t in target["issue16_cpu"]}
+    assert {name: t["limit"] for name, t in issue16.items()} == {
+        "drake_vertex_total": 2.0, "drake_vertex_outside_solvers": 0.3, "cvxpy_over_drake_vertex": 1.3,
+        "drake_plain_total": 12.0, "drake_fast_total": 1.2}
+    for t in issue16.values():
+        assert t["measured"] > 0 and t["met"] is (t["measured"] <= t["limit"])
 
 
-def test_scaling_sweeps_cover_N_p_and_facets(quick_result):
-    _, _, data = quick_result
+def test_scaling_sweeps_cover_N_p_facets_and_n(quick_result):
+    out, _, data = quick_result
     scaling = data["scaling"]
-    assert set(scaling) == {"N", "p", "x0_facets"}
+    assert set(scaling) == {"N", "p", "x0_facets", "n"}
     assert sorted({r["N"] for r in scaling["N"]}) == [5, 20]
-    assert sorted({r["p"] for r in scaling["p"]}) == [1, 3]
+    assert sorted({r["p"] for r in scaling["p"]}) == [2, 3]
     assert sorted({r["x0_facets"] for r in scaling["x0_facets"]}) == [4, 8]
+    assert sorted({r["n"] for r in scaling["n"]}) == [2]
     for rows in scaling.values():
+        assert {(r["backend"], r["formulation"]) for r in rows} == {("drake", "plain"), ("drake", "vertex"),
+                                                                      ("drake", "fast")}
         for r in rows:
             assert r["status"] == "completed" and set(r["times_ms"]) == TIME_NAMES
+            assert r["design_cpu_s"] > 0 and r["design_s"] > 0
+    table = (out / "scaling.md").read_text()
+    assert table.startswith("| sweep | N | X0 facets | n | p | design CPU s (wall)")
+    assert table.count("\n") == 2 + sum(len(rows) for rows in scaling.values())
+
+
+def test_problem_with_n_embeds_example_1():
+    from amcp_drake.model.examples import lorenzen2019
+    from amcp_drake.studies.bench_scaling import W_BOUND_N, problem_with_n
+
+    base = lorenzen2019()
+    assert problem_with_n(base, 2) is base
+    p3 = problem_with_n(base, 3)
+    assert (p3.n, p3.m, p3.p) == (3, 1, 3)
+    np.testing.assert_array_equal(p3.A[:, :2, :2], base.A)     # Example 1's parameters on (x_1, x_2)
+    np.testing.assert_array_equal(p3.B[:, 1:, :], base.B)      # and on the last two rows of B
+    np.testing.assert_array_equal(p3.F[:, :2], base.F)
+    assert np.max(np.abs(p3.w_vertices())) == pytest.approx(W_BOUND_N)
+    np.testing.assert_allclose(p3.H_w, np.vstack([np.eye(3), -np.eye(3)]) / W_BOUND_N)
 
 
 def test_only_one_backend_and_formulation(tmp_path):

@@ -362,17 +362,30 @@ def test_certify_runs_without_any_backend(recorded, tmp_path):
     assert out.stdout.strip() == "pass"
 
 
-def test_a_loose_solver_is_not_trusted(spec):
-    """SCS (first-order, default accuracy ~1e-4) reports every step as optimal; the certificate does
-    not take its word: the recomputed residuals violate the tube and multiplier claims by more than
-    QP_TOL, and the verdict is fail although recursive feasibility (the solver's own status) passes."""
+def test_a_loose_solver_is_not_trusted(spec, monkeypatch):
+    """SCS (first-order, default accuracy ~1e-4) reports every step as optimal. The controller's answer
+    checks refuse it (status inaccurate, the failed row in the detail; the vertex form with SCS fails too,
+    so the run stops). With those checks switched off, the certificate does not take the solver's word
+    either: the recomputed residuals violate the tube and multiplier claims by more than QP_TOL, and the
+    verdict is fail although recursive feasibility (the solver's own status) passes."""
+    from amcp_drake.model.status import SolveStatus
     from amcp_drake.offline.design import design
+    from amcp_drake.online import answer_checks
     from amcp_drake.online.controller import AdaptiveMPC
     from amcp_drake.online.simulate import simulate
 
-    ctrl = AdaptiveMPC(spec.problem, design(spec.problem, spec.design, backend="drake"), backend="drake", solver="scs")
+    d = design(spec.problem, spec.design, backend="drake")
     sc = spec.scenario
-    traj = simulate(ctrl, sc.x0, sc.theta_star, 5, "uniform", seed=0, mu_state_bound=spec.design.mu_state_bound)
+    traj = simulate(AdaptiveMPC(spec.problem, d, backend="drake", solver="scs"), sc.x0, sc.theta_star, 5, "uniform",
+                    seed=0, mu_state_bound=spec.design.mu_state_bound)
+    first = traj.records[0]
+    assert first.status is SolveStatus.INACCURATE and first.u is None
+    assert first.detail.startswith("tube QP (20): ") and "fallback vertex form failed" in first.detail
+    assert certify(traj, spec).claim("recursive_feasibility").status == "fail"
+
+    monkeypatch.setattr(answer_checks, "failures", lambda checks: [])  # the controller trusts the solver
+    traj = simulate(AdaptiveMPC(spec.problem, d, backend="drake", solver="scs"), sc.x0, sc.theta_star, 5, "uniform",
+                    seed=0, mu_state_bound=spec.design.mu_state_bound)
     assert traj.all_solved  # the solver claims success everywhere
     cert = certify(traj, spec)
     assert cert.claim("recursive_feasibility").status == "pass"

@@ -1,14 +1,15 @@
 """The Clarabel retry ladder of the tube QP (issue 7, amcp_drake/backends/clarabel_retry.py): an
-"inaccurate" first solve is solved again with the ladder's settings in order, only a clean "optimal"
-is accepted, the rung is named in the detail, and when every rung fails the status stays
-"inaccurate" (never promoted to "optimal")."""
+"inaccurate" first solve (without iterative refinement since issue 16) is solved again with the
+backend's own settings, then with the ladder's settings in order; only a clean "optimal" is
+accepted, the rung is named in the detail, and when every rung fails the status stays "inaccurate"
+(never promoted to "optimal")."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from amcp_drake.backends.clarabel_retry import CLARABEL_RETRY_LADDER
+from amcp_drake.backends.clarabel_retry import CLARABEL_RETRY_LADDER, NO_REFINEMENT
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.online.controller import AdaptiveMPC
 
@@ -52,17 +53,18 @@ def _drake_with_failures(monkeypatch, mpc, failures: int) -> list:
 def test_drake_retries_in_order_and_names_the_rung(monkeypatch, drake_mpc):
     reference = drake_mpc.solve(*_args(drake_mpc))
     assert reference.status is SolveStatus.OPTIMAL and reference.detail == ""
-    calls = _drake_with_failures(monkeypatch, drake_mpc, failures=2)
+    calls = _drake_with_failures(monkeypatch, drake_mpc, failures=3)
     sol = drake_mpc.solve(*_args(drake_mpc))
-    assert calls == [None, CLARABEL_RETRY_LADDER[0], CLARABEL_RETRY_LADDER[1]]
+    assert calls == [NO_REFINEMENT, None, CLARABEL_RETRY_LADDER[0], CLARABEL_RETRY_LADDER[1]]
     assert sol.status is SolveStatus.OPTIMAL and "retry 2" in sol.detail
+    assert "re-solved with iterative refinement" in sol.detail
     np.testing.assert_allclose(sol.v, reference.v, atol=1e-6)
 
 
 def test_drake_never_promotes_an_inaccurate_answer(monkeypatch, drake_mpc):
     calls = _drake_with_failures(monkeypatch, drake_mpc, failures=100)
     sol = drake_mpc.solve(*_args(drake_mpc))
-    assert calls == [None, *CLARABEL_RETRY_LADDER]
+    assert calls == [NO_REFINEMENT, None, *CLARABEL_RETRY_LADDER]
     assert sol.status is SolveStatus.INACCURATE and sol.v is None
     assert f"after {len(CLARABEL_RETRY_LADDER)} Clarabel retries" in sol.detail
 
@@ -72,11 +74,11 @@ def test_cvxpy_retries_in_order_and_never_promotes(monkeypatch, cvxpy_mpc):
 
     real = ref_backend.SolverCall.solve
     calls: list = []
-    failures = {"n": 1}
+    failures = {"n": 2}
 
-    def solve(self, problem):
-        calls.append(dict(self.options))
-        status, t, detail = real(self, problem)
+    def solve(self, problem, extra_options=None):
+        calls.append({**self.options, **(extra_options or {})})
+        status, t, detail = real(self, problem, extra_options)
         if len(calls) <= failures["n"]:
             return SolveStatus.INACCURATE, t, "optimal_inaccurate"
         return status, t, detail
@@ -84,10 +86,11 @@ def test_cvxpy_retries_in_order_and_never_promotes(monkeypatch, cvxpy_mpc):
     monkeypatch.setattr(ref_backend.SolverCall, "solve", solve)
     sol = cvxpy_mpc.solve(*_args(cvxpy_mpc))
     base = dict(cvxpy_mpc._call.options)
-    assert calls == [base, {**base, **CLARABEL_RETRY_LADDER[0]}]
+    assert calls == [{**base, **NO_REFINEMENT}, base, {**base, **CLARABEL_RETRY_LADDER[0]}]
     assert sol.status is SolveStatus.OPTIMAL and "retry 1" in sol.detail
+    assert "re-solved with iterative refinement" in sol.detail
     calls.clear()
     failures["n"] = 100
     sol = cvxpy_mpc.solve(*_args(cvxpy_mpc))
-    assert len(calls) == 1 + len(CLARABEL_RETRY_LADDER)
+    assert len(calls) == 2 + len(CLARABEL_RETRY_LADDER)
     assert sol.status is SolveStatus.INACCURATE and sol.v is None and "Clarabel retries" in sol.detail

@@ -46,11 +46,26 @@ def test_example_1_x0_and_terminal_set_sizes(example_design):
 
 def test_the_papers_rounded_K_and_P_violate_16_by_about_1e_minus_3(example_spec):
     # spec §9: "With the printed (rounded) P and K, (16) is violated by about 1.4e-3 in the largest eigenvalue."
-    opts = DesignOptions(K=[[0.017, -0.41]], P=[[1.467, 0.207], [0.207, 1.731]], mu_state_bound=3.0)
+    # a fixed template: the design is returned and the checks judge it
+    opts = DesignOptions(K=[[0.017, -0.41]], P=[[1.467, 0.207], [0.207, 1.731]], mu_state_bound=3.0,
+                         x0_template="mrpi")
     d = design(example_spec.problem, opts)
     check = {c.name: c for c in verify_design(example_spec.problem, d, 3.0)}["terminal cost (16)"]
     assert check.status == "fail"
     assert 5e-4 < -check.margin < 5e-3
+
+
+@pytest.mark.slow
+def test_automatic_mode_refuses_a_given_K_P_that_violates_16(example_spec):
+    """The default (auto) mode only returns a design passing every check: with the rounded K, P of the
+    paper every candidate fails (16), and the error says so for each attempt."""
+    from amcp_drake.offline.auto import AutoDesignError
+
+    opts = DesignOptions(K=[[0.017, -0.41]], P=[[1.467, 0.207], [0.207, 1.731]], mu_state_bound=3.0)
+    with pytest.raises(AutoDesignError) as info:
+        design(example_spec.problem, opts)
+    assert info.value.attempts[0].label == "mrpi, 8 facets"
+    assert "terminal cost (16): fail" in info.value.attempts[0].reason
 
 
 def test_tampered_designs_fail_the_right_check(example_spec, example_design):
@@ -72,7 +87,7 @@ def test_terminal_set_empty_is_a_clear_error(example_spec):
     # x2 >= -0.05 leaves no room for the disturbance-driven tube (alpha_inf f_bar >= 1, spec §5.1)
     pr = example_spec.problem.with_changes(F=[[0.0, -20.0], [0.0, 0.0], [0.0, 0.0]])
     with pytest.raises(TerminalSetError, match="empty"):
-        design(pr, DesignOptions(mu_state_bound=3.0))
+        design(pr, DesignOptions(mu_state_bound=3.0, x0_template="mrpi"))
 
 
 def test_unbounded_Z_without_a_state_box_for_mu_is_a_problem_error(example_spec):

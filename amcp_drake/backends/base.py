@@ -36,12 +36,17 @@ class GainResult:
 @dataclass(frozen=True, eq=False)
 class SetUpdateResult:
     """LP (9): new offsets h (q,) and multipliers Λ (q, q + rows of data); status UNBOUNDED or
-    INFEASIBLE means Θ_{k-1} ∩ Δ_k is empty."""
+    INFEASIBLE means Θ_{k-1} ∩ Δ_k is empty. ``points`` (q, p), optional: a maximiser of row i's
+    support LP per row (the primal certificate that h is tight; checked by amcp_drake.online.answer_checks
+    when given)."""
 
     status: SolveStatus
     h: np.ndarray | None
     Lambda: np.ndarray | None
     solve_time: float = 0.0
+    points: np.ndarray | None = None
+    #: "lp" (an LP solver) or "vertices" (basis enumeration with its dual certificate, Drake only)
+    method: str = "lp"
 
 
 @dataclass(frozen=True, eq=False)

@@ -16,36 +16,21 @@ import time
 
 import numpy as np
 import scipy.sparse as sp
-from pydrake.solvers import (
-    ClarabelSolver,
-    ClpSolver,
-    CsdpSolver,
-    IpoptSolver,
-    MathematicalProgram,
-    OsqpSolver,
-    ScsSolver,
-    SolutionResult,
-    SolverOptions,
+from pydrake.solvers import MathematicalProgram
+
+from amcp_drake.backends.base import (
+    GainResult,
+    ProjectionResult,
+    SetUpdateResult,
+    TubeMPCData,
 )
-
-from amcp_drake.backends.base import GainResult, ProjectionResult, SetUpdateResult, TubeMPCData
+from amcp_drake.backends.drake_set_update import DrakeSetUpdateLP
+from amcp_drake.backends.drake_solver import SOLVERS, STATUS_MAP, DrakeSolver  # noqa: F401 - SOLVERS, STATUS_MAP re-exported
+from amcp_drake.backends.drake_solver import DrakeSolver as _Solver  # noqa: F401 - old name, used by amcp_properties.mutants
+from amcp_drake.backends.drake_solver import finite_or_raise as _finite
+from amcp_drake.backends.projection_form import projection_form
+from amcp_drake.backends.set_update_vertices import VertexSetUpdate
 from amcp_drake.model.status import SolveStatus
-
-#: Drake's SolutionResult -> canonical status.
-STATUS_MAP = {
-    SolutionResult.kSolutionFound: SolveStatus.OPTIMAL,
-    SolutionResult.kInfeasibleConstraints: SolveStatus.INFEASIBLE,
-    SolutionResult.kInfeasibleOrUnbounded: SolveStatus.INFEASIBLE,
-    SolutionResult.kUnbounded: SolveStatus.UNBOUNDED,
-    SolutionResult.kDualInfeasible: SolveStatus.UNBOUNDED,
-    SolutionResult.kIterationLimit: SolveStatus.INACCURATE,
-    SolutionResult.kSolverSpecificError: SolveStatus.ERROR,
-    SolutionResult.kInvalidInput: SolveStatus.ERROR,
-    SolutionResult.kSolutionResultNotSet: SolveStatus.ERROR,
-}
-
-#: Clarabel statuses (solver details) that Drake reports as success but that are not exact.
-_CLARABEL_INACCURATE = {"AlmostSolved", "AlmostPrimalInfeasible", "AlmostDualInfeasible"}
 
 #: Clarabel tolerances for the LPs (support, set update (9)). With the defaults (1e-8) the optimal
 #: offsets of (9) drift above h_{k-1} by up to 1.2e-7 on Example 1, which Lemma 3 forbids; with
@@ -54,58 +39,8 @@ CLARABEL_LP_OPTIONS = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1
 
 #: Formulations of the tube MPC QP (20): "plain" = (15a)-(15d) with Λ, "vertex" = (5b) at Θ_k's vertices.
 FORMULATIONS = ("plain", "vertex")
-
-SOLVERS = {
-    "clarabel": ClarabelSolver,
-    "osqp": OsqpSolver,
-    "scs": ScsSolver,
-    "clp": ClpSolver,
-    "csdp": CsdpSolver,
-    "ipopt": IpoptSolver,
-}
-
-
-def _finite(name: str, *arrays: np.ndarray) -> None:
-    for arr in arrays:
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"{name}: non-finite coefficient passed to Drake (it would abort the interpreter)")
-
-
-class _Solver:
-    """One Drake solver with options; ``status`` maps a result to the canonical status."""
-
-    def __init__(self, name: str, options: dict | None) -> None:
-        key = name.lower()
-        if key not in SOLVERS:
-            raise ValueError(f"solver {name!r} unknown to the Drake backend; choose one of {sorted(SOLVERS)}")
-        self.name = key
-        self.solver = SOLVERS[key]()
-        if not self.solver.available() or not self.solver.enabled():
-            raise ValueError(f"Drake solver {name!r} is not available or not enabled (license?)")
-        self.option_values = dict(options or {})
-        self.options = self._solver_options(self.option_values)
-
-    def _solver_options(self, values: dict) -> SolverOptions:
-        opts = SolverOptions()
-        for opt, value in values.items():
-            opts.SetOption(self.solver.solver_id(), opt, value)
-        return opts
-
-    def solve(self, prog: MathematicalProgram, extra_options: dict | None = None):
-        """Solve ``prog``; ``extra_options`` override this solver's options for this call only."""
-        options = self.options if not extra_options else self._solver_options({**self.option_values, **extra_options})
-        start = time.perf_counter()
-        result = self.solver.Solve(prog, None, options)
-        return result, time.perf_counter() - start
-
-    def status(self, result) -> SolveStatus:
-        status = STATUS_MAP.get(result.get_solution_result(), SolveStatus.ERROR)
-        if status is SolveStatus.OPTIMAL and self.name == "clarabel":
-            details = result.get_solver_details()
-            if getattr(details, "status", "Solved") in _CLARABEL_INACCURATE:
-                return SolveStatus.INACCURATE
-        return status
-
+#: How the update (9) is solved: "auto" = by vertices where that applies, else the LP; "lp" = the LP.
+SET_UPDATE_METHODS = ("auto", "lp")
 
 class DrakeBackend:
     """All problems of the algorithm with Drake's ``MathematicalProgram``.
@@ -118,23 +53,38 @@ class DrakeBackend:
     formulation: tube MPC QP (20) with the multipliers Λ of (15c)-(15d) ("plain", the reference
         and default) or with (5b) at the vertices of Θ_k ("vertex", same optimum, no Λ:
         ``MPCSolution.Lambda`` is None; see ``drake_vertex``).
+    set_update_method: "auto" (default): the update (9) by the vertices of Θ_{k−1} ∩ Δ_k with a dual
+        certificate per row where that applies, else the LP; "lp": always the LP (issue 16).
+    qp_solver: None (default: ``solver`` for the tube QP) or "daqp": the fast path of the vertex form
+        (:mod:`.daqp_fast`): DAQP warm-started from the previous active set, every answer checked by
+        its KKT residuals and primal feasibility against the original rows, Clarabel on any doubt.
     """
 
     name = "drake"
 
     def __init__(self, solver: str = "clarabel", solver_options: dict | None = None,
-                 sdp_solver: str = "clarabel", formulation: str = "plain") -> None:
+                 sdp_solver: str = "clarabel", formulation: str = "plain", set_update_method: str = "auto",
+                 qp_solver: str | None = None) -> None:
         if formulation not in FORMULATIONS:
             raise ValueError(f"formulation {formulation!r} unknown to the Drake backend; choose one of {FORMULATIONS}")
         self.formulation = formulation
         self._solver_options = dict(solver_options or {})
-        self._solver = _Solver(solver, solver_options)
+        self._solver = DrakeSolver(solver, solver_options)
         lp_options = dict(CLARABEL_LP_OPTIONS) if solver.lower() == "clarabel" else {}
         lp_options.update(solver_options or {})
-        self._lp = _Solver(solver, lp_options)
-        self._lp_fallback = _Solver("clp", None) if solver.lower() == "clarabel" else None
-        self._sdp = _Solver(sdp_solver, None)
-        self._set_update_cache: dict[tuple[int, int, int], tuple] = {}
+        self._lp = DrakeSolver(solver, lp_options)
+        self._lp_fallback = DrakeSolver("clp", None) if solver.lower() == "clarabel" else None
+        self._sdp = DrakeSolver(sdp_solver, None)
+        if qp_solver not in (None, "daqp"):
+            raise ValueError(f"qp_solver {qp_solver!r} unknown; choose None (the solver above) or 'daqp' (fast path)")
+        if qp_solver == "daqp" and formulation != "vertex":
+            raise ValueError("qp_solver='daqp' (the fast path) needs formulation='vertex'")
+        self.qp_solver = qp_solver
+        if set_update_method not in SET_UPDATE_METHODS:
+            raise ValueError(f"set_update_method {set_update_method!r} unknown; choose one of {SET_UPDATE_METHODS}")
+        self.set_update_method = set_update_method
+        self._vertex_update = VertexSetUpdate()
+        self._set_update_cache: dict[tuple[int, int, int], DrakeSetUpdateLP] = {}
         self.solver_name = self._solver.name
 
     # -- offline: gain LMI for Assumption 8 and (16) -----------------------------------------
@@ -215,58 +165,36 @@ class DrakeBackend:
 
     # -- online: fixed-complexity set-membership update, LP (9) ------------------------------
     def set_update(self, H_theta, h_prev, H_data, h_data):
-        """LP (9) in its matrix (dual) form:
+        """The update (9): h_k and its multipliers Λ (Λ H̃ = H_θ, Λ h̃ <= h_k, Λ >= 0) with
+        H̃ = [H_θ; H_data], h̃ = [h_prev; h_data].
 
-        min 1ᵀh over h ∈ ℝ^q, Λ ∈ ℝ^{q×(q+r)}_{>=0}  s.t.  Λ H̃ = H_θ,  Λ h̃ <= h,
-        with H̃ = [H_θ; H_data], h̃ = [h_prev; h_data]. (The cvxpy backend solves the per-row
-        primal instead, so that the two backends cross-check each other.)
+        ``set_update_method="auto"`` (default): the per-facet maximum over the vertices of
+        Θ_{k−1} ∩ Δ_k, each row certified by its multipliers, the vertices of Θ_{k−1} reused when Δ_k
+        cuts none of them (:class:`.set_update_vertices.VertexSetUpdate`), and the LP of
+        :mod:`.drake_set_update` where that does not apply; ``"lp"``: always the LP.
         """
         H_theta = np.asarray(H_theta, float)
-        H_tilde = np.vstack([H_theta, np.asarray(H_data, float)])
-        h_tilde = np.concatenate([np.asarray(h_prev, float), np.asarray(h_data, float)])
+        H_data, h_prev, h_data = (np.asarray(a, float) for a in (H_data, h_prev, h_data))
+        H_tilde = np.vstack([H_theta, H_data])
+        h_tilde = np.concatenate([h_prev, h_data])
         _finite("set_update", H_tilde, h_tilde)
+        if self.set_update_method == "auto":
+            start = time.perf_counter()
+            answer = self._vertex_update.solve(H_theta, h_prev, H_data, h_data)
+            if answer is not None:
+                return SetUpdateResult(SolveStatus.OPTIMAL, answer[0], answer[1], time.perf_counter() - start,
+                                       points=answer[2], method="vertices")
         q, p = H_theta.shape
-        r = H_tilde.shape[0]
-        prog, h, Lam = self._set_update_program(q, r, p, H_tilde, h_tilde, H_theta)
-        result, elapsed = self._lp.solve(prog)
-        status = self._lp.status(result)
-        if status is not SolveStatus.OPTIMAL and self._lp_fallback is not None:
-            # Θ_{k-1} ∩ Δ_k with empty interior (θ* pinned at a vertex by vertex disturbances) makes
-            # this LP degenerate: its dual optimal face is unbounded and Clarabel (interior point)
-            # then ends in NumericalError, AlmostSolved or even a false "unbounded" (found by the
-            # property suite). The simplex method of CLP is exact on degenerate LPs.
-            result, extra = self._lp_fallback.solve(prog)
-            status = self._lp_fallback.status(result)
-            elapsed += extra
-        if status is not SolveStatus.OPTIMAL:
-            return SetUpdateResult(status, None, None, elapsed)
-        return SetUpdateResult(status, result.GetSolution(h), result.GetSolution(Lam), elapsed)
-
-    def _set_update_program(self, q, r, p, H_tilde, h_tilde, H_theta):
-        """The program of (9) for shape (q, r, p), built once and updated in place
-        (``UpdateCoefficients``): building it anew each step cost ~2-3 ms of a ~4 ms step."""
-        key = (q, r, p)
-        cached = self._set_update_cache.get(key)
-        if cached is None:
-            prog = MathematicalProgram()
-            h = prog.NewContinuousVariables(q, "h")
-            Lam = prog.NewContinuousVariables(q, r, "Lambda")
-            lam_flat = Lam.reshape(-1)  # row-major: Lambda[i, j] at i*r + j
-            prog.AddBoundingBoxConstraint(0.0, np.inf, lam_flat).evaluator().set_description("(9) Lambda >= 0")
-            eq = prog.AddLinearEqualityConstraint(sp.csc_matrix((q * p, q * r)), np.zeros(q * p), lam_flat).evaluator()
-            eq.set_description("(9) Lambda H_tilde = H_theta")
-            ineq = prog.AddLinearConstraint(sp.csc_matrix((q, q * r + q)), np.full(q, -np.inf), np.zeros(q),
-                                            np.concatenate([lam_flat, h])).evaluator()
-            ineq.set_description("(9) Lambda h_tilde <= h")
-            prog.AddLinearCost(np.ones(q), 0.0, h)
-            cached = self._set_update_cache[key] = (prog, h, Lam, eq, ineq)
-        prog, h, Lam, eq, ineq = cached
-        # Λ H̃ = H_θ: row i of Λ times H̃ equals row i of H_θ -> kron(I_q, H̃ᵀ) vec_row(Λ) = vec_row(H_θ)
-        eq.UpdateCoefficients(sp.kron(sp.eye(q), sp.csc_matrix(H_tilde.T), format="csc"), H_theta.reshape(-1))
-        # Λ h̃ - h <= 0
-        A_in = sp.hstack([sp.kron(sp.eye(q), sp.csc_matrix(h_tilde[None, :])), -sp.eye(q)], format="csc")
-        ineq.UpdateCoefficients(A_in, np.full(q, -np.inf), np.zeros(q))
-        return prog, h, Lam
+        key = (q, len(h_tilde), p)
+        if key not in self._set_update_cache:
+            self._set_update_cache[key] = DrakeSetUpdateLP(*key)
+        # Θ_{k-1} ∩ Δ_k with empty interior (θ* pinned at a vertex by vertex disturbances) makes
+        # this LP degenerate: its dual optimal face is unbounded and Clarabel (interior point)
+        # then ends in NumericalError, AlmostSolved or even a false "unbounded" (found by the
+        # property suite). The simplex method of CLP (the fallback) is exact on degenerate LPs.
+        solvers = (self._lp,) if self._lp_fallback is None else (self._lp, self._lp_fallback)
+        status, h, Lam, elapsed = self._set_update_cache[key].solve(solvers, H_theta, H_tilde, h_tilde)
+        return SetUpdateResult(status, h, Lam, elapsed, method="lp")
 
     # -- online: projection QP of (12) -------------------------------------------------------
     def project(self, point, H, h):
@@ -275,32 +203,31 @@ class DrakeBackend:
         H = np.asarray(H, float)
         h = np.asarray(h, float)
         _finite("project", point, H, h)
-        p = point.size
-        # Solved in the coordinates y = (θ − point)/s, s = the largest distance of the point to a
-        # facet plane: the solver then sees data of order 1. In θ itself the objective ‖θ − θ̃‖²
-        # and the set can be tiny (θ̃ 1e-5 outside a Θ_k of width 2e-6), and Clarabel's absolute gap
-        # tolerance then left the projection off by up to 1.7e-6 (property suite, lockstep).
-        slack = h - H @ point
-        scale = float(np.max(np.abs(slack) / np.maximum(np.linalg.norm(H, axis=1), 1e-300)))
-        scale = scale if np.isfinite(scale) and scale > 0.0 else 1.0
+        # Scaled coordinates and flat slabs as equalities, shared with the cvxpy backend
+        # (projection_form: both found on collapsed Θ_k, e.g. campaign problem 0-19).
+        form = projection_form(point, H, h)
         prog = MathematicalProgram()
-        y = prog.NewContinuousVariables(p, "y")
-        prog.AddLinearConstraint(H, np.full(len(h), -np.inf), slack / scale, y).evaluator().set_description(
-            "(12) theta in set")
-        prog.AddQuadraticErrorCost(np.eye(p), np.zeros(p), y)
+        y = prog.NewContinuousVariables(point.size, "y")
+        if len(form.b_in):
+            prog.AddLinearConstraint(form.G_in, np.full(len(form.b_in), -np.inf), form.b_in,
+                                     y).evaluator().set_description("(12) theta in set")
+        if len(form.b_eq):
+            prog.AddLinearEqualityConstraint(form.G_eq, form.b_eq, y).evaluator().set_description(
+                "(12) theta in flat slab (mid-plane)")
+        prog.AddQuadraticErrorCost(np.eye(point.size), np.zeros(point.size), y)
         # tight tolerances (as for the LPs): at the QP defaults the projection was off by 4e-6
         result, elapsed = self._lp.solve(prog)
         status = self._lp.status(result)
         if status is not SolveStatus.OPTIMAL:
             return ProjectionResult(status, None, elapsed)
-        return ProjectionResult(status, point + scale * result.GetSolution(y), elapsed)
+        return ProjectionResult(status, form.theta(result.GetSolution(y)), elapsed)
 
     # -- online: tube MPC QP (20) --------------------------------------------------------------
     def tube_mpc(self, data: TubeMPCData):
         if self.formulation == "vertex":
             from amcp_drake.backends.drake_vertex import DrakeVertexTubeMPC
 
-            return DrakeVertexTubeMPC(data, self._solver, self._solver_options)
+            return DrakeVertexTubeMPC(data, self._solver, self._solver_options, fast=self.qp_solver == "daqp")
         from amcp_drake.backends.drake_tube import DrakeTubeMPC
 
         return DrakeTubeMPC(data, self._solver)

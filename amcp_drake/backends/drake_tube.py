@@ -19,7 +19,9 @@ import scipy.sparse as sp
 from pydrake.solvers import MathematicalProgram
 
 from amcp_drake.backends.base import MPCSolution, TubeMPCData
-from amcp_drake.backends.clarabel_retry import solve_with_retries
+from amcp_drake.backends.clarabel_retry import NO_REFINEMENT, solve_with_retries
+from amcp_drake.backends.condensed_cost import CondensedCost
+from amcp_drake.backends.drake_solver import infeasible_constraint_names
 from amcp_drake.model.status import SolveStatus
 
 
@@ -59,6 +61,7 @@ class DrakeTubeMPC:
     def __init__(self, data: TubeMPCData, solver) -> None:
         self.data = data
         self._solver = solver
+        self._cost_model = CondensedCost(data)
         self._build(np.asarray(data.H_theta, float))
 
     # -- construction ------------------------------------------------------------------------
@@ -114,8 +117,9 @@ class DrakeTubeMPC:
         self._C15c = C.tocsc()
         self._rows15c = rows15c
         self._ub15c = np.tile(-d.w_bar, N * nv)
-        A15c = self._matrix_15c(np.zeros(q))
-        self._c15c = prog.AddLinearConstraint(A15c, np.full(rows15c, -np.inf), self._ub15c, y).evaluator()
+        self._A15c = self._preallocate_15c()
+        self._lb15c = np.full(rows15c, -np.inf)
+        self._c15c = prog.AddLinearConstraint(self._matrix_15c(np.zeros(q)), self._lb15c, self._ub15c, y).evaluator()
         self._c15c.set_description("(15c) tube propagation with multipliers")
 
         # (15d): H_x D^j_l = Λ^j_l H_θ, entry (i, i'): [H_x]_i (Acl_i' (z_l + α_l x^j) + B_i' v_l) - Λ[i,:] H_θ[:, i'] = 0
@@ -196,49 +200,31 @@ class DrakeTubeMPC:
         prog.AddQuadraticCost(2.0 * np.eye(N + 1), np.zeros(N + 1), 0.0, s, is_convex=True
                               ).evaluator().set_description("(19) min-max cost")
 
+    def _preallocate_15c(self) -> sp.csc_matrix:
+        """The matrix of (15c) with its Λ block allocated once: [C | kron(I, h_θᵀ)]. Row ρ = (l, j, i)
+        of (15c) holds Λ^j_{l|k}[i, :] h_θ in the q columns L0 + ρ·q + r, one entry per column, so in
+        CSC order the Λ entries are the last ``rows15c·q`` stored values, in (ρ, r) order; each step
+        writes h_θ (or the per-stage offsets) there (:meth:`_matrix_15c`) and nothing is rebuilt."""
+        lay = self.layout
+        rows, q = self._rows15c, lay.q
+        left = self._C15c[:, : lay.L0].tocsc()
+        left.sort_indices()
+        lam = sp.csc_matrix((np.ones(rows * q), np.repeat(np.arange(rows), q), np.arange(rows * q + 1)),
+                            shape=(rows, rows * q))
+        A = sp.hstack([left, lam], format="csc")
+        self._lam_values = A.data[left.nnz:].reshape(rows, q)  # a view into A.data
+        return A
+
     def _matrix_15c(self, h_theta: np.ndarray) -> sp.csc_matrix:
         """Constraint matrix of (15c) for offsets h_θk (q,), or of (28b) for per-stage offsets
         h_{θ l|k} (N, q) of the predicted sets (26): the rows of stage l (ordered (l, j, i)) get
-        Λ^j_{l|k} h_{θ l|k}."""
-        lay = self.layout
+        Λ^j_{l|k} h_{θ l|k}. Written into the preallocated matrix; returns that matrix."""
         if h_theta.ndim == 1:
-            lam_block = sp.kron(sp.eye(self._rows15c), sp.csr_matrix(h_theta[None, :]), format="csc")
+            self._lam_values[:] = h_theta
         else:
-            per_stage = lay.nv * lay.u
-            lam_block = sp.block_diag([sp.kron(sp.eye(per_stage), sp.csr_matrix(h_l[None, :]))
-                                       for h_l in h_theta], format="csc")
-        left = self._C15c[:, : lay.L0]
-        return sp.hstack([left, lam_block], format="csc")
-
-    # -- cost (17)-(18), condensed ------------------------------------------------------------
-    def _cost_matrices(self, x: np.ndarray, theta_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        """J = vᵀ H v + 2 xᵀ S v + xᵀ T x with x̂ from (18): x̂_{l+1} = A_cl(θ̂) x̂_l + B(θ̂) v_l."""
-        d = self.data
-        n, m, N = self.layout.n, self.layout.m, self.layout.N
-        A_hat = d.A0 + np.tensordot(theta_hat, d.A, axes=1)
-        B_hat = d.B0 + np.tensordot(theta_hat, d.B, axes=1)
-        Acl = A_hat + B_hat @ d.K
-        Phi = np.zeros(((N + 1) * n, n))
-        Gam = np.zeros(((N + 1) * n, N * m))
-        power = np.eye(n)
-        powers = [power]
-        for l in range(1, N + 1):
-            power = Acl @ power
-            powers.append(power)
-        for l in range(N + 1):
-            Phi[l * n:(l + 1) * n] = powers[l]
-            for i in range(l):
-                Gam[l * n:(l + 1) * n, i * m:(i + 1) * m] = powers[l - 1 - i] @ B_hat
-        Qbar = np.kron(np.eye(N + 1), d.Q)
-        Qbar[N * n:, N * n:] = d.P
-        Kbar = np.hstack([np.kron(np.eye(N), d.K), np.zeros((N * m, n))])
-        Rbar = np.kron(np.eye(N), d.R)
-        Mu_x = Kbar @ Phi
-        Mu_v = Kbar @ Gam + np.eye(N * m)
-        H = Gam.T @ Qbar @ Gam + Mu_v.T @ Rbar @ Mu_v
-        S = Phi.T @ Qbar @ Gam + Mu_x.T @ Rbar @ Mu_v
-        T = Phi.T @ Qbar @ Phi + Mu_x.T @ Rbar @ Mu_x
-        return 0.5 * (H + H.T), S.T @ x, float(x @ T @ x)
+            per_stage = self.layout.nv * self.layout.u
+            self._lam_values.reshape(len(h_theta), per_stage, -1)[:] = h_theta[:, None, :]
+        return self._A15c
 
     # -- solve ---------------------------------------------------------------------------------
     def _solve(self):
@@ -250,7 +236,10 @@ class DrakeTubeMPC:
 
         if self._solver.name != "clarabel":
             return (*once(None), "")
-        return solve_with_retries(once)
+        # certainty-equivalence cost: no iterative refinement first (NO_REFINEMENT); the min-max
+        # cone program (19) keeps Clarabel's defaults (its stalls are what the ladder is for)
+        first = None if self._minmax else {k: v for k, v in NO_REFINEMENT.items() if k not in self._solver.option_values}
+        return solve_with_retries(once, first)
 
     def solve(self, x, h_theta, theta_hat, H_theta=None, u0_bounds=None) -> MPCSolution:
         """Solve (20) at x_k with Θ_k = {H_θ θ <= h_theta} and point estimate θ̂_k.
@@ -273,7 +262,7 @@ class DrakeTubeMPC:
         lay = self.layout
         H_x = np.asarray(self.data.H_x, float)
         self._c15b.set_bounds(np.full(lay.u, -np.inf), -H_x @ x)
-        self._c15c.UpdateCoefficients(self._matrix_15c(h_theta), np.full(self._rows15c, -np.inf), self._ub15c)
+        self._c15c.UpdateCoefficients(self._matrix_15c(h_theta), self._lb15c, self._ub15c)
         Kx = self.data.K @ x
         if u0_bounds is None:
             self._c_u0.set_bounds(np.full(lay.m, -np.inf), np.full(lay.m, np.inf))
@@ -281,20 +270,16 @@ class DrakeTubeMPC:
             lo, hi = (np.broadcast_to(np.asarray(b, float), (lay.m,)) for b in u0_bounds)
             self._c_u0.set_bounds(lo - Kx, hi - Kx)
         if not self._minmax:
-            Hv, g, const = self._cost_matrices(x, theta_hat)
+            Hv, g, const = self._cost_model.matrices(x, theta_hat)
             self._cost.UpdateCoefficients(2.0 * Hv, 2.0 * g, const, is_convex=True)
         update_time = time.perf_counter() - start
         result, status, solver_time, detail = self._solve()
         if status is not SolveStatus.OPTIMAL:
-            names: tuple[str, ...] = ()
-            try:
-                names = tuple(result.GetInfeasibleConstraintNames(self.prog, 1e-6))
-            except Exception:  # noqa: BLE001 - diagnostics only; a failed report must not hide the status
-                names = ()
+            names = infeasible_constraint_names(result, self.prog)
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names,
                                detail=f"{result.get_solution_result()} ({detail})" if detail
                                else str(result.get_solution_result()))
-        yv = result.GetSolution(self.y)
+        yv = result.get_x_val()[: self.layout.size]  # y first, then the epigraph s of (19) if any
         N, n, m = lay.N, lay.n, lay.m
         z = yv[: lay.a0].reshape(N + 1, n)
         alpha = yv[lay.a0:lay.v0]

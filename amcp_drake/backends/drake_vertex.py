@@ -31,52 +31,40 @@ import scipy.sparse as sp
 from pydrake.solvers import MathematicalProgram
 
 from amcp_drake.backends.base import MPCSolution, TubeMPCData
+from amcp_drake.backends.condensed_cost import CondensedCost
+from amcp_drake.backends.daqp_fast import DaqpFastPath
+from amcp_drake.backends.drake_solver import DrakeSolver, infeasible_constraint_names
 from amcp_drake.backends.vertex_form import CLARABEL_OPTIONS, VertexEnumerationError, theta_vertices
 from amcp_drake.model.status import SolveStatus
 
 TUBE_ROWS = "(5b) tube propagation at the vertices of Theta_k (vertex form of (15c)-(15d))"
 
 
-class CondensedCost:
-    """Cost (17)-(18) as a quadratic in v: J = vᵀ H v + 2 gᵀ v + c, with x̂_{l+1} = A_cl(θ̂) x̂_l + B(θ̂) v_l.
+class _TubeRows:
+    """The N·S·u tube rows for S vertices of Θ_k as one preallocated CSC matrix.
 
-    The block matrices Q̄ = diag(Q, ..., Q, P), K̄ and R̄ are formed once; per step only the
-    powers of A_cl(θ̂_k) change.
-    """
+    Row (l, s, i) has the columns z_l, z_{l+1} (contiguous), α_l, α_{l+1}, v_l. The pattern depends
+    only on S; each step writes the (S, u, width) block of coefficients (the same for every l)
+    into ``A.data`` through ``source``, the index into the block of each stored entry."""
 
-    def __init__(self, data: TubeMPCData) -> None:
-        self.data = data
-        n, m = np.shape(data.B0)
-        N = int(data.N)
-        self.n, self.m, self.N = n, m, N
-        Qbar = np.kron(np.eye(N + 1), data.Q)
-        Qbar[N * n:, N * n:] = data.P
-        self.Qbar = Qbar
-        self.Kbar = np.hstack([np.kron(np.eye(N), data.K), np.zeros((N * m, n))])
-        self.Rbar = np.kron(np.eye(N), data.R)
-        lag = np.arange(N + 1)[:, None] - 1 - np.arange(N)[None, :]   # l − 1 − i
-        self._lag = np.where(lag >= 0, lag, N)                         # index N: zero block
+    def __init__(self, mpc: DrakeVertexTubeMPC, S: int) -> None:
+        n, m, N, u, a0, v0 = mpc.n, mpc.m, mpc.N, mpc.u, mpc.a0, mpc.v0
+        width = 2 * n + 2 + m
+        per_l = np.array([np.concatenate([np.arange(l * n, (l + 2) * n), [a0 + l, a0 + l + 1],
+                                          np.arange(v0 + l * m, v0 + (l + 1) * m)]) for l in range(N)])
+        indices = np.repeat(per_l[:, None, :], S * u, axis=1).reshape(-1)
+        indptr = np.arange(0, N * S * u * width + 1, width)
+        block_entries = S * u * width
+        # stored entry e of the CSR form (row-major over (l, s, i, column)) is block entry e mod S·u·width
+        order = np.arange(N * block_entries, dtype=float) + 1.0
+        csc = sp.csr_matrix((order, indices, indptr), shape=(N * S * u, mpc.size)).tocsc()
+        self.source = (csc.data.astype(np.int64) - 1) % block_entries
+        self.A = csc
+        self.lb = np.full(N * S * u, -np.inf)
+        self.ub = np.tile(-mpc.w_bar, N * S)
 
-    def matrices(self, x: np.ndarray, theta_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        d, n, m, N = self.data, self.n, self.m, self.N
-        B_hat = d.B0 + np.tensordot(theta_hat, d.B, axes=1)
-        A_cl = d.A0 + np.tensordot(theta_hat, d.A, axes=1) + B_hat @ d.K
-        powers = np.empty((N + 1, n, n))
-        powers[0] = np.eye(n)
-        for l in range(1, N + 1):
-            powers[l] = A_cl @ powers[l - 1]
-        Phi = powers.reshape((N + 1) * n, n)
-        PB = np.zeros((N + 1, n, m))
-        PB[:N] = powers[:N] @ B_hat
-        Gam = PB[self._lag].transpose(0, 2, 1, 3).reshape((N + 1) * n, N * m)
-        Mu_x = self.Kbar @ Phi
-        Mu_v = self.Kbar @ Gam + np.eye(N * m)
-        QG = self.Qbar @ Gam
-        RMv = self.Rbar @ Mu_v
-        H = Gam.T @ QG + Mu_v.T @ RMv
-        S = Phi.T @ QG + Mu_x.T @ RMv
-        T = Phi.T @ self.Qbar @ Phi + Mu_x.T @ self.Rbar @ Mu_x
-        return 0.5 * (H + H.T), S.T @ x, float(x @ T @ x)
+    def write(self, block: np.ndarray) -> None:
+        self.A.data[:] = block.reshape(-1)[self.source]
 
 
 class DrakeVertexTubeMPC:
@@ -84,20 +72,28 @@ class DrakeVertexTubeMPC:
 
     formulation = "vertex"
 
-    def __init__(self, data: TubeMPCData, solver, solver_options: dict | None = None) -> None:
+    def __init__(self, data: TubeMPCData, solver, solver_options: dict | None = None, fast: bool = False) -> None:
         """``solver``: the backend's ``_Solver``; with Clarabel, a copy with
-        :data:`~.vertex_form.CLARABEL_OPTIONS` under the user's ``solver_options`` is used."""
+        :data:`~.vertex_form.CLARABEL_OPTIONS` under the user's ``solver_options`` is used.
+        ``fast``: try the DAQP fast path of :mod:`.daqp_fast` first at every step (off by default)."""
         self.data = data
         self._plain_solver = solver
         if solver.name == "clarabel":
-            from amcp_drake.backends.drake_ import _Solver
-
-            solver = _Solver("clarabel", {**CLARABEL_OPTIONS, **(solver_options or {})})
+            solver = DrakeSolver("clarabel", {**CLARABEL_OPTIONS, **(solver_options or {})})
         self._solver = solver
         self._plain = None  # the plain form, built only if a step needs the fallback
         self._cost_model = CondensedCost(data)
-        self._patterns: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._rows: dict[int, _TubeRows] = {}
+        self._last_vertices: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._tube_S = -1  # number of vertices whose rows are in the program now (-1: none yet)
+        self._vertex_version = 0   # incremented whenever Θ_k's vertices are enumerated anew
+        self._drake_version = -1   # the version whose tube rows are in the Drake program
+        self._fast: DaqpFastPath | None = None
         self._build()
+        if fast:
+            order = np.concatenate([np.arange(self.a0, self.v0), np.arange(self.a0), np.arange(self.v0, self.size)])
+            self._fast = DaqpFastPath(order, self.v0 - self.a0, slice(self.v0, self.size), self._fixed_A,
+                                      self._fixed_b, self._A15b, self.N * self.u)
 
     # -- construction ------------------------------------------------------------------------
     def _build(self) -> None:
@@ -136,7 +132,10 @@ class DrakeVertexTubeMPC:
         A15b = sp.lil_matrix((u, size))
         A15b[:, 0:n] = -H_x
         A15b[:, a0] = -np.ones((u, 1))
+        self._A15b = A15b.toarray()
         self._c15b = prog.AddLinearConstraint(A15b.tocsc(), np.full(u, -np.inf), np.zeros(u), y).evaluator()
+        self._c15b_ub = np.zeros(u)
+        self._minus_H_x = -H_x
         self._c15b.set_description("(15b) x_k in X_0|k")
 
         # (5b) at the vertices of Θ_k: matrix replaced per step (placeholder: one void row)
@@ -151,40 +150,50 @@ class DrakeVertexTubeMPC:
         AT[:, a0 + N] = np.asarray(d.h_T, float).reshape(-1, 1)
         prog.AddLinearConstraint(AT.tocsc(), np.full(r, -np.inf), np.ones(r), y
                                  ).evaluator().set_description("terminal set (z_N, alpha_N) in Xf")
+        # the rows that never change, densely, for the fast path
+        self._fixed_A = sp.vstack([A15a, AT]).toarray()
+        self._fixed_b = np.ones(N * c + r)
 
         prog.AddBoundingBoxConstraint(0.0, np.inf, y[a0:v0]).evaluator().set_description("alpha >= 0")
 
         self._cost = prog.AddQuadraticCost(np.eye(N * m), np.zeros(N * m), 0.0, y[v0:], is_convex=True).evaluator()
         self._cost.set_description("(17) certainty-equivalence cost")
 
-    def _pattern(self, S: int) -> tuple[np.ndarray, np.ndarray]:
-        """CSR indices and indptr of the N·S·u tube rows; row (l, s, i) has the columns
-        z_l, z_{l+1} (contiguous), α_l, α_{l+1}, v_l, in increasing order."""
-        if S not in self._patterns:
-            n, m, N, u, a0, v0 = self.n, self.m, self.N, self.u, self.a0, self.v0
-            width = 2 * n + 2 + m
-            per_l = np.array([np.concatenate([np.arange(l * n, (l + 2) * n), [a0 + l, a0 + l + 1],
-                                              np.arange(v0 + l * m, v0 + (l + 1) * m)]) for l in range(N)])
-            indices = np.repeat(per_l[:, None, :], S * u, axis=1).reshape(-1).astype(np.int32)
-            indptr = np.arange(0, N * S * u * width + 1, width, dtype=np.int32)
-            self._patterns[S] = (indices, indptr)
-        return self._patterns[S]
+    def _rows_for(self, S: int) -> _TubeRows:
+        """The preallocated tube rows for S vertices of Θ_k (built on first use for this S)."""
+        if S not in self._rows:
+            self._rows[S] = _TubeRows(self, S)
+        return self._rows[S]
 
     def tube_rows(self, vertices: np.ndarray) -> tuple[sp.csc_matrix, np.ndarray]:
-        """Matrix (N·S·u, size) and upper bound of the vertex-form rows for Θ_k's vertices (S, p)."""
+        """Matrix (N·S·u, size) and upper bound of the vertex-form rows for Θ_k's vertices (S, p),
+        written into the preallocated matrix for S (the returned matrix is that one, not a copy)."""
+        rows = self._rows_for(len(vertices))
+        rows.write(self._block(vertices))
+        return rows.A, rows.ub
+
+    def _block(self, vertices: np.ndarray) -> np.ndarray:
+        """(S, u, width) coefficients of the rows of one prediction step l (they repeat over l):
+        [H_x A_cl(θ^s) | −H_x | c^s | −1 | H_x B(θ^s)] on (z_l, z_{l+1}, α_l, α_{l+1}, v_l)."""
         S = len(vertices)
-        n, N, u = self.n, self.N, self.u
+        n, u = self.n, self.u
         A_cl = self.Acl0 + np.tensordot(vertices, self.Acl_i, axes=1)                 # (S, n, n)
         B_s = self.data.B0 + np.tensordot(vertices, self.data.B, axes=1)              # (S, n, m)
         HA = self.H_x @ A_cl                                                          # (S, u, n)
         HB = self.H_x @ B_s                                                           # (S, u, m)
         c_alpha = np.max(HA @ self.Xv.T, axis=2)                                      # (S, u)
-        block = np.concatenate([HA, np.broadcast_to(-self.H_x, (S, u, n)), c_alpha[..., None],
-                                np.full((S, u, 1), -1.0), HB], axis=2)              # (S, u, width)
-        data = np.broadcast_to(block, (N,) + block.shape).reshape(-1)
-        indices, indptr = self._pattern(S)
-        A = sp.csr_matrix((data, indices, indptr), shape=(N * S * u, self.size)).tocsc()
-        return A, np.tile(-self.w_bar, N * S)
+        return np.concatenate([HA, np.broadcast_to(-self.H_x, (S, u, n)), c_alpha[..., None],
+                               np.full((S, u, 1), -1.0), HB], axis=2)
+
+    def _vertices(self, H: np.ndarray, h_theta: np.ndarray) -> tuple[np.ndarray, bool]:
+        """Vertices of Θ_k = {H θ <= h_theta}, and whether they are those of the previous step
+        (Θ_k unchanged: same H and h to the bit), in which case they are not enumerated again."""
+        last = self._last_vertices
+        if last is not None and np.array_equal(last[0], h_theta) and np.array_equal(last[1], H):
+            return last[2], True
+        vertices = theta_vertices(H, h_theta)
+        self._last_vertices = (h_theta.copy(), H.copy(), vertices)
+        return vertices, False
 
     # -- solve ---------------------------------------------------------------------------------
     def solve(self, x, h_theta, theta_hat, H_theta=None) -> MPCSolution:
@@ -198,18 +207,31 @@ class DrakeVertexTubeMPC:
             if not np.all(np.isfinite(arr)):
                 return MPCSolution(SolveStatus.ERROR, None, None, None, None, None, detail=f"non-finite {name}")
         try:
-            vertices = theta_vertices(H, h_theta)
+            vertices, unchanged = self._vertices(H, h_theta)
         except VertexEnumerationError as exc:
             return self._solve_plain(x, h_theta, theta_hat, H_theta, str(exc))
-        A, ub = self.tube_rows(vertices)
-        self._tube.UpdateCoefficients(A, np.full(len(ub), -np.inf), ub)
-        self._c15b.set_bounds(np.full(self.u, -np.inf), -self.H_x @ x)
+        if not unchanged:
+            self._vertex_version += 1
+        S = len(vertices)
+        b15b = self._minus_H_x @ x
         Hv, g, const = self._cost_model.matrices(x, theta_hat)
+        fast_note = ""
+        if self._fast is not None:
+            sol, fast_note = self._solve_fast(S, vertices, b15b, Hv, g, const, start)
+            if sol is not None:
+                return sol
+        if self._drake_version != self._vertex_version or self._tube_S != S:
+            rows = self._rows_for(S)
+            rows.write(self._block(vertices))
+            self._tube.UpdateCoefficients(rows.A, rows.lb, rows.ub)
+            self._tube_S, self._drake_version = S, self._vertex_version
+        self._c15b_ub[:] = b15b
+        self._c15b.UpdateUpperBound(self._c15b_ub)
         self._cost.UpdateCoefficients(2.0 * Hv, 2.0 * g, const, is_convex=True)
         update_time = time.perf_counter() - start
         result, solver_time = self._solver.solve(self.prog)
         status = self._solver.status(result)
-        detail = f"vertex form, {len(vertices)} vertices of Theta_k"
+        detail = f"vertex form, {S} vertices of Theta_k{fast_note}"
         if status is SolveStatus.INACCURATE and self._solver is not self._plain_solver:
             # near-degenerate steps (states at the edge of the feasible set, tight tolerances) can end
             # AlmostSolved without iterative refinement: solve again with the user's settings
@@ -218,21 +240,42 @@ class DrakeVertexTubeMPC:
             solver_time += extra
             detail += "; re-solved with iterative refinement"
         if status is not SolveStatus.OPTIMAL:
-            names: tuple[str, ...] = ()
-            try:
-                names = tuple(result.GetInfeasibleConstraintNames(self.prog, 1e-6))
-            except Exception:  # noqa: BLE001 - diagnostics only; a failed report must not hide the status
-                names = ()
+            names = infeasible_constraint_names(result, self.prog)
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names,
                                detail=f"{result.get_solution_result()}; {detail}")
-        yv = result.GetSolution(self.y)
+        yv = result.get_x_val()  # y is the program's only decision vector, in order
+        return self._solution(yv, Hv, g, const, solver_time, update_time, detail)
+
+    @property
+    def fast_path_counts(self) -> dict[str, int] | None:
+        """Fast path only: steps answered by DAQP (checked) and steps that fell back to Clarabel."""
+        return None if self._fast is None else dict(self._fast.counts)
+
+    def _solution(self, yv, Hv, g, const, solver_time, update_time, detail) -> MPCSolution:
         N, n, m = self.N, self.n, self.m
         z = yv[: self.a0].reshape(N + 1, n)
         alpha = yv[self.a0:self.v0]
         v = yv[self.v0:].reshape(N, m)
         vf = v.reshape(-1)
         cost = float(vf @ Hv @ vf + 2 * g @ vf + const)
-        return MPCSolution(status, v, z, alpha, None, cost, solver_time, update_time, detail=detail)
+        return MPCSolution(SolveStatus.OPTIMAL, v, z, alpha, None, cost, solver_time, update_time, detail=detail)
+
+    def _solve_fast(self, S, vertices, b15b, Hv, g, const, start) -> tuple[MPCSolution | None, str]:
+        """The fast path (:mod:`.daqp_fast`): (solution, "") when DAQP's answer passed its checks,
+        else (None, note for the detail of the Clarabel solve that follows); counted in
+        ``fast_path_counts``."""
+        model = self._fast.model(S)
+        if model.version != self._vertex_version:
+            rows = self._rows_for(S)
+            rows.write(self._block(vertices))
+            model.write_tube(rows.A.toarray(), rows.ub)
+            model.version = self._vertex_version
+        update_time = time.perf_counter() - start
+        yv, detail, elapsed = self._fast.solve(model, b15b, Hv, g)
+        if yv is None:
+            return None, f"; fast path fell back to Clarabel: {detail}"
+        return self._solution(yv, Hv, g, const, elapsed, update_time,
+                              f"vertex form, {S} vertices of Theta_k; fast path: {detail}"), ""
 
     def _solve_plain(self, x, h_theta, theta_hat, H_theta, reason: str) -> MPCSolution:
         """Fallback for a step whose Θ_k vertices cannot be enumerated: the plain form (15)."""

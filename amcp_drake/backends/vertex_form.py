@@ -35,6 +35,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from amcp_drake.backends.clarabel_retry import NO_REFINEMENT
+
 #: Largest number of row choices C(q, p) enumerated by basis enumeration (20 for Example 1;
 #: 20 000 p×p solves take about 10 ms, beyond that Qhull is faster).
 MAX_COMBINATIONS = 20_000
@@ -51,10 +53,10 @@ DUPLICATE_TOL = 1e-12
 
 
 #: Clarabel settings of the vertex form in both backends (the user's ``solver_options`` override
-#: them). Iterative refinement off: on Example 1 (8-facet X0, 80-step lockstep run) the solver
-#: time fell from 1.91 to 1.37 ms (Drake) and 3.84 to 2.70 ms (cvxpy) with v unchanged to 1e-11;
-#: the plain form keeps Clarabel's defaults.
-CLARABEL_OPTIONS = {"iterative_refinement_enable": False}
+#: them): :data:`.clarabel_retry.NO_REFINEMENT` (iterative refinement off; on Example 1, 8-facet X0,
+#: 80-step lockstep run, solver time 1.91 -> 1.37 ms (Drake) and 3.84 -> 2.70 ms (cvxpy), v unchanged
+#: to 1e-11).
+CLARABEL_OPTIONS = NO_REFINEMENT
 
 
 class VertexEnumerationError(ValueError):
@@ -62,7 +64,7 @@ class VertexEnumerationError(ValueError):
 
 
 @lru_cache(maxsize=64)
-def _combinations(q: int, p: int) -> np.ndarray:
+def combinations(q: int, p: int) -> np.ndarray:
     return np.array(list(itertools.combinations(range(q), p)), dtype=np.intp).reshape(-1, p)
 
 
@@ -90,7 +92,7 @@ def theta_vertices(H: np.ndarray, h: np.ndarray) -> np.ndarray:
         raise VertexEnumerationError(f"theta_vertices: {q} rows cannot bound a set in R^{p}")
     if _n_choose_k(q, p) > MAX_COMBINATIONS:
         return _qhull_vertices(Hn, hn)
-    combos = _combinations(q, p)
+    combos = combinations(q, p)
     M = Hn[combos]                       # (C, p, p)
     b = hn[combos]                       # (C, p)
     basis = np.abs(np.linalg.det(M)) > SINGULAR_DET

@@ -12,23 +12,26 @@ from amcp_drake.cli.common import EXIT_BAD_INPUT, EXIT_OK, bad_input_exits_2
 @click.command("bench")
 @click.option("--quick", is_flag=True, help="Short runs and small sweeps (a minute or less; for CI and tests).")
 @click.option("--steps", type=int, default=None, help="Steps per Example 1 run (default 50, quick 10).")
-@click.option("--scaling-steps", type=int, default=None, help="Steps per sweep point (default 10, quick 3).")
+@click.option("--scaling-steps", type=int, default=None, help="Steps per sweep point (default 30, quick 3).")
 @click.option("--only", type=click.Choice(["example", "scaling", "section4"]), default=None,
-              help="Run only Example 1, only the sweeps over N, p and the facets of X0, or only the Section 4 "
+              help="Run only Example 1, only the sweeps over N, the facets of X0, p and n (one at a time around "
+                   "Example 1; writes scaling.md, the table of benchmarks/README.md), or only the Section 4 "
                    "options (PE, min-max cost, time-varying parameters) against the CE cost.")
 @click.option("--backend", "backends", type=click.Choice(["drake", "cvxpy"]), multiple=True,
-              help="Backend(s) to time (repeatable; default both).")
-@click.option("--formulation", "formulations", type=click.Choice(["plain", "vertex"]), multiple=True,
-              help="Tube QP formulation(s): plain (15) with Λ, or (5b) at Θ_k's vertices (repeatable; default both).")
+              help="Backend(s) to time (repeatable; default both for Example 1, Drake for the sweeps).")
+@click.option("--formulation", "formulations", type=click.Choice(["plain", "vertex", "fast"]), multiple=True,
+              help="Tube QP formulation(s): plain (15) with Λ, (5b) at Θ_k's vertices, or fast = the vertex form "
+                   "with the DAQP fast path (Drake only) (repeatable; default all three).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Disturbance seed.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default="amcp-out/bench", show_default=True,
               help="Directory for bench.json and bench.png.")
 @click.option("--no-plot", is_flag=True, help="Write the JSON only.")
 @bad_input_exits_2
 def bench_cmd(quick, steps, scaling_steps, only, backends, formulations, seed, out_dir, no_plot):
-    """Time the online loop: set update, LMS, QP update, solver and total per step (median, p90),
-    Example 1 with X0 of 4 and 8 facets, both backends and both formulations, run in lockstep;
-    then sweeps over N, p and the facets of X0. Writes JSON and a PNG."""
+    """Time the online loop, CPU (thread time) and wall: set update, LMS, QP, QP solver, everything
+    outside the solvers and the total per step (median, p90), Example 1 with X0 of 4 and 8 facets,
+    both backends, plain / vertex / fast path, run in lockstep (ratios from the same run); then sweeps
+    over N, the facets of X0, p and n with design times. Writes JSON, a PNG and scaling.md."""
     from amcp_drake.studies.bench import BenchSettings, format_summary, run_benchmarks, write_outputs
 
     changes = {"seed": seed, "only": only}
@@ -37,7 +40,7 @@ def bench_cmd(quick, steps, scaling_steps, only, backends, formulations, seed, o
     if scaling_steps is not None:
         changes["scaling_steps"] = scaling_steps
     if backends:
-        changes["backends"] = tuple(dict.fromkeys(backends))
+        changes["backends"] = changes["scaling_backends"] = tuple(dict.fromkeys(backends))
     if formulations:
         changes["formulations"] = tuple(dict.fromkeys(formulations))
     for name in ("steps", "scaling_steps"):

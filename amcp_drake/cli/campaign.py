@@ -1,20 +1,29 @@
-"""``amcp campaign``: verification campaigns at scale on Dask (issue 9)."""
+"""``amcp campaign``: verification campaigns at scale on Dask (issues 9 and 17).
+
+Exit codes: 0 every problem passed; 1 a problem failed (its replay commands are printed); 2 bad
+input: a bad option, a --store that is a directory, damaged, not a campaign store, or made with
+other settings (each difference named). ``--report`` on a damaged store writes what could be read
+and exits 2.
+"""
 
 from __future__ import annotations
 
-import html
 import sys
+from pathlib import Path
 
 import click
 
-from amcp_drake.cli.common import EXIT_FAIL, EXIT_OK, bad_input_exits_2, output_file_callback, store_path_callback
+from amcp_drake.cli.common import EXIT_BAD_INPUT, EXIT_FAIL, EXIT_OK, bad_input_exits_2, output_file_callback, store_path_callback
+
+
+def _counts_line(counts: dict[str, int]) -> str:
+    return f"problems stored: {sum(counts.values())} ({', '.join(f'{k}: {v}' for k, v in sorted(counts.items()))})"
 
 
 def summary_text(store) -> str:
     """The closing summary: claims x backends, coverage fractions, slowest and failing problems."""
     lines = []
-    counts = store.problem_counts()
-    lines.append(f"problems stored: {sum(counts.values())} ({', '.join(f'{k}: {v}' for k, v in sorted(counts.items()))})")
+    lines.append(_counts_line(store.problem_counts()))
     lines.append("")
     lines.append(f"{'claim':34s} {'backend':8s} {'pass':>6s} {'fail':>6s} {'not run':>8s}")
     for claim, backend, p, f, n in store.claim_table():
@@ -27,29 +36,39 @@ def summary_text(store) -> str:
     lines.append("slowest problems: " + ", ".join(f"#{idx} {sec:.1f} s" for _, idx, sec in store.slowest()))
     failures = store.failures()
     lines.append(f"failing problems: {len(failures)}")
-    for seed, idx, folder, message in failures:
-        replay = f"amcp certify {folder}/problem.json" if folder else "(no replay files: " + (message or "").splitlines()[0] + ")"
-        lines.append(f"  seed {seed} #{idx}: {replay}")
+    for seed, idx, folder, message, commands in failures:
+        if commands:
+            lines.append(f"  seed {seed} #{idx}: replay with")
+            lines += [f"    {command}" for command in commands]
+        elif folder:  # a store of schema 1 (issue 9) recorded no commands
+            lines.append(f"  seed {seed} #{idx}: {folder}")
+        else:
+            lines.append(f"  seed {seed} #{idx}: (no replay files: " + ((message or "").splitlines() or [""])[0] + ")")
     return "\n".join(lines)
 
 
-def report_html(store) -> str:
-    """The store rendered as a self-contained HTML page (jinja2)."""
+def report_html(store, damage: list[str] | None = None) -> str:
+    """The store rendered as a self-contained HTML page (jinja2); ``damage``: what could not be read
+    of a damaged store (shown first)."""
     import jinja2
 
     template = jinja2.Environment(autoescape=True).from_string(
         "<!doctype html><html><head><meta charset='utf-8'><title>amcp campaign</title>"
         "<style>body{font-family:sans-serif} td,th{padding:2px 8px} .fail{color:#b00}</style></head><body>"
-        "<h1>amcp campaign</h1><p>{{ counts }}</p>"
+        "<h1>amcp campaign</h1>"
+        "{% if damage %}<div id='damage' class='fail'><p>The store is damaged; this report shows only what could "
+        "be read:</p><ul>{% for d in damage %}<li>{{ d }}</li>{% endfor %}</ul></div>{% endif %}"
+        "<p>{{ counts }}</p>"
         "<h2>Claims</h2><table id='claims'><tr><th>claim</th><th>backend</th><th>pass</th><th>fail</th><th>not run</th></tr>"
         "{% for c, b, p, f, n in claims %}<tr><td>{{ c }}</td><td>{{ b }}</td><td>{{ p }}</td>"
         "<td class='{{ 'fail' if f else '' }}'>{{ f }}</td><td>{{ n }}</td></tr>{% endfor %}</table>"
         "<h2>Coverage</h2><table id='coverage'><tr><th>key</th><th>backend</th><th>fraction</th><th>runs</th></tr>"
         "{% for k, b, fr, n in coverage %}<tr><td>{{ k }}</td><td>{{ b }}</td><td>{{ '%.2f' % fr }}</td><td>{{ n }}</td></tr>{% endfor %}</table>"
-        "<h2>Failing problems</h2><ul id='failures'>{% for s, i, d, m in failures %}<li>seed {{ s }} #{{ i }}: "
-        "{{ d or m }}</li>{% else %}<li>none</li>{% endfor %}</ul></body></html>")
-    return template.render(counts=html.escape(str(store.problem_counts())), claims=store.claim_table(),
-                           coverage=store.coverage_table(), failures=store.failures())
+        "<h2>Failing problems</h2><ul id='failures'>{% for s, i, d, m, cmds in failures %}<li>seed {{ s }} #{{ i }}: "
+        "{% if cmds %}{% for c in cmds %}<code>{{ c }}</code> {% endfor %}{% else %}{{ d or m }}{% endif %}</li>"
+        "{% else %}<li>none</li>{% endfor %}</ul></body></html>")
+    return template.render(counts=_counts_line(store.problem_counts()), claims=store.claim_table(),
+                           coverage=store.coverage_table(), failures=store.failures(), damage=damage or [])
 
 
 @click.command("campaign")
@@ -60,9 +79,10 @@ def report_html(store) -> str:
 @click.option("--workers", type=click.IntRange(min=1), default=2, show_default=True, help="LocalCluster workers.")
 @click.option("--store", "store_path", default="amcp-campaign.sqlite", show_default=True, type=click.Path(),
               callback=store_path_callback,
-              help="SQLite store, written as each problem finishes.")
+              help="SQLite store, written as each problem finishes; it records the campaign's settings.")
 @click.option("--steps", type=click.IntRange(min=2), default=15, show_default=True, help="Closed-loop steps per problem.")
-@click.option("--resume", is_flag=True, help="Continue an interrupted campaign (stored problems are skipped).")
+@click.option("--resume", is_flag=True, help="Continue an interrupted campaign with the same settings (stored "
+              "problems are skipped; other settings are refused).")
 @click.option("--report", "report_file", default=None, type=click.Path(), callback=output_file_callback,
               help="Only render the store as HTML to this file (no run).")
 @bad_input_exits_2
@@ -70,18 +90,13 @@ def campaign_cmd(systems, backends, seed, scheduler, workers, store_path, steps,
     """Draw random problems from the property-suite generators, run every claim check on each closed
     loop for each backend, fan out on Dask, and keep every result in SQLite."""
     from amcp_drake.model.errors import ProblemError
-    from amcp_drake.model.problem_io import write_text_atomic
     from amcp_drake.studies.campaign_store import CampaignStore
 
     chosen = tuple(b.strip() for b in backends.split(",") if b.strip())
     if not chosen or any(b not in ("drake", "cvxpy") for b in chosen):
         raise ProblemError("--backends", "a comma-separated subset of drake,cvxpy", repr(backends))
     if report_file:
-        store = CampaignStore(store_path)
-        write_text_atomic(report_html(store), report_file)
-        click.echo(f"report written to {report_file}")
-        store.close()
-        sys.exit(EXIT_OK)
+        sys.exit(_report(store_path, report_file))
     from amcp_drake.studies.campaign import run_campaign
 
     counts = run_campaign(store_path, systems, chosen, seed=seed, scheduler=scheduler, workers=workers,
@@ -92,3 +107,42 @@ def campaign_cmd(systems, backends, seed, scheduler, workers, store_path, steps,
     ok = not store.failures()
     store.close()
     sys.exit(EXIT_OK if ok else EXIT_FAIL)
+
+
+def _report(store_path: str, report_file: str) -> int:
+    """``--report``: render the store. A damaged store is salvaged row by row (read-only, from a copy):
+    what could be read is rendered with the damage listed first, and the exit code is 2."""
+    from amcp_drake.model.errors import CampaignStoreError, ProblemError
+    from amcp_drake.model.problem_io import write_text_atomic
+    from amcp_drake.studies.campaign_store import CampaignStore, inspect_store, salvage
+
+    try:
+        state = inspect_store(store_path)
+    except CampaignStoreError as exc:
+        if Path(store_path).is_dir():
+            raise
+        found = salvage(store_path)
+        if found.store is None:
+            click.echo(f"error: {exc}. Nothing could be read: " + "; ".join(found.damage) + ". No report written.",
+                       err=True)
+            return EXIT_BAD_INPUT
+        try:
+            write_text_atomic(report_html(found.store, found.damage), report_file)
+            counts = found.store.problem_counts()
+        finally:
+            found.store.close()
+        read = ", ".join(f"{n} rows of {table}" for table, n in found.rows.items())
+        click.echo(f"error: {exc}", err=True)
+        click.echo(f"the store is damaged; {report_file} shows what could be read: {read}; problems by status: "
+                   f"{counts or 'none'}. Unreadable: " + "; ".join(found.damage), err=True)
+        return EXIT_BAD_INPUT
+    if state.kind == "new":
+        raise ProblemError("--store", "an existing campaign store to report on",
+                           f"{store_path}: " + ("an empty file" if Path(store_path).exists() else "no such file"))
+    store = CampaignStore(store_path, allow_legacy=True)
+    try:
+        write_text_atomic(report_html(store), report_file)
+    finally:
+        store.close()
+    click.echo(f"report written to {report_file}")
+    return EXIT_OK

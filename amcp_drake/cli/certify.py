@@ -40,6 +40,9 @@ from amcp_drake.cli.common import (
 @example_option
 @x0_template_option
 @backend_option
+@click.option("--design-backend", "design_backend", type=click.Choice(["drake", "cvxpy"]), default=None,
+              help="Backend of the offline design (default: --backend). A campaign replay names the one the "
+                   "campaign used.")
 @formulation_option
 @steps_option("Closed-loop steps (default: the scenario's; 50 for Example 1).")
 @seed_option("Seed of the disturbance sequence (default: the scenario's; 0 for Example 1).")
@@ -52,7 +55,7 @@ from amcp_drake.cli.common import (
 @max_memory_option
 @click.pass_context
 @bad_input_exits_2
-def certify_cmd(ctx, problem_file, example, x0_template, backend, formulation, steps, seed, out_dir, trajectory_file, update,
+def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend, formulation, steps, seed, out_dir, trajectory_file, update,
                 window, projection, d_theta, pe_window, pe_level, cost, max_memory):
     """Run the adaptive MPC on PROBLEM (default: --example lorenzen2019, x0 = [2, 3],
     θ* = [0.8, 0.2, -0.5], 50 steps, uniform disturbance, seed 0), check every claim of the paper
@@ -69,7 +72,7 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, formulation, s
     if trajectory_file is not None:
         from click.core import ParameterSource
 
-        given = [f"--{name.replace('_', '-')}" for name in ("backend", "steps", "seed", "update", "window",
+        given = [f"--{name.replace('_', '-')}" for name in ("backend", "design_backend", "steps", "seed", "update", "window",
                                                                   "projection", "d_theta", "pe_window",
                                                                   "pe_level", "cost", "max_memory", "x0_template")
                  if ctx.get_parameter_source(name) is ParameterSource.COMMANDLINE]
@@ -87,7 +90,7 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, formulation, s
         options = resolve_online(spec, update=update, window=window, projection=projection, d_theta=d_theta,
                                  pe_window=pe_window, pe_level=pe_level, cost=cost)
         check_run_size(spec, steps, options, max_memory)
-        traj = _run(spec, backend, steps, sc.seed if seed is None else seed, formulation, options)
+        traj = _run(spec, backend, steps, sc.seed if seed is None else seed, formulation, options, design_backend)
         if traj.stop_reason.startswith("inconsistent"):
             click.echo(f"warning: the run stopped: {traj.stop_reason}; certifying the partial trajectory", err=True)
     cert = certify(traj, spec)
@@ -96,21 +99,14 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, formulation, s
     sys.exit(EXIT_OK if cert.passed else EXIT_FAIL)
 
 
-def _run(spec, backend: str, steps: int, seed: int, formulation: str = "plain", options=None):
-    """Offline design, then the closed loop with a progress bar (Drake/cvxpy imported only here)."""
-    from amcp_drake.model.errors import InconsistentDataError
-    from amcp_drake.offline.design import design
-    from amcp_drake.online.controller import AdaptiveMPC
-    from amcp_drake.online.simulate import simulate
+def _run(spec, backend: str, steps: int, seed: int, formulation: str = "plain", options=None,
+         design_backend: str | None = None):
+    """Offline design, then the closed loop with a progress bar (Drake/cvxpy imported only here); the
+    same path as a campaign run (:func:`amcp_drake.online.replay.run_scenario`), so a replay is exact."""
+    from amcp_drake.online.replay import run_scenario
 
-    sc = spec.scenario
-    offline = design(spec.problem, spec.design, backend=backend)
-    ctrl = AdaptiveMPC(spec.problem, offline, backend=backend, options=options, formulation=formulation)
-    try:
-        return simulate(ctrl, sc.x0, sc.theta_star_for(steps), steps, sc.disturbance, seed=seed, progress=True,
-                        mu_state_bound=spec.design.mu_state_bound)
-    except InconsistentDataError as exc:
-        return exc.trajectory
+    return run_scenario(spec, backend, design_backend=design_backend, formulation=formulation, steps=steps,
+                        seed=seed, options=options, progress=True)
 
 
 def _load_trajectory(path: str, problem_file, example):

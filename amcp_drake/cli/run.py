@@ -66,12 +66,12 @@ def run_cmd(problem_file, example, x0_template, backend, formulation, steps, see
     d = design(pr, spec.design, backend=backend)
     update = options.update
     ctrl = AdaptiveMPC(pr, d, backend=backend, options=options, formulation=formulation)
-    traj = simulate(ctrl, sc.x0, sc.theta_star_for(steps), steps, disturbance or sc.disturbance,
+    traj = simulate(ctrl, sc.x0, sc.theta_star_for(steps), steps, disturbance or sc.disturbance_for(steps),
                     seed=sc.seed if seed is None else seed, progress=False, mu_state_bound=spec.design.mu_state_bound)
     theta_text = (f"theta*_k sequence from {traj.theta_star_at(0).tolist()} (max step {sc.max_theta_rate():.3g})"
                   if sc.time_varying else f"theta* = {np.asarray(sc.theta_star).tolist()}")
     click.echo(f"{pr.name}: x0 = {np.asarray(sc.x0).tolist()}, {theta_text}, "
-               f"{traj.steps} steps, disturbance {disturbance or sc.disturbance} (seed {sc.seed if seed is None else seed}), "
+               f"{traj.steps} steps, disturbance {disturbance or ('array' if sc.explicit_disturbance else sc.disturbance)} (seed {sc.seed if seed is None else seed}), "
                f"backend {backend}, update {update}")
     click.echo(format_table(step_table(traj, every)))
     z_margin = max(pr.in_Z(x, u) for x, u in zip(traj.x, traj.u)) if traj.steps else float("nan")

@@ -172,7 +172,7 @@ def lockstep(spec: ProblemSpec, steps: int, seed: int, backends=("drake", "cvxpy
         d = design(pr, spec.design, backends[0])
     ctrl_a = AdaptiveMPC(pr, d, backends[0], options, **backend_options[0])
     ctrl_b = AdaptiveMPC(pr, d, backends[1], options, **backend_options[1])
-    W = disturbance_sequence(pr, sc.disturbance, steps, seed)
+    W = disturbance_sequence(pr, sc.disturbance_for(steps), steps, seed)
     theta = np.asarray(sc.theta_star_for(steps), float)
     check_theta_rate(theta, ctrl_a.options.d_theta)
     x = np.asarray(sc.x0, float)
@@ -231,7 +231,7 @@ def independent(spec: ProblemSpec, steps: int, seed: int, backends=("drake", "cv
     comp = Comparison("independent", (backends[0], backends[1]))
     design_diffs, designs = compare_designs(spec, backends)
     comp.differences += design_diffs
-    W = disturbance_sequence(pr, sc.disturbance, steps, seed)
+    W = disturbance_sequence(pr, sc.disturbance_for(steps), steps, seed)
     trajs = [simulate(AdaptiveMPC(pr, dsg, b, options, **bo), sc.x0, sc.theta_star_for(steps), steps, W)
              for dsg, b, bo in zip(designs, backends, backend_options)]
     ta, tb = trajs

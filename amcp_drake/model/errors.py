@@ -70,3 +70,8 @@ class InconsistentDataError(AmcpError, RuntimeError):
 
 class TrajectoryError(AmcpError, ValueError):
     """A recorded trajectory is malformed or inconsistent with its problem."""
+
+
+class CampaignStoreError(ProblemFileError):
+    """A campaign store (SQLite) cannot be used: not an SQLite file, corrupted, of another schema, or
+    made with other settings than those requested. The store is never written to then."""

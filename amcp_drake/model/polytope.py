@@ -221,3 +221,63 @@ def _flat_vertices(H: np.ndarray, h: np.ndarray) -> np.ndarray | None:
         return None
     y = vertices(H_red, h_red)                      # (v, r)
     return theta0 + y @ basis.T
+
+
+def least_distance_point(point: np.ndarray, H: np.ndarray, h: np.ndarray) -> np.ndarray | None:
+    """argmin{‖x − point‖ | H x <= h} by least-distance programming (Lawson & Hanson, *Solving Least
+    Squares Problems*, ch. 23): with y = (x − point)/s on unit rows, min ‖y‖ s.t. G y >= g is solved
+    through the NNLS problem min ‖E u − f‖, u >= 0, E = [Gᵀ; gᵀ], f = e_{n+1} (scipy's active-set
+    NNLS, finite and exact on degenerate sets), y = −r_{1:n}/r_{n+1} with r = E u − f. ``None`` when
+    the set is empty (r_{n+1} = 0). Used as the second solver of the projection (12) when a
+    backend's answer fails its check (amcp_drake.online.answer_checks), never as the first.
+    """
+    from scipy.optimize import nnls
+
+    point = np.asarray(point, float)
+    H, h = normalize_rows(H, h)
+    slack = h - H @ point
+    violation = float(np.max(-slack)) if len(slack) else 0.0
+    if violation <= 0.0:
+        return point.copy()
+    G, g = -H, -slack / violation
+    n = len(point)
+    E = np.vstack([G.T, g[None, :]])
+    f = np.zeros(n + 1)
+    f[-1] = 1.0
+    u, _ = nnls(E, f, maxiter=50 * max(E.shape))
+    r = E @ u - f
+    if abs(r[-1]) <= LDP_EMPTY_TOL:
+        return None
+    return point + violation * (-r[:n] / r[-1])
+
+
+#: least_distance_point: |r_{n+1}| below this means the NNLS residual cannot produce a point (empty
+#: set); r_{n+1} = −1/(1 + ‖y‖²) otherwise, so this allows ‖y‖ up to ~1e6 violation units.
+LDP_EMPTY_TOL = 1e-12
+
+
+@dataclass(frozen=True)
+class CertifiedSupport:
+    """Support values ``values`` (k,), maximisers ``points`` (k, n) and dual multipliers ``duals``
+    (k, rows) >= 0 with duals @ H = directions (LP duality: values <= duals @ h)."""
+
+    values: np.ndarray
+    points: np.ndarray
+    duals: np.ndarray
+
+
+def support_certified(H: np.ndarray, h: np.ndarray, directions: np.ndarray) -> CertifiedSupport | None:
+    """max{d·x | H x <= h} for each row d by HiGHS, with maximiser and multipliers (the primal and
+    dual certificate of each value); None when any LP is not solved to optimality."""
+    H = np.asarray(H, float)
+    h = np.asarray(h, float)
+    directions = np.atleast_2d(np.asarray(directions, float))
+    values, points, duals = [], [], []
+    for d in directions:
+        res = linprog(-d, A_ub=H, b_ub=h, bounds=[(None, None)] * H.shape[1], method="highs")
+        if res.status != 0:
+            return None
+        values.append(float(d @ res.x))
+        points.append(np.asarray(res.x, float))
+        duals.append(-np.asarray(res.ineqlin.marginals, float))
+    return CertifiedSupport(np.array(values), np.array(points), np.array(duals))

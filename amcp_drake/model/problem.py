@@ -34,6 +34,10 @@ THETA_HAT0_TOL = 1e-9
 #: Slack on the rate bound of Assumption 17 when a θ* sequence is validated (round-off of a
 #: sequence generated at exactly the rate d_θ).
 THETA_RATE_TOL = 1e-12
+#: A row of an explicit disturbance sequence (``scenario.disturbance``) may lie this far outside W
+#: (H_w w <= 1 + tol) before it is rejected: vertices of W computed by vertex enumeration and
+#: written to a file exceed the facets by round-off (~1e-15); 1e-9 matches THETA_HAT0_TOL.
+DISTURBANCE_W_TOL = 1e-9
 
 
 @dataclass(frozen=True, eq=False)
@@ -187,14 +191,21 @@ class Scenario:
     a sequence θ*_0 … θ*_T of shape (T+1, p) (or (T, p): the last value is held) with T = ``steps``;
     every θ*_k must lie in Θ, and a file's ``online.d_theta`` must bound its rate (Assumption 17).
     ``disturbance`` is one of ``"uniform"`` (i.i.d. uniform on W), ``"vertices"`` (i.i.d. on the
-    vertices of W), ``"zero"``; an explicit sequence is passed to :func:`simulate` directly.
+    vertices of W), ``"zero"`` (drawn with ``seed``), or the explicit sequence w_0 … w_{T-1} as an
+    array of ``steps`` rows, each a point of W (Assumption 1; errors name the row,
+    ``scenario.disturbance[k]``); ``seed`` is then unused. A campaign replay holds such an array.
     """
 
     x0: np.ndarray
     theta_star: np.ndarray
     steps: int = 50
-    disturbance: str = "uniform"
+    disturbance: str | np.ndarray = "uniform"
     seed: int = 0
+
+    @property
+    def explicit_disturbance(self) -> bool:
+        """True when ``disturbance`` is an explicit sequence w_k (rows), not a kind drawn from a seed."""
+        return not isinstance(self.disturbance, str)
 
     @property
     def time_varying(self) -> bool:
@@ -220,8 +231,11 @@ class Scenario:
             violation = polytope.max_violation(problem.H_theta, problem.h_theta, th)
             if violation > THETA_HAT0_TOL:
                 raise ProblemError(name, "a point of Theta (Assumption 1 / 17)", f"outside by {violation:.3g}")
-        if self.disturbance not in DISTURBANCE_KINDS:
-            raise ProblemError("scenario.disturbance", f"one of {sorted(DISTURBANCE_KINDS)}", repr(self.disturbance))
+        if self.explicit_disturbance:
+            object.__setattr__(self, "disturbance", _disturbance_rows(self.disturbance, steps, problem))
+        elif self.disturbance not in DISTURBANCE_KINDS:
+            raise ProblemError("scenario.disturbance", f"one of {sorted(DISTURBANCE_KINDS)} or an array of "
+                               f"{steps} rows w_k of length {problem.n}", repr(self.disturbance))
         as_positive_int("scenario.seed", self.seed, 0)
         object.__setattr__(self, "x0", x0)
         object.__setattr__(self, "theta_star", theta_star)
@@ -242,6 +256,43 @@ class Scenario:
         if rows == steps:
             return self.theta_star
         raise ProblemError("steps", f"at most {rows} (scenario.theta_star is a sequence of {rows} rows)", str(steps))
+
+    def disturbance_for(self, steps: int) -> str | np.ndarray:
+        """The ``disturbance`` argument of :func:`~amcp_drake.online.simulate.simulate` for a run of ``steps``
+        steps: the kind, or the first ``steps`` rows of the explicit sequence (ProblemError when it is
+        shorter)."""
+        if not self.explicit_disturbance:
+            return self.disturbance
+        rows = len(self.disturbance)
+        if steps > rows:
+            raise ProblemError("steps", f"at most {rows} (scenario.disturbance is a sequence of {rows} rows)",
+                               str(steps))
+        return np.asarray(self.disturbance, float)[:steps]
+
+
+def _disturbance_rows(value: Any, steps: int, problem: Problem) -> np.ndarray:
+    """An explicit disturbance sequence (``scenario.disturbance``): exactly ``steps`` rows, each a
+    finite vector of length n in W = {w | H_w w <= 1} (Assumption 1), checked row by row."""
+    if isinstance(value, np.ndarray):
+        rows = list(value) if value.ndim >= 1 else None
+    else:
+        rows = list(value) if isinstance(value, (list, tuple)) else None
+    if rows is None:
+        raise ProblemError("scenario.disturbance", f"one of {sorted(DISTURBANCE_KINDS)} or an array of {steps} "
+                           f"rows w_k of length {problem.n}", f"{type(value).__name__} {value!r}"[:200])
+    if len(rows) != steps:
+        raise ProblemError("scenario.disturbance", f"{steps} rows w_0..w_{steps - 1} (one per step, steps = {steps})",
+                           f"{len(rows)} rows")
+    out = np.empty((steps, problem.n))
+    ones = np.ones(len(problem.H_w))
+    for k, row in enumerate(rows):
+        w = as_vector(f"scenario.disturbance[{k}]", row, size=problem.n)
+        violation = float(np.max(problem.H_w @ w - ones))
+        if violation > DISTURBANCE_W_TOL:
+            raise ProblemError(f"scenario.disturbance[{k}]", "a point of W (H_w w <= 1, Assumption 1)",
+                               f"{w.tolist()}, outside by {violation:.3g}")
+        out[k] = w
+    return out
 
 
 def theta_steps(theta_star: np.ndarray) -> np.ndarray:

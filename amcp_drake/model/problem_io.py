@@ -12,6 +12,7 @@ Layout (format "amcp-problem", version 1)::
       "theta_hat0": [..],
       "design":   {... DesignOptions fields, all optional ...},
       "scenario": {"x0": [..], "theta_star": [..], "steps": 50, "disturbance": "uniform", "seed": 0},
+                                                     # disturbance: a kind, or [[w_0], ..., [w_{steps-1}]]
       "online":   {... OnlineOptions fields, all optional ...},  # optional (Section 4 extensions)
       "keep_redundant_rows": false                   # optional; files written by amcp say true
     }
@@ -291,7 +292,9 @@ def spec_to_dict(spec: ProblemSpec) -> dict:
     if spec.scenario is not None:
         sc = spec.scenario
         data["scenario"] = {"x0": np.asarray(sc.x0).tolist(), "theta_star": np.asarray(sc.theta_star).tolist(),
-                            "steps": sc.steps, "disturbance": sc.disturbance, "seed": sc.seed}
+                            "steps": sc.steps, "seed": sc.seed,
+                            "disturbance": np.asarray(sc.disturbance).tolist() if sc.explicit_disturbance
+                            else sc.disturbance}
     if spec.online is not None:
         data["online"] = options_to_dict(spec.online)
     return data

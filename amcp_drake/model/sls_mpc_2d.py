@@ -7,10 +7,8 @@ A = [1 0.15; 0.1 1], B = [0.1; 1.1], ‖w‖∞ <= 0.1, ‖x‖∞ <= 8, |u| <= 
 In the notation of eq. (2): p = 2, A_1 = ε_A [1 0; 0 0], A_2 = 0, B_1 = 0, B_2 = ε_B [0; 1].
 
 Reconstruction choices (docs/decisions.md, "SLS-MPC 2-D family"): θ̂0 = 0 (the centre of Θ);
-the default scenario x0 = [0, 2] (inside the robust feasible region of every ε_A of the sweep
-0.05 … 0.45 under the default design, checked with ``amcp coverage``; the first choice [−2, 1] is
-infeasible at step 0 for ε_A >= 0.25), θ* = [0.5, −0.5], 50 steps, uniform disturbance, seed 0;
-design options default.
+the default scenario x0 = [−0.3, 3] (the first QP is feasible for the default design of every
+ε_A of the sweep 0.05 … 0.45, margin >= 0.08 in the vertex-form LP; [−2, 1] is not at ε_A >= 0.35), θ* = [0.5, −0.5], 50 steps, uniform disturbance, seed 0; design options default.
 """
 
 from __future__ import annotations
@@ -40,6 +38,6 @@ def sls_mpc_2d_problem(eps_A: float = 0.15, eps_B: float = 0.1) -> Problem:
 
 def sls_mpc_2d_spec(eps_A: float = 0.15, eps_B: float = 0.1) -> ProblemSpec:
     """The ProblemSpec (problem, default design options, default scenario) of the family."""
-    scenario = Scenario(x0=np.array([0.0, 2.0]), theta_star=np.array([0.5, -0.5]), steps=50,
+    scenario = Scenario(x0=np.array([-0.3, 3.0]), theta_star=np.array([0.5, -0.5]), steps=50,
                         disturbance="uniform", seed=0)
     return ProblemSpec(problem=sls_mpc_2d_problem(eps_A, eps_B), design=DesignOptions(), scenario=scenario)

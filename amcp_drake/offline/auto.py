@@ -9,13 +9,15 @@ Order (:func:`candidate_options`):
 2. ``mrpi`` with ``design.x0_facets`` (default 8) and the LMI gain: the design of the paper and of
    every earlier version of this project, so problems that designed before (Example 1) keep
    exactly the same design.
-3. ``contractive`` with the LMI gain, λ in :data:`AUTO_LAMBDAS`.
-4. ``contractive`` with a lower-gain K (R scaled by each of :data:`AUTO_R_SCALES` in the LMI),
-   λ in :data:`AUTO_LAMBDAS`.
-5. ``mrpi`` with more facets, :data:`AUTO_FACETS` (those the dimension allows).
+3. ``contractive`` with a lower-gain K first (the LMI solved with R scaled by each of
+   :data:`AUTO_R_SCALES`, largest first), then the LMI gain, each with λ in :data:`AUTO_LAMBDAS`:
+   a lower gain makes the input constraint bite less and gave the larger region on the SLS-MPC
+   family (benchmarks/x0_template_regions.py: 0.26 instead of 0.16 at ε_A = 0.25).
+4. ``mrpi`` with more facets, :data:`AUTO_FACETS` (those the dimension allows).
 
-A user-given K, P (``design.K``/``design.P``) skips step 4; a user-given ``x0_lambda`` replaces the
-λ list; ``gain_R_scale`` other than 1 is used in steps 2-3 (and step 4 uses larger scales only).
+A user-given K, P (``design.K``/``design.P``) skips the lower-gain K's; a user-given ``x0_lambda``
+replaces the λ list; a ``gain_R_scale`` other than 1 is used in step 2 and replaces the LMI gain in
+step 3 (only larger scales are added).
 Each attempt is recorded as (label, outcome, reason, seconds); the returned design carries them in
 ``info["attempts"]``; when none passes, :class:`AutoDesignError` lists them all.
 """
@@ -25,19 +27,20 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, replace
 
-from amcp_drake.offline import templates as x0_templates
 from amcp_drake.backends import get_backend
 from amcp_drake.model.errors import DesignError
-from amcp_drake.model.problem import DesignOptions, Problem
+from amcp_drake.model.problem import DEFAULT_X0_LAMBDA, DesignOptions, Problem
+from amcp_drake.offline import templates as x0_templates
 
 #: λ of the contractive template, tried in this order: 0.9 leaves the tube room to shrink
-#: (α⁺ <= 0.9 α + w̄) with a set close to the maximal robust control-invariant set; larger λ give
-#: larger sets but a slower tube.
-AUTO_LAMBDAS = (0.9, 0.95, 0.98)
-#: R multipliers of the lower-gain K (step 4): each decade lowers the gain visibly on the 2-D
+#: (α⁺ <= 0.9 α + w̄); larger λ admit a set where a smaller one is empty (the disturbance uses up
+#: λ − σ_W(a) in some row). 0.99 designs the SLS family at ε_A = 0.45 in 0.6 s with a feasible
+#: region at least as large along 16 rays as the 96-facet mrpi design that took ~100 s.
+AUTO_LAMBDAS = (0.9, 0.95, 0.98, 0.99)
+#: R multipliers of the lower-gain K (step 3): each decade lowers the gain visibly on the 2-D
 #: benchmarks without making A_cl(θ) nearly unstable.
 AUTO_R_SCALES = (10.0, 100.0)
-#: Facet counts of the last resort (step 5); the issue-14 measurements needed up to 96 in 2-D.
+#: Facet counts of the last resort (step 4); the issue-14 measurements needed up to 96 in 2-D.
 AUTO_FACETS = (12, 16, 20, 24, 32, 48, 64, 96)
 
 
@@ -79,8 +82,8 @@ def candidate_options(problem: Problem, options: DesignOptions) -> list[DesignOp
     out.append(replace(base, x0_H=None))
     lambdas = (options.x0_lambda,) if options.x0_lambda is not None else AUTO_LAMBDAS
     gains = [options.gain_R_scale]
-    if options.K is None:
-        gains += [s for s in AUTO_R_SCALES if s > options.gain_R_scale]
+    if options.K is None:  # the lowest gain first: the input constraint bites least (docs/decisions.md)
+        gains = sorted({options.gain_R_scale, *(s for s in AUTO_R_SCALES if s > options.gain_R_scale)}, reverse=True)
     for scale in gains:
         for lam in lambdas:
             out.append(replace(options, x0_template="contractive", x0_lambda=lam, gain_R_scale=scale, x0_H=None))
@@ -91,12 +94,13 @@ def candidate_options(problem: Problem, options: DesignOptions) -> list[DesignOp
     return out
 
 
-def design_auto(problem: Problem, options: DesignOptions, backend="drake", log=None):
-    """The first candidate of :func:`candidate_options` whose design passes every check of
-    :func:`~amcp_drake.offline.checks.verify_design`; ``log(line)`` is called after each attempt."""
-    from amcp_drake.offline.design import design_fixed, robust_gain, template_label
-    from amcp_drake.offline.checks import verify_design
+def design_auto(problem: Problem, options: DesignOptions, backend, design_fixed, robust_gain, verify, log=None):
+    """The first candidate of :func:`candidate_options` whose design passes every check of ``verify``
+    (:func:`~amcp_drake.offline.checks.verify_design`); ``log(line)`` is called after each attempt.
 
+    ``design_fixed`` and ``robust_gain`` are those of offline/design.py, passed in by
+    :func:`~amcp_drake.offline.design.design` (this module sits below design.py: no import cycle).
+    """
     be = get_backend(backend)
     gains: dict = {}
     attempts: list[Attempt] = []
@@ -112,7 +116,7 @@ def design_auto(problem: Problem, options: DesignOptions, backend="drake", log=N
             attempts.append(Attempt(label, "design failed", _short(exc), time.perf_counter() - start))
             _emit(log, attempts[-1])
             continue
-        checks = verify_design(problem, d, candidate.mu_state_bound)
+        checks = verify(problem, d, candidate.mu_state_bound)
         failed = [c for c in checks if not c.passed]
         if failed:
             reason = "; ".join(f"{c.name}: {c.status}" + (f" (margin {c.margin:.3g})" if c.margin is not None else "")
@@ -129,6 +133,23 @@ def design_auto(problem: Problem, options: DesignOptions, backend="drake", log=N
         info["attempts"] = [a.to_dict() for a in attempts]
         return replace(d, info=info)
     raise AutoDesignError(attempts)
+
+
+def template_label(options: DesignOptions, facets: int | None = None) -> str:
+    """A short human name of the template of ``options`` ("mrpi, 8 facets", "contractive, lambda 0.9",
+    "..., K from R x 10")."""
+    kind = options.x0_template
+    if kind == "mrpi":
+        text = f"mrpi, {options.x0_facets} facets"
+    elif kind == "contractive":
+        text = f"contractive, lambda {options.x0_lambda if options.x0_lambda is not None else DEFAULT_X0_LAMBDA:g}"
+        if facets is not None:
+            text += f", {facets} facets"
+    else:
+        text = f"{kind}" + (f", {facets} facets" if facets is not None else "")
+    if options.gain_R_scale != 1.0 and options.K is None:
+        text += f", K from R x {options.gain_R_scale:g}"
+    return text
 
 
 def chosen_options(options: DesignOptions, design) -> DesignOptions:

@@ -15,7 +15,7 @@ import numpy as np
 from amcp_drake.model import polytope
 from amcp_drake.model.check_result import CheckResult, judge, not_run
 from amcp_drake.model.problem import Problem
-from amcp_drake.offline.design import OfflineDesign, closed_loop_vertices, regressor_bound
+from amcp_drake.offline.result import OfflineDesign, closed_loop_vertices, regressor_bound
 
 #: Round-off allowed in the eigenvalue check of (16) (the LMI is solved with margin 1e-6).
 EIG_TOL = 1e-9

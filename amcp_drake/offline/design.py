@@ -7,8 +7,6 @@ on :class:`~amcp_drake.model.problem.DesignOptions` and in docs/decisions.md.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
 from amcp_drake.backends import get_backend
@@ -17,6 +15,12 @@ from amcp_drake.model.errors import DesignError, ProblemError, TerminalSetError
 from amcp_drake.model.problem import DEFAULT_X0_LAMBDA, DesignOptions, Problem
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.offline import templates as x0_templates
+from amcp_drake.offline.auto import design_auto, template_label
+from amcp_drake.offline.checks import verify_design
+from amcp_drake.offline.result import OfflineDesign, closed_loop_vertices, regressor_bound
+
+__all__ = ["OfflineDesign", "closed_loop_vertices", "regressor_bound", "design", "design_fixed", "robust_gain",
+           "template_label", "terminal_set", "template_directions"]
 
 #: A candidate row of the terminal-set recursion is redundant if the current set keeps it below
 #: 1 + this (LP accuracy of Clarabel is ~1e-8; looser than that would keep duplicates).
@@ -25,71 +29,6 @@ TERMINAL_REDUNDANCY_TOL = 1e-7
 template_directions = x0_templates.template_directions
 MRPI_RESIDUAL_FRACTION = x0_templates.MRPI_RESIDUAL_FRACTION
 X0_INFLATION = x0_templates.X0_INFLATION
-
-
-@dataclass(frozen=True, eq=False)
-class OfflineDesign:
-    """Result of :func:`design`. Shapes: n states, m inputs, p parameters, u facets of X0,
-    v vertices of X0, v_p vertices of Θ, c rows of Z, r rows of X_f, q rows of H_θ.
-
-    * ``K`` (m, n), ``P`` (n, n): Assumption 8 and (16).
-    * ``H_x`` (u, n): X0 = {x | H_x x <= 1} (14); ``X0_vertices`` (v, n).
-    * ``w_bar`` (u,): [w̄]_i = max_{w∈W} [H_x]_i w; ``f_bar`` (c,): [f̄]_i = max_{x∈X0} [F+GK]_i x.
-    * ``h_bar`` (v_p, u): [h̄^k]_i = max_{x∈X0} [H_x]_i A_cl(θ^k) x (App. A.1); ``lambda_bar`` = max h̄.
-    * ``A_z`` (n, n): centre dynamics of the terminal recursion (spec §5.1 step 2).
-    * ``H_T`` (r, n), ``h_T`` (r,): X_f = {(z, α) | H_T z + h_T α <= 1, α >= 0} (Assumption 11).
-    * ``mu``: gain of (12); ``mu_sup`` = sup ‖D(x,u)‖₂² over ``mu_region`` (the (x,u) set used).
-    * ``H_theta`` (q, p), ``h_theta0`` (q,): the fixed shape and initial offsets of (9), Θ ⊆ Θ0.
-    * ``theta_vertices`` (v_p, p).
-    """
-
-    K: np.ndarray
-    P: np.ndarray
-    H_x: np.ndarray
-    X0_vertices: np.ndarray
-    w_bar: np.ndarray
-    f_bar: np.ndarray
-    h_bar: np.ndarray
-    lambda_bar: float
-    A_z: np.ndarray
-    H_T: np.ndarray
-    h_T: np.ndarray
-    mu: float
-    mu_sup: float
-    mu_region: str
-    H_theta: np.ndarray
-    h_theta0: np.ndarray
-    theta_vertices: np.ndarray
-    terminal_iterations: int
-    backend: str
-    gain_source: str = "lmi"
-    info: dict = field(default_factory=dict)
-
-    def to_dict(self) -> dict:
-        """JSON-ready dict of every field."""
-        out = {}
-        for key in self.__dataclass_fields__:
-            value = getattr(self, key)
-            out[key] = value.tolist() if isinstance(value, np.ndarray) else value
-        return out
-
-    @classmethod
-    def from_dict(cls, data: dict) -> OfflineDesign:
-        """Inverse of :meth:`to_dict`."""
-        kwargs = {}
-        for key, f in cls.__dataclass_fields__.items():
-            if key not in data:
-                if key in ("gain_source", "info"):
-                    continue
-                raise ProblemError(f"design.{key}", "a value", "nothing (missing)")
-            value = data[key]
-            kwargs[key] = np.asarray(value, float) if isinstance(value, list) else value
-        return cls(**kwargs)
-
-
-def closed_loop_vertices(problem: Problem, K: np.ndarray, theta_vertices: np.ndarray) -> np.ndarray:
-    """A_cl(θ^k) = A(θ^k) + B(θ^k) K for every vertex θ^k of Θ, shape (v_p, n, n)."""
-    return np.array([problem.A_of(t) + problem.B_of(t) @ K for t in theta_vertices])
 
 
 def design(problem: Problem, options: DesignOptions | None = None, backend="drake") -> OfflineDesign:
@@ -105,9 +44,8 @@ def design(problem: Problem, options: DesignOptions | None = None, backend="drak
     """
     options = (options or DesignOptions()).validate_for(problem)
     if options.x0_template == "auto":
-        from amcp_drake.offline.auto import design_auto
-
-        return design_auto(problem, options, backend=backend)
+        return design_auto(problem, options, backend=backend, design_fixed=design_fixed, robust_gain=robust_gain,
+                           verify=verify_design)
     return design_fixed(problem, options, backend=backend)
 
 
@@ -165,8 +103,7 @@ def design_fixed(problem: Problem, options: DesignOptions, backend="drake", gain
     # The LP values are upper bounds only up to the solver's tolerance; the maxima over the vertices
     # of W and X0 are exact, so the larger of the two is a valid bound for either backend (found on
     # parsi2020_siso: the cvxpy backend's f̄ was 1.5e-9 too small and X_f left Z by 2e-8).
-    W_vertices = problem.w_vertices()
-    w_bar = np.maximum(w_bar, np.max(H_x @ W_vertices.T, axis=1))
+    w_bar = np.maximum(w_bar, np.max(H_x @ problem.w_vertices().T, axis=1))
     f_bar = np.maximum(f_bar, np.max(FGK @ X0_vertices.T, axis=1))
     h_bar = np.maximum(h_bar, np.array([np.max(H_x @ Ak @ X0_vertices.T, axis=1) for Ak in A_cl]))
     lambda_bar = float(np.max(h_bar))
@@ -194,22 +131,6 @@ def design_fixed(problem: Problem, options: DesignOptions, backend="drake", gain
                          lambda_bar=lambda_bar, A_z=A_z, H_T=H_T, h_T=h_T, mu=float(mu), mu_sup=float(mu_sup),
                          mu_region=region, H_theta=H_theta_n, h_theta0=h_theta0, theta_vertices=theta_vertices,
                          terminal_iterations=iterations, backend=be.name, gain_source=source, info=info)
-
-
-def template_label(options: DesignOptions, facets: int | None = None) -> str:
-    """A short human name of the template of ``options`` ("mrpi, 8 facets", "contractive, lambda 0.9, K: lmi (R x 10)")."""
-    kind = options.x0_template
-    if kind == "mrpi":
-        text = f"mrpi, {options.x0_facets} facets"
-    elif kind == "contractive":
-        text = f"contractive, lambda {options.x0_lambda if options.x0_lambda is not None else DEFAULT_X0_LAMBDA:g}"
-        if facets is not None:
-            text += f", {facets} facets"
-    else:
-        text = f"{kind}" + (f", {facets} facets" if facets is not None else "")
-    if options.gain_R_scale != 1.0 and options.K is None:
-        text += f", K from R x {options.gain_R_scale:g}"
-    return text
 
 
 def _require_stable(A_cl: np.ndarray) -> None:
@@ -351,31 +272,3 @@ def _prune(rows: np.ndarray, be) -> np.ndarray:
         if not (value <= 1.0 + TERMINAL_REDUNDANCY_TOL):
             keep[i] = True
     return rows[keep]
-
-
-def regressor_bound(problem: Problem, state_bound: float | None) -> tuple[float, str]:
-    """sup ‖D(x,u)‖₂² over Z (or Z ∩ {|x_i| <= state_bound} when Z is unbounded in x).
-
-    ‖D(x,u)‖₂ is convex in (x,u), so the supremum is attained at a vertex of that polytope,
-    which are enumerated exactly (no optimisation solver is involved).
-    """
-    n, m = problem.n, problem.m
-    H = np.hstack([problem.F, problem.G])
-    h = np.ones(len(H))
-    region = "Z"
-    if not polytope.is_bounded(H, h):
-        if state_bound is None:
-            raise ProblemError("design.mu_state_bound", "a bound on |x_i| because Z is unbounded in x (needed for "
-                               "sup ‖D(x,u)‖² in (11))", "nothing",
-                               "Set design.mu_state_bound; the closed loop is then checked to stay inside that box.")
-        Hb, hb = polytope.box(-state_bound * np.ones(n), state_bound * np.ones(n))
-        H = np.vstack([H, np.hstack([Hb, np.zeros((2 * n, m))])])
-        h = np.concatenate([h, hb])
-        region = f"Z ∩ {{|x_i| <= {state_bound:g}}}"
-        if not polytope.is_bounded(H, h):
-            raise ProblemError("Z.G", "Z bounded in the input u (needed for (11))", "an input direction without bound")
-    verts = polytope.vertices(H, h)
-    sup = max(float(np.linalg.norm(problem.regressor(vx[:n], vx[n:]), 2) ** 2) for vx in verts)
-    if sup <= 0.0:
-        raise ProblemError("system.A, system.B", "a regressor D(x,u) that is not identically zero on Z", "sup ‖D‖ = 0")
-    return sup, region

@@ -8,13 +8,13 @@ templates, all n-dimensional:
   of the template map h ↦ max_k σ_{X(h)}(A_cl(θ^k)ᵀ d_i) + σ_W(d_i), started from σ_W: an outer
   approximation of the minimal robust positively invariant set (the paper's suggestion). Divergence
   of the iteration is detected (:data:`MRPI_DIVERGENCE_FACTOR`) and reported as such.
-* ``"contractive"``: the maximal λ-contractive set inside the state/input constraints under
-  u = Kx, by the backward iteration Ω_0 = {(F+GK)x <= 1}, Ω_{j+1} = Ω_j ∩ ⋂_k {A_cl(θ^k)x ∈ λΩ_j}
+* ``"contractive"``: the maximal robust λ-contractive set inside the state/input constraints
+  under u = Kx: the largest Ω ⊆ C = {(F+GK)x <= 1} with A_cl(θ^k)Ω ⊕ W ⊆ λΩ for every vertex θ^k
+  of Θ, by the backward iteration Ω_0 = C, Ω_{j+1} = Ω_j ∩ ⋂_k {a A_cl(θ^k) x <= λ − σ_W(a)}
   (Blanchini & Miani, "Set-theoretic methods in control", Ch. 5), rows normalised to right-hand
-  side 1. Stopping rule: Ω_{j+1} = Ω_j (no new non-redundant row), then λ-contractivity is
-  verified at the vertices; failure after :data:`CONTRACTIVE_MAX_ITER` iterations or
-  :data:`CONTRACTIVE_MAX_ROWS` rows. The set is then scaled so that it is robustly invariant
-  (scaling changes neither λ̄ nor the tube: α absorbs it).
+  side 1. Stopping rule: Ω_{j+1} = Ω_j (no new non-redundant row); then h̄^k + w̄ <= λ is verified
+  at the vertices. Failure after :data:`CONTRACTIVE_MAX_ITER` iterations or
+  :data:`CONTRACTIVE_MAX_ROWS` rows, or when the set is empty or collapses.
 * ``"given"``: a user-given H_x (rows with right-hand side 1), checked for boundedness,
   contractivity and robust invariance like the others.
 

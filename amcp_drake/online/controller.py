@@ -19,6 +19,7 @@ from amcp_drake.model.options import OnlineOptions
 from amcp_drake.model.problem import Problem
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.offline.design import OfflineDesign
+from amcp_drake.online import answer_checks
 
 #: Rows of Δ_k are scaled to unit norm before the update: near x = 0 the raw rows −H_w D_{k−1} are of
 #: order ‖x_{k−1}‖, and the LP solvers' absolute tolerances then allow errors of order tol/‖row‖ in θ
@@ -67,6 +68,9 @@ class StepRecord:
     pe_dim: int | None = None
     projection_status: SolveStatus = SolveStatus.NOT_RUN
     infeasible_constraints: tuple[str, ...] = ()
+    #: Which answer check failed and which fallback was used (amcp_drake.online.answer_checks, docs/decisions.md
+    #: "Verified solver answers"); "" when every answer of the step passed its checks.
+    detail: str = ""
     times: dict[str, float] = field(default_factory=dict)
 
 
@@ -84,6 +88,8 @@ class AdaptiveMPC:
         self.design = design
         self.options = options or OnlineOptions()
         self.backend = get_backend(backend, **backend_options)
+        self._backend_spec = (backend, dict(backend_options))
+        self._other_mpc = None  # the other formulation of (20), built on first need (answer checks)
         self.data = TubeMPCData(
             A0=problem.A0, B0=problem.B0, A=problem.A, B=problem.B, F=problem.F, G=problem.G, Q=problem.Q,
             R=problem.R, N=problem.N, K=design.K, P=design.P, H_x=design.H_x, X0_vertices=design.X0_vertices,
@@ -105,6 +111,8 @@ class AdaptiveMPC:
         self.mpc = self.backend.tube_mpc(self.data)
         #: ‖[H_θ]_i‖: the dilation D_l of Section 4.1 on un-normalised rows (same set as on unit rows)
         self._row_norms = np.linalg.norm(np.asarray(design.H_theta, float), axis=1)
+        #: max |θ_j| over Θ0 ⊇ Θ_k (scipy, once): bounds the residual of Λ H̃ = H_θ in check_set_update
+        self._theta_box = self._box_of_theta0()
         self.reset()
 
     def reset(self) -> None:
@@ -116,6 +124,9 @@ class AdaptiveMPC:
         self._prev: tuple[np.ndarray, np.ndarray] | None = None
         self._window: list[tuple[np.ndarray, np.ndarray]] = []
         self._u_hist: list[float] = []
+        #: (H, h, vertices) of the last Θ_k whose vertices the tube check enumerated (issue 16: reused
+        #: while Θ_k is unchanged to the bit, which is most steps once Θ_k has settled)
+        self._checked_vertices: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
 
     # -- (ii) set-membership update ------------------------------------------------------------
     def _delta(self, x_prev, u_prev, x) -> tuple[np.ndarray, np.ndarray]:
@@ -129,18 +140,22 @@ class AdaptiveMPC:
         keep = norms >= DELTA_ROW_MIN_NORM
         return H[keep] / norms[keep, None], h[keep] / norms[keep] + DELTA_MARGIN
 
-    def _update_set(self, H_delta, h_delta, record: StepRecord) -> None:
+    def _box_of_theta0(self) -> np.ndarray:
+        """max |θ_j| over Θ0 = {H_θ θ <= h_θ0} (2p HiGHS LPs; +inf in a direction where Θ0 is unbounded)."""
+        H, h = np.asarray(self.design.H_theta, float), np.asarray(self.design.h_theta0, float)
+        box = np.empty(H.shape[1])
+        for j in range(H.shape[1]):
+            e = np.zeros(H.shape[1])
+            e[j] = 1.0
+            box[j] = max(abs(polytope.support(H, h, s * e).value) for s in (1.0, -1.0))
+        return np.where(np.isfinite(box), box, np.inf)
+
+    def _update_set(self, H_delta, h_delta, record: StepRecord) -> bool:
+        """Θ_k by (7), (9) or the window; every answer checked (answer_checks). True when Θ_k is set
+        (the step may go on), False when the data are inconsistent (raises) or nothing is usable."""
         opts = self.options
         if opts.update == "exact":
-            H = np.vstack([self.H_theta, H_delta])
-            h = np.concatenate([self.h_theta, h_delta])
-            _, radius = polytope.chebyshev_center(H, h)
-            if radius == float("-inf"):
-                raise InconsistentDataError(self.k, "exact intersection (7) is infeasible")
-            keep = self._irredundant_rows(H, h)
-            self.H_theta, self.h_theta = H[keep], h[keep]
-            record.set_status = SolveStatus.OPTIMAL
-            return
+            return self._update_exact(H_delta, h_delta, record)
         if opts.update == "window":
             self._window = ([(H_delta, h_delta)] + self._window)[: opts.window]
             H_data = np.vstack([w[0] for w in self._window])
@@ -149,19 +164,72 @@ class AdaptiveMPC:
             h_data = np.concatenate([w[1] + age * opts.d_theta for age, w in enumerate(self._window)])
         else:
             H_data, h_data = H_delta, h_delta
-        result = self.backend.set_update(self.design.H_theta, self.h_theta, H_data, h_data)
+        H_theta = self.design.H_theta
+        result = self.backend.set_update(H_theta, self.h_theta, H_data, h_data)
         record.times["set_update"] = result.solve_time
         record.set_status = result.status
+        if result.status in (SolveStatus.INFEASIBLE, SolveStatus.UNBOUNDED):
+            # confirm emptiness independently before declaring the data inconsistent
+            _, radius = polytope.chebyshev_center(np.vstack([H_theta, H_data]), np.concatenate([self.h_theta, h_data]))
+            if radius == float("-inf"):
+                raise InconsistentDataError(self.k, f"LP (9) status {result.status.value}; scipy confirms the "
+                                                    "intersection is empty")
+        t0 = time.process_time()
+        def check(h, Lam, pts):
+            return answer_checks.check_set_update(h, Lam, pts, H_theta, self.h_theta, H_data, h_data, self._theta_box)
+
         if result.status is SolveStatus.OPTIMAL:
-            self.h_theta = self._dilate(np.asarray(result.h, float), 1)
-            record.set_Lambda = result.Lambda
-            return
-        # confirm emptiness independently before declaring the data inconsistent
-        _, radius = polytope.chebyshev_center(np.vstack([self.design.H_theta, H_data]),
-                                              np.concatenate([self.h_theta, h_data]))
+            checks = check(result.h, result.Lambda, getattr(result, "points", None))
+            if not answer_checks.failures(checks):
+                record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - t0
+                self.h_theta = self._dilate(np.asarray(result.h, float), 1)
+                record.set_Lambda = result.Lambda
+                return True
+            record.set_status = SolveStatus.INACCURATE
+            note = answer_checks.describe_failures("set update (9)", checks)
+        else:
+            note = f"set update (9): backend status {result.status.value}"
+        # fallback 1: another solver, the per-row supports of Θ_{k−1} ∩ Δ_k by HiGHS, checked the same way
+        sup = polytope.support_certified(np.vstack([H_theta, H_data]), np.concatenate([self.h_theta, h_data]), H_theta)
+        record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - t0
+        if sup is not None and not answer_checks.failures(check(sup.values, sup.duals, sup.points)):
+            self.h_theta = self._dilate(sup.values, 1)
+            record.set_Lambda = sup.duals
+            self._note(record, note + "; fallback: HiGHS support LPs (checked)")
+            return True
+        # fallback 2: keep Θ_{k−1}, always a valid outer set of Θ_{k−1} ∩ Δ_k (and nested, (10))
+        self.h_theta = self._dilate(np.asarray(self.h_theta, float), 1)
+        self._note(record, note + "; fallback: kept Θ_(k−1) (HiGHS answer failed too)")
+        return True
+
+    def _update_exact(self, H_delta, h_delta, record: StepRecord) -> bool:
+        """(7) with redundant rows removed by backend LPs; a removed row is re-checked with HiGHS (it
+        must be implied by the kept rows, else Θ_k ⊄ Θ_{k−1}) and, if any is not, no row is removed."""
+        H = np.vstack([self.H_theta, H_delta])
+        h = np.concatenate([self.h_theta, h_delta])
+        _, radius = polytope.chebyshev_center(H, h)
         if radius == float("-inf"):
-            raise InconsistentDataError(self.k, f"LP (9) status {result.status.value}; scipy confirms the "
-                                                "intersection is empty")
+            raise InconsistentDataError(self.k, "exact intersection (7) is infeasible")
+        keep = self._irredundant_rows(H, h)
+        record.set_status = SolveStatus.OPTIMAL
+        t0 = time.process_time()
+        worst = -np.inf
+        for i in np.flatnonzero(~keep):
+            res = polytope.support(H[keep], h[keep], H[i])
+            excess = (res.value - h[i]) / max(float(np.linalg.norm(H[i])), 1e-300) if res.status == "optimal" else np.inf
+            worst = max(worst, excess)
+        record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - t0
+        if worst > answer_checks.SET_NESTED_TOL:
+            record.set_status = SolveStatus.INACCURATE
+            self._note(record, f"exact update (7): removed row not implied by the kept rows {worst:.3g} > "
+                               f"{answer_checks.SET_NESTED_TOL:.0e} (HiGHS); fallback: no row removed")
+            keep[:] = True
+        self.H_theta, self.h_theta = H[keep], h[keep]
+        return True
+
+    @staticmethod
+    def _note(record: StepRecord, text: str) -> None:
+        record.detail = f"{record.detail}; {text}" if record.detail else text
 
     def _dilate(self, h: np.ndarray, l: int) -> np.ndarray:
         """min(h + l d_θ n, h_θ0), n_i = ‖[H_θ]_i‖: the fixed-shape form of D_l(·) ∩ Θ0 of (25)/(26).
@@ -190,31 +258,63 @@ class AdaptiveMPC:
         return keep
 
     # -- (ii) projected LMS (12) -----------------------------------------------------------------
-    def _update_estimate(self, x_prev, u_prev, x, record: StepRecord) -> None:
+    def _update_estimate(self, x_prev, u_prev, x, record: StepRecord) -> bool:
+        """θ̂_k by (12); the backend's projection is checked (answer_checks.check_projection) and
+        replaced, when it fails, by the least-distance solution (another solver, checked the same
+        way), else by θ̂_{k−1} if it is in S, else by the Chebyshev centre of S if it is in S. True
+        when θ̂_k is set."""
         pr = self.problem
         D = pr.regressor(x_prev, u_prev)
         x_pred = pr.A_of(self.theta_hat) @ x_prev + pr.B_of(self.theta_hat) @ u_prev
         theta_tilde = self.theta_hat + self.design.mu * D.T @ (x - x_pred)
         record.theta_tilde = theta_tilde
         if self.options.projection == "Theta":
-            H, h = pr.H_theta, pr.h_theta
+            H, h, target = pr.H_theta, pr.h_theta, "Θ"
         else:
-            H, h = self.H_theta, self.h_theta
+            H, h, target = self.H_theta, self.h_theta, "Θ_k"
         if np.all(H @ theta_tilde <= h):
             # the projection of a point of the set is the point itself: no QP needed
             self.theta_hat = theta_tilde
             record.projection_status = SolveStatus.OPTIMAL
-            return
+            return True
         result = self.backend.project(theta_tilde, H, h)
-        if result.status is not SolveStatus.OPTIMAL and self.options.projection == "Theta_k":
-            # Θ_k can be a single point that round-off in (9) leaves empty by ~1e-9 (θ* pinned at a
-            # vertex by vertex disturbances; found by the property suite): the QP is then infeasible.
-            # Projecting onto Θ ⊇ Θ_k instead is (12) itself, so Lemma 5 still holds (Remark 7).
-            result = self.backend.project(theta_tilde, pr.H_theta, pr.h_theta)
         record.times["projection"] = result.solve_time
         record.projection_status = result.status
-        if result.status is SolveStatus.OPTIMAL:
-            self.theta_hat = np.asarray(result.theta, float)
+        t0 = time.process_time()
+        candidates = (self.theta_hat,)
+        try:
+            if result.status is SolveStatus.OPTIMAL:
+                checks = answer_checks.check_projection(result.theta, theta_tilde, H, h, candidates)
+                if not answer_checks.failures(checks):
+                    self.theta_hat = np.asarray(result.theta, float)
+                    return True
+                record.projection_status = SolveStatus.INACCURATE
+                note = answer_checks.describe_failures(f"projection (12) onto {target}", checks)
+            else:
+                note = f"projection (12) onto {target}: backend status {result.status.value}"
+            # fallback 1: another solver (least-distance programming by NNLS), checked the same way
+            ldp = polytope.least_distance_point(theta_tilde, H, h)
+            if ldp is not None and not answer_checks.failures(
+                    answer_checks.check_projection(ldp, theta_tilde, H, h, candidates)):
+                self.theta_hat = ldp
+                self._note(record, note + "; fallback: least-distance projection (NNLS, checked)")
+                return True
+            # fallback 2: a certified point of S (any θ̂ in S keeps Theorem 14; Lemma 5 is not claimed
+            # for such a step: the certificate's lms_update skips steps whose projection is not optimal)
+            tol = answer_checks.PROJECTION_MEMBERSHIP_TOL
+            Hn, hn = polytope.normalize_rows(H, h)
+            if float(np.max(Hn @ self.theta_hat - hn)) <= tol:
+                self._note(record, note + f"; fallback: kept θ̂_(k−1) (in {target})")
+                return True
+            centre, radius = polytope.chebyshev_center(H, h)
+            if np.all(np.isfinite(centre)) and float(np.max(Hn @ centre - hn)) <= tol:
+                self.theta_hat = centre
+                self._note(record, note + f"; fallback: Chebyshev centre of {target} (radius {radius:.3g})")
+                return True
+            self._note(record, note + f"; no certified point of {target}: step not solved")
+            return False
+        finally:
+            record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - t0
 
     # -- (iii) the QP (20), with the PE two-QP procedure of spec §8 when enabled -----------------
     def _solve_qp(self, x, h_arg, H_arg, record: StepRecord):
@@ -260,6 +360,87 @@ class AdaptiveMPC:
         record.pe_status = "fallback"
         return self.mpc.solve(x, h_arg, self.theta_hat, H_arg)
 
+    # -- (iii) answer checks of (20) and the other formulation as fallback --------------------------
+    def _tube_checks(self, sol, x, h_arg, H_arg) -> list:
+        """answer_checks.check_tube with Θ_k's vertices (Qhull) when the answer has no Λ (vertex form)."""
+        vertices = None
+        if sol.Lambda is None and sol.v is not None:
+            H = np.asarray(self.design.H_theta if H_arg is None else H_arg, float)
+            h = np.asarray(h_arg, float)
+            h = h if h.ndim == 1 else h[0]
+            last = self._checked_vertices
+            if last is not None and np.array_equal(last[1], h) and np.array_equal(last[0], H):
+                vertices = last[2]
+            else:
+                vertices = self._theta_k_vertices(H, h)
+                self._checked_vertices = (H.copy(), h.copy(), vertices)
+        return answer_checks.check_tube(sol, self.data, x, h_arg, H_arg, vertices)
+
+    #: An interior point for Qhull must be this far inside every unit row of Θ_k (θ units); closer,
+    #: the Chebyshev centre is computed by an LP instead.
+    INTERIOR_MARGIN = 1e-6
+
+    def _theta_k_vertices(self, H: np.ndarray, h: np.ndarray) -> np.ndarray | None:
+        """Vertices of Θ_k by Qhull, for the vertex-form check of (5b); None when they cannot be found (the
+        check is then "not run"). θ̂_k serves as Qhull's interior point when it is INTERIOR_MARGIN inside Θ_k,
+        which saves the Chebyshev LP (1.6 of 1.7 ms per step on Example 1)."""
+        from scipy.spatial import HalfspaceIntersection
+
+        Hn, hn = polytope.normalize_rows(H, h)
+        if float(np.min(hn - Hn @ self.theta_hat)) >= self.INTERIOR_MARGIN:
+            try:
+                return HalfspaceIntersection(np.hstack([Hn, -hn[:, None]]), np.asarray(self.theta_hat, float)).intersections
+            except (ValueError, RuntimeError):
+                pass
+        return polytope.theta_vertices(H, h)  # flat Θ_k too (in its affine hull); None if empty/unbounded
+
+    def _other_formulation(self):
+        """The tube QP (20) in the other formulation ("plain" <-> "vertex") of the same backend, or None
+        where only "plain" applies (min-max cost, d_θ > 0, PE) or the backend was passed as an instance."""
+        opts = self.options
+        name, backend_options = self._backend_spec
+        if (not isinstance(name, str) or opts.cost != "certainty_equivalence" or opts.d_theta > 0
+                or opts.pe_window is not None):
+            return None
+        if self._other_mpc is None:
+            other = "vertex" if getattr(self.backend, "formulation", "plain") == "plain" else "plain"
+            self._other_mpc = get_backend(name, **{**backend_options, "formulation": other}).tube_mpc(self.data)
+        return self._other_mpc
+
+    def _verified_qp(self, sol, x, h_arg, H_arg, record: StepRecord):
+        """The answer of (20) to apply, or None. An "optimal" answer that fails a check makes the step
+        status "inaccurate"; the other formulation is then solved and applied if its answer passes the
+        same checks, else the step is not solved (u = None, the controller's answer to an unsolved QP)."""
+        if sol.status is not SolveStatus.OPTIMAL:
+            return None
+        t0 = time.process_time()
+        checks = self._tube_checks(sol, x, h_arg, H_arg)
+        spent = time.process_time() - t0
+        try:
+            if not answer_checks.failures(checks):
+                return sol
+            record.status = SolveStatus.INACCURATE
+            note = answer_checks.describe_failures("tube QP (20)", checks)
+            other = self._other_formulation()
+            if other is None:
+                self._note(record, note + "; no other formulation for these options: step not solved")
+                return None
+            form = getattr(other, "formulation", "plain")
+            alt = other.solve(x, h_arg, self.theta_hat, H_arg)
+            record.times["solver_fallback"] = alt.solver_time
+            t0 = time.process_time()
+            alt_checks = self._tube_checks(alt, x, h_arg, H_arg) if alt.status is SolveStatus.OPTIMAL else None
+            spent += time.process_time() - t0
+            if alt_checks is not None and not answer_checks.failures(alt_checks):
+                self._note(record, note + f"; fallback: {form} form of (20) (checked)")
+                return alt
+            why = (f"status {alt.status.value}" if alt_checks is None
+                   else answer_checks.describe_failures("checks", alt_checks))
+            self._note(record, note + f"; fallback {form} form failed ({why}): step not solved")
+            return None
+        finally:
+            record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + spent
+
     # -- one step --------------------------------------------------------------------------------
     def step(self, x: np.ndarray) -> tuple[np.ndarray | None, StepRecord]:
         """Steps (i)-(iv) at the measured state x_k."""
@@ -272,17 +453,19 @@ class AdaptiveMPC:
         if self._prev is not None and self.options.update != "none":
             x_prev, u_prev = self._prev
             t0 = time.perf_counter()
-            self._update_set(*self._delta(x_prev, u_prev, x), record)
+            ok = self._update_set(*self._delta(x_prev, u_prev, x), record)
             record.times["set_update_total"] = time.perf_counter() - t0
-            if record.set_status is not SolveStatus.OPTIMAL:
+            if not ok:
                 record.status = record.set_status
                 record.times["total"] = time.perf_counter() - start
                 return None, record
             t0 = time.perf_counter()
-            self._update_estimate(x_prev, u_prev, x, record)
+            ok = self._update_estimate(x_prev, u_prev, x, record)
             record.times["lms_total"] = time.perf_counter() - t0
-            if record.projection_status is not SolveStatus.OPTIMAL:
+            if not ok:
                 record.status = record.projection_status
+                if record.status is SolveStatus.OPTIMAL:  # pragma: no cover - _update_estimate sets a failure status
+                    record.status = SolveStatus.INACCURATE
                 record.times["total"] = time.perf_counter() - start
                 return None, record
         record.H_theta, record.h_theta, record.theta_hat = self.H_theta, self.h_theta, self.theta_hat
@@ -295,8 +478,9 @@ class AdaptiveMPC:
         record.times["qp_update"] = sol.update_time
         record.times["solver"] = sol.solver_time
         record.infeasible_constraints = sol.infeasible_constraints
+        sol = self._verified_qp(sol, x, h_arg, H_arg, record)
         u = None
-        if sol.status is SolveStatus.OPTIMAL:
+        if sol is not None:
             record.v, record.z, record.alpha, record.Lambda, record.cost = sol.v, sol.z, sol.alpha, sol.Lambda, sol.cost
             u = self.design.K @ x + sol.v[0]
             record.u = u

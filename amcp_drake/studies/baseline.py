@@ -157,7 +157,8 @@ def run_baseline(spec: ProblemSpec, design: OfflineDesign, seeds: int | list[int
         raise ProblemError("scenario", "a scenario in the problem file (x0, theta_star)", "none")
     seed_list = list(range(seeds)) if isinstance(seeds, (int, np.integer)) else [int(s) for s in seeds]
     steps = steps or sc.steps
-    disturbance = disturbance or sc.disturbance
+    if disturbance is None:
+        disturbance = sc.disturbance_for(steps)  # an explicit sequence is the same for every seed
     adaptive = AdaptiveMPC(pr, design, backend=backend, options=OnlineOptions(update=update), formulation=formulation)
     robust = AdaptiveMPC(pr, design, backend=backend, options=OnlineOptions(update="none"), formulation=formulation)
     g1 = np.linspace(*box[0], grid)

@@ -1,8 +1,13 @@
-"""Performance harness (issue 8): per-step times of the online loop, both backends, both
-formulations of the tube MPC QP (20), on Example 1 and on size sweeps.
+"""Performance harness (issues 8 and 16): per-step times of the online loop, both backends, the
+plain (15) and vertex forms of the tube MPC QP (20) and the DAQP fast path ("fast", Drake only), on
+Example 1 and on size sweeps (:mod:`amcp_drake.studies.bench_scaling`).
 
-What is measured. One closed-loop step of :class:`~amcp_drake.online.controller.AdaptiveMPC` (k >= 1) is
-split as the controller records it (``StepRecord.times``):
+What is measured. CPU time (``time.thread_time``) of each part of one closed-loop step of
+:class:`~amcp_drake.online.controller.AdaptiveMPC` (k >= 1), as ``cpu_<part>`` (see
+:mod:`amcp_drake.studies.bench_cpu`: set update, LMS, QP, QP solver, LP solvers, outside the solvers,
+total): on this shared machine wall time was 2–6× (under heavy load 10×) CPU time, so the targets
+of issue 16 are CPU time. Beside them, the wall times as the controller records them
+(``StepRecord.times``):
 
 * ``set_update``: the whole set-membership update (9) (building and solving the LP, Δ_k);
   ``set_update_solver`` is the LP solver's own time;
@@ -21,160 +26,79 @@ runs also report how far the formulations' inputs drift apart (``max_abs_dv_vs_p
 Reference lines: the paper reports a median solver time of 68 ms for Example 1 (Yalmip, Intel
 Core i7 3.4 GHz; 50 ms min, 95 ms max), spec §9.
 
-Output: :func:`run_benchmarks` returns a JSON-ready dict (format ``amcp-bench`` version 1, keys
-documented in benchmarks/README.md); :func:`write_outputs` writes it and a PNG (matplotlib Agg).
+Output: :func:`run_benchmarks` returns a JSON-ready dict (format ``amcp-bench`` version 2, keys
+documented in benchmarks/README.md); :func:`write_outputs` writes it, a PNG (matplotlib Agg) and,
+with sweeps, ``scaling.md``.
 """
 
 from __future__ import annotations
 
-import gc
 import json
 import platform
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from amcp_drake.studies.bench_run import (  # noqa: F401 - FORMULATION_OPTIONS, RunResult, lockstep re-exported
+    FORMULATION_OPTIONS,
+    TIME_KEYS,
+    RunResult,
+    lockstep,
+    summaries,
+)
+
 BENCH_FORMAT = "amcp-bench"
-BENCH_VERSION = 1
+#: version 2 (issue 16): CPU-time columns (``cpu_*``), the fast path ("fast"), the n sweep, design
+#: times and the issue-16 targets
+BENCH_VERSION = 2
 #: Spec §9: "Median solver time reported by Yalmip: 0.068 s (0.10 s with the PE constraint);
 #: maximum 0.095 s; minimum 0.05 s; Intel Core i7, 3.4 GHz".
 PAPER_MS = {"median_solver": 68.0, "max_solver": 95.0, "min_solver": 50.0}
 #: Issue 8: a full step on Example 1 with an 8-facet X0 at a median of at most 7 ms (Drake backend),
-#: the cvxpy backend within 2x of it.
+#: the cvxpy backend within 2x of it (wall time).
 TARGET_MS = 7.0
 TARGET_CVXPY_RATIO = 2.0
-#: Per-step time keys: name in the output -> key of ``StepRecord.times``.
-TIME_KEYS = {
-    "set_update": "set_update_total",
-    "set_update_solver": "set_update",
-    "lms": "lms_total",
-    "qp_update": "qp_update",
-    "solver": "solver",
-    "total": "total",
+#: Issue 16 (CPU time, medians, Example 1, 8-facet X0, N = 10): name -> (what, limit, unit).
+TARGETS_16 = {
+    "drake_vertex_total": ("Drake vertex full step", 2.0, "ms"),
+    "drake_vertex_outside_solvers": ("Drake vertex, everything outside the solver calls", 0.3, "ms"),
+    "cvxpy_over_drake_vertex": ("cvxpy vertex / Drake vertex", 1.3, "x"),
+    "drake_plain_total": ("Drake plain (15) full step", 12.0, "ms"),
+    "drake_fast_total": ("fast path (DAQP) full step", 1.2, "ms"),
 }
-#: The extra parameter of the p = 4 sweep point (the first three are Example 1's).
-A4 = np.array([[0.02, 0.0], [0.01, 0.02]])
-B4 = np.array([[0.02], [0.0]])
-THETA_STAR_4 = np.array([0.8, 0.2, -0.5, 0.3])
-
-
 @dataclass(frozen=True)
 class BenchSettings:
     """What to run. ``quick`` shortens everything (CI, tests); explicit lists override."""
 
     steps: int = 50
-    scaling_steps: int = 10
+    scaling_steps: int = 30
     seed: int = 0
     only: str | None = None                      # None, "example", "scaling" or "section4"
     backends: tuple[str, ...] = ("drake", "cvxpy")
-    formulations: tuple[str, ...] = ("plain", "vertex")
+    formulations: tuple[str, ...] = ("plain", "vertex", "fast")
     example_facets: tuple[int, ...] = (4, 8)
     sweep_N: tuple[int, ...] = (5, 10, 20, 40)
-    sweep_p: tuple[int, ...] = (1, 2, 3, 4)
-    sweep_facets: tuple[int, ...] = (4, 6, 8, 12, 16)
+    sweep_p: tuple[int, ...] = (2, 3, 4)
+    sweep_facets: tuple[int, ...] = (4, 8, 16)
+    sweep_n: tuple[int, ...] = (2, 3, 4)
+    scaling_backends: tuple[str, ...] = ("drake",)
     quick: bool = False
 
     @classmethod
     def quick_settings(cls, **changes: Any) -> BenchSettings:
-        base = cls(steps=10, scaling_steps=3, sweep_N=(5, 20), sweep_p=(1, 3), sweep_facets=(4, 8), quick=True)
+        base = cls(steps=10, scaling_steps=3, sweep_N=(5, 20), sweep_p=(2, 3), sweep_facets=(4, 8), sweep_n=(2,),
+                   quick=True)
         return replace(base, **changes)
 
-
-@dataclass
-class RunResult:
-    """One configuration's closed-loop run: per-step times (s) and the inputs v_0 it applied."""
-
-    backend: str
-    formulation: str
-    build_s: float
-    times: dict[str, list[float]] = field(default_factory=dict)
-    v: list[np.ndarray | None] = field(default_factory=list)
-    status: str = "completed"
-
-    @property
-    def label(self) -> str:
-        return f"{self.backend}/{self.formulation}"
-
-
-# -- running -----------------------------------------------------------------------------------
-
-def lockstep(problem, design, configs: list[tuple[str, str]], x0, theta_star, steps: int, seed: int) -> list[RunResult]:
-    """Run the closed loop of every (backend, formulation) in ``configs`` for ``steps`` + 1 steps,
-    interleaved step by step, with the same disturbance sequence (uniform on W, ``seed``)."""
-    from amcp_drake.model.errors import AmcpError
-    from amcp_drake.online.controller import AdaptiveMPC
-    from amcp_drake.online.simulate import disturbance_sequence
-
-    w = disturbance_sequence(problem, "uniform", steps + 1, seed=seed)
-    theta_star = np.asarray(theta_star, float)
-    runs, ctrls, states = [], [], []
-    for backend, formulation in configs:
-        start = time.perf_counter()
-        ctrl = AdaptiveMPC(problem, design, backend=backend, formulation=formulation)
-        runs.append(RunResult(backend, formulation, time.perf_counter() - start,
-                              {name: [] for name in TIME_KEYS}))
-        ctrls.append(ctrl)
-        states.append(np.asarray(x0, float))
-    active = [True] * len(runs)
-    was_enabled = gc.isenabled()
-    gc.collect()
-    gc.disable()
-    try:
-        for k in range(steps + 1):
-            for c, (run, ctrl) in enumerate(zip(runs, ctrls)):
-                if not active[c]:
-                    continue
-                try:
-                    u, rec = ctrl.step(states[c])
-                except AmcpError as exc:
-                    run.status, active[c] = f"error at k={k}: {exc}", False
-                    continue
-                run.v.append(None if rec.v is None else np.asarray(rec.v, float))
-                if u is None:
-                    run.status, active[c] = f"{rec.status.value} at k={k}", False
-                    continue
-                if k >= 1:  # full steps only: update + LMS + QP
-                    for name, key in TIME_KEYS.items():
-                        run.times[name].append(float(rec.times.get(key, 0.0)))
-                states[c] = problem.step(states[c], u, theta_star, w[k])
-    finally:
-        if was_enabled:
-            gc.enable()
-    return runs
-
-
-def _stats(values: list[float]) -> dict[str, float | int | None]:
-    if not values:
-        return {"median": None, "p90": None, "mean": None, "max": None, "n": 0}
-    ms = 1e3 * np.asarray(values, float)
-    return {"median": float(np.median(ms)), "p90": float(np.percentile(ms, 90)), "mean": float(np.mean(ms)),
-            "max": float(np.max(ms)), "n": int(len(ms))}
-
-
-def _max_dv(a: RunResult, b: RunResult) -> float | None:
-    diffs = [float(np.max(np.abs(va - vb))) for va, vb in zip(a.v, b.v) if va is not None and vb is not None]
-    return max(diffs) if diffs else None
-
-
-def _summaries(runs: list[RunResult], extra: dict[str, Any]) -> list[dict[str, Any]]:
-    out = []
-    for run in runs:
-        plain = next((r for r in runs if r.backend == run.backend and r.formulation == "plain"), None)
-        row = dict(extra)
-        row.update({"backend": run.backend, "formulation": run.formulation, "status": run.status,
-                    "build_s": run.build_s, "times_ms": {name: _stats(vals) for name, vals in run.times.items()},
-                    "max_abs_dv_vs_plain": _max_dv(run, plain) if plain is not None and plain is not run else None})
-        out.append(row)
-    return out
-
-
-def _configs(settings: BenchSettings) -> list[tuple[str, str]]:
-    return [(b, f) for b in settings.backends for f in settings.formulations]
+    def configs(self, backends: tuple[str, ...] | None = None) -> list[tuple[str, str]]:
+        """(backend, formulation) pairs to run; the fast path exists for Drake only."""
+        return [(b, f) for b in (backends or self.backends) for f in self.formulations
+                if not (f == "fast" and b != "drake")]
 
 
 def _design_or_reason(problem, options):
@@ -200,8 +124,8 @@ def example_benchmark(settings: BenchSettings, progress: Callable[[str], None] =
         if d is None:
             runs_out.append({"x0_facets": facets, "status": reason})
             continue
-        runs = lockstep(spec.problem, d, _configs(settings), sc.x0, sc.theta_star, settings.steps, settings.seed)
-        runs_out.extend(_summaries(runs, {"x0_facets": facets, "x0_vertices": int(len(d.X0_vertices)),
+        runs = lockstep(spec.problem, d, settings.configs(), sc.x0, sc.theta_star, settings.steps, settings.seed)
+        runs_out.extend(summaries(runs, {"x0_facets": facets, "x0_vertices": int(len(d.X0_vertices)),
                                           "steps": settings.steps}))
     return {"problem": "lorenzen2019", "x0": np.asarray(sc.x0).tolist(), "theta_star": np.asarray(sc.theta_star).tolist(),
             "runs": runs_out, "ratios": _ratios(runs_out)}
@@ -216,64 +140,41 @@ def _ratio(a: float | None, b: float | None) -> float | None:
 
 
 def _ratios(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Speed-up of the vertex form over the plain form (same backend, same X0) and cvxpy/Drake
-    (same formulation), from the medians of one lockstep run."""
+    """From the medians of one lockstep run (same X0): plain/vertex and vertex/fast (same backend),
+    cvxpy/drake (same formulation); each as CPU-time ratios (``total_cpu``, ``solver_cpu``) and
+    wall-time ratios (``total``, ``solver``)."""
     out = []
     index = {(r.get("x0_facets"), r.get("backend"), r.get("formulation")): r for r in rows if "times_ms" in r}
-    facets = sorted({key[0] for key in index})
-    for f in facets:
+
+    def ratio_row(head: dict[str, Any], num: dict[str, Any], den: dict[str, Any]) -> dict[str, Any]:
+        return {**head,
+                "total_cpu": _ratio(_median(num, "cpu_total"), _median(den, "cpu_total")),
+                "solver_cpu": _ratio(_median(num, "cpu_qp_solver"), _median(den, "cpu_qp_solver")),
+                "total": _ratio(_median(num, "total"), _median(den, "total")),
+                "solver": _ratio(_median(num, "solver"), _median(den, "solver"))}
+
+    for f in sorted({key[0] for key in index}):
         for backend in ("drake", "cvxpy"):
-            plain, vertex = index.get((f, backend, "plain")), index.get((f, backend, "vertex"))
-            if plain and vertex:
-                out.append({"x0_facets": f, "kind": "plain/vertex", "backend": backend,
-                            "total": _ratio(_median(plain, "total"), _median(vertex, "total")),
-                            "solver": _ratio(_median(plain, "solver"), _median(vertex, "solver"))})
+            for num, den in (("plain", "vertex"), ("vertex", "fast")):
+                a, b = index.get((f, backend, num)), index.get((f, backend, den))
+                if a and b:
+                    out.append(ratio_row({"x0_facets": f, "kind": f"{num}/{den}", "backend": backend}, a, b))
         for formulation in ("plain", "vertex"):
             drake, cvx = index.get((f, "drake", formulation)), index.get((f, "cvxpy", formulation))
             if drake and cvx:
-                out.append({"x0_facets": f, "kind": "cvxpy/drake", "formulation": formulation,
-                            "total": _ratio(_median(cvx, "total"), _median(drake, "total")),
-                            "solver": _ratio(_median(cvx, "solver"), _median(drake, "solver"))})
+                out.append(ratio_row({"x0_facets": f, "kind": "cvxpy/drake", "formulation": formulation}, cvx, drake))
     return out
-
-
-def problem_with_p(problem, p: int):
-    """Example 1 with its first p parameters (p = 4 adds A_4 = A4, B_4 = B4); Θ = [-1, 1]^p."""
-    A = np.concatenate([problem.A, A4[None]])[:p]
-    B = np.concatenate([problem.B, B4[None]])[:p]
-    return problem.with_changes(A=A, B=B, H_theta=np.vstack([np.eye(p), -np.eye(p)]), h_theta=np.ones(2 * p),
-                                theta_hat0=np.zeros(p))
 
 
 def scaling_benchmark(settings: BenchSettings, progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
-    """Sweeps around Example 1 (8-facet X0, N = 10, p = 3): horizon N, parameter count p, facets of X0."""
-    from amcp_drake.model.examples import lorenzen2019_spec
+    """Sweeps around Example 1, one factor at a time; see :mod:`amcp_drake.studies.bench_scaling`."""
+    from amcp_drake.studies.bench_scaling import scaling_benchmark as run
 
-    spec = lorenzen2019_spec()
-    sc = spec.scenario
-    base = spec.problem
-    points: dict[str, list[tuple[int, Any, Any, np.ndarray]]] = {
-        "N": [(N, base.with_changes(N=N), spec.design, sc.theta_star) for N in settings.sweep_N],
-        "p": [(p, problem_with_p(base, p), spec.design, THETA_STAR_4[:p]) for p in settings.sweep_p],
-        "x0_facets": [(f, base, replace(spec.design, x0_facets=f), sc.theta_star) for f in settings.sweep_facets],
-    }
-    out: dict[str, list[dict[str, Any]]] = {}
-    for axis, items in points.items():
-        rows: list[dict[str, Any]] = []
-        for value, problem, options, theta_star in items:
-            progress(f"scaling: {axis} = {value}, {settings.scaling_steps} steps")
-            d, reason = _design_or_reason(problem, options)
-            if d is None:
-                rows.append({axis: value, "status": reason})
-                continue
-            runs = lockstep(problem, d, _configs(settings), sc.x0, theta_star, settings.scaling_steps, settings.seed)
-            rows.extend(_summaries(runs, {axis: value, "N": problem.N, "p": problem.p,
-                                          "x0_facets": int(len(d.H_x)), "steps": settings.scaling_steps}))
-        out[axis] = rows
-    return out
+    return run(settings, progress)
 
 
 def _target(example: dict[str, Any] | None) -> dict[str, Any]:
+    """Issue 8's wall-time target (kept for comparison with earlier runs) and issue 16's CPU targets."""
     rows = {(r.get("x0_facets"), r.get("backend"), r.get("formulation")): r
             for r in (example or {}).get("runs", []) if "times_ms" in r}
     drake = rows.get((8, "drake", "vertex"))
@@ -281,11 +182,27 @@ def _target(example: dict[str, Any] | None) -> dict[str, Any]:
     drake_ms = _median(drake, "total") if drake else None
     cvx_ms = _median(cvx, "total") if cvx else None
     ratio = _ratio(cvx_ms, drake_ms)
-    return {"what": "median full step (update + LMS + QP), Example 1, 8-facet X0, vertex form",
+
+    def cpu(backend: str, formulation: str, key: str = "cpu_total") -> float | None:
+        row = rows.get((8, backend, formulation))
+        return _median(row, key) if row else None
+
+    measured = {
+        "drake_vertex_total": cpu("drake", "vertex"),
+        "drake_vertex_outside_solvers": cpu("drake", "vertex", "cpu_outside_solvers"),
+        "cvxpy_over_drake_vertex": _ratio(cpu("cvxpy", "vertex"), cpu("drake", "vertex")),
+        "drake_plain_total": cpu("drake", "plain"),
+        "drake_fast_total": cpu("drake", "fast"),
+    }
+    issue16 = [{"name": name, "what": what, "limit": limit, "unit": unit, "measured": measured[name],
+                "met": None if measured[name] is None else bool(measured[name] <= limit)}
+               for name, (what, limit, unit) in TARGETS_16.items()]
+    return {"what": "median full step (update + LMS + QP), Example 1, 8-facet X0, vertex form (wall time)",
             "target_ms": TARGET_MS, "drake_ms": drake_ms,
             "met": None if drake_ms is None else bool(drake_ms <= TARGET_MS),
             "cvxpy_ms": cvx_ms, "cvxpy_over_drake": ratio, "cvxpy_target_ratio": TARGET_CVXPY_RATIO,
-            "cvxpy_met": None if ratio is None else bool(ratio <= TARGET_CVXPY_RATIO)}
+            "cvxpy_met": None if ratio is None else bool(ratio <= TARGET_CVXPY_RATIO),
+            "issue16_cpu": issue16}
 
 
 def machine_info() -> dict[str, Any]:
@@ -353,125 +270,148 @@ def write_outputs(result: dict[str, Any], out_dir: str | Path, plot: bool = True
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {"json": out_dir / "bench.json"}
     paths["json"].write_text(json.dumps(_clean(result), indent=1, allow_nan=False) + "\n")
+    if result.get("scaling"):
+        from amcp_drake.studies.bench_scaling import scaling_markdown
+
+        paths["markdown"] = out_dir / "scaling.md"
+        paths["markdown"].write_text(scaling_markdown(result["scaling"]))
     if plot:
         paths["png"] = out_dir / "bench.png"
         plot_results(result, paths["png"])
     return paths
 
 
-_COMPONENTS = ("set_update", "lms", "qp_update", "solver")
+_COMPONENTS = ("cpu_set_update", "cpu_lms", "cpu_qp_update", "cpu_qp_solver")
 _STYLE = {("drake", "plain"): ("tab:blue", "o"), ("drake", "vertex"): ("tab:green", "s"),
+          ("drake", "fast"): ("tab:purple", "v"),
           ("cvxpy", "plain"): ("tab:orange", "^"), ("cvxpy", "vertex"): ("tab:red", "D")}
+_AXES = (("N", "horizon N"), ("x0_facets", "facets of X0"), ("p", "parameters p"), ("n", "states n"))
+
+
+def _cpu_parts(row: dict[str, Any]) -> dict[str, float]:
+    """CPU medians of the stacked parts: set update, LMS, QP outside its solver, QP solver."""
+    t = row["times_ms"]
+    med = {k: (t[k]["median"] or 0.0) for k in ("cpu_set_update", "cpu_lms", "cpu_qp", "cpu_qp_solver")}
+    return {"cpu_set_update": med["cpu_set_update"], "cpu_lms": med["cpu_lms"],
+            "cpu_qp_update": max(med["cpu_qp"] - med["cpu_qp_solver"], 0.0), "cpu_qp_solver": med["cpu_qp_solver"]}
 
 
 def plot_results(result: dict[str, Any], path: str | Path) -> None:
-    """Four panels: Example 1 stacked per-step medians, then total (solid) and solver-only
-    (dashed) medians against N, p and the facet count of X0; the paper's 68 ms and the 7 ms target."""
+    """Six panels (CPU time, medians): Example 1 stacked per-step parts; total (solid) and QP solver
+    (dashed) against N, the facets of X0, p and n; the design time of every sweep point."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(2, 2, figsize=(13, 9))
+    fig, axes = plt.subplots(2, 3, figsize=(18, 9))
     ax = axes[0, 0]
     rows = [r for r in ((result.get("example") or {}).get("runs") or []) if "times_ms" in r]
     if rows:
-        labels, bottoms = [], np.zeros(len(rows))
+        bottoms = np.zeros(len(rows))
         x = np.arange(len(rows))
-        colors = {"set_update": "tab:purple", "lms": "tab:gray", "qp_update": "tab:cyan", "solver": "tab:olive"}
+        colors = {"cpu_set_update": "tab:purple", "cpu_lms": "tab:gray", "cpu_qp_update": "tab:cyan",
+                  "cpu_qp_solver": "tab:olive"}
+        parts = [_cpu_parts(r) for r in rows]
         for comp in _COMPONENTS:
-            vals = np.array([(r["times_ms"][comp]["median"] or 0.0) for r in rows])
-            ax.bar(x, vals, bottom=bottoms, color=colors[comp], label=f"{comp} (median)")
+            vals = np.array([p[comp] for p in parts])
+            ax.bar(x, vals, bottom=bottoms, color=colors[comp], label=f"{comp[4:]} (CPU median)")
             bottoms += vals
-        totals = np.array([r["times_ms"]["total"]["median"] or np.nan for r in rows])
-        p90 = np.array([r["times_ms"]["total"]["p90"] or np.nan for r in rows])
-        ax.errorbar(x, totals, yerr=[np.zeros_like(totals), np.maximum(p90 - totals, 0)], fmt="k_", ms=14,
-                    capsize=4, label="total: median, p90")
-        labels = [f"{r['backend']}\n{r['formulation']}\n{r['x0_facets']} facets" for r in rows]
-        ax.set_xticks(x, labels, fontsize=8)
-    ax.axhline(PAPER_MS["median_solver"], color="k", ls="--", lw=1, label="paper: 68 ms median solver time")
-    ax.axhline(TARGET_MS, color="tab:green", ls=":", lw=1, label="target: 7 ms full step")
+        totals = np.array([r["times_ms"]["cpu_total"]["median"] or np.nan for r in rows])
+        walls = np.array([r["times_ms"]["total"]["median"] or np.nan for r in rows])
+        ax.plot(x, totals, "k_", ms=16, mew=2, label="total CPU (median)")
+        ax.plot(x, walls, "r_", ms=16, mew=1, label="total wall (median)")
+        ax.set_xticks(x, [f"{r['backend']}\n{r['formulation']}\n{r['x0_facets']} facets" for r in rows], fontsize=7)
+        ax.set_yscale("log")
+    for name, (what, limit, unit) in TARGETS_16.items():
+        if unit == "ms" and name.endswith("_total"):
+            ax.axhline(limit, color="tab:green", ls=":", lw=1)
     ax.set_ylabel("ms per step")
-    ax.set_title("Example 1: per-step split (stacked medians of each part) and total", fontsize=10)
-    ax.legend(fontsize=7, loc="upper right")
+    ax.set_title("Example 1: CPU per part (stacked medians); dotted: issue-16 targets", fontsize=10)
+    ax.legend(fontsize=6, loc="upper right")
 
     scaling = result.get("scaling") or {}
-    for ax, axis, xlabel in ((axes[0, 1], "N", "horizon N"), (axes[1, 0], "p", "parameters p"),
-                             (axes[1, 1], "x0_facets", "facets of X0")):
+    for ax, (axis, xlabel) in zip((axes[0, 1], axes[0, 2], axes[1, 0], axes[1, 1]), _AXES):
         rows = [r for r in scaling.get(axis, []) if "times_ms" in r]
         for key, (color, marker) in _STYLE.items():
             sel = sorted((r for r in rows if (r["backend"], r["formulation"]) == key), key=lambda r: r[axis])
             if not sel:
                 continue
             xs = [r[axis] for r in sel]
-            ax.plot(xs, [r["times_ms"]["total"]["median"] or np.nan for r in sel], color=color, marker=marker,
-                    label=f"{key[0]} {key[1]}: total")
-            ax.plot(xs, [r["times_ms"]["solver"]["median"] or np.nan for r in sel], color=color, marker=marker,
-                    ls="--", mfc="none", label=f"{key[0]} {key[1]}: solver only")
-        ax.axhline(PAPER_MS["median_solver"], color="k", ls="--", lw=1, label="paper: 68 ms")
-        ax.axhline(TARGET_MS, color="tab:green", ls=":", lw=1)
+            ax.plot(xs, [r["times_ms"]["cpu_total"]["median"] or np.nan for r in sel], color=color, marker=marker,
+                    label=f"{key[0]} {key[1]}: full step")
+            ax.plot(xs, [r["times_ms"]["cpu_qp_solver"]["median"] or np.nan for r in sel], color=color,
+                    marker=marker, ls="--", mfc="none", label=f"{key[0]} {key[1]}: QP solver")
         failed = [str(r[axis]) for r in scaling.get(axis, []) if "times_ms" not in r]
-        title = f"scaling with {xlabel} (medians)"
+        title = f"{xlabel}, others as Example 1 (CPU medians)"
         if failed:
             title += f"; no design for {', '.join(failed)}"
         ax.set_title(title, fontsize=10)
         ax.set_xlabel(xlabel)
         if rows:
             ax.set_xticks(sorted({r[axis] for r in rows}))
-        ax.set_ylabel("ms per step")
+            ax.legend(fontsize=6, ncol=2)
+        ax.set_ylabel("ms per step (CPU)")
         ax.set_yscale("log")
         ax.grid(True, which="both", alpha=0.3)
-        if rows:
-            ax.legend(fontsize=6, ncol=2)
-    fig.suptitle(f"amcp bench ({result.get('created', '')}; {result.get('machine', {}).get('cpu_count')} cores)")
+    ax = axes[1, 2]
+    labels, design_cpu = [], []
+    for axis, _ in _AXES:
+        seen = set()
+        for r in scaling.get(axis, []):
+            if "design_cpu_s" in r and r[axis] not in seen:
+                seen.add(r[axis])
+                labels.append(f"{axis}={r[axis]}")
+                design_cpu.append(r["design_cpu_s"])
+    if labels:
+        ax.bar(np.arange(len(labels)), design_cpu, color="tab:brown")
+        ax.set_xticks(np.arange(len(labels)), labels, rotation=60, fontsize=7)
+        ax.set_yscale("log")
+    ax.set_ylabel("s (CPU)")
+    ax.set_title("offline design time per sweep point", fontsize=10)
+    fig.suptitle(f"amcp bench ({result.get('created', '')}; {result.get('machine', {}).get('cpu_count')} cores; "
+                 "CPU = thread time)")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
 
 
 def format_summary(result: dict[str, Any]) -> str:
-    """Plain-text table of the Example 1 runs, the ratios and the target."""
+    """Plain-text tables: Example 1 (CPU medians per part and the total's wall median), the ratios
+    of the same interleaved run, issue 16's targets, the sweeps."""
     lines = []
     example = result.get("example")
     if example:
-        head = f"{'backend':8s} {'form':7s} {'X0':>3s}  " + "  ".join(f"{k:>17s}" for k in
-                                                                      ("set update", "LMS", "QP update", "solver", "total"))
-        lines += ["Example 1, ms per step: median / p90 over the run", head]
+        keys = ("cpu_set_update", "cpu_lms", "cpu_qp", "cpu_qp_solver", "cpu_outside_solvers", "cpu_total", "total")
+        names = ("set update", "LMS", "QP", "QP solver", "outside solv.", "total CPU", "total wall")
+        lines += ["Example 1, ms per full step: median / p90 (CPU = thread time; wall = perf_counter)",
+                  f"{'backend':7s} {'form':6s} {'X0':>3s} " + " ".join(f"{k:>15s}" for k in names)]
         for r in example["runs"]:
             if "times_ms" not in r:
                 lines.append(f"X0 {r.get('x0_facets')} facets: {r.get('status')}")
                 continue
-            cells = []
-            for key in ("set_update", "lms", "qp_update", "solver", "total"):
-                s = r["times_ms"][key]
-                cells.append(f"{_fmt(s['median'])} / {_fmt(s['p90'])}".rjust(17))
+            cells = [f"{_fmt(r['times_ms'][k]['median'])} / {_fmt(r['times_ms'][k]['p90'])}".rjust(15) for k in keys]
             status = "" if r["status"] == "completed" else f"  [{r['status']}]"
             dv = r.get("max_abs_dv_vs_plain")
-            dv_text = f"  max|dv| vs plain {dv:.1e}" if dv is not None else ""
-            lines.append(f"{r['backend']:8s} {r['formulation']:7s} {r['x0_facets']:>3d}  " + "  ".join(cells) + status + dv_text)
+            extra = f"  max|dv| vs plain {dv:.1e}" if dv is not None else ""
+            if r.get("fast_path"):
+                extra += f"  DAQP {r['fast_path']['daqp']}, fallbacks {r['fast_path']['fallback']}"
+            lines.append(f"{r['backend']:7s} {r['formulation']:6s} {r['x0_facets']:>3d} " + " ".join(cells) + status + extra)
         for q in example["ratios"]:
             who = q.get("backend") or q.get("formulation")
-            lines.append(f"ratio {q['kind']:12s} {who:6s} X0 {q['x0_facets']:>2d} facets: total {_fmt(q['total'], 2)}x, "
-                         f"solver {_fmt(q['solver'], 2)}x")
+            lines.append(f"ratio {q['kind']:12s} {who:6s} X0 {q['x0_facets']:>2d}: total CPU {_fmt(q['total_cpu'], 2)}x "
+                         f"(wall {_fmt(q['total'], 2)}x), QP solver CPU {_fmt(q['solver_cpu'], 2)}x "
+                         f"(wall {_fmt(q['solver'], 2)}x)")
     target = result.get("target") or {}
-    if target.get("drake_ms") is not None:
-        text = (f"target: Drake vertex form, 8 facets, median full step {target['drake_ms']:.2f} ms "
-                f"(<= {target['target_ms']:.0f} ms: {'met' if target['met'] else 'NOT met'})")
-        if target.get("cvxpy_over_drake") is not None:
-            text += (f"; cvxpy {target['cvxpy_ms']:.2f} ms = {target['cvxpy_over_drake']:.2f}x Drake "
-                     f"(<= {target['cvxpy_target_ratio']:.0f}x: {'met' if target['cvxpy_met'] else 'NOT met'})")
-        lines.append(text)
-    scaling = result.get("scaling")
-    if scaling:
-        lines.append("scaling, median total / solver ms:")
-        for axis, rows in scaling.items():
-            for r in rows:
-                if "times_ms" not in r:
-                    lines.append(f"  {axis} = {r[axis]}: {r['status']}")
-                    continue
-                lines.append(f"  {axis} = {r[axis]:>3}  {r['backend']:6s} {r['formulation']:7s} "
-                             f"{_fmt(r['times_ms']['total']['median'])} / {_fmt(r['times_ms']['solver']['median'])}"
-                             + ("" if r["status"] == "completed" else f"  [{r['status']}]"))
+    for t in target.get("issue16_cpu", []):
+        if t["measured"] is not None:
+            verdict = "met" if t["met"] else "NOT met"
+            lines.append(f"target (issue 16, CPU): {t['what']}: {t['measured']:.2f} {t['unit']} "
+                         f"(<= {t['limit']} {t['unit']}: {verdict})")
+    if result.get("scaling"):
+        from amcp_drake.studies.bench_scaling import scaling_markdown
+
+        lines += ["scaling (one factor at a time around Example 1):", scaling_markdown(result["scaling"]).rstrip()]
     if result.get("section4"):
         from amcp_drake.studies.bench_section4 import format_section4
 

@@ -1,4 +1,4 @@
-"""Verification campaigns on Dask distributed (issue 9).
+"""Verification campaigns on Dask distributed (issues 9 and 17).
 
 ``run_campaign`` draws problem ``idx`` of campaign ``seed`` from the property suite's generators
 (:func:`amcp_properties.strategies.closed_loop_cases`, made reproducible per problem with
@@ -7,15 +7,27 @@ the independent checks of :func:`amcp_drake.certificate.certify.certify`, and st
 soon as it arrives (:mod:`amcp_drake.studies.campaign_store`). The work fans out on a Dask
 ``LocalCluster`` (default) or an existing scheduler (``scheduler="tcp://..."``); no home-made
 queue. A task whose worker dies is re-run by Dask (``retries``); an interrupted campaign resumes
-with ``resume=True`` by skipping the indices already stored; failing problems are written as a
-problem file plus trajectory that ``amcp certify`` replays.
+with ``resume=True`` by skipping the indices already stored, and only with the settings the store
+was made with (:func:`campaign_settings`, recorded in the store).
+
+Replays (issue 17, item 3). Each drawn case becomes a complete problem file first
+(:func:`replay_spec`: problem, design options, ``online`` options, x0, θ*, steps and the explicit
+disturbance array), which is serialised and parsed back; the campaign then runs *that* file through
+:func:`amcp_drake.online.replay.run_scenario`, the function ``amcp certify PROBLEM`` runs, with the offline
+design on :data:`DESIGN_BACKEND` and the formulation :data:`FORMULATION`. A failing problem is saved
+as that very file plus ``replay.json`` (the commands, settings, library versions and the recorded
+verdict and margins) and the trajectories; ``amcp certify D/problem.json --backend B
+--design-backend drake --formulation plain`` repeats the same computation and prints the same
+verdict and margins (tests/test_campaign_replay.py).
 """
 
 from __future__ import annotations
 
+import json
+import shlex
 import time
 import traceback
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +41,19 @@ ACTIVE_TOL = 0.02
 DRAWN_EXAMPLE = 2
 #: Dask re-runs a task this many times when its worker dies.
 TASK_RETRIES = 2
+#: The generator of campaign problems and its version: a store records it (``generator`` setting), so a
+#: store made with another generator is never resumed. Change it whenever problem ``idx`` of a seed
+#: would come out different (another generator, strategy, or DRAWN_EXAMPLE).
+GENERATOR_VERSION = "amcp_properties.closed_loop_cases/hypothesis-seeded/example-2"
+#: The offline design of every campaign problem is computed on this backend; every online backend
+#: then runs on that design (as the property suite does), and the replay command names it.
+DESIGN_BACKEND = "drake"
+#: The tube QP formulation of campaign runs (``--formulation`` of the replay command).
+FORMULATION = "plain"
+#: Packages whose versions are recorded with a store and a replay (they determine the numbers).
+RESULT_PACKAGES = ("amcp-drake", "drake", "cvxpy", "clarabel", "numpy", "scipy", "hypothesis")
+#: The file format of the replay manifest written next to a failing problem's problem.json.
+REPLAY_FORMAT, REPLAY_VERSION = "amcp-campaign-replay", 1
 
 
 def problem_seed(campaign_seed: int, idx: int) -> int:
@@ -57,6 +82,81 @@ def draw_case(campaign_seed: int, idx: int, steps: int = CAMPAIGN_STEPS):
     return drawn[-1]
 
 
+def library_versions() -> dict[str, str]:
+    """Installed versions of :data:`RESULT_PACKAGES` ("not installed" for a missing one)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {}
+    for name in RESULT_PACKAGES:
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
+def campaign_settings(seed: int, systems: int, backends: Iterable[str], steps: int) -> dict[str, Any]:
+    """Everything that determines a campaign's results, as recorded in its store (issue 17, item 4):
+    a store made with other settings is never resumed (scheduler and workers do not change results
+    and are not recorded)."""
+    return {"seed": int(seed), "systems": int(systems), "backends": list(backends), "steps": int(steps),
+            "generator": GENERATOR_VERSION, "design_backend": DESIGN_BACKEND, "formulation": FORMULATION,
+            "versions": library_versions()}
+
+
+def replay_spec(case):
+    """The complete problem file of a drawn case: problem, design options, the online options of the
+    run, and a scenario with x0, θ* (vector or sequence), steps and the explicit disturbance array
+    (``case.w``), so that the file alone determines the run. ``case`` needs ``spec`` (problem and
+    design options), ``x0``, ``theta_star``, ``w`` and ``options``; ``seed`` is kept for the record."""
+    from amcp_drake.model.problem import ProblemSpec, Scenario
+
+    w = np.asarray(case.w, float)
+    scenario = Scenario(x0=np.asarray(case.x0, float), theta_star=np.asarray(case.theta_star, float), steps=len(w),
+                        disturbance=w, seed=int(getattr(case, "seed", 0)) % (2**31))
+    return ProblemSpec(case.spec.problem, case.spec.design, scenario, online=case.options)
+
+
+def round_trip(spec) -> tuple[Any, str]:
+    """``spec`` written as problem-file JSON and parsed back: (the parsed spec, the exact text). The
+    campaign runs the parsed spec, so what it saves is what it ran."""
+    from amcp_drake.model.problem_io import spec_from_dict, spec_to_dict
+
+    text = json.dumps(spec_to_dict(spec), indent=1, allow_nan=False)
+    return spec_from_dict(json.loads(text)), text
+
+
+def replay_command(folder: str | Path, backend: str) -> str:
+    """The shell command that replays ``backend``'s run of the failing problem saved in ``folder``."""
+    folder = Path(folder)
+    return shlex.join(["amcp", "certify", str(folder / "problem.json"), "--backend", backend, "--design-backend",
+                       DESIGN_BACKEND, "--formulation", FORMULATION, "--out", str(folder / f"replay-{backend}")])
+
+
+def save_replay(folder: str | Path, text: str, result: dict[str, Any], trajs: dict) -> list[str]:
+    """Write a failing problem's replay into ``folder`` (problem.json, replay.json, one trajectory per
+    backend), each file atomically; return the replay commands of the backends that did not pass."""
+    from amcp_drake.model.problem_io import write_json_atomic, write_text_atomic
+
+    folder = Path(folder)
+    write_text_atomic(text, folder / "problem.json")
+    for backend, traj in trajs.items():
+        traj.save(folder / f"trajectory-{backend}.json.gz")
+    runs = {}
+    for backend, claims in result["claims"].items():
+        runs[backend] = {"command": replay_command(folder, backend), "backend": backend,
+                         "design_backend": DESIGN_BACKEND, "formulation": FORMULATION,
+                         "backend_options": {"formulation": FORMULATION},
+                         "verdict": result["verdicts"][backend], "claims": claims}
+    failing = [b for b, claims in result["claims"].items() if any(c["status"] != "pass" for c in claims.values())]
+    manifest = {"format": REPLAY_FORMAT, "version": REPLAY_VERSION, "campaign_seed": result["campaign_seed"],
+                "idx": result["idx"], "generator": GENERATOR_VERSION, "digest": result.get("digest"),
+                "labels": result.get("labels", {}), "failing_backends": failing, "runs": runs,
+                "versions": library_versions()}
+    write_json_atomic(manifest, folder / "replay.json")
+    return [runs[b]["command"] for b in failing]
+
+
 def _coverage(traj) -> dict[str, float]:
     pr = traj.problem
     z = max((pr.in_Z(x, u) for x, u in zip(traj.x, traj.u)), default=-np.inf)
@@ -68,45 +168,52 @@ def _coverage(traj) -> dict[str, float]:
 
 
 def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure_dir: str,
-                steps: int = CAMPAIGN_STEPS) -> dict[str, Any]:
-    """Draw, run and certify problem ``idx`` on each backend (a Dask task; also callable directly)."""
+                steps: int = CAMPAIGN_STEPS, draw: Callable | None = None) -> dict[str, Any]:
+    """Draw, run and certify problem ``idx`` on each backend (a Dask task; also callable directly).
+
+    ``draw(campaign_seed, idx, steps)`` returns the case (default :func:`draw_case`); the run is that
+    of the case's complete problem file (:func:`replay_spec`, :func:`round_trip`), through the same
+    :func:`~amcp_drake.online.replay.run_scenario` as ``amcp certify``."""
     from amcp_drake.certificate.certify import certify
-    from amcp_drake.model.errors import InconsistentDataError
-    from amcp_drake.model.problem_io import save_spec
-    from amcp_drake.online.controller import AdaptiveMPC
-    from amcp_drake.online.simulate import simulate
+    from amcp_drake.offline.design import design
+    from amcp_drake.online.replay import run_scenario
 
     start = time.perf_counter()
-    result: dict[str, Any] = {"campaign_seed": campaign_seed, "idx": idx, "claims": {}, "coverage": {}}
+    result: dict[str, Any] = {"campaign_seed": campaign_seed, "idx": idx, "claims": {}, "coverage": {},
+                              "verdicts": {}}
     try:
-        case = draw_case(campaign_seed, idx, steps)
-        result["labels"] = {k: str(v) for k, v in case.labels.items()}
-        result["digest"] = case.key()
+        case = (draw or draw_case)(campaign_seed, idx, steps)
+        result["labels"] = {k: str(v) for k, v in getattr(case, "labels", {}).items()}
+        spec, text = round_trip(replay_spec(case))
+        result["digest"] = _digest(text)
+        offline = design(spec.problem, spec.design, backend=DESIGN_BACKEND)
         trajs = {}
         for backend in backends:
-            ctrl = AdaptiveMPC(case.problem, case.design, backend=backend, options=case.options)
-            try:
-                traj = simulate(ctrl, case.x0, case.theta_star, case.steps, case.w,
-                                mu_state_bound=case.spec.design.mu_state_bound)
-            except InconsistentDataError as exc:
-                traj = exc.trajectory
+            traj = run_scenario(spec, backend, design_backend=DESIGN_BACKEND, formulation=FORMULATION,
+                                offline=offline)
             trajs[backend] = traj
-            cert = certify(traj, case.to_spec())
+            cert = certify(traj, spec)
             result["claims"][backend] = {c.name: {"status": c.status, "margin": c.margin} for c in cert.claims}
+            result["verdicts"][backend] = cert.verdict
             result["coverage"][backend] = _coverage(traj)
         failed = any(c["status"] != "pass" for claims in result["claims"].values() for c in claims.values())
         result["status"] = "fail" if failed else "pass"
         if failed:
             folder = Path(failure_dir) / f"{campaign_seed}-{idx}"
-            save_spec(case.to_spec(), folder / "problem.json")
-            for backend, traj in trajs.items():
-                traj.save(folder / f"trajectory-{backend}.json.gz")
+            result["replay"] = save_replay(folder, text, result, trajs)
             result["failure_dir"] = str(folder)
     except Exception as exc:  # noqa: BLE001 - any crash of one problem is a recorded result, not a lost one
         result["status"] = "error"
         result["message"] = f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=5)}"
     result["seconds"] = time.perf_counter() - start
     return result
+
+
+def _digest(text: str) -> str:
+    """SHA-1 of a problem file's text (identifies the run: the file determines it)."""
+    import hashlib
+
+    return hashlib.sha1(text.encode()).hexdigest()
 
 
 def run_campaign(store_path: str | Path, systems: int, backends: Iterable[str] = ("drake", "cvxpy"),
@@ -118,15 +225,20 @@ def run_campaign(store_path: str | Path, systems: int, backends: Iterable[str] =
     from amcp_drake.model.errors import ProblemError
     from amcp_drake.studies.campaign_store import CampaignStore
 
-    store = CampaignStore(store_path)
-    done = store.done(seed)
+    backends = tuple(backends)
+    store = CampaignStore(store_path)  # CampaignStoreError (exit 2) on a damaged or foreign file
+    try:
+        store.require_settings(campaign_settings(seed, systems, backends, steps))
+        done = store.done(seed)
+    except BaseException:
+        store.close()
+        raise
     if done and not resume:
         store.close()
         raise ProblemError("--store", f"a new store, or --resume to continue campaign seed {seed}",
                            f"{store_path} already holds {len(done)} problems of that campaign")
     todo = [i for i in range(systems) if i not in done]
     failure_dir = str(failure_dir or Path(store_path).with_suffix("").as_posix() + "-failures")
-    backends = tuple(backends)
     cluster = None
     if scheduler:
         client = Client(scheduler)

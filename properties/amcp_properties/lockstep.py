@@ -21,7 +21,7 @@ from amcp_drake.online.controller import AdaptiveMPC
 
 #: quantity -> (absolute, relative) tolerance; a difference d passes when d <= abs + rel·scale.
 #: v is unique (the cost (17) is strictly convex in v, R ≻ 0) and both QPs are solved by Clarabel
-#: to 1e-8; h_θ by LPs at 1e-10 (or simplex); θ̂ by projection QPs at 1e-10 (Drake) / 1e-11 (cvxpy).
+#: to 1e-8; h_θ by LPs at 1e-10 (or simplex); θ̂ by projection QPs at 1e-10 (both, scaled form).
 #: Worst |difference| / tolerance on 60 generated runs (seed 31, Drake leading): v 0.006,
 #: h_θ 0.003, cost 0.0007, θ̂ 0.14 (the same tolerances as amcp_drake.comparison.compare.TOLERANCES).
 TOLERANCES = {"v": (1e-5, 1e-5), "cost": (1e-5, 1e-6), "h_theta": (1e-6, 1e-6), "theta_hat": (1e-6, 1e-6)}

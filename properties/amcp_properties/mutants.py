@@ -77,17 +77,20 @@ def _qp_inputs(edit: Callable[[AdaptiveMPC, np.ndarray, np.ndarray, np.ndarray],
 @contextmanager
 def _drop_drake_constraint(description: str) -> Iterator[None]:
     """Remove every Drake constraint with this description just before it is solved."""
-    from amcp_drake.backends import drake_
+    from amcp_drake.backends import drake_, set_update_vertices
 
     original = drake_._Solver.solve
 
-    def solve(self, prog):
+    def solve(self, prog, extra_options=None):
         for binding in list(prog.GetAllConstraints()):
             if binding.evaluator().get_description() == description:
                 prog.RemoveConstraint(binding)
-        return original(self, prog)
+        return original(self, prog, extra_options)
 
-    with patch.object(drake_._Solver, "solve", solve):
+    # the Drake backend answers (9) by vertices where it can (issue 16): the LP, and with it this
+    # mutant, would then never run; the mutant forces the LP so that it mutates what it names
+    with patch.object(drake_._Solver, "solve", solve), \
+            patch.object(set_update_vertices.VertexSetUpdate, "solve", lambda self, *args: None):
         yield
 
 
@@ -126,11 +129,12 @@ def _lms(sign: float = 1.0, project: bool = True, regressor_now: bool = False):
         record.projection_status = SolveStatus.OPTIMAL
         if not project or np.all(pr.H_theta @ theta_tilde <= pr.h_theta):
             self.theta_hat = theta_tilde
-            return
+            return True
         result = self.backend.project(theta_tilde, pr.H_theta, pr.h_theta)
         record.projection_status = result.status
         if result.status is SolveStatus.OPTIMAL:
             self.theta_hat = np.asarray(result.theta, float)
+        return result.status is SolveStatus.OPTIMAL  # AdaptiveMPC.step goes on when True
 
     return update
 
@@ -147,6 +151,7 @@ def _update_from_prior(method):
 
 def _skip_update(self, H_delta, h_delta, record):
     record.set_status = SolveStatus.OPTIMAL
+    return True  # AdaptiveMPC.step goes on when True
 
 
 # -- the mutants ------------------------------------------------------------------------------------
@@ -233,7 +238,7 @@ def _small_polytopic_problem() -> ProblemSpec:
                       A=[[[0.05, 0.0], [0.02, 0.03]], [[0.0, 0.03], [-0.02, 0.0]]], B=[[[0.0], [0.04]], [[0.03], [0.0]]],
                       H_w=H_w, H_theta=H_theta, h_theta=h_theta, F=F, G=G, Q=np.eye(2), R=[[0.5]], N=6,
                       theta_hat0=[0.0, 0.0], name="mutant-target")
-    return ProblemSpec(problem, DesignOptions(x0_facets=8))
+    return ProblemSpec(problem, DesignOptions(x0_template="mrpi", x0_facets=8))
 
 
 def targeted_scenarios(steps: int = 30, seed: int = 0) -> list[Scenario]:

@@ -241,7 +241,7 @@ def problem_specs(draw, max_n: int = 3, max_m: int = 2, max_p: int = 3, min_N: i
     problem = Problem(A0=A0, B0=B0, A=np.array(A_list), B=np.array(B_list), H_w=H_w, H_theta=H_theta,
                       h_theta=h_theta, F=F, G=G, Q=Q, R=R, N=N, theta_hat0=theta_hat0, name="generated")
     facets = {1: (2,), 2: (4, 6, 8), 3: (6,)}[n]
-    options = DesignOptions(x0_facets=draw(st.sampled_from(facets)),
+    options = DesignOptions(x0_template="mrpi", x0_facets=draw(st.sampled_from(facets)),
                             centre_dynamics=draw(st.sampled_from(("nominal", "zero"))),
                             mu_fraction=draw(_grid(0.5, 0.99, 0.01)))
     return GeneratedProblem(ProblemSpec(problem, options), labels)

@@ -12,82 +12,28 @@ Conventions (design.md):
 
 from __future__ import annotations
 
-import time
-import warnings
 from collections import OrderedDict
 from collections.abc import Callable
 from typing import Any
 
-import cvxpy as cp
-import cvxpy.settings as cps
 import numpy as np
 
 from amcp_drake.backends.base import ProjectionResult, SetUpdateResult, TubeMPCData
+from amcp_drake.backends.projection_form import projection_form
 from amcp_drake.model.status import SolveStatus
 
-#: cvxpy status string -> canonical status (cvxpy.settings). Inaccurate certificates of
-#: infeasibility / unboundedness count as such (no solution is returned either way);
-#: ``user_limit`` (iteration or time limit) is reported as inaccurate, as Drake's kIterationLimit.
-STATUS_MAP: dict[str, SolveStatus] = {
-    cps.OPTIMAL: SolveStatus.OPTIMAL,
-    cps.OPTIMAL_INACCURATE: SolveStatus.INACCURATE,
-    cps.INFEASIBLE: SolveStatus.INFEASIBLE,
-    cps.INFEASIBLE_INACCURATE: SolveStatus.INFEASIBLE,
-    cps.UNBOUNDED: SolveStatus.UNBOUNDED,
-    cps.UNBOUNDED_INACCURATE: SolveStatus.UNBOUNDED,
-    cps.INFEASIBLE_OR_UNBOUNDED: SolveStatus.INFEASIBLE,
-    cps.USER_LIMIT: SolveStatus.INACCURATE,
-    cps.SOLVER_ERROR: SolveStatus.ERROR,
-}
+from .solver_call import STATUS_MAP, SolverCall, all_finite, map_status  # noqa: F401 - re-exported
 
 #: Formulations of the tube MPC QP (20): "plain" = (15a)-(15d) with Λ, "vertex" = (5b) at Θ_k's vertices.
 FORMULATIONS = ("plain", "vertex")
 
-#: Clarabel tolerances of the projection QP (see CvxpyBackend.__init__).
-CLARABEL_PROJECTION_OPTIONS = {"tol_gap_abs": 1e-11, "tol_gap_rel": 1e-11, "tol_feas": 1e-11}
+#: Clarabel tolerances of the projection QP (see CvxpyBackend.__init__). 1e-10 as Drake's: in the
+#: scaled form (backends.projection_form) the answer is as accurate as at 1e-11 (measured on collapsed
+#: Θ_k: same point to 1e-12), while 1e-11 ended "AlmostSolved" on sets of zero width.
+CLARABEL_PROJECTION_OPTIONS = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10}
 #: Number of parametrised problems kept per kind (support LP, LP (9), projection QP); shapes
 #: change rarely (redundancy removal, moving window), so a small LRU cache suffices.
 CACHE_SIZE = 32
-
-
-def map_status(status: str | None) -> SolveStatus:
-    """Canonical status of a cvxpy status string (unknown or None -> ERROR)."""
-    return STATUS_MAP.get(status, SolveStatus.ERROR) if status is not None else SolveStatus.ERROR
-
-
-def all_finite(*arrays: Any) -> bool:
-    """True when every entry of every array is finite."""
-    return all(np.all(np.isfinite(np.asarray(a, float))) for a in arrays)
-
-
-class SolverCall:
-    """A cvxpy solver name plus options; :meth:`solve` never raises ``SolverError``."""
-
-    def __init__(self, solver: str, options: dict | None) -> None:
-        name = str(solver).upper()
-        if name not in cp.installed_solvers():
-            raise ValueError(f"solver {solver!r} is not installed for cvxpy; installed: {cp.installed_solvers()}")
-        self.name = name
-        self.options = dict(options or {})
-
-    def solve(self, problem: cp.Problem) -> tuple[SolveStatus, float, str]:
-        """Solve ``problem``; return (canonical status, solver time in s, detail).
-
-        The solver time is ``problem.solver_stats.solve_time`` when the solver reports it, else
-        the wall time of ``Problem.solve`` (which then includes cvxpy's parameter application).
-        """
-        start = time.perf_counter()
-        try:
-            with warnings.catch_warnings():
-                # cvxpy warns "Solution may be inaccurate"; the status already says so
-                warnings.filterwarnings("ignore", message="Solution may be inaccurate", category=UserWarning)
-                problem.solve(solver=self.name, **self.options)
-        except cp.error.SolverError as exc:
-            return SolveStatus.ERROR, time.perf_counter() - start, f"SolverError: {exc}"
-        wall = time.perf_counter() - start
-        stats = problem.solver_stats
-        elapsed = stats.solve_time if stats is not None and stats.solve_time is not None else wall
-        return map_status(problem.status), float(elapsed), str(problem.status)
 
 
 class ProblemCache:
@@ -133,9 +79,12 @@ class CvxpyBackend:
             raise ValueError(f"formulation {formulation!r} unknown to the cvxpy backend; choose one of {FORMULATIONS}")
         self.formulation = formulation
         self._call = SolverCall(solver, solver_options)
-        # The projection QP of (12) at Clarabel's default tolerances is off by up to 4e-5 when θ̃ is
-        # just outside the set (measured by the property suite's lockstep test); as for Drake's LPs,
-        # tighten it (a 2-3 variable QP, so the cost is nil).
+        # the LP (9) has its own call object (same solver and options) so that profilers can tell
+        # its solver time from the tube QP's (amcp_drake.studies.bench_cpu)
+        self._call_lp = SolverCall(solver, solver_options)
+        # The projection QP of (12) at Clarabel's default tolerances was off by up to 4e-5 when θ̃ is
+        # just outside the set (measured by the property suite's lockstep test, before the scaled
+        # form); as for Drake's LPs, tighten it (a 2-3 variable QP, so the cost is nil).
         tight = dict(CLARABEL_PROJECTION_OPTIONS) if solver.upper() == "CLARABEL" else {}
         tight.update(solver_options or {})
         self._call_projection = SolverCall(solver, tight)
@@ -173,7 +122,7 @@ class CvxpyBackend:
         if (not all_finite(H_theta, H_data, h_prev, h_data) or h_prev.shape != (q,)
                 or H_data.shape != (len(h_data), p)):
             return SetUpdateResult(SolveStatus.ERROR, None, None)
-        return self._set_update.get((q, len(h_data), p)).solve(self._call, H_theta, h_prev, H_data, h_data)
+        return self._set_update.get((q, len(h_data), p)).solve(self._call_lp, H_theta, h_prev, H_data, h_data)
 
     def project(self, point, H, h):
         """argmin ‖θ − point‖² s.t. H θ <= h, the projection of (12)."""
@@ -182,7 +131,10 @@ class CvxpyBackend:
         h = np.asarray(h, float).reshape(-1)
         if not all_finite(point, H, h) or H.shape != (len(h), len(point)):
             return ProjectionResult(SolveStatus.ERROR, None)
-        return self._project.get(H.shape).solve(self._call_projection, point, H, h)
+        # scaled coordinates and flat slabs as equalities, shared with the Drake backend (campaign
+        # problem 0-19: unscaled, this QP ended "inaccurate" on a Θ_k collapsed to a point)
+        form = projection_form(point, H, h)
+        return self._project.get((len(form.b_in), len(form.b_eq), len(point))).solve(self._call_projection, form)
 
     def tube_mpc(self, data: TubeMPCData):
         """Build the tube MPC QP (20) once; see :class:`amcp_reference.tube_mpc.CvxpyTubeMPC`

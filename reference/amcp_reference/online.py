@@ -50,26 +50,36 @@ class SetUpdateLP:
         h = np.einsum("ij,ij->i", H_theta, self.theta.value)
         # duals of a <= constraint in a minimisation are >= 0 up to solver round-off (~1e-12)
         Lambda = np.clip(np.asarray(self.rows.dual_value, float), 0.0, None)
-        return SetUpdateResult(status, h, Lambda, elapsed)
+        return SetUpdateResult(status, h, Lambda, elapsed, points=np.asarray(self.theta.value, float))
 
 
 class ProjectionQP:
-    """min ‖θ − point‖² s.t. H θ <= h: the Euclidean projection Π of the LMS update (12)."""
+    """min ‖y‖² s.t. G_in y <= b_in, G_eq y = b_eq: the Euclidean projection Π of the LMS update (12)
+    in the scaled form shared with the Drake backend (:mod:`amcp_drake.backends.projection_form`:
+    scaled coordinates, flat slabs as mid-plane equalities); shape (inequality rows, equality rows, p)."""
 
-    def __init__(self, shape: tuple[int, int]) -> None:
-        rows, p = shape
-        self.H = cp.Parameter((rows, p), name="H")
-        self.h = cp.Parameter(rows, name="h")
-        self.point = cp.Parameter(p, name="point")
-        self.theta = cp.Variable(p, name="theta")
-        self.problem = cp.Problem(cp.Minimize(cp.sum_squares(self.theta - self.point)),
-                                  [self.H @ self.theta <= self.h])
+    def __init__(self, shape: tuple[int, int, int]) -> None:
+        rows, eq_rows, p = shape
+        self.y = cp.Variable(p, name="y")
+        constraints = []
+        if rows:
+            self.G_in = cp.Parameter((rows, p), name="G_in")
+            self.b_in = cp.Parameter(rows, name="b_in")
+            constraints.append(self.G_in @ self.y <= self.b_in)
+        if eq_rows:
+            self.G_eq = cp.Parameter((eq_rows, p), name="G_eq")
+            self.b_eq = cp.Parameter(eq_rows, name="b_eq")
+            constraints.append(self.G_eq @ self.y == self.b_eq)
+        self.problem = cp.Problem(cp.Minimize(cp.sum_squares(self.y)), constraints)
 
-    def solve(self, call, point, H, h) -> ProjectionResult:
-        self.H.value = H
-        self.h.value = h
-        self.point.value = point
+    def solve(self, call, form) -> ProjectionResult:
+        if len(form.b_in):
+            self.G_in.value = form.G_in
+            self.b_in.value = form.b_in
+        if len(form.b_eq):
+            self.G_eq.value = form.G_eq
+            self.b_eq.value = form.b_eq
         status, elapsed, _ = call.solve(self.problem)
         if status is not SolveStatus.OPTIMAL:
             return ProjectionResult(status, None, elapsed)
-        return ProjectionResult(status, np.asarray(self.theta.value, float), elapsed)
+        return ProjectionResult(status, form.theta(self.y.value), elapsed)

@@ -18,15 +18,18 @@ by the vertex matrix X_l = [x^1_l, ..., x^v_l] = z_l 1ᵀ + α_l [x^1, ..., x^v]
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import cvxpy as cp
 import numpy as np
 
 from amcp_drake.backends.base import MPCSolution, TubeMPCData
-from amcp_drake.backends.clarabel_retry import solve_with_retries
+from amcp_drake.backends.clarabel_retry import NO_REFINEMENT, solve_with_retries
 from amcp_drake.model.status import SolveStatus
 
+from .nominal_cost import certainty_equivalence_cost, nominal_cost
 from .offline import sqrtm_psd
 
 #: Constraint groups, named as in the Drake backend so that reports read the same.
@@ -56,6 +59,21 @@ class _Formulation:
     Lambda: list[cp.Variable]
     groups: dict[str, list[cp.Constraint]] = field(default_factory=dict)
     slacks: dict[str, cp.Variable] = field(default_factory=dict)
+
+
+def relaxed_groups(call, elastic: Callable[[], Any], groups: tuple[str, ...]) -> tuple[str, ...]:
+    """Constraint groups whose slack in the elastic problem (``elastic()`` builds it and sets its
+    parameters; it has ``problem`` and ``slacks``) exceeds :data:`ELASTIC_SLACK_TOL`: a diagnostic
+    for an infeasible step of either formulation. Empty when the diagnostic itself fails: it must
+    never hide the status of (20)."""
+    try:
+        form = elastic()
+        status, _, _ = call.solve(form.problem)
+    except Exception:  # noqa: BLE001 - diagnostics only
+        return ()
+    if status is not SolveStatus.OPTIMAL:
+        return ()
+    return tuple(g for g in groups if float(form.slacks[g].value) > ELASTIC_SLACK_TOL)
 
 
 def _row(vec: np.ndarray) -> np.ndarray:
@@ -162,33 +180,9 @@ def formulate(data: TubeMPCData, q: int, elastic: bool = False, u0_bounds: bool 
             constraints.append(cp.norm(body, 2, axis=0) <= s_epi[l])
         objective = cp.Minimize(cp.sum_squares(s_epi))
     else:
-        # cost (17) with the nominal prediction (18) as equality-constrained variables
-        params["A_cl_hat"] = cp.Parameter((n, n), name="A_cl_hat")
-        params["B_hat"] = cp.Parameter((n, m), name="B_hat")
-        x_hat = cp.Variable((n, N + 1), name="x_hat")
-        constraints += [
-            x_hat[:, 0] == params["x_k"],
-            x_hat[:, 1:] == params["A_cl_hat"] @ x_hat[:, :N] + params["B_hat"] @ v,
-        ]
-        Qh, Rh, Ph = (sqrtm_psd(np.asarray(M, float)) for M in (data.Q, data.R, data.P))
-        u_hat = K @ x_hat[:, :N] + v  # û_l = K x̂_l + v_l
-        objective = cp.Minimize(cp.sum_squares(Qh @ x_hat[:, :N]) + cp.sum_squares(Rh @ u_hat)
-                                + cp.sum_squares(Ph @ x_hat[:, N]))
+        objective = certainty_equivalence_cost(data, params, v, constraints)
     problem = cp.Problem(objective, constraints)
     return _Formulation(problem, params, z, alpha, v, Lam, groups, slacks)
-
-
-def nominal_cost(data: TubeMPCData, x: np.ndarray, theta_hat: np.ndarray, v: np.ndarray) -> float:
-    """J_N of (17) for inputs v (N, m), rolling out (18) in numpy (constant term included)."""
-    A_hat = data.A0 + np.tensordot(theta_hat, data.A, axes=1)
-    B_hat = data.B0 + np.tensordot(theta_hat, data.B, axes=1)
-    x_hat = np.asarray(x, float)
-    cost = 0.0
-    for l in range(int(data.N)):
-        u_hat = data.K @ x_hat + v[l]
-        cost += float(x_hat @ data.Q @ x_hat + u_hat @ data.R @ u_hat)
-        x_hat = A_hat @ x_hat + B_hat @ u_hat
-    return cost + float(x_hat @ data.P @ x_hat)
 
 
 class CvxpyTubeMPC:
@@ -297,17 +291,16 @@ class CvxpyTubeMPC:
     def _solve(self, problem: cp.Problem) -> tuple[SolveStatus, float, str]:
         """(status, solver time, detail): Clarabel with the retry ladder of
         :mod:`amcp_drake.backends.clarabel_retry`, any other solver once."""
-        from .backend import SolverCall
-
         def once(extra_options):
-            call = self._call if not extra_options else SolverCall(self._call.name,
-                                                                   {**self._call.options, **extra_options})
-            status, elapsed, detail = call.solve(problem)
+            status, elapsed, detail = self._call.solve(problem, extra_options)
             return detail, status, elapsed
 
         if self._call.name != "CLARABEL":
             return self._call.solve(problem)
-        detail, status, elapsed, note = solve_with_retries(once)
+        # certainty-equivalence cost: no iterative refinement first, as in the Drake backend
+        minmax = getattr(self.data, "cost", "certainty_equivalence") == "minmax"
+        first = None if minmax else {k: v for k, v in NO_REFINEMENT.items() if k not in self._call.options}
+        detail, status, elapsed, note = solve_with_retries(once, first)
         return status, elapsed, f"{detail} ({note})" if note else detail
 
     def _u0_form(self) -> _Formulation:
@@ -318,14 +311,10 @@ class CvxpyTubeMPC:
 
     def _diagnose(self, x, h_theta, theta_hat) -> tuple[str, ...]:
         """Groups relaxed by the elastic problem (minimum total slack); empty if it fails."""
-        try:
+        def elastic() -> _Formulation:
             if self._elastic is None:
                 self._elastic = formulate(self.data, self.q, elastic=True)
-            form = self._elastic
-            self._set_parameters(form, x, h_theta, theta_hat)
-            status, _, _ = self._call.solve(form.problem)
-        except Exception:  # noqa: BLE001 - diagnostics only; must not hide the status of (20)
-            return ()
-        if status is not SolveStatus.OPTIMAL:
-            return ()
-        return tuple(g for g in GROUPS if float(form.slacks[g].value) > ELASTIC_SLACK_TOL)
+            self._set_parameters(self._elastic, x, h_theta, theta_hat)
+            return self._elastic
+
+        return relaxed_groups(self._call, elastic, GROUPS)

@@ -33,11 +33,15 @@ import cvxpy as cp
 import numpy as np
 
 from amcp_drake.backends.base import MPCSolution, TubeMPCData
-from amcp_drake.backends.vertex_form import CLARABEL_OPTIONS, VertexEnumerationError, theta_vertices
+from amcp_drake.backends.vertex_form import (
+    CLARABEL_OPTIONS,
+    VertexEnumerationError,
+    theta_vertices,
+)
 from amcp_drake.model.status import SolveStatus
 
-from .offline import sqrtm_psd
-from .tube_mpc import ELASTIC_SLACK_TOL, GROUP_15A, GROUP_15B, GROUP_TERMINAL, nominal_cost
+from .nominal_cost import certainty_equivalence_cost, nominal_cost
+from .tube_mpc import GROUP_15A, GROUP_15B, GROUP_TERMINAL, relaxed_groups
 
 GROUP_VERTEX = "(5b) tube propagation at the vertices of Theta_k (vertex form of (15c)-(15d))"
 VERTEX_GROUPS = (GROUP_15A, GROUP_15B, GROUP_VERTEX, GROUP_TERMINAL)
@@ -99,14 +103,7 @@ def formulate_vertex(data: TubeMPCData, capacity: int, elastic: bool = False) ->
     if elastic:
         objective = cp.Minimize(cp.sum(cp.hstack(list(slacks.values()))))
     else:
-        params["A_cl_hat"] = cp.Parameter((n, n), name="A_cl_hat")
-        params["B_hat"] = cp.Parameter((n, m), name="B_hat")
-        x_hat = cp.Variable((n, N + 1), name="x_hat")
-        constraints += [x_hat[:, 0] == params["x_k"],
-                        x_hat[:, 1:] == params["A_cl_hat"] @ x_hat[:, :N] + params["B_hat"] @ v]
-        Qh, Rh, Ph = (sqrtm_psd(np.asarray(M, float)) for M in (data.Q, data.R, data.P))
-        objective = cp.Minimize(cp.sum_squares(Qh @ x_hat[:, :N]) + cp.sum_squares(Rh @ (K @ x_hat[:, :N] + v))
-                                + cp.sum_squares(Ph @ x_hat[:, N]))
+        objective = certainty_equivalence_cost(data, params, v, constraints)
     return _VertexFormulation(cp.Problem(objective, constraints), params, capacity, z, alpha, v, slacks)
 
 
@@ -118,7 +115,7 @@ class CvxpyVertexTubeMPC:
     def __init__(self, data: TubeMPCData, call) -> None:
         """``call``: the backend's ``SolverCall``; with Clarabel, a copy with
         :data:`amcp_drake.backends.vertex_form.CLARABEL_OPTIONS` under the user's options is used."""
-        from .backend import SolverCall
+        from .solver_call import SolverCall
 
         self.data = data
         self._plain_call = call
@@ -128,6 +125,8 @@ class CvxpyVertexTubeMPC:
         self._forms: dict[int, _VertexFormulation] = {}
         self._elastic: dict[int, _VertexFormulation] = {}
         self._plain = None
+        self._last_vertices: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (h_θ, H_θ, vertices)
+        self._last_form: _VertexFormulation | None = None  # the problem whose vertex parameters are current
         self.H_theta = np.asarray(data.H_theta, float)
         # capacity guess: the vertex count of {H_θ θ <= 1}; grows when Θ_k has more vertices
         try:
@@ -157,16 +156,18 @@ class CvxpyVertexTubeMPC:
         return self._forms[self.capacity].problem
 
     def _set_parameters(self, form: _VertexFormulation, x, vertices, theta_hat) -> None:
+        """Parameters of ``form`` for x_k, Θ_k's vertices (None: keep the vertex parameters) and θ̂_k."""
         d = self.data
-        H_x, Xv = np.asarray(d.H_x, float), np.asarray(d.X0_vertices, float)
-        n, m = np.shape(d.B0)
-        slots = np.asarray(vertices, float)[np.minimum(np.arange(form.capacity), len(vertices) - 1)]  # repeat the last
-        B_v = d.B0 + np.tensordot(slots, d.B, axes=1)                                  # (S_cap, n, m)
-        A_cl = d.A0 + np.tensordot(slots, d.A, axes=1) + B_v @ d.K                       # (S_cap, n, n)
         form.params["x_k"].value = x
-        form.params["A_cl_stack"].value = A_cl.reshape(-1, n)
-        form.params["B_stack"].value = B_v.reshape(-1, m)
-        form.params["c_stack"].value = np.max(H_x @ A_cl @ Xv.T, axis=2).reshape(-1, 1)  # c^s_i = max_j
+        if vertices is not None:
+            H_x, Xv = np.asarray(d.H_x, float), np.asarray(d.X0_vertices, float)
+            n, m = np.shape(d.B0)
+            slots = np.asarray(vertices, float)[np.minimum(np.arange(form.capacity), len(vertices) - 1)]  # repeat last
+            B_v = d.B0 + np.tensordot(slots, d.B, axes=1)                                  # (S_cap, n, m)
+            A_cl = d.A0 + np.tensordot(slots, d.A, axes=1) + B_v @ d.K                       # (S_cap, n, n)
+            form.params["A_cl_stack"].value = A_cl.reshape(-1, n)
+            form.params["B_stack"].value = B_v.reshape(-1, m)
+            form.params["c_stack"].value = np.max(H_x @ A_cl @ Xv.T, axis=2).reshape(-1, 1)  # c^s_i = max_j
         if "A_cl_hat" in form.params:
             B_hat = d.B0 + np.tensordot(theta_hat, d.B, axes=1)
             form.params["A_cl_hat"].value = d.A0 + np.tensordot(theta_hat, d.A, axes=1) + B_hat @ d.K
@@ -187,14 +188,19 @@ class CvxpyVertexTubeMPC:
             if arr.shape != shape:
                 return MPCSolution(SolveStatus.ERROR, None, None, None, None, None,
                                    detail=f"{name} has shape {arr.shape}, expected {shape}")
+        last = self._last_vertices
+        unchanged = last is not None and np.array_equal(last[0], h_theta) and np.array_equal(last[1], H)
         try:
-            vertices = theta_vertices(H, h_theta)
+            # Θ_k's vertices are enumerated only when Θ_k changed (to the bit), as in the Drake backend
+            vertices = last[2] if unchanged else theta_vertices(H, h_theta)
         except VertexEnumerationError as exc:
             return self._solve_plain(x, h_theta, theta_hat, H_theta, str(exc))
-        if len(vertices) > self.capacity:
-            self.capacity = len(vertices)
+        self._last_vertices = (h_theta.copy(), H.copy(), vertices)
+        self.capacity = max(self.capacity, len(vertices))
         form = self._form(self.capacity)
-        self._set_parameters(form, x, vertices, theta_hat)
+        # the vertex parameters keep their values while Θ_k and the problem are those of the last step
+        self._set_parameters(form, x, None if unchanged and form is self._last_form else vertices, theta_hat)
+        self._last_form = form
         update_time = time.perf_counter() - start
         status, solver_time, detail = self._call.solve(form.problem)
         detail = f"{detail}; vertex form, {len(vertices)} vertices of Theta_k"
@@ -214,17 +220,14 @@ class CvxpyVertexTubeMPC:
 
     def _diagnose(self, x, vertices) -> tuple[str, ...]:
         """Groups relaxed by the elastic problem (minimum total slack); empty if it fails."""
-        try:
+        def elastic() -> _VertexFormulation:
             if self.capacity not in self._elastic:
                 self._elastic[self.capacity] = formulate_vertex(self.data, self.capacity, elastic=True)
             form = self._elastic[self.capacity]
             self._set_parameters(form, x, vertices, np.zeros(np.shape(self.data.A)[0]))
-            status, _, _ = self._call.solve(form.problem)
-        except Exception:  # noqa: BLE001 - diagnostics only; must not hide the status of (20)
-            return ()
-        if status is not SolveStatus.OPTIMAL:
-            return ()
-        return tuple(g for g in VERTEX_GROUPS if float(form.slacks[g].value) > ELASTIC_SLACK_TOL)
+            return form
+
+        return relaxed_groups(self._call, elastic, VERTEX_GROUPS)
 
     def _solve_plain(self, x, h_theta, theta_hat, H_theta, reason: str) -> MPCSolution:
         """Fallback for a step whose Θ_k vertices cannot be enumerated: the plain form (15)."""

@@ -1,0 +1,226 @@
+"""Solver answers verified before the online loop uses them (issue 13 item 1).
+
+A backend's "optimal" is a claim, not a fact (campaign problem 0-19: a projection 0.55 outside
+Θ_1 was recorded as optimal). Every answer of the three online problems is checked here, with
+numpy only, against the original rows of the problem it claims to solve:
+
+* :func:`check_projection` — (12): the point lies in the target set S (Θ, or Θ_k under
+  Remark 7), is no farther from θ̃ than a known point of S, and satisfies the KKT conditions of
+  the projection (θ̃ − θ̂ is a non-negative combination of the normals of the rows active at θ̂).
+* :func:`check_set_update` — (9), its moving window (Remark 4) and (25) before the dilation: the
+  returned offsets are nested, h <= h_{k−1} (Lemma 3, (10)); the multipliers Λ certify the outer bound Θ_{k−1} ∩ Δ_k ⊆ Θ_k row by row by LP duality
+  ([H_θ]_i θ = λ_iᵀ H̃ θ <= λ_iᵀ h̃ <= h_i, with the residual of Λ H̃ = H_θ bounded on Θ0's box);
+  and, when the backend returns the maximisers, each is feasible for the original rows and
+  achieves its offset (so h is the support, not a loose bound). None of these uses θ*.
+* :func:`check_tube` — (20): the returned (v, z, α, Λ) satisfy (15a)-(15d), α >= 0 and the
+  terminal set; for the vertex form (no Λ), (5b) at the vertices of Θ_k.
+
+Each check returns :class:`AnswerCheck` rows; :func:`describe_failures` turns the failed ones into
+the text recorded in ``StepRecord.detail``. The controller (:mod:`amcp_drake.online.controller`) decides the
+fallbacks (docs/decisions.md, "Verified solver answers"). The certificate re-checks the recorded
+run independently (certificate.claims, certificate.tube); these checks run *before* an answer is used.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import nnls
+
+#: Projection: a point may leave the target set by this much on unit rows (θ units). The backends solve
+#: the scaled QP at 1e-10 (violations <= 1e-10 × the scale, ~1e-9 at most on the property suite), and a
+#: slab emptied by round-off (width in [−1e-8, 0)) is answered by its mid-plane, <= 5e-9 outside each row;
+#: 1e-8 covers both and is an order below the certificate's PROJECTION_TOL (1e-7).
+PROJECTION_MEMBERSHIP_TOL = 1e-8
+#: Projection: ‖θ̂ − θ̃‖ may exceed the distance of a known point of S by this much relative to that
+#: distance (round-off of two norms of order 1, plus the solver's 1e-10 gap on the scaled objective).
+PROJECTION_CANDIDATE_RTOL = 1e-8
+#: Projection KKT: rows within this of θ̂ (θ units, unit rows) count as active. The membership tolerance
+#: (a point may sit 1e-8 inside a row it should touch) times 10, so thin slabs keep both rows active.
+PROJECTION_ACTIVE_TOL = 1e-7
+#: Projection KKT: ‖θ̃ − θ̂ − Σ_active λ_i [H]_i‖ (λ >= 0, by NNLS) may be this, relative to
+#: max(‖θ̃ − θ̂‖, 1). The residual bounds the variational inequality of the certificate's lms_update
+#: check by residual × diam(S); 1e-7 is that check's PROJECTION_TOL on sets of diameter ~1.
+PROJECTION_KKT_RTOL = 1e-7
+
+#: Set update: h may exceed h_{k−1} by this (unit rows, θ units). The LP (9) at 1e-10 drifts by ~1e-9
+#: (Drake's CLARABEL_LP_OPTIONS); 1e-8 is an order above that and an order below the certificate's
+#: SET_LP_TOL (1e-7) for the nesting claim (10).
+SET_NESTED_TOL = 1e-8
+#: Set update: the dual bound λ_iᵀh̃ + |r_i|·b (b: Θ0's box) may exceed h_i by this (θ units). The LP
+#: at 1e-10 on offsets up to ~1e3 (Δ rows normalised from norms >= 1e-6 give large offsets, but with
+#: multipliers ~0), and the certificate's Lemma 3 check uses 1e-7 (SET_LP_TOL): the same here.
+SET_OUTER_TOL = 1e-7
+#: Set update: a returned maximiser may violate a row of Θ_{k−1} ∩ Δ_k, or miss its offset, by this
+#: (θ units, unit rows): the primal feasibility of the LP at 1e-10 on data of order 1-1e3.
+SET_POINT_TOL = 1e-7
+
+#: Tube QP: constraint rows (15a)-(15d), α >= 0, x_k ∈ X_{0|k} and the terminal set may be violated by
+#: this. The certificate's QP_TOL: Clarabel's default feasibility tolerance is 1e-8 relative to data of
+#: order 1-10; 1e-6 allows that and is far below any violation that matters (bounds of order 0.1-1).
+TUBE_ROW_TOL = 1e-6
+
+
+@dataclass(frozen=True)
+class AnswerCheck:
+    """One check of one answer: ``value`` is the measured violation (<= ``tolerance`` passes);
+    ``ran`` is False when the answer lacks what the check needs (recorded, never a pass)."""
+
+    name: str
+    value: float
+    tolerance: float
+    ran: bool = True
+
+    @property
+    def passed(self) -> bool:
+        return self.ran and bool(np.isfinite(self.value)) and self.value <= self.tolerance
+
+    def describe(self) -> str:
+        if not self.ran:
+            return f"{self.name}: not run"
+        return f"{self.name} {self.value:.3g} > {self.tolerance:.0e}"
+
+
+def failures(checks: list[AnswerCheck]) -> list[AnswerCheck]:
+    """The checks that ran and failed (a check that did not run is not a failure: see ``ran``)."""
+    return [c for c in checks if c.ran and not c.passed]
+
+
+def describe_failures(problem: str, checks: list[AnswerCheck]) -> str:
+    """Text for ``StepRecord.detail``: ``"<problem>: <check> <value> > <tol>; ..."``."""
+    return f"{problem}: " + "; ".join(c.describe() for c in failures(checks))
+
+
+def _finite_shape(name: str, array, shape: tuple[int, ...]) -> AnswerCheck:
+    ok = array is not None and np.shape(array) == shape and bool(np.all(np.isfinite(array)))
+    return AnswerCheck(f"{name} finite, shape {shape}", 0.0 if ok else float("inf"), 0.0)
+
+
+def _unit(H: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    norms = np.linalg.norm(H, axis=1)
+    norms = np.where(norms > 0, norms, 1.0)
+    return H / norms[:, None], h / norms
+
+
+# -- (12) ------------------------------------------------------------------------------------------
+def check_projection(theta, point: np.ndarray, H: np.ndarray, h: np.ndarray,
+                     candidates: tuple[np.ndarray, ...] = ()) -> list[AnswerCheck]:
+    """Is ``theta`` = Π_S(point), S = {H θ <= h}? Membership, no worse than any candidate that is
+    itself in S, and KKT (see the module docstring). Tolerances: PROJECTION_*."""
+    point = np.asarray(point, float)
+    shape = _finite_shape("projection", theta, point.shape)
+    if not shape.passed:
+        return [shape]
+    theta = np.asarray(theta, float)
+    Hn, hn = _unit(np.asarray(H, float), np.asarray(h, float))
+    slack = hn - Hn @ theta
+    checks = [shape, AnswerCheck("projection in set", float(max(0.0, -np.min(slack))), PROJECTION_MEMBERSHIP_TOL)]
+    dist = float(np.linalg.norm(theta - point))
+    best = [float(np.linalg.norm(c - point)) for c in candidates
+            if c is not None and float(np.max(Hn @ c - hn)) <= 0.0]
+    if best:
+        ref = min(best)
+        checks.append(AnswerCheck("projection no farther than a known point of the set",
+                                  (dist - ref) / max(ref, 1e-300), PROJECTION_CANDIDATE_RTOL))
+    active = slack <= PROJECTION_ACTIVE_TOL
+    gap = point - theta
+    if np.any(active):
+        _, residual = nnls(Hn[active].T, gap)
+    else:
+        residual = float(np.linalg.norm(gap))
+    checks.append(AnswerCheck("projection KKT residual", float(residual) / max(dist, 1.0), PROJECTION_KKT_RTOL))
+    return checks
+
+
+# -- (9) / (7) / (25) ----------------------------------------------------------------------------
+def check_set_update(h, Lambda, points, H_theta: np.ndarray, h_prev: np.ndarray, H_data: np.ndarray,
+                     h_data: np.ndarray, theta_box: np.ndarray) -> list[AnswerCheck]:
+    """Are the offsets ``h`` of LP (9) a valid, nested and tight outer bound of Θ_{k−1} ∩ Δ_k?
+
+    ``Lambda`` (q, q + r): multipliers of (9); ``points`` (q, p) or None: maximisers per row;
+    ``theta_box`` (p,): max |θ_j| over Θ0 ⊇ Θ_{k−1} (bounds the residual of Λ H̃ = H_θ).
+    Rows of H_θ and H_data are unit rows (design.H_theta, controller._delta)."""
+    H_theta = np.asarray(H_theta, float)
+    h_prev = np.asarray(h_prev, float)
+    q, p = H_theta.shape
+    H_tilde = np.vstack([H_theta, np.asarray(H_data, float).reshape(-1, p)])
+    h_tilde = np.concatenate([h_prev, np.asarray(h_data, float).reshape(-1)])
+    shape = _finite_shape("set update h", h, (q,))
+    if not shape.passed:
+        return [shape]
+    h = np.asarray(h, float)
+    checks = [shape, AnswerCheck("set update nested h <= h_prev (10)", float(np.max(h - h_prev)), SET_NESTED_TOL)]
+    if Lambda is None or np.shape(Lambda) != (q, len(h_tilde)) or not np.all(np.isfinite(Lambda)):
+        checks.append(AnswerCheck("set update outer bound (dual certificate)", float("nan"), SET_OUTER_TOL, ran=False))
+    else:
+        lam = np.clip(np.asarray(Lambda, float), 0.0, None)
+        residual = H_theta - lam @ H_tilde
+        bound = lam @ h_tilde + np.abs(residual) @ np.asarray(theta_box, float)
+        checks.append(AnswerCheck("set update outer bound (dual certificate)", float(np.max(bound - h)), SET_OUTER_TOL))
+    if points is None:
+        checks.append(AnswerCheck("set update maximisers feasible and tight", float("nan"), SET_POINT_TOL, ran=False))
+    elif np.shape(points) != (q, p) or not np.all(np.isfinite(points)):
+        checks.append(AnswerCheck("set update maximisers feasible and tight", float("inf"), SET_POINT_TOL))
+    else:
+        pts = np.asarray(points, float)
+        Ht_n, ht_n = _unit(H_tilde, h_tilde)
+        infeasible = float(np.max(pts @ Ht_n.T - ht_n[None, :]))
+        miss = float(np.max(np.abs(np.einsum("ij,ij->i", H_theta, pts) - h)))
+        checks.append(AnswerCheck("set update maximisers feasible and tight", max(infeasible, miss), SET_POINT_TOL))
+    return checks
+
+
+# -- (20) ------------------------------------------------------------------------------------------
+def check_tube(sol, data, x: np.ndarray, h_theta: np.ndarray, H_theta: np.ndarray | None = None,
+               theta_vertices: np.ndarray | None = None) -> list[AnswerCheck]:
+    """Does the answer ``sol`` (MPCSolution) of the QP (20) satisfy its constraints?
+
+    ``data``: the controller's TubeMPCData; ``h_theta``: (q,) or per-stage (N, q) offsets (26);
+    ``H_theta``: Θ_k's rows when they differ from ``data.H_theta`` (exact update (7));
+    ``theta_vertices``: vertices of Θ_k, used for (5b) when ``sol.Lambda`` is None (vertex form).
+    Rows (vertex form of (15a)/(15b)): x^j_l = z_l + α_l x^j, u^j_l = K x^j_l + v_l,
+    (15a) F x^j_l + G u^j_l <= 1; (15b) H_x (x_k − z_0) <= α_0; (15c) Λ^j_l h_θ(l) + H_x d^j_l
+    − α_{l+1} <= −w̄; (15d) H_x D^j_l = Λ^j_l H_θ, Λ >= 0; terminal H_T z_N + h_T α_N <= 1; α >= 0.
+    """
+    d = data
+    N, n, m = int(d.N), d.A0.shape[0], d.B0.shape[1]
+    checks = [_finite_shape("tube v", sol.v, (N, m)), _finite_shape("tube z", sol.z, (N + 1, n)),
+              _finite_shape("tube alpha", sol.alpha, (N + 1,))]
+    if not all(c.passed for c in checks):
+        return checks
+    v, z, alpha = (np.asarray(a, float) for a in (sol.v, sol.z, sol.alpha))
+    H_x, Xv, K = np.asarray(d.H_x, float), np.asarray(d.X0_vertices, float), np.asarray(d.K, float)
+    H_th = np.asarray(d.H_theta if H_theta is None else H_theta, float)
+    h_st = np.asarray(h_theta, float)
+    h_st = np.broadcast_to(h_st, (N, h_st.shape[-1]))
+    X = z[:, None, :] + alpha[:, None, None] * Xv[None, :, :]           # (N+1, v, n) tube vertices
+    U = X[:N] @ K.T + v[:, None, :]                                       # (N, v, m)
+    checks.append(AnswerCheck("tube alpha >= 0", float(max(0.0, -np.min(alpha))), TUBE_ROW_TOL))
+    checks.append(AnswerCheck("tube x_k in X_0|k (15b)", float(np.max(H_x @ (x - z[0]) - alpha[0])), TUBE_ROW_TOL))
+    checks.append(AnswerCheck("tube constraints (15a)",
+                              float(np.max(X[:N] @ np.asarray(d.F).T + U @ np.asarray(d.G).T - 1.0)), TUBE_ROW_TOL))
+    checks.append(AnswerCheck("tube terminal set", float(np.max(np.asarray(d.H_T) @ z[N] + np.asarray(d.h_T) * alpha[N]
+                                                                - 1.0)), TUBE_ROW_TOL))
+    A, B = np.asarray(d.A, float), np.asarray(d.B, float)
+    base = X[:N] @ np.asarray(d.A0).T + U @ np.asarray(d.B0).T           # (N, v, n): A0 x + B0 u
+    D = np.einsum("pab,lvb->lvap", A, X[:N]) + np.einsum("pab,lvb->lvap", B, U)  # (N, v, n, p) regressors
+    HD = np.einsum("ua,lvap->lvup", H_x, D)                                # (N, v, u, p)
+    rhs = alpha[1:, None, None] - np.asarray(d.w_bar)[None, None, :]        # α_{l+1} − w̄
+    lhs_fixed = np.einsum("ua,lva->lvu", H_x, base - z[1:, None, :])       # H_x d^j_l
+    if sol.Lambda is not None:
+        Lam = np.asarray(sol.Lambda, float)
+        if Lam.shape != HD.shape[:3] + (H_th.shape[0],) or not np.all(np.isfinite(Lam)):
+            checks.append(AnswerCheck(f"tube Lambda finite, shape {HD.shape[:3] + (H_th.shape[0],)}", float("inf"), 0.0))
+            return checks
+        checks.append(AnswerCheck("tube Lambda >= 0", float(max(0.0, -np.min(Lam))), TUBE_ROW_TOL))
+        lam_h = np.einsum("lvuq,lq->lvu", Lam, h_st)
+        checks.append(AnswerCheck("tube (15c)", float(np.max(lam_h + lhs_fixed - rhs)), TUBE_ROW_TOL))
+        checks.append(AnswerCheck("tube (15d)", float(np.max(np.abs(HD - Lam @ H_th))), TUBE_ROW_TOL))
+    elif theta_vertices is not None:
+        worst = np.einsum("lvup,tp->lvut", HD, np.asarray(theta_vertices, float)).max(axis=3)
+        checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float(np.max(worst + lhs_fixed - rhs)),
+                                  TUBE_ROW_TOL))
+    else:
+        checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float("nan"), TUBE_ROW_TOL, ran=False))
+    return checks

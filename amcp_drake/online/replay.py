@@ -1,0 +1,49 @@
+"""Run the scenario of a problem file: offline design, then the closed loop (issue 17, item 3).
+
+One function, :func:`run_scenario`, used both by ``amcp certify PROBLEM`` and by the campaign
+(:mod:`amcp_drake.studies.campaign`), so that a campaign run and the replay of its saved problem file take
+exactly the same path: the same design call (on ``design_backend``), the same controller, the same
+arguments to :func:`~amcp_drake.online.simulate.simulate`. Given the same problem file, backend, design
+backend and formulation, the two runs are the same computation and their certificates agree bit
+for bit (see docs/decisions.md, "Campaign replays").
+"""
+
+from __future__ import annotations
+
+from amcp_drake.model.problem import ProblemSpec
+
+
+def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: str | None = None,
+                 formulation: str = "plain", steps: int | None = None, seed: int | None = None, options=None,
+                 offline=None, progress: bool = False):
+    """The closed loop of ``spec.scenario`` on ``backend``; returns the Trajectory (a partial one when
+    Θ_{k-1} ∩ Δ_k = ∅ stops the run, with ``stop_reason`` saying so).
+
+    ``design_backend``: the backend of the offline design (default: ``backend``); ``offline``: an
+    OfflineDesign to use instead of designing; ``steps``/``seed``: override the scenario's;
+    ``options``: the OnlineOptions (default: the file's ``online`` section, else the defaults).
+    """
+    from amcp_drake.model.errors import InconsistentDataError, ProblemError
+    from amcp_drake.offline.design import design
+    from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_drake.online.simulate import simulate
+
+    sc = spec.scenario
+    if sc is None:
+        raise ProblemError("scenario", "a scenario (x0, theta_star, ...) in the problem file to run", "none",
+                           "Add a \"scenario\" object, or pass --trajectory.")
+    steps = sc.steps if steps is None else steps
+    seed = sc.seed if seed is None else seed
+    if options is None:
+        options = spec.online
+    if offline is None:
+        offline = design(spec.problem, spec.design, backend=design_backend or backend)
+    ctrl = AdaptiveMPC(spec.problem, offline, backend=backend, options=options, formulation=formulation)
+    try:
+        return simulate(ctrl, sc.x0, sc.theta_star_for(steps), steps, sc.disturbance_for(steps), seed=seed,
+                        progress=progress, mu_state_bound=spec.design.mu_state_bound)
+    except InconsistentDataError as exc:
+        return exc.trajectory
+
+
+__all__ = ["run_scenario"]

@@ -1,0 +1,303 @@
+"""Solver answers are verified before use (issue 13 item 1): each check of amcp_drake.online.answer_checks
+fires on a backend stub that returns a wrong "optimal", the step records status "inaccurate" with the
+failed check in its detail, and the fallback is taken and recorded. Plus the campaign 0-19 replay.
+
+Expected values never come from the code under test: the stubs' wrong answers are built by hand,
+the right answers come from a fresh solve by the real backend (another object and code path than
+the controller's fallback) or from the brute-force projection of test_projection_degenerate.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from amcp_drake.backends import get_backend
+from amcp_drake.model.status import SolveStatus
+from amcp_drake.online import answer_checks
+
+DATA = Path(__file__).parent / "data"
+BACKENDS = ("drake", "cvxpy")
+
+
+class WrongBackend:
+    """Delegates to a real backend; ``project`` / ``set_update`` answers are replaced by ``wrong_*``
+    (a function of the real answer and the arguments) while the status stays "optimal"."""
+
+    def __init__(self, real, wrong_project=None, wrong_set_update=None):
+        self._real = real
+        self.name = real.name
+        self.formulation = getattr(real, "formulation", "plain")
+        self.wrong_project = wrong_project
+        self.wrong_set_update = wrong_set_update
+        self.calls = {"project": 0, "set_update": 0}
+
+    def __getattr__(self, item):
+        return getattr(self._real, item)
+
+    def project(self, point, H, h):
+        real = self._real.project(point, H, h)
+        if self.wrong_project is None:
+            return real
+        self.calls["project"] += 1
+        return dataclasses.replace(real, status=SolveStatus.OPTIMAL, theta=self.wrong_project(real, point, H, h))
+
+    def set_update(self, H_theta, h_prev, H_data, h_data):
+        real = self._real.set_update(H_theta, h_prev, H_data, h_data)
+        if self.wrong_set_update is None:
+            return real
+        self.calls["set_update"] += 1
+        return dataclasses.replace(real, status=SolveStatus.OPTIMAL, h=self.wrong_set_update(real, h_prev))
+
+
+class WrongTube:
+    """A tube QP whose "optimal" answers are changed by ``wrong(sol)``."""
+
+    def __init__(self, real, wrong):
+        self._real, self.wrong, self.calls = real, wrong, 0
+
+    def solve(self, *args, **kwargs):
+        sol = self._real.solve(*args, **kwargs)
+        if sol.status is not SolveStatus.OPTIMAL:
+            return sol
+        self.calls += 1
+        return self.wrong(sol)
+
+
+# -- fixtures: Example 1 (every step updates Θ_k) and campaign problem 0-19 (θ̃_1 outside Θ_1) ---------------
+@pytest.fixture(scope="module")
+def case_0_19():
+    from amcp_drake.model.problem_io import load_spec
+    from amcp_drake.offline.design import design
+
+    spec = load_spec(DATA / "campaign-0-19-problem.json")
+    w = np.array(json.loads((DATA / "campaign-0-19-disturbances.json").read_text())["w"])
+    return spec, design(spec.problem, spec.design, backend="drake"), w
+
+
+def _controller(spec, design, backend, options=None, **backend_options):
+    from amcp_drake.online.controller import AdaptiveMPC
+
+    return AdaptiveMPC(spec.problem, design, backend=backend, options=options or spec.online, **backend_options)
+
+
+def _run(ctrl, spec, steps, w="uniform"):
+    from amcp_drake.online.simulate import simulate
+
+    sc = spec.scenario
+    return simulate(ctrl, sc.x0, sc.theta_star, steps, w if isinstance(w, str) else w[:steps], seed=0,
+                    mu_state_bound=spec.design.mu_state_bound)
+
+
+# -- (a) projection (12) --------------------------------------------------------------------------------------
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_projection_outside_the_set_is_caught_and_replaced(case_0_19, backend):
+    """The 0-19 failure mode: an "optimal" projection outside Θ_1 (θ̃ itself, 0.55 away)."""
+    from tests.test_projection_degenerate import exact_projection
+
+    spec, design, w = case_0_19
+    ctrl = _controller(spec, design, backend)
+    ctrl.backend = WrongBackend(ctrl.backend, wrong_project=lambda real, point, H, h: point.copy())
+    traj = _run(ctrl, spec, 3, w)
+    assert ctrl.backend.calls["project"] >= 1
+    r = traj.records[1]
+    assert r.projection_status is SolveStatus.INACCURATE
+    assert "projection in set" in r.detail and "fallback: least-distance projection" in r.detail
+    expected = exact_projection(r.theta_tilde, r.H_theta, r.h_theta)
+    assert np.linalg.norm(r.theta_hat - expected) <= 1e-8
+    assert traj.stop_reason == "completed"
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_feasible_but_not_optimal_projection_is_caught(case_0_19, backend):
+    """A point of Θ_1 that is not the projection (the real one moved 1e-6 along a facet of the thin set
+    is still inside it): membership passes, KKT does not."""
+    from amcp_drake.model import polytope
+
+    spec, design, w = case_0_19
+
+    def off_centre(real, point, H, h):
+        centre, _ = polytope.chebyshev_center(H, h)
+        return centre  # inside Θ_1, but ~1e-6 from the projection: not optimal
+
+    ctrl = _controller(spec, design, backend)
+    ctrl.backend = WrongBackend(ctrl.backend, wrong_project=off_centre)
+    traj = _run(ctrl, spec, 2, w)
+    r = traj.records[1]
+    assert r.projection_status is SolveStatus.INACCURATE
+    assert "projection KKT residual" in r.detail
+    assert "projection in set" not in r.detail
+
+
+def test_projection_fallbacks_in_order(case_0_19, monkeypatch):
+    """When the second solver fails too: θ̂_(k−1) if it is in S, else the Chebyshev centre of S."""
+    from amcp_drake.model import polytope
+    from amcp_drake.online import controller as controller_module
+
+    spec, design, w = case_0_19
+    monkeypatch.setattr(controller_module.polytope, "least_distance_point", lambda *a: None)
+    ctrl = _controller(spec, design, "drake")
+    ctrl.backend = WrongBackend(ctrl.backend, wrong_project=lambda real, point, H, h: point.copy())
+    traj = _run(ctrl, spec, 2, w)
+    r = traj.records[1]
+    assert r.projection_status is SolveStatus.INACCURATE
+    # θ̂_0 is not in the collapsed Θ_1, so the Chebyshev centre of Θ_1 is used
+    assert np.max(r.H_theta @ traj.records[0].theta_hat - r.h_theta) > 1e-3
+    assert "fallback: Chebyshev centre of Θ_k" in r.detail
+    centre, _ = polytope.chebyshev_center(r.H_theta, r.h_theta)
+    assert np.allclose(r.theta_hat, centre, atol=1e-12)
+    assert np.max(r.H_theta @ r.theta_hat - r.h_theta) <= answer_checks.PROJECTION_MEMBERSHIP_TOL
+
+
+# -- (b) set update (9) ----------------------------------------------------------------------------------------
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("kind", ["grown", "cut"])
+def test_wrong_set_update_is_caught_and_recomputed(example_spec, example_design, backend, kind):
+    """An "optimal" h of (9) that grows (breaks (10)) or cuts 0.05 off every row (not an outer bound of
+    Θ_(k−1) ∩ Δ_k): status inaccurate, then HiGHS's supports, which agree with a fresh real solve."""
+    shift = {"grown": 0.05, "cut": -0.05}[kind]
+    ctrl = _controller(example_spec, example_design, backend, options=None)
+    ctrl.backend = WrongBackend(ctrl.backend, wrong_set_update=lambda real, h_prev: np.asarray(real.h) + shift)
+    seen = []
+    original = ctrl._update_set
+
+    def spy(H_delta, h_delta, record):
+        seen.append((np.array(ctrl.h_theta), H_delta, h_delta))
+        return original(H_delta, h_delta, record)
+
+    ctrl._update_set = spy
+    traj = _run(ctrl, example_spec, 3)
+    r = traj.records[1]
+    assert r.set_status is SolveStatus.INACCURATE
+    check = "set update nested" if kind == "grown" else "set update outer bound"
+    assert check in r.detail and "fallback: HiGHS support LPs (checked)" in r.detail
+    h_prev, H_delta, h_delta = seen[0]
+    fresh = get_backend(backend).set_update(example_design.H_theta, h_prev, H_delta, h_delta)
+    assert np.max(np.abs(r.h_theta - fresh.h)) <= 1e-7
+    assert traj.stop_reason == "completed"
+
+
+def test_set_update_keeps_previous_set_when_every_solver_fails(example_spec, example_design, monkeypatch):
+    from amcp_drake.online import controller as controller_module
+
+    monkeypatch.setattr(controller_module.polytope, "support_certified", lambda *a: None)
+    ctrl = _controller(example_spec, example_design, "drake", options=None)
+    ctrl.backend = WrongBackend(ctrl.backend, wrong_set_update=lambda real, h_prev: np.asarray(real.h) - 0.05)
+    traj = _run(ctrl, example_spec, 2)
+    assert traj.records[1].set_status is SolveStatus.INACCURATE
+    assert "kept Θ_(k−1)" in traj.records[1].detail
+    assert np.array_equal(traj.records[1].h_theta, traj.records[0].h_theta)
+
+
+def test_exact_update_with_a_wrongly_removed_row_keeps_every_row(example_spec, example_design):
+    """(7): a support LP that calls every row redundant would make Θ_k ⊄ Θ_(k−1); HiGHS re-checks the
+    removed rows and the step keeps all rows."""
+    from amcp_drake.model.options import OnlineOptions
+
+    ctrl = _controller(example_spec, example_design, "drake", options=OnlineOptions(update="exact"))
+    real = ctrl.backend
+
+    class Lying(WrongBackend):
+        def support(self, H, h, directions):
+            return np.full(len(np.atleast_2d(directions)), -1e3)  # "every row is implied"
+
+    ctrl.backend = Lying(real)
+    traj = _run(ctrl, example_spec, 2)
+    r = traj.records[1]
+    assert r.set_status is SolveStatus.INACCURATE
+    assert "fallback: no row removed" in r.detail
+    assert len(r.h_theta) == len(example_design.h_theta0) + len(example_spec.problem.H_w)
+
+
+# -- (c) tube QP (20) ------------------------------------------------------------------------------------------
+def _shift_z0(sol):
+    z = np.array(sol.z)
+    z[0] += 1.0
+    return dataclasses.replace(sol, z=z)
+
+
+def _negate_lambda(sol):
+    return dataclasses.replace(sol, Lambda=None if sol.Lambda is None else -np.asarray(sol.Lambda) - 1.0)
+
+
+def _push_v(sol):
+    v = np.array(sol.v)
+    v[1:] += 50.0
+    return dataclasses.replace(sol, v=v)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("formulation, wrong, check", [
+    ("plain", _shift_z0, "tube x_k in X_0|k (15b)"),
+    ("plain", _negate_lambda, "tube Lambda >= 0"),
+    ("vertex", _push_v, "tube (5b) at the vertices of Θ_k"),
+])
+def test_wrong_tube_answer_is_replaced_by_the_other_formulation(example_spec, example_design, backend, formulation,
+                                                                 wrong, check):
+    """An "optimal" (v, z, α, Λ) that breaks a row of (15)/(5b): status inaccurate, the other formulation's
+    answer (checked) is applied; it equals a fresh solve of that formulation."""
+    ctrl = _controller(example_spec, example_design, backend, options=None, formulation=formulation)
+    ctrl.mpc = WrongTube(ctrl.mpc, wrong)
+    traj = _run(ctrl, example_spec, 2)
+    assert ctrl.mpc.calls >= 2
+    r = traj.records[0]
+    assert r.status is SolveStatus.INACCURATE
+    other = "vertex" if formulation == "plain" else "plain"
+    assert check in r.detail and f"fallback: {other} form of (20) (checked)" in r.detail
+    fresh = get_backend(backend, formulation=other).tube_mpc(ctrl.data).solve(r.x, r.h_theta, r.theta_hat)
+    assert np.max(np.abs(r.v - fresh.v)) <= 1e-6
+    assert np.allclose(r.u, example_design.K @ r.x + fresh.v[0], atol=1e-6)
+    assert traj.stop_reason == "completed"
+
+
+def test_wrong_tube_answer_without_another_formulation_is_not_solved(example_spec, example_design):
+    """The min-max cost (19) exists in the plain form only: the step is reported as not solved."""
+    from amcp_drake.model.options import OnlineOptions
+
+    ctrl = _controller(example_spec, example_design, "drake", options=OnlineOptions(cost="minmax"))
+    ctrl.mpc = WrongTube(ctrl.mpc, _shift_z0)
+    traj = _run(ctrl, example_spec, 3)
+    assert len(traj.records) == 1 and traj.records[0].u is None
+    assert traj.records[0].status is SolveStatus.INACCURATE
+    assert "no other formulation" in traj.records[0].detail
+    assert traj.stop_reason == "step 0: status optimal_inaccurate"
+
+
+# -- the checks themselves, on hand-made answers ---------------------------------------------------------------
+def test_check_projection_accepts_the_exact_projection_and_rejects_others():
+    from tests.test_projection_degenerate import exact_projection
+
+    case = json.loads((DATA / "campaign-0-19-projection.json").read_text())
+    point, H, h = (np.asarray(case[k], float) for k in ("point", "H", "h"))
+    exact = exact_projection(point, H, h)
+    assert not answer_checks.failures(answer_checks.check_projection(exact, point, H, h, (exact,)))
+    for wrong, name in [(point, "projection in set"), (exact + np.array([0.0, 0.0, 1e-3]), "projection in set"),
+                        (np.array([np.nan, 0.0, 0.0]), "projection finite")]:
+        failed = answer_checks.failures(answer_checks.check_projection(wrong, point, H, h))
+        assert any(c.name.startswith(name) for c in failed), (wrong, failed)
+
+
+def test_check_set_update_uses_the_dual_certificate():
+    """Θ_(k−1) = [−1, 1]², one datum θ_1 <= 0.5: the offsets [0.5, 1, 1, 1] with Λ = rows picking the datum
+    for row 1 pass; claiming 0.4 for row 1 fails the outer bound (θ = (0.5, 0) is in the intersection)."""
+    H = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+    h_prev = np.ones(4)
+    H_data, h_data = np.array([[1.0, 0.0]]), np.array([0.5])
+    Lam = np.hstack([np.eye(4), np.zeros((4, 1))])
+    Lam[0] = [0, 0, 0, 0, 1.0]
+    box = np.array([1.0, 1.0])
+    good = np.array([0.5, 1.0, 1.0, 1.0])
+    points = np.array([[0.5, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+    assert not answer_checks.failures(answer_checks.check_set_update(good, Lam, points, H, h_prev, H_data, h_data, box))
+    cut = good - np.array([0.1, 0, 0, 0])
+    names = [c.name for c in answer_checks.failures(
+        answer_checks.check_set_update(cut, Lam, None, H, h_prev, H_data, h_data, box))]
+    assert names == ["set update outer bound (dual certificate)"]
+    bad_points = points + np.array([[0.2, 0.0], [0, 0], [0, 0], [0, 0]])
+    names = [c.name for c in answer_checks.failures(
+        answer_checks.check_set_update(good, Lam, bad_points, H, h_prev, H_data, h_data, box))]
+    assert names == ["set update maximisers feasible and tight"]

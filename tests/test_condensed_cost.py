@@ -1,0 +1,29 @@
+"""The condensed cost (17)-(18) shared by the Drake formulations and the fast path
+(amcp_drake/backends/condensed_cost.py): vᵀHv + 2gᵀv + c equals J_N rolled out step by step in
+plain numpy (amcp_reference.nominal_cost, written independently) on random data."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from amcp_drake.backends.condensed_cost import CondensedCost
+from amcp_reference.nominal_cost import nominal_cost
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_condensed_cost_equals_the_rolled_out_cost(example_design, example_spec, seed):
+    from amcp_drake.online.controller import AdaptiveMPC
+
+    rng = np.random.default_rng(seed)
+    data = AdaptiveMPC(example_spec.problem, example_design, backend="drake", formulation="vertex").data
+    model = CondensedCost(data)
+    N, m = int(data.N), np.shape(data.B0)[1]
+    for _ in range(5):
+        x = rng.normal(scale=2.0, size=np.shape(data.B0)[0])
+        theta = rng.uniform(-1.0, 1.0, size=np.shape(data.A)[0])
+        v = rng.normal(size=(N, m))
+        H, g, c = model.matrices(x, theta)
+        assert np.allclose(H, H.T) and np.all(np.linalg.eigvalsh(H) > 0)
+        J = float(v.reshape(-1) @ H @ v.reshape(-1) + 2 * g @ v.reshape(-1) + c)
+        assert J == pytest.approx(nominal_cost(data, x, theta, v), rel=1e-12, abs=1e-12)
