@@ -96,7 +96,7 @@ def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, po
     s = res.summary()
     click.echo(f"{pr.name}: {s['points']} initial states ({source}); backend {backend}, formulation {formulation}")
     di = res.design_info
-    click.echo(f"design: X0 {di['x0_template'] or ''} with {di['x0_facets']} facets, lambda_bar {di['lambda_bar']:.4f}, "
+    click.echo(f"design: X0 {di['x0_template'] or str(di['x0_facets']) + ' facets'}, lambda_bar {di['lambda_bar']:.4f}, "
                f"X_f {di['terminal_rows']} rows")
     click.echo(f"robust Θ: feasible fraction {s['robust_fraction']:.4f}")
     if adapt_steps:
