@@ -22,6 +22,8 @@ COMMANDS = {
     "campaign": ("amcp_drake.cli.campaign", "campaign_cmd", "Verification campaign of random problems on Dask, stored in SQLite."),
     "baseline": ("amcp_drake.cli.baseline", "baseline_cmd", "Adaptive vs robust baseline: cost, tube size, feasible region."),
     "pe-figure": ("amcp_drake.cli.pe_figure", "pe_figure_cmd", "Proposition 23: diameter of Theta_k with and without PE (PNG + JSON)."),
+    "coverage": ("amcp_drake.cli.coverage", "coverage_cmd",
+                 "Feasible region of the QP (20) on a grid of x0, robust and after adaptation (QP + LP)."),
     "bench": ("amcp_drake.cli.bench", "bench_cmd", "Performance benchmarks (medians, ratios)."),
 }
 

@@ -13,12 +13,41 @@ from importlib import resources
 
 from amcp_drake.model.problem import Problem, ProblemSpec
 from amcp_drake.model.problem_io import load_spec
+from amcp_drake.model.sls_mpc_2d import SLS_EPS_A_SWEEP, sls_mpc_2d_spec
+
+
+def _data_spec(name: str) -> ProblemSpec:
+    """The problem file ``amcp_drake/data/<name>.json`` (a copy is in examples/)."""
+    with resources.as_file(resources.files("amcp_drake") / "data" / f"{name}.json") as path:
+        return load_spec(path)
 
 
 def lorenzen2019_spec() -> ProblemSpec:
     """Example 1 with its design options and scenario (x0 = [2, 3], θ* = [0.8, 0.2, -0.5])."""
-    with resources.as_file(resources.files("amcp_drake") / "data" / "lorenzen2019.json") as path:
-        return load_spec(path)
+    return _data_spec("lorenzen2019")
+
+
+def parsi2020_siso_spec() -> ProblemSpec:
+    """Parsi, Iannelli & Smith, "Active exploration in adaptive MPC" (CDC 2020), single-input system of
+    their public code (anilparsi/RobustAdaptiveMPC @ 1e4a283): n = 2, m = 1, p = 2, Θ = [−1, 1]²,
+    |w_i| <= 0.05, x_i >= −10, |u| <= 2, N = 10, θ* = [0.95, 0.5]. Choices: docs/decisions.md."""
+    return _data_spec("parsi2020_siso")
+
+
+def parsi2020_mimo_spec() -> ProblemSpec:
+    """Parsi et al. (CDC 2020), two-input system of the same code (@ 0ed4014): n = 2, m = 2, p = 2,
+    |w_i| <= 0.1, x_i >= −10, −0.5 <= u1 <= 1, |u2| <= 2, N = 8, θ* = [0.95, 0.3]."""
+    return _data_spec("parsi2020_mimo")
+
+
+def bujarbaruah2022_spec() -> ProblemSpec:
+    """Bujarbaruah, Rosolia, Stürz, Zhang & Borrelli, robust MPC with parametric and additive
+    uncertainty (arXiv:2007.00930), public code monimoyb/RMPC_MixedUncertainty @ da50968:
+    A = [1 0.15; 0.1 1] + ΔA, B = [0.1; 1.1] + ΔB, ΔA = ε_A [0 θ1; θ2 0] (box), ΔB = ε_B [θ3; θ4]
+    (|θ3| + |θ4| <= 1, the convex hull of the code's four ΔB vertices), ε_A = ε_B = 0.1, |w_i| <= 0.1,
+    |x_i| <= 8, |u| <= 4, Q = 10 I, R = 2, N = 3; p = 4. X0 with 24 facets (8 to 16 fail: divergent
+    template iteration or no finite terminal set; docs/decisions.md)."""
+    return _data_spec("bujarbaruah2022")
 
 
 def lorenzen2019() -> Problem:
@@ -34,8 +63,7 @@ def lorenzen2019_ex2_spec() -> ProblemSpec:
     P = n + 1 = 3 and level ρ = 0.8 (SRC-1's values), certainty-equivalence cost; scenario 100 steps.
     The scenario holds the drifting θ*_0 … θ*_100 of :func:`lorenzen2019_ex2_theta_star` (a test
     checks that the file and the function agree)."""
-    with resources.as_file(resources.files("amcp_drake") / "data" / "lorenzen2019_ex2.json") as path:
-        return load_spec(path)
+    return _data_spec("lorenzen2019_ex2")
 
 
 def lorenzen2019_ex2_theta_star(steps: int = 100, amplitude: float = 0.3, period: int = 100):
@@ -50,7 +78,15 @@ def lorenzen2019_ex2_theta_star(steps: int = 100, amplitude: float = 0.3, period
     return seq
 
 
-EXAMPLES = {"lorenzen2019": lorenzen2019_spec, "lorenzen2019_ex2": lorenzen2019_ex2_spec}
+EXAMPLES = {"lorenzen2019": lorenzen2019_spec, "lorenzen2019_ex2": lorenzen2019_ex2_spec,
+            "parsi2020_siso": parsi2020_siso_spec, "parsi2020_mimo": parsi2020_mimo_spec,
+            "bujarbaruah2022": bujarbaruah2022_spec,
+            **{f"sls_mpc_2d_eps{e:g}": (lambda e=e: sls_mpc_2d_spec(e)) for e in SLS_EPS_A_SWEEP}}
+#: The built-in systems taken from other publications than Lorenzen et al. (2019) (issue 14).
+LITERATURE_EXAMPLES = ("parsi2020_siso", "parsi2020_mimo", "bujarbaruah2022")
+#: The SLS-MPC 2-D family (Chen et al. 2024; constructor amcp_drake.model.sls_mpc_2d) at the ε_A of
+#: issue 14's sweep; any ε_A through ``sls_mpc_2d_spec(eps_A)``.
+SLSMPC2D_EXAMPLES = tuple(f"sls_mpc_2d_eps{e:g}" for e in SLS_EPS_A_SWEEP)
 
 
 def get_example(name: str) -> ProblemSpec:

@@ -100,6 +100,12 @@ def design_fixed(problem: Problem, options: DesignOptions, backend="drake", gain
     _require_finite_support("w_bar", w_bar)
     _require_finite_support("f_bar", f_bar)
     _require_finite_support("h_bar", h_bar)
+    # The LP values are upper bounds only up to the solver's tolerance; the maxima over the vertices
+    # of W and X0 are exact, so the larger of the two is a valid bound for either backend (found on
+    # parsi2020_siso: the cvxpy backend's f̄ was 1.5e-9 too small and X_f left Z by 2e-8).
+    w_bar = np.maximum(w_bar, np.max(H_x @ problem.w_vertices().T, axis=1))
+    f_bar = np.maximum(f_bar, np.max(FGK @ X0_vertices.T, axis=1))
+    h_bar = np.maximum(h_bar, np.array([np.max(H_x @ Ak @ X0_vertices.T, axis=1) for Ak in A_cl]))
     lambda_bar = float(np.max(h_bar))
     if lambda_bar >= 1.0:
         raise DesignError(f"X0 is not contractive: lambda_bar = {lambda_bar:.4f} >= 1 (spec §5.1 conditions); "

@@ -1,0 +1,123 @@
+"""``amcp coverage``: the feasible region of the tube QP (20) on a grid of initial states, robust Θ
+and (``--adapt STEPS``) the Θ_T learned on a closed loop; every point confirmed by an independent LP."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from amcp_drake.cli.common import (
+    EXIT_FAIL,
+    EXIT_OK,
+    backend_option,
+    bad_input_exits_2,
+    example_option,
+    load_problem_spec,
+    problem_argument,
+    update_options,
+)
+
+
+@click.command("coverage")
+@problem_argument
+@example_option
+@backend_option
+@click.option("--formulation", type=click.Choice(["plain", "vertex"]), default="vertex", show_default=True,
+              help="Tube QP: plain (15) with multipliers, or the exact vertex form.")
+@click.option("--grid", type=click.IntRange(min=1), default=None,
+              help="Grid values per axis (default 21; with --points FILE holding a polytope, its grid).")
+@click.option("--box", "box_text", default=None, metavar="LO:HI,LO:HI,...",
+              help="Grid box, one interval per state (default: the state bounds of Z, else design.mu_state_bound).")
+@click.option("--points", "points_file", default=None, type=click.Path(dir_okay=False),
+              help='JSON file: {"points": [[..], ..]} or {"polytope": {"H": [[..]], "h": [..]}} (grid points inside).')
+@click.option("--adapt", "adapt_steps", type=click.IntRange(min=1), default=None,
+              help="Also evaluate the region for Θ_T learned on a closed loop of this many steps (the scenario).")
+@click.option("--adapt-x0", "adapt_x0", default=None, metavar="X1,X2,...",
+              help="Initial state of the --adapt run (default: the problem file's scenario x0).")
+@update_options
+@click.option("--out", "out_dir", default="amcp-out", show_default=True, type=click.Path(file_okay=False),
+              help="Folder for coverage.json and coverage.png.")
+@click.option("--no-progress", is_flag=True, help="No progress bar.")
+@bad_input_exits_2
+def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, points_file, adapt_steps, adapt_x0,
+                 update, window, projection, out_dir, no_progress):
+    """Feasible fraction of a grid of initial states (QP (20), confirmed by an LP).
+
+    Writes coverage.json (every point, both verdicts, every disagreement) and coverage.png (n <= 2).
+    Exit code 0 when every point's QP verdict is confirmed, 1 on a disagreement (or an undecided QP,
+    a failed LP, a point feasible for Θ but not for Θ_T), 2 on bad input."""
+    import numpy as np
+
+    from amcp_drake.cli.common import resolve_online
+    from amcp_drake.model.errors import ProblemError
+    from amcp_drake.offline.design import design
+    from amcp_drake.studies.coverage import (
+        DEFAULT_GRID,
+        default_box,
+        grid_points,
+        load_points,
+        parse_box,
+        run_coverage,
+        write_coverage,
+    )
+
+    if box_text and points_file:
+        raise ProblemError("--box, --points", "at most one of them", "both")
+    spec = load_problem_spec(problem_file, example)
+    pr = spec.problem
+    online = resolve_online(spec, update=update, window=window, projection=projection)
+    if points_file:
+        points, source = load_points(points_file, pr.n, grid or DEFAULT_GRID)
+        axes = None
+    else:
+        box = parse_box(box_text, pr.n) if box_text else default_box(pr, spec.design.mu_state_bound)
+        points, axes = grid_points(box, grid or DEFAULT_GRID)
+        source = "grid " + " x ".join(f"[{lo:g}, {hi:g}]" for lo, hi in box) + f", {grid or DEFAULT_GRID} per axis"
+    if adapt_x0 is not None:
+        try:
+            adapt_x0 = [float(v) for v in adapt_x0.split(",")]
+        except ValueError:
+            raise ProblemError("--adapt-x0", f"{pr.n} numbers separated by commas", repr(adapt_x0)) from None
+        if len(adapt_x0) != pr.n:
+            raise ProblemError("--adapt-x0", f"{pr.n} numbers separated by commas", f"{len(adapt_x0)} numbers")
+    d = design(pr, spec.design, backend=backend)
+
+    def progress_factory(total, label):
+        if no_progress:
+            return None
+        from tqdm import tqdm
+
+        return tqdm(total=total, desc=label, unit="pt", file=sys.stderr, leave=False)
+
+    res = run_coverage(spec, d, points, source=source, axes=axes, adapt_steps=adapt_steps, backend=backend,
+                       formulation=formulation, options=online, adapt_x0=adapt_x0, progress_factory=progress_factory)
+    js, png = write_coverage(res, out_dir)
+    s = res.summary()
+    click.echo(f"{pr.name}: {s['points']} initial states ({source}); backend {backend}, formulation {formulation}")
+    di = res.design_info
+    click.echo(f"design: X0 {di['x0_template'] or str(di['x0_facets']) + ' facets'}, lambda_bar {di['lambda_bar']:.4f}, "
+               f"X_f {di['terminal_rows']} rows")
+    click.echo(f"robust Θ: feasible fraction {s['robust_fraction']:.4f}")
+    if adapt_steps:
+        info = res.adapt_info
+        click.echo(f"Θ_T after {info['steps_run']}/{adapt_steps} steps ({info['update']} update, stop: "
+                   f"{info['stop_reason']}): feasible fraction {s['adaptive_fraction']:.4f} "
+                   f"(feasible only after adaptation {s['adaptive_only_fraction']:.4f})")
+        if info["steps_run"] < adapt_steps:
+            click.echo(f"WARNING: the adaptive run from x0 = {info['x0']} stopped after {info['steps_run']} of "
+                       f"{adapt_steps} steps ({info['stop_reason']}); Θ_T is the set of its last step. Choose a "
+                       "feasible start with --adapt-x0.")
+    t = res.timings
+    click.echo("timings: " + ", ".join(f"{k} {v:.2f}" for k, v in t.items()))
+    issues = res.issues()
+    click.echo(f"QP/LP: {s['disagree_count']} disagreements, {s['borderline_count']} borderline (|t| <= tol), "
+               f"{s['qp_undecided_count']} undecided QPs, {s['lp_failed_count']} failed LPs, "
+               f"{s['monotonicity_count']} monotonicity violations")
+    for kind in ("disagree", "qp_undecided", "lp_failed", "monotonicity", "borderline"):
+        for row in issues[kind]:
+            x0 = np.array2string(np.asarray(row["x0"]), precision=4, separator=", ")
+            detail = {k: v for k, v in row.items() if k not in ("index", "x0")}
+            click.echo(f"  {kind}: x0 = {x0} {detail}")
+    click.echo(f"wrote {js}" + (f" and {png}" if png else " (no PNG for n >= 3)"))
+    sys.exit(EXIT_OK if res.passed else EXIT_FAIL)
