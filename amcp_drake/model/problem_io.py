@@ -358,33 +358,31 @@ def check_output_dir(option: str, path: str | os.PathLike | None) -> Path:
 
 def check_output_file(option: str, path: str | os.PathLike | None) -> Path:
     """A usable output file path for ``option``: not empty, not a directory, its folder writable."""
-    given = "" if path is None else str(path)
-    if not given.strip():
-        raise ProblemError(option, "a file path", "an empty string")
-    out = Path(given)
-    if out.is_dir():
-        raise ProblemError(option, "a file path", f"{given!r} is a directory")
-    base = _nearest_existing(out.parent)
-    if not base.is_dir():
-        raise ProblemError(option, "a file path (its folder new or existing)", f"{given!r} lies below the file {base}")
-    _require_writable_dir(option, given, base)
+    out, base = _file_path(option, path, "a file path")
+    _require_writable_dir(option, str(path), base)
     return out
 
 
 def check_store_path(option: str, path: str | os.PathLike | None) -> Path:
     """A campaign store path: not empty, not a directory, not below a file (SQLite opens or creates it;
     whether its content is a store is the campaign's check)."""
+    return _file_path(option, path, "the path of a SQLite store file")[0]
+
+
+def _file_path(option: str, path: str | os.PathLike | None, expected: str) -> tuple[Path, Path]:
+    """(path, its nearest existing folder) for a file ``option``: not empty, not a directory, not
+    below a regular file. ProblemError naming ``option`` otherwise."""
     given = "" if path is None else str(path)
     if not given.strip():
-        raise ProblemError(option, "the path of a SQLite store file", "an empty string")
+        raise ProblemError(option, expected, "an empty string")
     out = Path(given)
     if out.is_dir():
-        raise ProblemError(option, "the path of a SQLite store file", f"{given!r} is a directory")
+        raise ProblemError(option, expected, f"{given!r} is a directory")
     base = _nearest_existing(out.parent)
     if not base.is_dir():
-        raise ProblemError(option, "the path of a SQLite store file", f"{given!r} lies below the file {base}")
-    return out
-
+        raise ProblemError(option, expected if expected != "a file path" else
+                           "a file path (its folder new or existing)", f"{given!r} lies below the file {base}")
+    return out, base
 
 
 def write_json_atomic(data: Any, path: str | os.PathLike) -> Path:
@@ -393,13 +391,19 @@ def write_json_atomic(data: Any, path: str | os.PathLike) -> Path:
 
 
 def write_text_atomic(text: str, path: str | os.PathLike) -> Path:
-    """Write text to ``path`` through a temporary file in the same folder and a rename."""
+    """Write text (UTF-8) to ``path`` through a temporary file in the same folder and a rename."""
+    return write_bytes_atomic(text.encode("utf-8"), path)
+
+
+def write_bytes_atomic(data: bytes, path: str | os.PathLike) -> Path:
+    """Write bytes to ``path`` through a temporary file in the same folder and a rename: a reader
+    sees the old file or the whole new one, never a half-written one."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
-        with os.fdopen(fd, "w") as handle:
-            handle.write(text)
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(data)
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; a result file is as readable as any other
@@ -426,5 +430,6 @@ __all__ = [
     "spec_to_dict",
     "validate_layout",
     "write_json_atomic",
+    "write_bytes_atomic",
     "write_text_atomic",
 ]

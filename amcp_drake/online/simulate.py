@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import gzip
 import json
-import os
-import tempfile
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -23,7 +21,14 @@ from amcp_drake.model.errors import InconsistentDataError, ProblemError, Traject
 from amcp_drake.model.json_strict import decode_utf8, first_non_finite, loads_strict
 from amcp_drake.model.options import OnlineOptions
 from amcp_drake.model.problem import DISTURBANCE_KINDS, Problem, ProblemSpec, check_theta_rate
-from amcp_drake.model.problem_io import options_from_dict, options_to_dict, spec_from_dict, spec_to_dict, write_text_atomic
+from amcp_drake.model.problem_io import (
+    options_from_dict,
+    options_to_dict,
+    spec_from_dict,
+    spec_to_dict,
+    write_bytes_atomic,
+    write_text_atomic,
+)
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.offline.design import OfflineDesign
 from amcp_drake.online.controller import AdaptiveMPC, StepRecord
@@ -133,17 +138,7 @@ class Trajectory:
         text = json.dumps(data, allow_nan=False)
         path = Path(path)
         if path.suffix == ".gz":
-            path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-            try:
-                with os.fdopen(fd, "wb") as raw, gzip.GzipFile(fileobj=raw, mode="wb") as handle:
-                    handle.write(text.encode("utf-8"))
-                os.replace(tmp, path)
-            except BaseException:
-                if os.path.exists(tmp):
-                    os.unlink(tmp)
-                raise
-            return path
+            return write_bytes_atomic(gzip.compress(text.encode("utf-8")), path)
         return write_text_atomic(text, path)
 
     @classmethod
