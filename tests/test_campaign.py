@@ -50,6 +50,8 @@ def test_local_cluster_campaign_stores_every_problem_and_answers_the_summary(tmp
     assert table[("θ* ∈ Θ_k", "drake")][0] + table[("θ* ∈ Θ_k", "drake")][1] == 6
     text = summary_text(store)
     assert "problems stored: 6" in text and "coverage" in text
+    for key in ("theta_k_lower_dim", "theta_star_vertex", "theta_star_facet"):  # issue 13: hard-case coverage
+        assert key in text, key
     assert "<table id='claims'>" in report_html(store)
     # a second run without --resume is refused, with --resume nothing is re-run
     from amcp_drake.model.errors import ProblemError
