@@ -52,7 +52,7 @@ class Section4Sizes:
 
 
 SIZES = {"ci": Section4Sizes(examples=24, steps=12, pe_steps=18, max_N=6),
-         "thorough": Section4Sizes(examples=400, steps=40, pe_steps=60, max_N=10)}
+         "thorough": Section4Sizes(examples=60, steps=24, pe_steps=36, max_N=8)}
 
 
 def sizes() -> Section4Sizes:
