@@ -3,6 +3,8 @@ spec (not from the code) and by the independent design checks."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -69,7 +71,6 @@ def test_automatic_mode_refuses_a_given_K_P_that_violates_16(example_spec):
 
 
 def test_tampered_designs_fail_the_right_check(example_spec, example_design):
-    from dataclasses import replace
 
     pr = example_spec.problem
     small_P = {c.name: c for c in verify_design(pr, replace(example_design, P=0.5 * example_design.P), 3.0)}
@@ -109,3 +110,15 @@ def test_backend_registry_lists_installed_and_rejects_unknown():
     with pytest.raises(BackendNotFound, match="installed"):
         get_backend("gurobi-magic")
     assert get_backend("drake").name == "drake"
+
+
+@pytest.mark.parametrize("factor, margin", [(0.0, -0.9957), (0.5, -0.4961)])
+def test_x_f_invariance_fails_for_a_tampered_gain(example_spec, example_design, factor, margin):
+    """K scaled (A_cl(θ) no longer the closed loop the terminal set was built for): the vertex
+    check of Assumption 11 (A_cl X_f-images against {z⁺} ⊕ α⁺X0) fails; margins measured with the
+    per-vertex loop this check replaced (same to 1e-15), while X_f in Z still holds."""
+    tampered = replace(example_design, K=factor * np.asarray(example_design.K))
+    checks = {c.name: c for c in verify_design(example_spec.problem, tampered, 3.0)}
+    assert checks["X_f invariant"].status == "fail"
+    assert checks["X_f invariant"].margin == pytest.approx(margin, abs=1e-4)
+    assert checks["X_f in Z"].status == "pass"

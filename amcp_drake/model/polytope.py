@@ -134,11 +134,20 @@ def vertices(H: np.ndarray, h: np.ndarray) -> np.ndarray:
 
 
 def _unique_rows(points: np.ndarray, tol: float = 1e-9) -> np.ndarray:
-    kept: list[np.ndarray] = []
+    """The points with near-duplicates dropped (the first of each group kept, in order): p is a
+    duplicate of a kept q when max|p − q| <= tol · max(1, max|q|) (Qhull reports a degenerate
+    vertex once per facet through it)."""
+    points = np.asarray(points, float)
+    kept = np.empty_like(points)
+    scale = np.empty(len(points))
+    count = 0
     for p in points:
-        if not any(np.max(np.abs(p - q)) <= tol * max(1.0, np.max(np.abs(q))) for q in kept):
-            kept.append(p)
-    return np.array(kept)
+        if count and np.any(np.max(np.abs(kept[:count] - p), axis=1) <= tol * scale[:count]):
+            continue
+        kept[count] = p
+        scale[count] = max(1.0, float(np.max(np.abs(p))))
+        count += 1
+    return kept[:count].copy()
 
 
 def remove_redundant(H: np.ndarray, h: np.ndarray, tol: float = REDUNDANCY_TOL) -> tuple[np.ndarray, np.ndarray]:

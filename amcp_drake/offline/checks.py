@@ -8,8 +8,6 @@ X_f by enumerating the vertices of X_f, Θ, X0 and W, and μ against (11).
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 
 from amcp_drake.model import polytope
@@ -75,15 +73,20 @@ def _terminal_set(problem, design, A_cl, X0_v, W_v, w_bar, h_bar) -> list[CheckR
     E = np.array([design.H_x @ (Ak - design.A_z) for Ak in A_cl])
     inclusion_margin = np.inf
     member_margin = np.inf
+    A_cl = np.asarray(A_cl, float)
+    X0_v, W_v = np.asarray(X0_v, float), np.asarray(W_v, float)
+    HW = W_v @ design.H_x.T                                   # (w, rows): H_x w for every vertex of W
     for vert in verts:
         z, alpha = vert[:n], vert[n]
         alpha_next = float(np.max(E @ z + h_bar * alpha + w_bar))  # φ(z, α)
         z_next = design.A_z @ z
         member_margin = min(member_margin, 1.0 - float(np.max(design.H_T @ z_next + design.h_T * alpha_next)),
                             alpha_next)
-        for Ak, xj, w in itertools.product(A_cl, X0_v, W_v):
-            image = Ak @ (z + alpha * xj) + w
-            inclusion_margin = min(inclusion_margin, alpha_next - float(np.max(design.H_x @ (image - z_next))))
+        # H_x (A_k (z + α x_j) + w − z⁺) for every vertex A_k of A_cl(Θ), x_j of X0 and w of W at once
+        images = np.einsum("aij,vj->avi", A_cl, z + alpha * X0_v) - z_next    # (a, v, n)
+        rows = images @ design.H_x.T                                          # (a, v, rows)
+        worst = float(np.max(rows[:, :, None, :] + HW[None, None, :, :]))
+        inclusion_margin = min(inclusion_margin, alpha_next - worst)
     FGK = problem.F + problem.G @ design.K
     con_margin = min(1.0 - float(np.max(FGK @ (vert[:n] + vert[n] * xj))) for vert in verts for xj in X0_v)
     detail = f"{len(verts)} vertices of X_f, {len(design.H_T)} rows"
