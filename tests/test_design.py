@@ -71,7 +71,6 @@ def test_automatic_mode_refuses_a_given_K_P_that_violates_16(example_spec):
 
 
 def test_tampered_designs_fail_the_right_check(example_spec, example_design):
-
     pr = example_spec.problem
     small_P = {c.name: c for c in verify_design(pr, replace(example_design, P=0.5 * example_design.P), 3.0)}
     assert small_P["terminal cost (16)"].status == "fail"
