@@ -385,6 +385,24 @@ def _file_path(option: str, path: str | os.PathLike | None, expected: str) -> tu
     return out, base
 
 
+def jsonable(value: Any) -> Any:
+    """Nested data made writable as strict JSON: numpy scalars and arrays converted to Python, tuples to
+    lists, keys to strings, non-finite floats (not JSON, RFC 8259) replaced by None."""
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return jsonable(value.tolist())
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value) if np.isfinite(value) else None
+    return value
+
+
 def write_json_atomic(data: Any, path: str | os.PathLike) -> Path:
     """Write JSON to ``path`` through a temporary file in the same folder and a rename."""
     return write_text_atomic(json.dumps(data, indent=1, allow_nan=False), path)
