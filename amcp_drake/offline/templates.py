@@ -63,6 +63,8 @@ class TemplateError(DesignError):
     """A template could not be built; ``reason`` is a short label (``"diverged"``, ``"not converged"``,
     ``"collapsed"``, ``"not contractive"``, ...) and ``hint`` the next thing to try."""
 
+    # The shape of model.errors.ProblemError.__init__ (fields kept, one message composed), with other
+    # fields: a template failure names the template and why, not a file field, expected and received.
     def __init__(self, template: str, reason: str, detail: str, hint: str = "") -> None:
         self.template = template
         self.reason = reason
