@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import click
 
-# What this command shares with the others (options, loading, exit codes) is defined once in cli/common.py;
-# the list below only names it.
+# What the commands share (options, loading, exit codes) is defined once in cli/common.py; the import
+# list and the decorators below only name it, with this command's own defaults and help texts.
 from amcp_drake.cli.common import (
     backend_option,
     bad_input_exits_2,
