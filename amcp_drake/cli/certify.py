@@ -12,6 +12,7 @@ from __future__ import annotations
 import click
 
 from amcp_drake.cli.common import (
+    ONLINE_OPTION_NAMES,
     backend_option,
     bad_input_exits_2,
     exit_verdict,
@@ -61,9 +62,8 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
     if trajectory_file is not None:
         from click.core import ParameterSource
 
-        given = [f"--{name.replace('_', '-')}" for name in ("backend", "design_backend", "steps", "seed", "update", "window",
-                                                                  "projection", "d_theta", "pe_window",
-                                                                  "pe_level", "cost", "max_memory", "x0_template")
+        run_options = ("backend", "design_backend", "steps", "seed", *ONLINE_OPTION_NAMES, "max_memory", "x0_template")
+        given = [f"--{name.replace('_', '-')}" for name in run_options
                  if ctx.get_parameter_source(name) is ParameterSource.COMMANDLINE]
         if given:
             raise ProblemError(", ".join(given), "no run options together with --trajectory (the run is not repeated)",
