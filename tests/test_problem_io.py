@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from amcp_drake.model.errors import ProblemError, ProblemFileError
-from amcp_drake.model.problem_io import load_spec, save_spec, spec_to_dict
+from amcp_drake.model.problem_io import jsonable, load_spec, save_spec, spec_to_dict
 
 
 def test_example_file_in_the_repository_equals_the_builtin(example_spec):
@@ -67,3 +67,12 @@ def test_missing_file_and_bad_field_inside_file(tmp_path, example_spec):
     path.write_text(json.dumps(data))
     with pytest.raises(ProblemFileError, match="banana"):
         load_spec(path)
+
+
+def test_jsonable_turns_numpy_data_into_strict_json():
+    """One helper for the certificate and the bench output: numpy scalars/arrays to Python, tuples to
+    lists, keys to strings, NaN/inf to None (strict JSON has no non-finite numbers)."""
+    out = jsonable({1: (np.float64(np.nan), np.int64(3), np.bool_(True), np.array([1.5, -np.inf]), "x")})
+    assert out == {"1": [None, 3, True, [1.5, None], "x"]}
+    assert [type(v) for v in out["1"][:3]] == [type(None), int, bool]
+    assert json.loads(json.dumps(out, allow_nan=False)) == out

@@ -72,6 +72,9 @@ class TubeMPCData:
       (Remark 13; plain formulation only).
     """
 
+    # The problem's and the offline design's fields that the QP needs, named as in Problem and
+    # offline.result.OfflineDesign: a backend sits below the offline layer and may not import it, so the
+    # protocol lists them itself (filled in by online.controller.AdaptiveMPC).
     A0: np.ndarray
     B0: np.ndarray
     A: np.ndarray

@@ -41,6 +41,7 @@ from amcp_drake.certificate.tube import GROUP_DESIGN, tube_checks, x0_vertex_lis
 from amcp_drake.model.check_result import FAIL, NOT_RUN, PASS, CheckResult, not_run
 from amcp_drake.model.errors import TrajectoryError
 from amcp_drake.model.problem import ProblemSpec
+from amcp_drake.model.problem_io import jsonable
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.online.simulate import Trajectory
 
@@ -99,7 +100,7 @@ class Certificate:
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON layout of certificate.json (schema: ``data/certificate.schema.json``)."""
-        return _jsonable({
+        return jsonable({
             "format": CERTIFICATE_FORMAT, "version": CERTIFICATE_VERSION, "generator": f"amcp-drake {__version__}",
             "created": self.created, "verdict": self.verdict, "passed": self.passed, "counts": self.counts(),
             "problem": self.problem, "run": self.run,
@@ -348,20 +349,3 @@ def _run_info(traj: Trajectory, state_bound: float | None) -> dict[str, Any]:
         "mu": traj.design.mu, "mu_region": traj.design.mu_region, "mu_state_bound": state_bound,
         "design_backend": traj.design.backend,
     }
-
-
-def _jsonable(value: Any) -> Any:
-    """Nested data with numpy scalars/arrays converted and non-finite floats replaced by None."""
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        return float(value) if np.isfinite(value) else None
-    return value

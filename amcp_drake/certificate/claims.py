@@ -25,6 +25,10 @@ from amcp_drake.model.status import SolveStatus
 from amcp_drake.online.simulate import Trajectory
 
 # -- tolerances --------------------------------------------------------------------------------
+# Deliberately not shared with online.answer_checks (PROJECTION_MEMBERSHIP_TOL, SET_NESTED_TOL, ...),
+# which gates a solver's answer before the loop uses it: the certificate judges the recorded run with
+# its own constants, so that loosening a gate can never loosen a claim (the gates are set equal to or
+# an order below these, and say so).
 #: Identities recomputed from recorded float64 data (model (1), control law (21), θ̂_0): the
 #: trajectory file stores floats with repr (exact round trip), so only float64 rounding of a few
 #: products (~1e-15 relative, states of order 1-10) separates both sides.

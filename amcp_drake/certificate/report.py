@@ -188,6 +188,20 @@ def _figure(width: float = 8.0, height: float = 3.2):
     return Figure(figsize=(width, height), layout="constrained")
 
 
+def _dotted_columns(ax, k, values: np.ndarray, label: str) -> list:
+    """One dotted line per column of the per-step matrix ``values`` against k, labelled ``label`` + index."""
+    return [ax.plot(k, values[:, i], marker=".", label=f"{label}{i + 1}")[0] for i in range(values.shape[1])]
+
+
+def _finish(ax, ylabel: str | None, xlabel: str = "step k", ncol: int = 1) -> None:
+    """The axis labels, legend and grid every time-series plot of the report shares."""
+    ax.set_xlabel(xlabel)
+    if ylabel is not None:
+        ax.set_ylabel(ylabel)
+    ax.legend(fontsize="small", ncol=ncol)
+    ax.grid(alpha=0.3)
+
+
 def _draw(plot_id: str, traj: Trajectory, cert: Certificate) -> tuple[str | None, str]:
     """(PNG data URI or None, caption note) for one plot id."""
     drawer = {
@@ -211,21 +225,34 @@ def _single_bounds(F: np.ndarray, G: np.ndarray, on_state: bool) -> list[tuple[i
 
 
 def _plot_states(traj: Trajectory, cert: Certificate):
+    return (_plot_signal(traj, on_state=True),
+            "Dashed: constraints of Z that bound a single state (mixed rows of Z are not drawn).")
+
+
+def _plot_input(traj: Trajectory, cert: Certificate):
+    return _plot_signal(traj, on_state=False), "Dashed: input bounds of Z (rows of Z without state terms)."
+
+
+def _plot_signal(traj: Trajectory, on_state: bool) -> str:
+    """x_k (dots) or u_k (held over the step) against k, each with the rows of Z that bound it alone."""
     pr = traj.problem
+    values, symbol, width = (traj.x, "x", pr.n) if on_state else (traj.u, "u", pr.m)
+    bounds = _single_bounds(pr.F, pr.G, on_state)
     fig = _figure()
     ax = fig.add_subplot()
-    k = np.arange(len(traj.x))
-    for j in range(pr.n):
-        line, = ax.plot(k, traj.x[:, j], marker=".", label=f"x{j + 1}")
-        for idx, bound in _single_bounds(pr.F, pr.G, True):
+    k = np.arange(len(values))
+    for j in range(width):
+        if on_state:
+            line, = ax.plot(k, values[:, j], marker=".", label=f"{symbol}{j + 1}")
+        else:
+            line, = ax.step(k, values[:, j], where="post", label=f"{symbol}{j + 1}")
+        for idx, bound in bounds:
             if idx == j:
-                ax.axhline(bound, ls="--", color=line.get_color(), lw=1, label=f"constraint on x{j + 1}")
-    _include_bounds(ax, traj.x, [b for _, b in _single_bounds(pr.F, pr.G, True)])
-    ax.set_xlabel("step k")
-    ax.set_ylabel("state")
-    ax.legend(fontsize="small", ncol=2)
-    ax.grid(alpha=0.3)
-    return _png(fig), "Dashed: constraints of Z that bound a single state (mixed rows of Z are not drawn)."
+                ax.axhline(bound, ls="--", color=line.get_color(), lw=1,
+                           label=f"constraint on x{j + 1}" if on_state else None)
+    _include_bounds(ax, values, [b for _, b in bounds])
+    _finish(ax, "state" if on_state else "input", ncol=2 if on_state else 1)
+    return _png(fig)
 
 
 def _include_bounds(ax, values: np.ndarray, bounds: list[float]) -> None:
@@ -288,37 +315,15 @@ def _plot_tubes(traj: Trajectory, cert: Certificate):
                        "red: states excluded by Z (rows of Z without input terms).")
 
 
-def _plot_input(traj: Trajectory, cert: Certificate):
-    pr = traj.problem
-    fig = _figure()
-    ax = fig.add_subplot()
-    k = np.arange(len(traj.u))
-    for j in range(pr.m):
-        line, = ax.step(k, traj.u[:, j], where="post", label=f"u{j + 1}")
-        for idx, bound in _single_bounds(pr.F, pr.G, False):
-            if idx == j:
-                ax.axhline(bound, ls="--", color=line.get_color(), lw=1)
-    _include_bounds(ax, traj.u, [b for _, b in _single_bounds(pr.F, pr.G, False)])
-    ax.set_xlabel("step k")
-    ax.set_ylabel("input")
-    ax.legend(fontsize="small")
-    ax.grid(alpha=0.3)
-    return _png(fig), "Dashed: input bounds of Z (rows of Z without state terms)."
-
-
 def _plot_widths(traj: Trajectory, cert: Certificate):
     s = cert.series
     widths = np.array(s["theta_width"], float)
     fig = _figure()
     ax = fig.add_subplot()
-    for i in range(widths.shape[1]):
-        ax.plot(s["k"], widths[:, i], marker=".", label=f"θ{i + 1}")
+    _dotted_columns(ax, s["k"], widths, "θ")
     ax.plot(s["k"], s["theta_diameter"], "k--", lw=1, label="diameter")
-    ax.set_xlabel("step k")
-    ax.set_ylabel("width of Θ_k")
     ax.set_ylim(bottom=0)
-    ax.legend(fontsize="small")
-    ax.grid(alpha=0.3)
+    _finish(ax, "width of Θ_k")
     return _png(fig), "max θ_i − min θ_i over Θ_k (from its vertices), and the diameter max ‖θ − θ'‖ (Prop. 23)."
 
 
@@ -372,16 +377,12 @@ def _plot_theta_hat(traj: Trajectory, cert: Certificate):
     th = np.array(s["theta_hat"], float)
     fig = _figure()
     ax = fig.add_subplot()
-    for i in range(th.shape[1]):
-        line, = ax.plot(s["k"], th[:, i], marker=".", label=f"θ̂{i + 1}")
+    for i, line in enumerate(_dotted_columns(ax, s["k"], th, "θ̂")):
         if np.ndim(traj.theta_star) == 2:
             ax.plot(range(len(traj.theta_star)), np.asarray(traj.theta_star)[:, i], ls="--", lw=1, color=line.get_color())
         else:
             ax.axhline(traj.theta_star[i], ls="--", lw=1, color=line.get_color())
-    ax.set_xlabel("step k")
-    ax.set_ylabel("parameter")
-    ax.legend(fontsize="small", ncol=3)
-    ax.grid(alpha=0.3)
+    _finish(ax, "parameter", ncol=3)
     return _png(fig), "Dashed: the true parameter θ*."
 
 
@@ -394,9 +395,7 @@ def _plot_lemma5(traj: Trajectory, cert: Certificate):
     ax = fig.add_subplot()
     ax.plot(m, s["lemma5_lhs"], marker=".", label="(1/μ)‖θ̂_(m+1) − θ*‖² + Σ‖x̃_(1|k)‖²")
     ax.plot(m, s["lemma5_rhs"], marker=".", label="(1/μ)‖θ̂_0 − θ*‖² + Σ‖w_k‖²")
-    ax.set_xlabel("m")
-    ax.legend(fontsize="small")
-    ax.grid(alpha=0.3)
+    _finish(ax, None, xlabel="m")
     return _png(fig), "Lemma 5 claims the first curve never exceeds the second."
 
 
@@ -407,9 +406,6 @@ def _plot_times(traj: Trajectory, cert: Certificate):
     for key, name in (("solver_time_s", "QP (20) solver"), ("step_time_s", "whole step")):
         vals = [np.nan if v is None else 1e3 * v for v in s[key]]
         ax.plot(s["k"], vals, marker=".", label=name)
-    ax.set_xlabel("step k")
-    ax.set_ylabel("time [ms]")
     ax.set_ylim(bottom=0)
-    ax.legend(fontsize="small")
-    ax.grid(alpha=0.3)
+    _finish(ax, "time [ms]")
     return _png(fig), f"Backend: {traj.backend}."

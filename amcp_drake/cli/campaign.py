@@ -13,7 +13,14 @@ from pathlib import Path
 
 import click
 
-from amcp_drake.cli.common import EXIT_BAD_INPUT, EXIT_FAIL, EXIT_OK, bad_input_exits_2, output_file_callback, store_path_callback
+from amcp_drake.cli.common import (
+    EXIT_BAD_INPUT,
+    EXIT_OK,
+    bad_input_exits_2,
+    exit_verdict,
+    output_file_callback,
+    store_path_callback,
+)
 
 
 def _counts_line(counts: dict[str, int]) -> str:
@@ -106,7 +113,7 @@ def campaign_cmd(systems, backends, seed, scheduler, workers, store_path, steps,
     click.echo(summary_text(store))
     ok = not store.failures()
     store.close()
-    sys.exit(EXIT_OK if ok else EXIT_FAIL)
+    exit_verdict(ok)
 
 
 def _report(store_path: str, report_file: str) -> int:

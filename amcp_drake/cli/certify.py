@@ -9,36 +9,27 @@ written atomically into --out.
 
 from __future__ import annotations
 
-import sys
-
 import click
 
 from amcp_drake.cli.common import (
-    EXIT_FAIL,
-    EXIT_OK,
+    ONLINE_OPTION_NAMES,
     backend_option,
     bad_input_exits_2,
-    check_run_size,
-    example_option,
+    exit_verdict,
     formulation_option,
     load_problem_spec,
     max_memory_option,
+    online_options,
     output_dir_callback,
-    problem_argument,
-    resolve_online,
-    section4_options,
+    prepare_run,
+    problem_options,
     seed_option,
     steps_option,
-    update_options,
-    with_x0_template,
-    x0_template_option,
 )
 
 
 @click.command("certify")
-@problem_argument
-@example_option
-@x0_template_option
+@problem_options()
 @backend_option
 @click.option("--design-backend", "design_backend", type=click.Choice(["drake", "cvxpy"]), default=None,
               help="Backend of the offline design (default: --backend). A campaign replay names the one the "
@@ -50,13 +41,12 @@ from amcp_drake.cli.common import (
               help="Output directory (its other files are left alone).")
 @click.option("--trajectory", "trajectory_file", default=None, type=click.Path(),
               help="Re-check a saved trajectory (.json or .json.gz) instead of running the loop.")
-@update_options
-@section4_options
+@online_options
 @max_memory_option
 @click.pass_context
 @bad_input_exits_2
-def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend, formulation, steps, seed, out_dir, trajectory_file, update,
-                window, projection, d_theta, pe_window, pe_level, cost, max_memory):
+def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend, formulation, steps, seed, out_dir,
+                trajectory_file, online, max_memory):
     """Run the adaptive MPC on PROBLEM (default: --example lorenzen2019, x0 = [2, 3],
     θ* = [0.8, 0.2, -0.5], 50 steps, uniform disturbance, seed 0), check every claim of the paper
     from the recorded data with numpy/scipy only, and write certificate.json, report.html and
@@ -72,31 +62,25 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
     if trajectory_file is not None:
         from click.core import ParameterSource
 
-        given = [f"--{name.replace('_', '-')}" for name in ("backend", "design_backend", "steps", "seed", "update", "window",
-                                                                  "projection", "d_theta", "pe_window",
-                                                                  "pe_level", "cost", "max_memory", "x0_template")
+        run_options = ("backend", "design_backend", "steps", "seed", *ONLINE_OPTION_NAMES, "max_memory", "x0_template")
+        given = [f"--{name.replace('_', '-')}" for name in run_options
                  if ctx.get_parameter_source(name) is ParameterSource.COMMANDLINE]
         if given:
             raise ProblemError(", ".join(given), "no run options together with --trajectory (the run is not repeated)",
                                "both")
         traj, spec = _load_trajectory(trajectory_file, problem_file, example)
     else:
-        spec = with_x0_template(load_problem_spec(problem_file, example), x0_template)
-        if spec.scenario is None:
-            raise ProblemError("scenario", "a scenario (x0, theta_star, ...) in the problem file to run", "none",
-                               "Add a \"scenario\" object, or pass --trajectory.")
-        sc = spec.scenario
-        steps = sc.steps if steps is None else steps
-        options = resolve_online(spec, update=update, window=window, projection=projection, d_theta=d_theta,
-                                 pe_window=pe_window, pe_level=pe_level, cost=cost)
-        check_run_size(spec, steps, options, max_memory)
-        traj = _run(spec, backend, steps, sc.seed if seed is None else seed, formulation, options, design_backend)
+        spec, steps, options = prepare_run(problem_file, example, x0_template, steps, online, max_memory,
+                                           "a scenario (x0, theta_star, ...) in the problem file to run",
+                                           "Add a \"scenario\" object, or pass --trajectory.")
+        seed = spec.scenario.seed if seed is None else seed
+        traj = _run(spec, backend, steps, seed, formulation, options, design_backend)
         if traj.stop_reason.startswith("inconsistent"):
             click.echo(f"warning: the run stopped: {traj.stop_reason}; certifying the partial trajectory", err=True)
     cert = certify(traj, spec)
     out = write_outputs(out_dir, traj, cert)
     _print(cert, out)
-    sys.exit(EXIT_OK if cert.passed else EXIT_FAIL)
+    exit_verdict(cert.passed)
 
 
 def _run(spec, backend: str, steps: int, seed: int, formulation: str = "plain", options=None,

@@ -6,6 +6,7 @@ import functools
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple, NoReturn
 
 import click
 
@@ -18,6 +19,12 @@ EXIT_OK, EXIT_FAIL, EXIT_BAD_INPUT = 0, 1, 2
 MAX_SEED = 2**63 - 1
 #: Most disturbance seeds of one ``amcp baseline`` / ``pe-figure`` (each seed is two full runs).
 MAX_SEEDS = 10_000
+
+
+def exit_verdict(passed: bool) -> NoReturn:
+    """End a command: exit code 0 when what it checks holds, 1 otherwise (2, bad input, is
+    :func:`bad_input_exits_2`'s)."""
+    sys.exit(EXIT_OK if passed else EXIT_FAIL)
 
 
 def load_problem_spec(problem_file: str | None, example: str | None):
@@ -74,6 +81,12 @@ def steps_option(help_text: str, default=None, minimum: int = 1, show_default: b
 def seed_option(help_text: str, default=None, show_default: bool = False):
     """``--seed`` between 0 and :data:`MAX_SEED`."""
     return click.option("--seed", type=click.IntRange(0, MAX_SEED), default=default, show_default=show_default,
+                        help=help_text)
+
+
+def seeds_option(help_text: str, default: int):
+    """``--seeds`` between 1 and :data:`MAX_SEEDS` (the disturbance seeds 0..seeds-1 of a study)."""
+    return click.option("--seeds", type=click.IntRange(1, MAX_SEEDS), default=default, show_default=True,
                         help=help_text)
 
 
@@ -167,3 +180,71 @@ def resolve_online(spec, **given):
     base = spec.online if spec.online is not None else OnlineOptions()
     changes = {k: v for k, v in given.items() if v is not None}
     return dataclasses.replace(base, **changes)
+
+
+# -- composite options and the set-up every run command shares -----------------------------------
+def _stack(*decorators: Callable) -> Callable:
+    """The decorators applied as if written one above the other (so click lists them in this order)."""
+
+    def apply(func: Callable) -> Callable:
+        for decorator in reversed(decorators):
+            func = decorator(func)
+        return func
+
+    return apply
+
+
+def problem_options(x0_template: bool = True) -> Callable:
+    """``[PROBLEM]``, ``--example`` and (``x0_template``) ``--x0-template``: the problem a command reads
+    (:func:`load_problem_spec`, :func:`with_x0_template`)."""
+    return _stack(problem_argument, example_option, *([x0_template_option] if x0_template else []))
+
+
+#: The online options of :func:`online_options`, in the order of OnlineOptions' fields they replace.
+ONLINE_OPTION_NAMES = ("update", "window", "projection", "d_theta", "pe_window", "pe_level", "cost")
+
+
+def online_options(func: Callable) -> Callable:
+    """--update, --window, --projection (:func:`update_options`) and --d-theta, --pe, --pe-level, --cost
+    (:func:`section4_options`), handed to the command as one argument ``online``: a dict of the seven
+    values (None where not given), ready for :func:`prepare_run` / :func:`resolve_online`."""
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        online = {name: kwargs.pop(name) for name in ONLINE_OPTION_NAMES}
+        return func(*args, online=online, **kwargs)
+
+    return _stack(update_options, section4_options)(wrapper)
+
+
+#: What :func:`require_scenario` says is missing, unless a command says more.
+SCENARIO_EXPECTED = "a scenario in the problem file (x0, theta_star)"
+
+
+def require_scenario(spec, expected: str = SCENARIO_EXPECTED, fix: str = ""):
+    """``spec.scenario``; a ProblemError naming the field ``scenario`` when the problem has none."""
+    if spec.scenario is None:
+        raise ProblemError("scenario", expected, "none", fix)
+    return spec.scenario
+
+
+class RunSetup(NamedTuple):
+    """What a closed-loop command has decided before anything is built (:func:`prepare_run`)."""
+
+    spec: object  #: the ProblemSpec (PROBLEM or --example, with --x0-template applied)
+    steps: int  #: --steps, else the scenario's
+    options: object  #: the OnlineOptions: the file's online section with the options given replacing it
+
+
+def prepare_run(problem_file: str | None, example: str | None, x0_template: str | None, steps: int | None,
+                online: dict, max_memory: float, scenario_expected: str = SCENARIO_EXPECTED,
+                scenario_fix: str = "") -> RunSetup:
+    """The set-up of ``amcp run``, ``certify`` and ``compare``: load the problem, apply --x0-template,
+    require a scenario, take the steps from it unless --steps is given, resolve the online options,
+    and refuse a run larger than --max-memory (:func:`check_run_size`), in this order."""
+    spec = with_x0_template(load_problem_spec(problem_file, example), x0_template)
+    scenario = require_scenario(spec, scenario_expected, scenario_fix)
+    steps = scenario.steps if steps is None else steps
+    options = resolve_online(spec, **online)
+    check_run_size(spec, steps, options, max_memory)
+    return RunSetup(spec, steps, options)

@@ -2,43 +2,34 @@
 
 from __future__ import annotations
 
-import sys
 from collections import defaultdict
 
 import click
 
+# What the commands share (options, loading, exit codes) is defined once in cli/common.py; the import
+# list and the decorators below only name it, with this command's own defaults and help texts.
 from amcp_drake.cli.common import (
-    EXIT_FAIL,
-    EXIT_OK,
     bad_input_exits_2,
-    check_run_size,
-    example_option,
+    exit_verdict,
     formulation_option,
-    load_problem_spec,
     max_memory_option,
+    online_options,
     output_file_callback,
-    problem_argument,
-    resolve_online,
-    section4_options,
+    prepare_run,
+    problem_options,
     seed_option,
     steps_option,
-    update_options,
-    with_x0_template,
-    x0_template_option,
 )
 
 
 @click.command("compare")
-@problem_argument
-@example_option
-@x0_template_option
+@problem_options()
 @steps_option("Steps (default: the scenario's).")
 @seed_option("Disturbance seed (default: the scenario's).")
 @click.option("--mode", type=click.Choice(["lockstep", "independent"]), default="lockstep", show_default=True)
 @click.option("--drake-solver", default="clarabel", show_default=True, help="Drake solver (clarabel, osqp, scs, ...).")
 @click.option("--cvxpy-solver", default="CLARABEL", show_default=True, help="cvxpy solver (CLARABEL, OSQP, SCS, ...).")
-@update_options
-@section4_options
+@online_options
 @click.option("--out", "out_file", type=click.Path(), default="amcp-out/compare.json", show_default=True,
               callback=output_file_callback,
               help="JSON file with every difference.")
@@ -46,21 +37,14 @@ from amcp_drake.cli.common import (
 @click.option("--quiet", is_flag=True, help="Only the summary, no per-step table.")
 @max_memory_option
 @bad_input_exits_2
-def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_solver, cvxpy_solver, update, window, projection,
-                d_theta, pe_window, pe_level, cost, out_file, formulation, quiet, max_memory):
+def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_solver, cvxpy_solver, online, out_file,
+                formulation, quiet, max_memory):
     """Compare u, v, cost, h_theta and theta_hat (and report z, alpha) of both backends per step."""
     from amcp_drake.comparison.compare import INFORMATIONAL, TOLERANCES, independent, lockstep
-    from amcp_drake.model.errors import ProblemError
     from amcp_drake.model.problem_io import write_json_atomic
 
-    spec = with_x0_template(load_problem_spec(problem_file, example), x0_template)
-    if spec.scenario is None:
-        raise ProblemError("scenario", "a scenario in the problem file (x0, theta_star)", "none")
-    steps = spec.scenario.steps if steps is None else steps
+    spec, steps, options = prepare_run(problem_file, example, x0_template, steps, online, max_memory)
     seed = spec.scenario.seed if seed is None else seed
-    options = resolve_online(spec, update=update, window=window, projection=projection, d_theta=d_theta,
-                             pe_window=pe_window, pe_level=pe_level, cost=cost)
-    check_run_size(spec, steps, options, max_memory)
     backend_options = ({"solver": drake_solver, "formulation": formulation},
                        {"solver": cvxpy_solver, "formulation": formulation})
     run = lockstep if mode == "lockstep" else independent
@@ -105,4 +89,4 @@ def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_sol
     write_json_atomic(comp.to_dict(), out_file)
     click.echo(f"all differences written to {out_file}")
     click.echo("backends agree" if comp.agree else "backends DISAGREE")
-    sys.exit(EXIT_OK if comp.agree else EXIT_FAIL)
+    exit_verdict(comp.agree)

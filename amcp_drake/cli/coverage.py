@@ -8,20 +8,17 @@ import sys
 import click
 
 from amcp_drake.cli.common import (
-    EXIT_FAIL,
-    EXIT_OK,
     backend_option,
     bad_input_exits_2,
-    example_option,
+    exit_verdict,
     load_problem_spec,
-    problem_argument,
+    problem_options,
     update_options,
 )
 
 
 @click.command("coverage")
-@problem_argument
-@example_option
+@problem_options(x0_template=False)
 @backend_option
 @click.option("--formulation", type=click.Choice(["plain", "vertex"]), default="vertex", show_default=True,
               help="Tube QP: plain (15) with multipliers, or the exact vertex form.")
@@ -120,4 +117,4 @@ def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, po
             detail = {k: v for k, v in row.items() if k not in ("index", "x0")}
             click.echo(f"  {kind}: x0 = {x0} {detail}")
     click.echo(f"wrote {js}" + (f" and {png}" if png else " (no PNG for n >= 3)"))
-    sys.exit(EXIT_OK if res.passed else EXIT_FAIL)
+    exit_verdict(res.passed)

@@ -2,67 +2,49 @@
 
 from __future__ import annotations
 
-import sys
-
 import click
 import numpy as np
 
+# What the commands share (options, loading, exit codes) is defined once in cli/common.py; the import
+# list and the decorators below only name it, with this command's own defaults and help texts.
 from amcp_drake.cli.common import (
-    EXIT_FAIL,
-    EXIT_OK,
     backend_option,
     bad_input_exits_2,
-    check_run_size,
-    example_option,
+    exit_verdict,
     formulation_option,
-    load_problem_spec,
     max_memory_option,
+    online_options,
     output_file_callback,
-    problem_argument,
-    resolve_online,
-    section4_options,
+    prepare_run,
+    problem_options,
     seed_option,
     steps_option,
-    update_options,
-    with_x0_template,
-    x0_template_option,
 )
 
 
 @click.command("run")
-@problem_argument
-@example_option
-@x0_template_option
+@problem_options()
 @backend_option
 @formulation_option
 @steps_option("Number of steps (default: the problem's scenario).")
 @seed_option("Disturbance seed (default: the scenario's).")
 @click.option("--disturbance", type=click.Choice(["uniform", "vertices", "zero"]), default=None)
-@update_options
-@section4_options
+@online_options
 @click.option("--every", type=click.IntRange(min=1), default=1, show_default=True, help="Print every n-th step.")
 @click.option("--save", type=click.Path(), default=None, callback=output_file_callback,
               help="Save the trajectory (JSON, .gz allowed).")
 @max_memory_option
 @bad_input_exits_2
-def run_cmd(problem_file, example, x0_template, backend, formulation, steps, seed, disturbance, update, window, projection, d_theta,
-            pe_window, pe_level, cost, every, save, max_memory):
+def run_cmd(problem_file, example, x0_template, backend, formulation, steps, seed, disturbance, online, every, save,
+            max_memory):
     """Design, then run the adaptive MPC closed loop and print one line per step."""
     from amcp_drake.cli.summary import format_table, step_table
-    from amcp_drake.model.errors import ProblemError
     from amcp_drake.offline.design import design
     from amcp_drake.online.controller import AdaptiveMPC
     from amcp_drake.online.simulate import simulate
 
-    spec = with_x0_template(load_problem_spec(problem_file, example), x0_template)
-    sc = spec.scenario
-    if sc is None:
-        raise ProblemError("scenario", "a scenario in the problem file (x0, theta_star)", "none")
-    pr = spec.problem
-    steps = sc.steps if steps is None else steps
-    options = resolve_online(spec, update=update, window=window, projection=projection, d_theta=d_theta,
-                             pe_window=pe_window, pe_level=pe_level, cost=cost)
-    check_run_size(spec, steps, options, max_memory)
+    spec, steps, options = prepare_run(problem_file, example, x0_template, steps, online, max_memory)
+    sc, pr = spec.scenario, spec.problem
     d = design(pr, spec.design, backend=backend)
     update = options.update
     ctrl = AdaptiveMPC(pr, d, backend=backend, options=options, formulation=formulation)
@@ -85,4 +67,4 @@ def run_cmd(problem_file, example, x0_template, backend, formulation, steps, see
     if save:
         traj.save(save)
         click.echo(f"trajectory saved to {save}")
-    sys.exit(EXIT_OK if traj.all_solved and traj.stop_reason == "completed" else EXIT_FAIL)
+    exit_verdict(traj.all_solved and traj.stop_reason == "completed")

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import click
 
-from amcp_drake.cli.common import EXIT_FAIL, EXIT_OK, bad_input_exits_2
+from amcp_drake.cli.common import bad_input_exits_2, exit_verdict
 
 #: property test -> the claim it checks (table order)
 CLAIMS = {
@@ -123,4 +123,4 @@ def verify_cmd(profile, backend, with_mutants, pytest_args):
     if with_mutants:
         mutants_ok = _run_mutants(backends)
         click.echo(f"\nmutants: {'every claim-breaking mutant caught' if mutants_ok else 'NOT ALL CAUGHT'}")
-    sys.exit(EXIT_OK if suite_ok and mutants_ok else EXIT_FAIL)
+    exit_verdict(suite_ok and mutants_ok)

@@ -106,19 +106,15 @@ _JSON_TYPES = {"object": "a JSON object", "array": "a list", "number": "a number
                "string": "a string", "boolean": "true or false", "null": "null"}
 
 
+#: A value read from JSON, named in words by its Python type; first match wins (bool before int).
+_PYTHON_TYPES = ((bool, "a boolean"), (dict, "a JSON object"), (list, "a list"), (int, "an integer"),
+                 (float, "a number"), (str, "a string"))
+
+
 def _json_type(value: Any) -> str:
-    if isinstance(value, bool):
-        return "a boolean"
-    if isinstance(value, dict):
-        return "a JSON object"
-    if isinstance(value, list):
-        return "a list"
-    if isinstance(value, int):
-        return "an integer"
-    if isinstance(value, float):
-        return "a number"
-    if isinstance(value, str):
-        return "a string"
+    for kind, words in _PYTHON_TYPES:
+        if isinstance(value, kind):
+            return words
     return "null" if value is None else type(value).__name__
 
 
@@ -223,20 +219,13 @@ def spec_from_dict(data: dict, reduce_rows: bool = True) -> ProblemSpec:
         changes, notes = reduce_redundant(raw["H_w"], raw["H_theta"], raw["h_theta"], raw["F"], raw["G"])
         raw.update(changes)
     problem = Problem(**raw)
-    design_data = data.get("design", {}) or {}
-    unknown = set(design_data) - _DESIGN_FIELDS
-    if unknown:
-        raise ProblemFileError("design", f"keys among {sorted(_DESIGN_FIELDS)}", f"unknown keys {sorted(unknown)}")
-    design = DesignOptions(**design_data)
+    design = DesignOptions(**_known_keys("design", data.get("design", {}) or {}, _DESIGN_FIELDS))
     scenario = None
     if data.get("scenario") is not None:
         sc = data["scenario"]
         if not isinstance(sc, dict):
             raise ProblemFileError("scenario", "a JSON object", type(sc).__name__)
-        unknown = set(sc) - _SCENARIO_FIELDS
-        if unknown:
-            raise ProblemFileError("scenario", f"keys among {sorted(_SCENARIO_FIELDS)}", f"unknown keys {sorted(unknown)}")
-        scenario = Scenario(**sc)
+        scenario = Scenario(**_known_keys("scenario", sc, _SCENARIO_FIELDS))
     online = None
     if data.get("online") is not None:
         online = options_from_dict(data["online"], where="online")
@@ -251,11 +240,16 @@ def options_from_dict(data: Any, where: str = "options"):
 
     if not isinstance(data, dict):
         raise ProblemFileError(where, "a JSON object", type(data).__name__)
-    names = {f.name for f in fields(OnlineOptions)}
-    unknown = set(data) - names
+    return OnlineOptions(**_known_keys(where, data, {f.name for f in fields(OnlineOptions)}))
+
+
+def _known_keys(section: str, data: dict, allowed: set[str]) -> dict:
+    """``data`` when all its keys are in ``allowed``; else a ProblemFileError on ``section`` naming the
+    unknown keys and the allowed ones."""
+    unknown = set(data) - allowed
     if unknown:
-        raise ProblemFileError(where, f"keys among {sorted(names)}", f"unknown keys {sorted(unknown)}")
-    return OnlineOptions(**data)
+        raise ProblemFileError(section, f"keys among {sorted(allowed)}", f"unknown keys {sorted(unknown)}")
+    return data
 
 
 def options_to_dict(options) -> dict:
@@ -383,6 +377,24 @@ def _file_path(option: str, path: str | os.PathLike | None, expected: str) -> tu
         raise ProblemError(option, expected if expected != "a file path" else
                            "a file path (its folder new or existing)", f"{given!r} lies below the file {base}")
     return out, base
+
+
+def jsonable(value: Any) -> Any:
+    """Nested data made writable as strict JSON: numpy scalars and arrays converted to Python, tuples to
+    lists, keys to strings, non-finite floats (not JSON, RFC 8259) replaced by None."""
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return jsonable(value.tolist())
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value) if np.isfinite(value) else None
+    return value
 
 
 def write_json_atomic(data: Any, path: str | os.PathLike) -> Path:

@@ -18,6 +18,7 @@ from amcp_drake.offline import templates as x0_templates
 from amcp_drake.offline.auto import design_auto, template_label
 from amcp_drake.offline.checks import verify_design
 from amcp_drake.offline.result import OfflineDesign, closed_loop_vertices, regressor_bound
+from amcp_drake.offline.support import bounded_vertices, row_maxima
 
 __all__ = ["OfflineDesign", "closed_loop_vertices", "regressor_bound", "design", "design_fixed", "robust_gain",
            "template_label", "terminal_set", "template_directions"]
@@ -231,24 +232,12 @@ def _dedupe(rows: np.ndarray) -> np.ndarray:
 
 def _bounded_vertices(rows: np.ndarray, be) -> np.ndarray | None:
     """Vertices of {rows · y <= 1, α >= 0} when it is bounded (checked by backend LPs), else None."""
-    H, h = _with_alpha_nonneg(rows)
-    dim = rows.shape[1]
-    extent = be.support(H, h, np.vstack([np.eye(dim), -np.eye(dim)]))
-    if not np.all(np.isfinite(extent)):
-        return None
-    try:
-        return polytope.vertices(H, h)
-    except (ValueError, RuntimeError):
-        return None
+    return bounded_vertices(*_with_alpha_nonneg(rows), be)
 
 
 def _row_maxima(rows: np.ndarray, directions: np.ndarray, be) -> np.ndarray:
     """max of each direction over {rows · y <= 1, α >= 0}: by vertices when bounded, else by LPs."""
-    verts = _bounded_vertices(rows, be)
-    if verts is not None:
-        return np.max(directions @ verts.T, axis=1)
-    H, h = _with_alpha_nonneg(rows)
-    return be.support(H, h, directions)
+    return row_maxima(*_with_alpha_nonneg(rows), directions, be)
 
 
 def _prune(rows: np.ndarray, be) -> np.ndarray:

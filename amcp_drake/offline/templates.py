@@ -29,6 +29,7 @@ import numpy as np
 
 from amcp_drake.model import polytope
 from amcp_drake.model.errors import DesignError, ProblemError
+from amcp_drake.offline.support import bounded_vertices, row_maxima
 
 #: The minimal-RPI iteration stops when T(h) - h is below this fraction of w̄ per row; inflating
 #: h by X0_INFLATION then makes the template exactly invariant: T(ch) = c T(h) - (c-1) w̄ <= c h.
@@ -62,6 +63,8 @@ class TemplateError(DesignError):
     """A template could not be built; ``reason`` is a short label (``"diverged"``, ``"not converged"``,
     ``"collapsed"``, ``"not contractive"``, ...) and ``hint`` the next thing to try."""
 
+    # The shape of model.errors.ProblemError.__init__ (fields kept, one message composed), with other
+    # fields: a template failure names the template and why, not a file field, expected and received.
     def __init__(self, template: str, reason: str, detail: str, hint: str = "") -> None:
         self.template = template
         self.reason = reason
@@ -277,20 +280,13 @@ def _unit_rows(M: np.ndarray) -> np.ndarray:
 
 
 def _bounded_vertices(rows: np.ndarray, be) -> np.ndarray | None:
-    extent = be.support(rows, np.ones(len(rows)), np.vstack([np.eye(rows.shape[1]), -np.eye(rows.shape[1])]))
-    if not np.all(np.isfinite(extent)):
-        return None
-    try:
-        return polytope.vertices(rows, np.ones(len(rows)))
-    except (ValueError, RuntimeError):
-        return None
+    """Vertices of {rows · x <= 1} when it is bounded, else None."""
+    return bounded_vertices(rows, np.ones(len(rows)), be)
 
 
 def _row_maxima(rows: np.ndarray, directions: np.ndarray, be) -> np.ndarray:
-    verts = _bounded_vertices(rows, be)
-    if verts is not None:
-        return np.max(directions @ verts.T, axis=1)
-    return be.support(rows, np.ones(len(rows)), directions)
+    """max of each direction over {rows · x <= 1}: by vertices when bounded, else by LPs."""
+    return row_maxima(rows, np.ones(len(rows)), directions, be)
 
 
 def _prune(rows: np.ndarray, be) -> np.ndarray:

@@ -28,6 +28,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import nnls
 
+# Separate from the certificate's tolerances (certificate.claims SET_LP_TOL, PROJECTION_TOL;
+# certificate.tube QP_TOL) on purpose: the online layer may not import the certificate (layers in
+# pyproject.toml), and the certificate keeps its own constants so that what the loop accepts never
+# decides what the certificate passes.
 #: Projection: a point may leave the target set by this much on unit rows (θ units). The backends solve
 #: the scaled QP at 1e-10 (violations <= 1e-10 × the scale, ~1e-9 at most on the property suite), and a
 #: slab emptied by round-off (width in [−1e-8, 0)) is answered by its mid-plane, <= 5e-9 outside each row;

@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from amcp_drake.model.problem_io import jsonable
 from amcp_drake.studies.bench_run import (  # noqa: F401 - FORMULATION_OPTIONS, RunResult, lockstep re-exported
     FORMULATION_OPTIONS,
     TIME_KEYS,
@@ -248,20 +249,6 @@ def run_benchmarks(settings: BenchSettings | None = None,
 
 # -- output ------------------------------------------------------------------------------------
 
-def _clean(obj: Any) -> Any:
-    """JSON-safe copy: numpy scalars/arrays to Python, NaN/inf to None."""
-    if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _clean(obj.tolist())
-    if isinstance(obj, (np.floating, float)):
-        value = float(obj)
-        return value if np.isfinite(value) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    return obj
 
 
 def write_outputs(result: dict[str, Any], out_dir: str | Path, plot: bool = True) -> dict[str, Path]:
@@ -269,7 +256,7 @@ def write_outputs(result: dict[str, Any], out_dir: str | Path, plot: bool = True
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {"json": out_dir / "bench.json"}
-    paths["json"].write_text(json.dumps(_clean(result), indent=1, allow_nan=False) + "\n")
+    paths["json"].write_text(json.dumps(jsonable(result), indent=1, allow_nan=False) + "\n")
     if result.get("scaling"):
         from amcp_drake.studies.bench_scaling import scaling_markdown
 

@@ -48,6 +48,7 @@ from amcp_drake.model.status import SolveStatus
 from amcp_drake.offline.design import OfflineDesign
 from amcp_drake.online.controller import AdaptiveMPC
 from amcp_drake.online.simulate import simulate
+from amcp_drake.studies.tube_feasibility import TubeLayout
 
 #: A QP verdict is confirmed when the LP slack t agrees in sign; within ±AGREEMENT_TOL of the
 #: boundary the two solvers may legitimately differ (Clarabel's and HiGHS's feasibility
@@ -193,18 +194,8 @@ class TubeLP:
         w_bar = np.max(H_x @ problem.w_vertices().T, axis=1)
         f_bar = np.max(FGK @ X0v.T, axis=1)
         u, c = H_x.shape[0], FGK.shape[0]
-        nz, na = (N + 1) * n, N + 1
-        size = nz + na + N * m
-
-        def z(l):
-            return slice(l * n, (l + 1) * n)
-
-        def a(l):
-            return nz + l
-
-        def v(l):
-            return slice(nz + na + l * m, nz + na + (l + 1) * m)
-
+        layout = TubeLayout(n, m, N)
+        z, a, v, size = layout.z, layout.a, layout.v, layout.size
         blocks, rhs, rhs_x = [], [], []
         for l in range(N):  # (15a)
             A = np.zeros((c, size))
@@ -233,8 +224,8 @@ class TubeLP:
         if np.any(~keep & ((b < 0) | np.any(Bx != 0, axis=1))):
             raise ProblemError("Z", "rows that involve the decision variables", "an all-zero row with data")
         A, b, Bx, norms = A[keep], b[keep], Bx[keep], norms[keep]
-        bounds = [(None, None)] * nz + [(0.0, None)] * na + [(None, None)] * (N * m)
-        return cls(A=csr_matrix(A / norms[:, None]), b=b / norms, Bx=Bx / norms[:, None], bounds=bounds, size=size)
+        return cls(A=csr_matrix(A / norms[:, None]), b=b / norms, Bx=Bx / norms[:, None], bounds=layout.bounds(),
+                   size=size)
 
     def margin(self, x0: np.ndarray) -> float:
         """max t (<= SLACK_CAP) with A y + t <= b(x0), α >= 0: >= 0 iff 𝔻(x0, Θ) ≠ ∅. nan if the LP

@@ -26,6 +26,42 @@ from amcp_drake.model import polytope
 
 
 @dataclass(frozen=True)
+class TubeLayout:
+    """Where the variables of (20) sit in y = [z_0..z_N (n each) | α_0..α_N | v_0..v_(N−1) (m each)]:
+    the layout of this module's LP and of :class:`amcp_drake.studies.coverage.TubeLP`."""
+
+    n: int
+    m: int
+    N: int
+
+    @property
+    def nz(self) -> int:
+        return (self.N + 1) * self.n
+
+    @property
+    def na(self) -> int:
+        return self.N + 1
+
+    @property
+    def size(self) -> int:
+        return self.nz + self.na + self.N * self.m
+
+    def z(self, l: int) -> slice:
+        return slice(l * self.n, (l + 1) * self.n)
+
+    def a(self, l: int) -> int:
+        return self.nz + l
+
+    def v(self, l: int) -> slice:
+        start = self.nz + self.na + l * self.m
+        return slice(start, start + self.m)
+
+    def bounds(self) -> list[tuple[float | None, float | None]]:
+        """linprog bounds: z and v free, α >= 0."""
+        return [(None, None)] * self.nz + [(0.0, None)] * self.na + [(None, None)] * (self.N * self.m)
+
+
+@dataclass(frozen=True)
 class TubeGeometry:
     """The data of the vertex form: problem matrices with the design's K, X0, X_f.
 
@@ -62,21 +98,10 @@ class TubeGeometry:
 def _rows(geo: TubeGeometry, direction: np.ndarray | None, x: np.ndarray | None):
     """A_ub, b_ub of the vertex form; the last variable is the ray length s when ``direction``
     is given (x_k = s d), otherwise x_k = ``x`` is data and s is absent."""
-    n = geo.H_x.shape[1]
-    m = geo.G.shape[1]
     N = geo.N
-    nz, na, nvv = (N + 1) * n, N + 1, N * m
-    size = nz + na + nvv + (1 if direction is not None else 0)
-
-    def z(l):
-        return slice(l * n, (l + 1) * n)
-
-    def a(l):
-        return nz + l
-
-    def v(l):
-        return slice(nz + na + l * m, nz + na + (l + 1) * m)
-
+    layout = TubeLayout(geo.H_x.shape[1], geo.G.shape[1], N)
+    z, a, v = layout.z, layout.a, layout.v
+    size = layout.size + (1 if direction is not None else 0)
     blocks, rhs = [], []
     c = geo.FGK.shape[0]
     u = geo.H_x.shape[0]
@@ -113,7 +138,7 @@ def _rows(geo: TubeGeometry, direction: np.ndarray | None, x: np.ndarray | None)
     A[:, a(N)] = geo.h_T
     blocks.append(A)
     rhs.append(np.ones(len(geo.H_T)))
-    bounds = [(None, None)] * nz + [(0.0, None)] * na + [(None, None)] * nvv
+    bounds = layout.bounds()
     if direction is not None:
         bounds.append((0.0, None))
     return csr_matrix(np.vstack(blocks)), np.concatenate(rhs), bounds, size

@@ -9,6 +9,8 @@ on the same runs without re-simulating them.
 from __future__ import annotations
 
 from collections import OrderedDict
+from collections.abc import Callable, Hashable
+from typing import Any
 
 from amcp_drake.model.errors import InconsistentDataError
 from amcp_drake.online.controller import AdaptiveMPC
@@ -36,34 +38,38 @@ def run(case: Case, backend: str, controller: AdaptiveMPC | None = None) -> Traj
         return exc.trajectory
 
 
-class Runner:
+class Memo:
+    """key -> value computed once, the least recently used dropped beyond ``size`` entries; ``hits``
+    and ``misses`` count the look-ups (the run counts printed at the end of the property run)."""
+
+    def __init__(self, size: int) -> None:
+        self._items: OrderedDict[Hashable, Any] = OrderedDict()
+        self._size = size
+        self.hits = self.misses = 0
+
+    def get(self, key: Hashable, compute: Callable[[], Any]) -> Any:
+        if key in self._items:
+            self.hits += 1
+            self._items.move_to_end(key)
+            return self._items[key]
+        self.misses += 1
+        value = self._items[key] = compute()
+        if len(self._items) > self._size:
+            self._items.popitem(last=False)
+        return value
+
+
+class Runner(Memo):
     """Memoised :func:`run`: (case, backend) -> Trajectory, controllers reused via ``reset()``."""
 
     def __init__(self, size: int = RUN_CACHE_SIZE, controllers: int = CONTROLLER_CACHE_SIZE) -> None:
-        self._runs: OrderedDict[tuple[str, str], Trajectory] = OrderedDict()
-        self._controllers: OrderedDict[tuple[str, str, tuple], AdaptiveMPC] = OrderedDict()
-        self._size, self._csize = size, controllers
-        self.hits = 0
-        self.misses = 0
+        super().__init__(size)
+        self._controllers = Memo(controllers)
 
     def controller(self, case: Case, backend: str) -> AdaptiveMPC:
         key = (case.design_key(), backend, (case.options.update, case.options.window, case.options.projection))
-        if key not in self._controllers:
-            self._controllers[key] = AdaptiveMPC(case.problem, case.design, backend=backend, options=case.options)
-            if len(self._controllers) > self._csize:
-                self._controllers.popitem(last=False)
-        self._controllers.move_to_end(key)
-        return self._controllers[key]
+        return self._controllers.get(key, lambda: AdaptiveMPC(case.problem, case.design, backend=backend,
+                                                              options=case.options))
 
     def run(self, case: Case, backend: str) -> Trajectory:
-        key = (case.key(), backend)
-        if key in self._runs:
-            self.hits += 1
-            self._runs.move_to_end(key)
-            return self._runs[key]
-        self.misses += 1
-        traj = run(case, backend, self.controller(case, backend))
-        self._runs[key] = traj
-        if len(self._runs) > self._size:
-            self._runs.popitem(last=False)
-        return traj
+        return self.get((case.key(), backend), lambda: run(case, backend, self.controller(case, backend)))

@@ -20,7 +20,6 @@ from __future__ import annotations
 import copy
 import dataclasses
 import hashlib
-from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,7 +35,7 @@ from amcp_drake.online.controller import AdaptiveMPC
 from amcp_drake.online.simulate import Trajectory, simulate
 
 from . import profiles
-from .cases import Case
+from .cases import Case, Memo
 from .feasible import TubeGeometry, max_ray_length
 from .strategies import _grid, designed_problems, disturbances, initial_states, theta_stars
 
@@ -112,32 +111,25 @@ class Section4Case(Case):
         return ProblemSpec(self.problem, self.spec.design, scenario, online=self.options)
 
 
-class Section4Runner:
+class Section4Runner(Memo):
     """Memoised runs of :class:`Section4Case` (the property test and its negative control see the
     same examples under the ci seed, so each run is simulated once per backend)."""
 
     def __init__(self, size: int = 64) -> None:
-        self._runs: OrderedDict[tuple[str, str], Trajectory] = OrderedDict()
-        self._size = size
-        self.hits = self.misses = 0
+        super().__init__(size)
 
     def run(self, case: Section4Case, backend: str) -> Trajectory:
-        key = (case.key(), backend)
-        if key in self._runs:
-            self.hits += 1
-            self._runs.move_to_end(key)
-            return self._runs[key]
-        self.misses += 1
-        ctrl = AdaptiveMPC(case.problem, case.design, backend=backend, options=case.options)
-        theta = case.theta_seq if case.theta_seq is not None else case.theta_star
-        try:
-            traj = simulate(ctrl, case.x0, theta, case.steps, disturbance=case.w, seed=case.seed)
-        except InconsistentDataError as exc:
-            traj = exc.trajectory
-        self._runs[key] = traj
-        if len(self._runs) > self._size:
-            self._runs.popitem(last=False)
-        return traj
+        return self.get((case.key(), backend), lambda: _simulate(case, backend))
+
+
+def _simulate(case: Section4Case, backend: str) -> Trajectory:
+    """One run of ``case`` (a θ* sequence when the case has one); Θ_{k-1} ∩ Δ_k = ∅ ends it early."""
+    ctrl = AdaptiveMPC(case.problem, case.design, backend=backend, options=case.options)
+    theta = case.theta_seq if case.theta_seq is not None else case.theta_star
+    try:
+        return simulate(ctrl, case.x0, theta, case.steps, disturbance=case.w, seed=case.seed)
+    except InconsistentDataError as exc:
+        return exc.trajectory
 
 
 RUNNER = Section4Runner()
