@@ -91,16 +91,13 @@ def campaign_settings(seed: int, systems: int, backends: Iterable[str], steps: i
 
 
 def replay_spec(case):
-    """The complete problem file of a drawn case: problem, design options, the online options of the
-    run, and a scenario with x0, θ* (vector or sequence), steps and the explicit disturbance array
-    (``case.w``), so that the file alone determines the run. ``case`` needs ``spec`` (problem and
-    design options), ``x0``, ``theta_star``, ``w`` and ``options``; ``seed`` is kept for the record."""
-    from amcp_drake.model.problem import ProblemSpec, Scenario
+    """The complete problem file of a drawn case
+    (:func:`amcp_drake.studies.random_problems.complete_spec`: problem, design options, the online
+    options of the run, and a scenario with x0, θ*, steps and the explicit disturbance array), so
+    that the file alone determines the run."""
+    from amcp_drake.studies.random_problems import complete_spec
 
-    w = np.asarray(case.w, float)
-    scenario = Scenario(x0=np.asarray(case.x0, float), theta_star=np.asarray(case.theta_star, float), steps=len(w),
-                        disturbance=w, seed=int(getattr(case, "seed", 0)) % (2**31))
-    return ProblemSpec(case.spec.problem, case.spec.design, scenario, online=case.options)
+    return complete_spec(case)
 
 
 def round_trip(spec) -> tuple[Any, str]:

@@ -427,13 +427,20 @@ class RandomCase:
         return h.hexdigest()
 
     def to_spec(self) -> ProblemSpec:
-        """The problem file of this case (its scenario names the disturbance kind and seed; the
-        exact disturbance array — a pinning w_0 included — is in the trajectory file written next to it)."""
-        kind = self.labels.get("disturbance", "uniform")
-        scenario = Scenario(x0=self.x0, theta_star=self.theta_star, steps=self.steps,
-                            disturbance=kind if kind in ("uniform", "vertices", "zero") else "uniform",
-                            seed=int(self.seed) % (2**31))
-        return ProblemSpec(self.problem, self.spec.design, scenario)
+        """The complete problem file of this case (:func:`complete_spec`)."""
+        return complete_spec(self)
+
+
+def complete_spec(case) -> ProblemSpec:
+    """The complete problem file of a case: problem, design options, the ``online`` options of the
+    run, and a scenario with x0, θ*, steps and the explicit disturbance array ``case.w`` (a pinning
+    w_0 included), so that the file alone determines the run (``amcp certify problem.json`` repeats
+    it). ``case`` needs ``spec``, ``x0``, ``theta_star``, ``w`` and ``options``; ``seed`` (which
+    drew ``w``) is kept for the record. Campaign replays and property-suite failures are written so."""
+    w = np.asarray(case.w, float)
+    scenario = Scenario(x0=np.asarray(case.x0, float), theta_star=np.asarray(case.theta_star, float), steps=len(w),
+                        disturbance=w, seed=int(getattr(case, "seed", 0)) % (2**31))
+    return ProblemSpec(case.spec.problem, case.spec.design, scenario, online=case.options)
 
 
 def apply_pin(problem: Problem, x0: np.ndarray, theta_star: np.ndarray, w: np.ndarray, mode: str) -> np.ndarray:

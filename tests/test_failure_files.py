@@ -1,0 +1,37 @@
+"""A failing property example is saved as a complete problem file (issue 13): the online options
+of the run and its exact disturbance array are in problem.json, so that ``amcp certify
+problem.json`` repeats the run that failed (found by the thorough profile: a failing lockstep run
+with the moving-window update was saved without its ``online`` section and with the disturbance
+kind only, so the file named another run)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+pytest.importorskip("amcp_properties")
+
+
+def test_a_saved_failure_holds_the_online_options_and_the_disturbance_array(tmp_path, monkeypatch):
+    from amcp_drake.model.check_result import CheckResult
+    from amcp_drake.model.options import OnlineOptions
+    from amcp_drake.model.problem_io import load_spec
+    from amcp_drake.studies.random_problems import random_case
+    from amcp_properties import failures
+
+    monkeypatch.setenv(failures.FAILURE_DIR_ENV, str(tmp_path))
+    case = random_case(np.random.default_rng(7), steps=5)
+    options = OnlineOptions(update="window", window=3, projection="Theta_k")
+    w = np.array(case.w, float)
+    w[0] = 0.5 * w[0] + 1e-3  # an array no seed of any disturbance kind would draw
+    case = replace(case, options=options, w=w)
+    result = CheckResult(name="made up", claim="a claim", status="fail", margin=-1.0, tolerance=0.0, detail="")
+    folder = failures.save_failure("test_x", "drake", result, case=case)
+    spec = load_spec(folder / "problem.json")
+    assert spec.online.update == "window" and spec.online.window == 3 and spec.online.projection == "Theta_k"
+    assert spec.scenario.explicit_disturbance
+    np.testing.assert_array_equal(np.asarray(spec.scenario.disturbance), w)
+    np.testing.assert_array_equal(spec.scenario.x0, case.x0)
+    np.testing.assert_array_equal(spec.scenario.theta_star, case.theta_star)
