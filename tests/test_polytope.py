@@ -67,3 +67,55 @@ def test_membership_margin():
     assert polytope.max_violation(H, h, np.array([0.25])) == pytest.approx(-0.75)
     assert polytope.contains(H, h, np.array([1.0]))
     assert not polytope.contains(H, h, np.array([1.001]))
+
+
+def _exact_supports_2d(H, h, directions):
+    """Supports of a bounded 2-D polytope in rational arithmetic: every pairwise intersection of
+    rows, exactly, kept when it satisfies every row exactly (independent of any LP solver)."""
+    import itertools
+    from fractions import Fraction
+
+    Hf = [[Fraction(x) for x in row] for row in H]
+    hf = [Fraction(x) for x in h]
+    vertices = []
+    for i, j in itertools.combinations(range(len(hf)), 2):
+        (a0, a1), (b0, b1) = Hf[i], Hf[j]
+        det = a0 * b1 - a1 * b0
+        if det == 0:
+            continue
+        x, y = (hf[i] * b1 - a1 * hf[j]) / det, (a0 * hf[j] - hf[i] * b0) / det
+        if all(r0 * x + r1 * y <= c for (r0, r1), c in zip(Hf, hf)):
+            vertices.append((x, y))
+    return np.array([float(max(Fraction(d0) * x + Fraction(d1) * y for x, y in vertices)) for d0, d1 in directions])
+
+
+def test_certified_support_of_a_thin_window_sliver_is_exact():
+    """The moving-window LP on which HiGHS at its default tolerances answered 4.4e-5 too large
+    (thorough profile, lockstep failure): the certified supports equal the rational answer."""
+    import json
+    from pathlib import Path
+
+    data = json.loads((Path(__file__).parent / "data" / "window-sliver-lp.json").read_text())
+    H, h, directions = np.array(data["H"]), np.array(data["h"]), np.array(data["directions"])
+    exact = _exact_supports_2d(H, h, directions)
+    found = polytope.support_certified(H, h, directions)
+    assert found is not None
+    np.testing.assert_allclose(found.values, exact, rtol=0, atol=1e-12)
+
+
+def test_the_window_sliver_run_agrees_in_lockstep():
+    """The recorded Drake run of that failure (40 steps, moving window 8), replayed step by step on
+    the cvxpy backend: at step 9 its LP answer fails the dual-certificate check and the controller
+    falls back to the certified HiGHS supports, which must now agree with Drake's h_θ."""
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    pytest.importorskip("amcp_properties")
+    from amcp_drake.online.simulate import Trajectory
+    from amcp_properties import lockstep
+
+    traj = Trajectory.load(Path(__file__).parent / "data" / "window-sliver-trajectory.json.gz")
+    assert traj.options.update == "window" and traj.backend == "drake"
+    case = SimpleNamespace(problem=traj.problem, design=traj.design, options=traj.options)
+    result = lockstep.backends_agree(traj, case, "cvxpy")
+    assert result.passed, result.detail

@@ -265,6 +265,15 @@ def least_distance_point(point: np.ndarray, H: np.ndarray, h: np.ndarray) -> np.
 LDP_EMPTY_TOL = 1e-12
 
 
+#: HiGHS tolerances of the certified supports (the controller's fallback for LP (9)). At HiGHS'
+#: defaults (1e-7) a support of a thin sliver (a moving window of nearly parallel slabs Δ_j, found
+#: by the thorough property profile: n = 1, p = 2, window 8, slab normals 1e-4 rad apart) came out
+#: 4.4e-5 too large: the basis was optimal to 1e-7 in reduced cost, yet the vertex sat far along the
+#: sliver. At 1e-10 the value is exact to 1e-12 (tests/test_polytope_support.py, against rational
+#: arithmetic); the LPs are small (p variables), so the cost is nil.
+HIGHS_CERTIFIED_OPTIONS = {"primal_feasibility_tolerance": 1e-10, "dual_feasibility_tolerance": 1e-10}
+
+
 @dataclass(frozen=True)
 class CertifiedSupport:
     """Support values ``values`` (k,), maximisers ``points`` (k, n) and dual multipliers ``duals``
@@ -276,14 +285,16 @@ class CertifiedSupport:
 
 
 def support_certified(H: np.ndarray, h: np.ndarray, directions: np.ndarray) -> CertifiedSupport | None:
-    """max{d·x | H x <= h} for each row d by HiGHS, with maximiser and multipliers (the primal and
-    dual certificate of each value); None when any LP is not solved to optimality."""
+    """max{d·x | H x <= h} for each row d by HiGHS at :data:`HIGHS_CERTIFIED_OPTIONS`, with maximiser
+    and multipliers (the primal and dual certificate of each value); None when any LP is not solved
+    to optimality."""
     H = np.asarray(H, float)
     h = np.asarray(h, float)
     directions = np.atleast_2d(np.asarray(directions, float))
     values, points, duals = [], [], []
     for d in directions:
-        res = linprog(-d, A_ub=H, b_ub=h, bounds=[(None, None)] * H.shape[1], method="highs")
+        res = linprog(-d, A_ub=H, b_ub=h, bounds=[(None, None)] * H.shape[1], method="highs",
+                      options=HIGHS_CERTIFIED_OPTIONS)
         if res.status != 0:
             return None
         values.append(float(d @ res.x))
