@@ -14,6 +14,7 @@ from amcp_drake.model.errors import ProblemError
 from amcp_drake.studies.random_problems import (
     ProblemShape,
     apply_pin,
+    can_pin_at,
     pinning_disturbance,
     random_case,
     random_problem,
@@ -142,6 +143,23 @@ def test_pinning_needs_theta_star_on_the_boundary_and_a_regressor_of_full_rank()
     with_b, _ = _problem(4, n=2, m=1, p=2, input_uncertainty=True)
     with pytest.raises(ProblemError, match="pin"):
         apply_pin(with_b, np.ones(2), with_b.theta_vertices()[0], np.zeros((3, 2)), "point")
+
+
+def test_can_pin_at_refuses_an_x0_where_the_regressor_loses_rank():
+    """D(x_0) = [A_1 x_0, A_2 x_0] has rank 1 when A_2 x_0 is parallel to A_1 x_0 (the thorough
+    profile drew such an x_0: the generator raised instead of not pinning)."""
+    problem, _ = _problem(4, n=2, m=1, p=2, input_uncertainty=False)
+    vertex = problem.theta_vertices()[0]
+    A1, A2 = problem.A
+    # an x_0 with A_2 x_0 ∥ A_1 x_0: an eigenvector of A_1^{-1} A_2 (real for this draw, or x_0 = 0)
+    values, vectors = np.linalg.eig(np.linalg.solve(A1, A2)) if abs(np.linalg.det(A1)) > 1e-9 else (None, None)
+    x_bad = np.real(vectors[:, 0]) if values is not None and np.all(np.isreal(values)) else np.zeros(2)
+    assert np.linalg.matrix_rank(problem.regressor(x_bad, np.zeros(1)), tol=1e-9) < 2
+    assert not can_pin_at(problem, x_bad, vertex)
+    x_good = np.array([1.3, -0.7])
+    assert np.linalg.matrix_rank(problem.regressor(x_good, np.zeros(1))) == 2
+    assert can_pin_at(problem, x_good, vertex)
+    assert not can_pin_at(problem, x_good, np.zeros(2))  # θ* inside Θ: nothing to pin
 
 
 def test_random_case_is_reproducible_and_labels_what_it_built():

@@ -329,3 +329,23 @@ def test_cli_certify_and_compare_take_the_robust_baseline(tmp_path):
     res = CliRunner().invoke(main, ["certify", "--trajectory", str(out / "trajectory.json.gz"), "--update", "fixed",
                                     "--out", str(tmp_path / "again")])
     assert res.exit_code == 2 and "--update" in res.output
+
+
+def test_a_wrong_optimal_under_a_pe_bound_is_dropped_and_the_loop_goes_on():
+    """Found by the thorough profile (PE, m = 1, window 2): at step 4 Clarabel answered the QP with
+    the PE bound u_0 >= 0.6626 "optimal" while (15c) was violated by 0.15. The controller used to
+    take that candidate, fail its answer checks and stop the run (u = None); a candidate is now
+    checked before it competes, so the next PE bound (or (20) alone) is used and every step is
+    solved."""
+    from pathlib import Path
+
+    from amcp_drake.model.problem_io import load_spec
+    from amcp_drake.model.status import SolveStatus
+    from amcp_drake.online.replay import run_scenario
+
+    spec = load_spec(Path(__file__).parent / "data" / "pe-wrong-optimal-problem.json")
+    assert spec.online.pe_window == 2
+    traj = run_scenario(spec, "drake", steps=8)
+    assert [r.status for r in traj.records] == [SolveStatus.OPTIMAL] * len(traj.records)
+    assert "candidate dropped" in traj.records[4].detail
+    assert traj.records[4].pe_status.startswith("enforced")

@@ -344,7 +344,17 @@ class AdaptiveMPC:
             for b in bounds:
                 sol = self.mpc.solve(x, h_arg, self.theta_hat, H_arg, u0_bounds=b)
                 spent += sol.solver_time
-                if sol.status is SolveStatus.OPTIMAL and (best is None or sol.cost < best.cost):
+                if sol.status is not SolveStatus.OPTIMAL:
+                    continue
+                # verified before it competes: a wrong "optimal" under the PE bound (thorough profile:
+                # Clarabel answered a PE-bounded QP with (15c) violated by 0.15) counts as no answer,
+                # so the reduced levels and the fallback to (20) alone still apply
+                failed = answer_checks.failures(self._tube_checks(sol, x, h_arg, H_arg))
+                if failed:
+                    self._note(record, answer_checks.describe_failures(
+                        f"tube QP (20) with PE bound u_0 in [{b[0]:.6g}, {b[1]:.6g}]", failed) + "; candidate dropped")
+                    continue
+                if best is None or sol.cost < best.cost:
                     best, best_b = sol, b
             if best is not None:
                 record.times["pe_solver"] = spent

@@ -360,16 +360,35 @@ def pinning_disturbance(problem: Problem, regressor: np.ndarray, theta_star: np.
     active = active_theta_rows(problem, theta_star)
     if not len(active):
         raise ProblemError("theta_star", "a point on the boundary of Theta (pinning)", "an interior point")
-    rows = problem.H_theta[active]
-    g = np.sum(rows / np.linalg.norm(rows, axis=1)[:, None], axis=0)
-    c, *_ = np.linalg.lstsq(D.T, g, rcond=None)
-    residual = np.linalg.norm(D.T @ c - g) / max(np.linalg.norm(g), 1e-300)
+    c, residual = _pinning_direction(problem, D, active)
     if residual > PIN_RESIDUAL_TOL or not np.any(c):
         raise ProblemError("regressor", "D(x0, u0) of full column rank (D^T c = g solvable) for pinning",
                            f"relative residual {residual:.2g} (shape {D.shape}, rank {np.linalg.matrix_rank(D)})")
     verts = problem.w_vertices()
     w = verts[int(np.argmax(verts @ c))]
     return (1.0 - THIN_FRACTION) * w if thin else w
+
+
+def _pinning_direction(problem: Problem, D: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, float]:
+    """(c, relative residual of D^T c = g), g = Σ of the unit rows of Θ active at θ* (least squares)."""
+    rows = problem.H_theta[active]
+    g = np.sum(rows / np.linalg.norm(rows, axis=1)[:, None], axis=0)
+    c, *_ = np.linalg.lstsq(D.T, g, rcond=None)
+    return c, float(np.linalg.norm(D.T @ c - g) / max(np.linalg.norm(g), 1e-300))
+
+
+def can_pin_at(problem: Problem, x0: np.ndarray, theta_star: np.ndarray) -> bool:
+    """Whether :func:`pinning_disturbance` applies at this x0 and θ*: no input uncertainty, θ* on ∂Θ
+    and D^T c = g solvable for D = D(x_0). p <= n is not enough: D(x_0) = [A_1 x_0 … A_p x_0] can
+    lose rank at particular x_0 (found by the thorough property profile: n = p = 2, the columns of
+    D(x_0) proportional), and such a draw is then not pinned ("none") rather than an error."""
+    if np.any(problem.B):
+        return False
+    active = active_theta_rows(problem, np.asarray(theta_star, float))
+    if not len(active):
+        return False
+    c, residual = _pinning_direction(problem, problem.regressor(x0, np.zeros(problem.m)), active)
+    return residual <= PIN_RESIDUAL_TOL and bool(np.any(c))
 
 
 def random_online_options(rng: np.random.Generator) -> OnlineOptions:
@@ -484,6 +503,8 @@ def random_case(rng: np.random.Generator, steps: int, max_N: int = 10) -> Random
         pin = "none"
         if shape.can_pin and theta_kind != "interior":
             pin = "none" if coin() and coin() else ("point", "thin")[int(rng.integers(2))]
+            if pin != "none" and not can_pin_at(problem, x0, theta_star):
+                pin = "none"  # D(x_0) lost rank at this x_0 (the draws of every other case are unchanged)
         w = apply_pin(problem, x0, theta_star, w, pin)
         options = random_online_options(rng)
         labels = dict(labels, theta_star=theta_kind, x0=x0_kind, disturbance=w_kind, pin=pin,

@@ -101,13 +101,12 @@ class Section4Case(Case):
         return h.hexdigest()
 
     def to_spec(self) -> ProblemSpec:
-        """Problem file of this case: its options as the ``online`` section and its θ* (the θ*_k
-        sequence of a time-varying case) in the scenario, so that ``amcp certify`` replays it."""
-        kind = self.labels.get("disturbance", "uniform")
+        """The complete problem file of this case: its options as the ``online`` section, its θ*
+        (the θ*_k sequence of a time-varying case) and the explicit disturbance array in the
+        scenario, so that ``amcp certify problem.json`` repeats the run."""
         theta = self.theta_seq if self.theta_seq is not None else self.theta_star
-        scenario = Scenario(x0=self.x0, theta_star=np.asarray(theta, float), steps=self.steps,
-                            disturbance=kind if kind in ("uniform", "vertices", "zero") else "uniform",
-                            seed=int(self.seed) % (2**31))
+        scenario = Scenario(x0=np.asarray(self.x0, float), theta_star=np.asarray(theta, float), steps=len(self.w),
+                            disturbance=np.asarray(self.w, float), seed=int(self.seed) % (2**31))
         return ProblemSpec(self.problem, self.spec.design, scenario, online=self.options)
 
 

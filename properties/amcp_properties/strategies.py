@@ -53,6 +53,7 @@ from amcp_drake.studies.random_problems import (
     GenerationError,
     ProblemShape,
     apply_pin,
+    can_pin_at,
     random_disturbances,
     random_initial_state,
     random_problem,
@@ -314,6 +315,8 @@ def closed_loop_cases(draw, steps: int, kinds: st.SearchStrategy[str] | None = N
     w, w_kind, seed = draw(disturbances(problem, steps, kinds, zero_from))
     pin = draw(pins(gen.shape, theta_kind))
     if zero_from == 0:  # w = 0 from the start: nothing to pin with
+        pin = "none"
+    if pin != "none" and not can_pin_at(problem, x0, theta_star):  # D(x_0) lost rank at this x_0
         pin = "none"
     w = apply_pin(problem, x0, theta_star, w, pin)
     options = draw(online_options())

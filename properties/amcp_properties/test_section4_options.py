@@ -216,7 +216,7 @@ def test_persistent_excitation_negative_controls(case, backend):
         assert not section4.same_inputs(moved, RUN.run(section4.without_pe(case), backend)).passed
     if any(r.pe_bounds is not None for r in traj.records):
         def shifted(r):
-            if r.pe_bounds is None:
+            if r.pe_bounds is None or r.u is None:  # a step without an applied input has nothing to shift
                 return None
             u = float(r.u[0])
             return (u + 1e-3, np.inf)
