@@ -30,6 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+#: (Named tolerances with their reasons, as in model/problem.py: `duplicates` pairs the two blocks by
+#: shape only; the values and reasons differ.)
 #: Opposite unit rows closer than this (θ units) form an equality at their mid-plane. 1e-8 keeps the
 #: error of the projection (<= width/2 = 5e-9) an order below the certificate's PROJECTION_TOL
 #: (1e-7) and above the widths (~1e-9) at which Clarabel stalled in both backends.

@@ -33,6 +33,7 @@ from amcp_drake.online.simulate import disturbance_sequence
 #: Both backends default to Clarabel with feasibility/gap tolerances 1e-8 (QP) and 1e-10 (LPs);
 #: measured worst differences on 50 steps of Example 1 are ~1e-7 in v and ~1e-9 in h_θ, so these
 #: tolerances leave about two orders of magnitude; a loose solver (OSQP defaults, ~5e-2 in v) fails.
+#: (`duplicates` pairs rows of this table with each other: alike in shape only, one row per quantity.)
 TOLERANCES: dict[str, tuple[float, float]] = {
     "u": (1e-5, 1e-5),
     "v": (1e-5, 1e-5),
