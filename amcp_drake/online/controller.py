@@ -90,6 +90,7 @@ class AdaptiveMPC:
         self.backend = get_backend(backend, **backend_options)
         self._backend_spec = (backend, dict(backend_options))
         self._other_mpc = None  # the other formulation of (20), built on first need (answer checks)
+        self._vertex_check: answer_checks.VertexTubeCheck | None = None  # check_tube preassembled, on first need
         self.data = TubeMPCData(
             A0=problem.A0, B0=problem.B0, A=problem.A, B=problem.B, F=problem.F, G=problem.G, Q=problem.Q,
             R=problem.R, N=problem.N, K=design.K, P=design.P, H_x=design.H_x, X0_vertices=design.X0_vertices,
@@ -127,18 +128,31 @@ class AdaptiveMPC:
         #: (H, h, vertices) of the last Θ_k whose vertices the tube check enumerated (issue 16: reused
         #: while Θ_k is unchanged to the bit, which is most steps once Θ_k has settled)
         self._checked_vertices: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
+        self._regression_cache: tuple | None = None
 
     # -- (ii) set-membership update ------------------------------------------------------------
     def _delta(self, x_prev, u_prev, x) -> tuple[np.ndarray, np.ndarray]:
         """Δ_k of (6): {θ | −H_w D_{k−1} θ <= 1 + H_w d_k}, d_k = A0 x_{k−1} + B0 u_{k−1} − x_k, rows
         scaled to unit norm (see DELTA_ROW_MIN_NORM)."""
         pr = self.problem
-        D = pr.regressor(x_prev, u_prev)
-        d = pr.A0 @ x_prev + pr.B0 @ u_prev - x
+        D, d = self._regression(x_prev, u_prev, x)
         H, h = -pr.H_w @ D, 1.0 + pr.H_w @ d
-        norms = np.linalg.norm(H, axis=1)
+        norms = np.sqrt(np.einsum("ij,ij->i", H, H))
         keep = norms >= DELTA_ROW_MIN_NORM
         return H[keep] / norms[keep, None], h[keep] / norms[keep] + DELTA_MARGIN
+
+    def _regression(self, x_prev, u_prev, x) -> tuple[np.ndarray, np.ndarray]:
+        """(D_{k−1}, d_k) of (6): D(x_{k−1}, u_{k−1}) (n, p) and d_k = A0 x_{k−1} + B0 u_{k−1} − x_k,
+        computed once per step for Δ_k and the LMS (12) (``step`` clears the cache; the arguments
+        are compared by identity, they are the step's own arrays)."""
+        cached = self._regression_cache
+        if cached is not None and cached[0] is x_prev and cached[1] is u_prev and cached[2] is x:
+            return cached[3], cached[4]
+        pr = self.problem
+        D = pr.regressor(x_prev, u_prev)
+        d = pr.A0 @ x_prev + pr.B0 @ u_prev - x
+        self._regression_cache = (x_prev, u_prev, x, D, d)
+        return D, d
 
     def _box_of_theta0(self) -> np.ndarray:
         """max |θ_j| over Θ0 = {H_θ θ <= h_θ0} (2p HiGHS LPs; +inf in a direction where Θ0 is unbounded)."""
@@ -264,9 +278,10 @@ class AdaptiveMPC:
         way), else by θ̂_{k−1} if it is in S, else by the Chebyshev centre of S if it is in S. True
         when θ̂_k is set."""
         pr = self.problem
-        D = pr.regressor(x_prev, u_prev)
-        x_pred = pr.A_of(self.theta_hat) @ x_prev + pr.B_of(self.theta_hat) @ u_prev
-        theta_tilde = self.theta_hat + self.design.mu * D.T @ (x - x_pred)
+        D, d = self._regression(x_prev, u_prev, x)
+        # x_k − x̂_k with x̂_k = A(θ̂)x_{k−1} + B(θ̂)u_{k−1} = A0 x_{k−1} + B0 u_{k−1} + D θ̂ by (2): −(d_k + D θ̂)
+        error = -(d + D @ self.theta_hat)
+        theta_tilde = self.theta_hat + self.design.mu * D.T @ error
         record.theta_tilde = theta_tilde
         if self.options.projection == "Theta":
             H, h, target = pr.H_theta, pr.h_theta, "Θ"
@@ -374,6 +389,10 @@ class AdaptiveMPC:
             else:
                 vertices = self._theta_k_vertices(H, h)
                 self._checked_vertices = (H.copy(), h.copy(), vertices)
+        if sol.Lambda is None:
+            if self._vertex_check is None or self._vertex_check.data is not self.data:
+                self._vertex_check = answer_checks.VertexTubeCheck(self.data)
+            return self._vertex_check.check(sol, x, vertices)
         return answer_checks.check_tube(sol, self.data, x, h_arg, H_arg, vertices)
 
     #: An interior point for Qhull must be this far inside every unit row of Θ_k (θ units); closer,
@@ -448,6 +467,7 @@ class AdaptiveMPC:
         x = np.asarray(x, float)
         if x.shape != (self.problem.n,) or not np.all(np.isfinite(x)):
             raise ProblemError("x", f"a finite state vector of length {self.problem.n}", f"{x!r}")
+        self._regression_cache = None
         record = StepRecord(k=self.k, x=x, u=None, status=SolveStatus.NOT_RUN, H_theta=self.H_theta,
                             h_theta=self.h_theta, theta_hat=self.theta_hat)
         if self._prev is not None and self.options.update != "none":
