@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from amcp_drake.backends.base import TubeMPCData
+from amcp_drake.model.arrays import same_bits
 
 
 def _sqrt_psd(M: np.ndarray) -> np.ndarray:
@@ -48,7 +49,7 @@ class CondensedCost:
         and x̂ rolled out by (18) with θ̂_k: x̂ = Φ x_k + Γ v, û = K̄ x̂ + v. H (N·m, N·m) is symmetric;
         it depends on θ̂_k only and is reused while θ̂_k does not change."""
         theta_hat = np.asarray(theta_hat, float)
-        if self._last is None or not np.array_equal(self._last[0], theta_hat):
+        if self._last is None or not same_bits(self._last[0], theta_hat):
             self._last = (theta_hat.copy(), *self._blocks(theta_hat))
         _, H, S, T = self._last
         return H, S.T @ x, float(x @ T @ x)

@@ -29,6 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import nnls
 
+from amcp_drake.model.arrays import same_bits
+
 # Separate from the certificate's tolerances (certificate.claims SET_LP_TOL, PROJECTION_TOL;
 # certificate.tube QP_TOL) on purpose: the online layer may not import the certificate (layers in
 # pyproject.toml), and the certificate keeps its own constants so that what the loop accepts never
@@ -326,7 +328,7 @@ class VertexTubeCheck:
         if theta_vertices is None or len(theta_vertices) == 0:
             checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float("nan"), TUBE_ROW_TOL, ran=False))
             return checks
-        if self._vertices is None or not np.array_equal(self._vertices, theta_vertices):
+        if self._vertices is None or not same_bits(self._vertices, np.asarray(theta_vertices, float)):
             self._tube_rows(theta_vertices)
             self._vertices = np.array(theta_vertices, float)
         w = self._w

@@ -14,6 +14,7 @@ import numpy as np
 
 from amcp_drake.backends import TubeMPCData, get_backend
 from amcp_drake.model import polytope
+from amcp_drake.model.arrays import same_bits
 from amcp_drake.model.errors import InconsistentDataError, ProblemError
 from amcp_drake.model.options import OnlineOptions
 from amcp_drake.model.problem import Problem
@@ -137,9 +138,11 @@ class AdaptiveMPC:
         pr = self.problem
         D, d = self._regression(x_prev, u_prev, x)
         H, h = -pr.H_w @ D, 1.0 + pr.H_w @ d
-        norms = np.sqrt(np.einsum("ij,ij->i", H, H))
+        norms = np.sqrt((H * H).sum(axis=1))
         keep = norms >= DELTA_ROW_MIN_NORM
-        return H[keep] / norms[keep, None], h[keep] / norms[keep] + DELTA_MARGIN
+        if not keep.all():
+            H, h, norms = H[keep], h[keep], norms[keep]
+        return H / norms[:, None], h / norms + DELTA_MARGIN
 
     def _regression(self, x_prev, u_prev, x) -> tuple[np.ndarray, np.ndarray]:
         """(D_{k−1}, d_k) of (6): D(x_{k−1}, u_{k−1}) (n, p) and d_k = A0 x_{k−1} + B0 u_{k−1} − x_k,
@@ -384,7 +387,7 @@ class AdaptiveMPC:
             h = np.asarray(h_arg, float)
             h = h if h.ndim == 1 else h[0]
             last = self._checked_vertices
-            if last is not None and np.array_equal(last[1], h) and np.array_equal(last[0], H):
+            if last is not None and same_bits(last[1], h) and same_bits(last[0], H):
                 vertices = last[2]
             else:
                 vertices = self._theta_k_vertices(H, h)
