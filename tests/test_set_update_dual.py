@@ -29,7 +29,7 @@ def test_dual_bases_equal_the_rebuilt_lp_on_random_data(backend):
     for _ in range(120):
         H, h, Hd, hd = random_case(rng, flat=rng.random() < 0.3)
         res = backend.set_update(H, h, Hd, hd)
-        assert res.status is SolveStatus.OPTIMAL and res.method == "dual bases"
+        assert res.status is SolveStatus.OPTIMAL and res.method.startswith("dual bases")
         np.testing.assert_allclose(res.h, rebuilt_lp(H, h, Hd, hd), rtol=0, atol=H_TOL)
         assert_certificate(H, h, Hd, hd, res.h, res.Lambda, res.points)
 
@@ -45,15 +45,42 @@ def test_dual_bases_equal_the_cvxpy_lp(backend):
     rng = np.random.default_rng(16)
     H, h = np.vstack([np.eye(3), -np.eye(3)]), np.ones(6)
     theta = rng.uniform(-0.5, 0.5, 3)  # in every Δ_k, as θ* (the intersection is never empty)
-    for _ in range(10):
+    methods = set()
+    for _ in range(40):
         Hd = rng.normal(size=(4, 3))
         Hd /= np.linalg.norm(Hd, axis=1)[:, None]
         hd = Hd @ theta + rng.uniform(0.0, 0.3, 4)
         fast, slow = backend.set_update(H, h, Hd, hd), lp.set_update(H, h, Hd, hd)
-        assert (fast.method, slow.method) == ("dual bases", "lp")
+        assert fast.method.startswith("dual bases") and slow.method == "lp"
+        methods.add(fast.method)
+        assert_certificate(H, h, Hd, hd, fast.h, fast.Lambda, fast.points)
         np.testing.assert_allclose(fast.h, slow.h, rtol=0, atol=LP_TOL)
         np.testing.assert_allclose(fast.h, rebuilt_lp(H, h, Hd, hd), rtol=0, atol=H_TOL)
         h = fast.h
+    assert methods == {"dual bases", "dual bases, reused"}  # both paths ran
+
+
+def test_reused_maximisers_only_while_they_certify_the_answer():
+    """Θ_{k−1} = [-1, 1]³: far data reuse the last maximisers (h unchanged); a cut of the face θ_1 = 1
+    by 1e-7 must lower h_1 by 1e-7 (not reused); a corner cut is enumerated anew."""
+    from amcp_reference.set_update_dual import DualBasesSetUpdate
+
+    update = DualBasesSetUpdate()
+    H, h = np.vstack([np.eye(3), -np.eye(3)]), np.ones(6)
+    far = (np.array([[1.0, 0.0, 0.0]]), np.array([5.0]))
+    assert update.solve(H, h, *far)[3] is False
+    out = update.solve(H, h, *far)
+    assert out[3] is True
+    np.testing.assert_array_equal(out[0], h)
+    assert_certificate(H, h, *far, *out[:3])
+    corner = (np.ones((1, 3)) / np.sqrt(3.0), np.array([np.sqrt(3.0) - 0.5]))
+    face = (np.array([[1.0, 0.0, 0.0]]), np.array([1.0 - 1e-7]))
+    for cut in (face, corner):
+        out = update.solve(H, h, *cut)
+        assert out[3] is False
+        np.testing.assert_allclose(out[0], rebuilt_lp(H, h, *cut), rtol=0, atol=H_TOL)
+        assert_certificate(H, h, *cut, *out[:3])
+    assert update.solve(H, h, *face)[0][0] == pytest.approx(1.0 - 1e-7, abs=1e-12)
 
 
 def test_empty_intersection_and_too_many_bases_are_left_to_the_lp(backend):

@@ -23,7 +23,7 @@ from amcp_drake.backends.base import ProjectionResult, SetUpdateResult, TubeMPCD
 from amcp_drake.backends.projection_form import projection_form
 from amcp_drake.model.status import SolveStatus
 
-from .set_update_dual import solve_by_dual_bases
+from .set_update_dual import DualBasesSetUpdate
 from .solver_call import STATUS_MAP, SolverCall, all_finite, map_status  # noqa: F401 - re-exported
 
 #: Formulations of the tube MPC QP (20): "plain" = (15a)-(15d) with Λ, "vertex" = (5b) at Θ_k's vertices.
@@ -70,8 +70,9 @@ class CvxpyBackend:
     formulation: tube MPC QP (20) with the multipliers Λ of (15c)-(15d) ("plain", the reference
         and default) or with (5b) at the vertices of Θ_k ("vertex", same optimum, no Λ:
         ``MPCSolution.Lambda`` is None; see :mod:`amcp_reference.tube_vertex`).
-    set_update_method: "auto" (default): the update (9) exactly by dual bases with numpy
-        (:mod:`amcp_reference.set_update_dual`, issue 16), the cvxpy LP where that does not apply;
+    set_update_method: "auto" (default): the update (9) exactly by dual bases with numpy, the last
+        answer's maximisers reused when they still certify it (:mod:`amcp_reference.set_update_dual`,
+        issue 16), the cvxpy LP where neither applies;
         "lp": always the cvxpy LP.
     """
 
@@ -102,6 +103,7 @@ class CvxpyBackend:
         self.solver_name = self._call.name
         self._support = ProblemCache(SupportLP)
         self._set_update = ProblemCache(SetUpdateLP)
+        self._dual_update = DualBasesSetUpdate()
         self._project = ProblemCache(ProjectionQP)
 
     # -- offline -----------------------------------------------------------------------------
@@ -138,10 +140,10 @@ class CvxpyBackend:
             return SetUpdateResult(SolveStatus.ERROR, None, None)
         if self.set_update_method == "auto":
             start = time.perf_counter()
-            answer = solve_by_dual_bases(H_theta, h_prev, H_data, h_data)
+            answer = self._dual_update.solve(H_theta, h_prev, H_data, h_data)
             if answer is not None:
                 return SetUpdateResult(SolveStatus.OPTIMAL, answer[0], answer[1], time.perf_counter() - start,
-                                       points=answer[2], method="dual bases")
+                                       points=answer[2], method="dual bases, reused" if answer[3] else "dual bases")
         return self._set_update.get((q, len(h_data), p)).solve(self._call_lp, H_theta, h_prev, H_data, h_data)
 
     def project(self, point, H, h):

@@ -95,4 +95,42 @@ def solve_by_dual_bases(H_theta, h_prev, H_data, h_data) -> tuple[np.ndarray, np
     return h, Lambda, points[chosen]
 
 
-__all__ = ["MAX_BASES", "solve_by_dual_bases"]
+class DualBasesSetUpdate:
+    """:func:`solve_by_dual_bases` that first tries the last answer's maximisers.
+
+    Row i of the last answer has a maximiser θ_i with [H_θ]_i θ_i = [h_{k−1}]_i. When every θ_i
+    also satisfies the new data (H_data θ_i <= h_data) and attains [h_{k−1}]_i, it is a maximiser of
+    row i over Θ_{k−1} ∩ Δ_k too (the maximum over the subset cannot exceed [h_{k−1}]_i, which θ_i
+    attains), and λ = e_i (row i of H_θ itself) is its dual certificate: h_k = h_{k−1},
+    Λ = [I | 0]. Both are checked here with tolerances (PRIMAL_TOL, AGREEMENT_TOL), and the
+    controller checks the answer again (amcp_drake.online.answer_checks). This holds in most steps
+    once Θ_k has settled; otherwise the dual bases are enumerated.
+    """
+
+    def __init__(self) -> None:
+        self._points: np.ndarray | None = None  # maximisers of the last answer, (q, p)
+
+    def solve(self, H_theta, h_prev, H_data, h_data) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool] | None:
+        """(h_k, Λ, maximisers, reused) or None (then the LP decides)."""
+        H_theta, h_prev = np.asarray(H_theta, float), np.asarray(h_prev, float)
+        H_data, h_data = np.asarray(H_data, float).reshape(-1, H_theta.shape[1]), np.asarray(h_data, float).reshape(-1)
+        points = self._points
+        if points is not None and points.shape == H_theta.shape:
+            H_tilde = np.concatenate([H_theta, H_data])
+            h_tilde = np.concatenate([h_prev, h_data])
+            norms = np.sqrt((H_tilde * H_tilde).sum(axis=1))
+            if norms.all():
+                slack = (points @ H_tilde.T - h_tilde) / norms          # (q, R): <= 0 inside, unit rows
+                inside = (slack <= PRIMAL_TOL * np.maximum(1.0, np.abs(h_tilde / norms))).all()
+                attained = (np.abs((H_theta * points).sum(axis=1) - h_prev)
+                            <= AGREEMENT_TOL * np.maximum(1.0, np.abs(h_prev))).all()
+                if inside and attained:
+                    Lambda = np.zeros((len(h_prev), len(h_tilde)))
+                    Lambda[:, :len(h_prev)] = np.eye(len(h_prev))
+                    return h_prev.copy(), Lambda, points.copy(), True
+        answer = solve_by_dual_bases(H_theta, h_prev, H_data, h_data)
+        self._points = None if answer is None else answer[2]
+        return None if answer is None else (*answer, False)
+
+
+__all__ = ["MAX_BASES", "DualBasesSetUpdate", "solve_by_dual_bases"]
