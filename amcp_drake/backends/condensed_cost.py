@@ -61,9 +61,9 @@ class CondensedCost:
         powers = np.empty((N + 1, n, n))
         powers[0] = np.eye(n)
         for l in range(1, N + 1):
-            powers[l] = A_cl @ powers[l - 1]
+            np.matmul(A_cl, powers[l - 1], out=powers[l])   # written in place (same products, bit for bit)
         PB = np.zeros((N + 1, n, m))
-        PB[:N] = powers[:N] @ B_hat
+        np.matmul(powers[:N], B_hat, out=PB[:N])
         W = np.empty((N + 1, n, n + N * m))                     # block l: [A_cl^l | Γ_l]
         W[:, :, :n] = powers
         W[:, :, n:] = PB[self._lag].transpose(0, 2, 1, 3).reshape(N + 1, n, N * m)
