@@ -233,21 +233,21 @@ def check_tube(sol, data, x: np.ndarray, h_theta: np.ndarray, H_theta: np.ndarra
     return checks
 
 
-class VertexTubeCheck:
-    """:func:`check_tube` for answers without Λ (vertex form), with its rows preassembled (issue 16).
-
-    The same rows as :func:`check_tube` (every vertex x^j of X0, every vertex θ^s of Θ_k, no
-    reduction over j), the same check names and values up to round-off, written once as matrices
-    on y = [z (N+1)·n | α (N+1) | v N·m] from the controller's data (never from a backend's
+class TubeCheck:
+    """:func:`check_tube` with its rows preassembled (issue 16): the same rows, check names and values
+    (up to round-off), written once as matrices on y = [z (N+1)·n | α (N+1) | v N·m] and on
+    w_l = [z_l | z_{l+1} | α_l | α_{l+1} | v_l | 1] from the controller's data (never from a backend's
     matrices, so the check stays independent of the solver's problem):
 
     * ``fixed`` (dense): −α <= 0; (15b) −H_x z_0 − α_0 <= −H_x x_k (its right side written per
       step); (15a) (F + G K)(z_l + α_l x^j) + G v_l <= 1 for every (l, j); terminal
       H_T z_N + h_T α_N <= 1. One matrix-vector product, one maximum per block (``reduceat``).
-    * (5b) at (l, j, s): H_x(A_cl(θ^s)(z_l + α_l x^j) + B(θ^s) v_l − z_{l+1}) − α_{l+1} <= −w̄. The
-      coefficients on w_l = [z_l | z_{l+1} | α_l | α_{l+1} | v_l] do not depend on l, so the rows are
-      one (v·S·u, 2n + 2 + m) matrix, rebuilt only when the vertices of Θ_k change (compared to
-      the bit with those of the last call); all N·v·S·u rows are one product W Cᵀ.
+    * vertex form (no Λ), (5b) at (l, j, s): H_x(A_cl(θ^s)(z_l + α_l x^j) + B(θ^s) v_l − z_{l+1})
+      − α_{l+1} <= −w̄ for every vertex x^j of X0 and θ^s of Θ_k (no reduction over j). The
+      coefficients on w_l do not depend on l: one (v·S·u, 2n + 3 + m) matrix, rebuilt only when the
+      vertices of Θ_k change (compared to the bit); all N·v·S·u rows are one product W Cᵀ.
+    * plain form (Λ): Λ >= 0; (15c) Λ^j_l h_θ(l) + H_x(A0 x^j_l + B0 u^j_l − z_{l+1}) − α_{l+1} <= −w̄
+      and (15d) H_x D^j_l = Λ^j_l H_θ, their parts in (z, α, v) again one product with W each.
     """
 
     def __init__(self, data) -> None:
@@ -288,6 +288,27 @@ class VertexTubeCheck:
         self._vertices = None
         self._Ct = np.zeros((2 * n + 3 + m, 0))
         self._w = np.ones((N, 2 * n + 3 + m))  # w_l = [z_l | z_{l+1} | α_l | α_{l+1} | v_l | 1]
+        self._plain_rows: tuple[np.ndarray, np.ndarray] | None = None  # (15c), (15d) on w_l, on first need
+
+    def _lambda_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """The parts of (15c) (v·u rows, with +w̄ on the constant column) and of (15d) (v·u·p rows:
+        H_x D^j_l, column p of D = (A_p + B_p K) x^j_l + B_p v_l) in w_l, transposed for W @ ·."""
+        n, m, u, nv = self.n, self.m, self.H_x.shape[0], len(self.Xv)
+        p, width = self.Acl.shape[0], 2 * n + 3 + m
+        HA0, HB0 = self.H_x @ self.Acl0, self.H_x @ self.B0
+        C = np.zeros((nv, u, width))
+        C[..., :n] = HA0
+        C[..., n:2 * n] = -self.H_x
+        C[..., 2 * n] = self.Xv @ HA0.T                                      # H_x A_cl0 x^j
+        C[..., 2 * n + 1] = -1.0
+        C[..., 2 * n + 2:2 * n + 2 + m] = HB0
+        C[..., -1] = self.w_bar
+        HA = np.einsum("ua,pab->upb", self.H_x, self.Acl)                    # (u, p, n): H_x A_cl,p
+        D = np.zeros((nv, u, p, width))
+        D[..., :n] = HA
+        D[..., 2 * n] = np.einsum("upb,jb->jup", HA, self.Xv)
+        D[..., 2 * n + 2:2 * n + 2 + m] = np.einsum("ua,pab->upb", self.H_x, self.B)
+        return C.reshape(nv * u, width).T.copy(), D.reshape(nv * u * p, width).T.copy()
 
     def _tube_rows(self, theta_vertices: np.ndarray) -> None:
         """C (v·S·u, 2n + 2 + m) and its right side −w̄ for the rows (5b) at Θ_k's vertices."""
@@ -304,9 +325,11 @@ class VertexTubeCheck:
         # the last row (on w's constant column 1) moves the right side −w̄ to the left: rows <= 0
         self._Ct = np.vstack([C.reshape(-1, 2 * n + 2 + m).T, np.tile(self.w_bar, nv * S)[None, :]])
 
-    def check(self, sol, x: np.ndarray, theta_vertices: np.ndarray | None) -> list[AnswerCheck]:
-        """The checks of :func:`check_tube` for ``sol`` (Λ is not used) at x_k with the vertices of Θ_k
-        (None: the (5b) check is "not run")."""
+    def check(self, sol, x: np.ndarray, theta_vertices: np.ndarray | None = None, h_theta=None,
+              H_theta: np.ndarray | None = None) -> list[AnswerCheck]:
+        """The checks of :func:`check_tube` for ``sol`` at x_k. With Λ (plain form): ``h_theta`` (q,)
+        or per stage (N, q) and ``H_theta`` (None: the data's); without Λ (vertex form): the vertices
+        of Θ_k (None: the (5b) check is "not run")."""
         N, n, m = self.N, self.n, self.m
         v, z, alpha = sol.v, sol.z, sol.alpha
         shapes = ((N, m), (N + 1, n), (N + 1,))
@@ -325,16 +348,36 @@ class VertexTubeCheck:
                    AnswerCheck("tube x_k in X_0|k (15b)", worst[1], TUBE_ROW_TOL),
                    AnswerCheck("tube constraints (15a)", worst[2], TUBE_ROW_TOL),
                    AnswerCheck("tube terminal set", worst[3], TUBE_ROW_TOL)]
+        w = self._w
+        w[:, :n], w[:, n:2 * n] = z[:N], z[1:]
+        w[:, 2 * n], w[:, 2 * n + 1] = alpha[:N], alpha[1:]
+        w[:, 2 * n + 2:-1] = v
+        if sol.Lambda is not None:
+            return checks + self._lambda_checks(np.asarray(sol.Lambda, float), h_theta, H_theta)
         if theta_vertices is None or len(theta_vertices) == 0:
             checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float("nan"), TUBE_ROW_TOL, ran=False))
             return checks
         if self._vertices is None or not same_bits(self._vertices, np.asarray(theta_vertices, float)):
             self._tube_rows(theta_vertices)
             self._vertices = np.array(theta_vertices, float)
-        w = self._w
-        w[:, :n], w[:, n:2 * n] = z[:N], z[1:]
-        w[:, 2 * n], w[:, 2 * n + 1] = alpha[:N], alpha[1:]
-        w[:, 2 * n + 2:-1] = v
         checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float((w @ self._Ct).max()),
                                   TUBE_ROW_TOL))
         return checks
+
+    def _lambda_checks(self, Lam: np.ndarray, h_theta, H_theta) -> list[AnswerCheck]:
+        """Λ >= 0, (15c) and (15d) of the plain form, as in :func:`check_tube`."""
+        N, u, nv = self.N, self.H_x.shape[0], len(self.Xv)
+        H_th = np.asarray(self.data.H_theta if H_theta is None else H_theta, float)
+        q = H_th.shape[0]
+        if Lam.shape != (N, nv, u, q) or not np.isfinite(Lam).all():
+            return [AnswerCheck(f"tube Lambda finite, shape {(N, nv, u, q)}", float("inf"), 0.0)]
+        if self._plain_rows is None:
+            self._plain_rows = self._lambda_rows()
+        C15c, C15d = self._plain_rows
+        h_st = np.broadcast_to(np.asarray(h_theta, float), (N, q))
+        lam_h = (Lam.reshape(N, nv * u, q) @ h_st[:, :, None])[..., 0]      # (N, v·u): Λ^j_l h_θ(l)
+        w = self._w
+        hd = (w @ C15d).reshape(N, nv, u, -1)                                # H_x D^j_l
+        return [AnswerCheck("tube Lambda >= 0", max(0.0, -float(Lam.min())), TUBE_ROW_TOL),
+                AnswerCheck("tube (15c)", float((w @ C15c + lam_h).max()), TUBE_ROW_TOL),
+                AnswerCheck("tube (15d)", float(np.abs(hd - Lam @ H_th).max()), TUBE_ROW_TOL)]

@@ -91,7 +91,7 @@ class AdaptiveMPC:
         self.backend = get_backend(backend, **backend_options)
         self._backend_spec = (backend, dict(backend_options))
         self._other_mpc = None  # the other formulation of (20), built on first need (answer checks)
-        self._vertex_check: answer_checks.VertexTubeCheck | None = None  # check_tube preassembled, on first need
+        self._tube_check: answer_checks.TubeCheck | None = None  # check_tube preassembled, on first need
         self.data = TubeMPCData(
             A0=problem.A0, B0=problem.B0, A=problem.A, B=problem.B, F=problem.F, G=problem.G, Q=problem.Q,
             R=problem.R, N=problem.N, K=design.K, P=design.P, H_x=design.H_x, X0_vertices=design.X0_vertices,
@@ -380,7 +380,8 @@ class AdaptiveMPC:
 
     # -- (iii) answer checks of (20) and the other formulation as fallback --------------------------
     def _tube_checks(self, sol, x, h_arg, H_arg) -> list:
-        """answer_checks.check_tube with Θ_k's vertices (Qhull) when the answer has no Λ (vertex form)."""
+        """answer_checks.check_tube (preassembled: answer_checks.TubeCheck) with Θ_k's vertices (Qhull)
+        when the answer has no Λ (vertex form)."""
         vertices = None
         if sol.Lambda is None and sol.v is not None:
             H = np.asarray(self.design.H_theta if H_arg is None else H_arg, float)
@@ -392,11 +393,9 @@ class AdaptiveMPC:
             else:
                 vertices = self._theta_k_vertices(H, h)
                 self._checked_vertices = (H.copy(), h.copy(), vertices)
-        if sol.Lambda is None:
-            if self._vertex_check is None or self._vertex_check.data is not self.data:
-                self._vertex_check = answer_checks.VertexTubeCheck(self.data)
-            return self._vertex_check.check(sol, x, vertices)
-        return answer_checks.check_tube(sol, self.data, x, h_arg, H_arg, vertices)
+        if self._tube_check is None or self._tube_check.data is not self.data:
+            self._tube_check = answer_checks.TubeCheck(self.data)
+        return self._tube_check.check(sol, x, vertices, h_arg, H_arg)
 
     #: An interior point for Qhull must be this far inside every unit row of Θ_k (θ units); closer,
     #: the Chebyshev centre is computed by an LP instead.
