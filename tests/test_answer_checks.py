@@ -301,3 +301,51 @@ def test_check_set_update_uses_the_dual_certificate():
     names = [c.name for c in answer_checks.failures(
         answer_checks.check_set_update(good, Lam, bad_points, H, h_prev, H_data, h_data, box))]
     assert names == ["set update maximisers feasible and tight"]
+
+
+@pytest.mark.parametrize("formulation", ["vertex", "plain"])
+def test_preassembled_tube_check_equals_check_tube(example_spec, example_design, formulation):
+    """TubeCheck (issue 16: the rows of check_tube preassembled, one product per block) gives the names,
+    verdicts and values of check_tube on real and perturbed answers: vertex form for several Θ_k (random
+    sub-boxes of Θ0: its (5b) rows are rebuilt, and reused for the next answer) and without Θ_k's vertices
+    ("not run"); plain form with Λ perturbed too and per-stage offsets (26); and for non-finite answers."""
+    from amcp_drake.model import polytope
+
+    ctrl = _controller(example_spec, example_design, "drake", formulation=formulation)
+    data, fast = ctrl.data, answer_checks.TubeCheck(ctrl.data)
+    H, h0 = np.asarray(example_design.H_theta, float), np.asarray(example_design.h_theta0, float)
+    x0 = np.asarray(example_spec.scenario.x0, float)
+    N = int(data.N)
+    rng = np.random.default_rng(16)
+    verdicts = set()
+    for trial in range(6):
+        lo, hi = np.sort(rng.uniform(-1.0, 1.0, (2, 3)), axis=0)
+        corners = np.array(np.meshgrid(*zip(lo, hi))).reshape(3, -1).T      # the box's 8 corners
+        h = np.minimum(np.max(corners @ H.T, axis=0), h0)                    # its offsets on Θ0's rows
+        if formulation == "plain" and trial % 2:                              # per-stage offsets (26)
+            h = np.minimum(h[None, :] + 0.01 * np.arange(N)[:, None], h0)
+        theta = 0.5 * (lo + hi)
+        vertices = polytope.theta_vertices(H, h if h.ndim == 1 else h[0])
+        sol = ctrl.mpc.solve(x0, h, theta)
+        assert sol.status is SolveStatus.OPTIMAL
+        for scale in (0.0, 1e-7, 1e-4, 1e-1):
+            wrong = dataclasses.replace(sol, v=sol.v + scale * rng.standard_normal(sol.v.shape),
+                                        z=sol.z + scale * rng.standard_normal(sol.z.shape),
+                                        alpha=sol.alpha + scale * rng.standard_normal(sol.alpha.shape))
+            if sol.Lambda is not None:
+                wrong = dataclasses.replace(wrong, Lambda=sol.Lambda + scale * rng.standard_normal(sol.Lambda.shape))
+            x = x0 + scale * rng.standard_normal(2)
+            for verts in ((vertices, None) if sol.Lambda is None else (None,)):
+                ref = answer_checks.check_tube(wrong, data, x, h, None, verts)
+                got = fast.check(wrong, x, verts, h)
+                assert [(c.name, c.ran, c.passed) for c in got] == [(c.name, c.ran, c.passed) for c in ref]
+                np.testing.assert_allclose([c.value for c in got], [c.value for c in ref], rtol=1e-9, atol=1e-12)
+                verdicts.add(bool(answer_checks.failures(got)))
+    assert verdicts == {True, False}  # both passing and failing answers were compared
+    bad = [dataclasses.replace(sol, v=np.full_like(sol.v, np.nan))]
+    if sol.Lambda is not None:
+        bad += [dataclasses.replace(sol, Lambda=sol.Lambda[..., :-1]), dataclasses.replace(sol, Lambda=sol.Lambda * np.nan)]
+    for b in bad:
+        ref, got = answer_checks.check_tube(b, data, x0, h, None, vertices), fast.check(b, x0, vertices, h)
+        assert [(c.name, c.ran, c.passed) for c in got] == [(c.name, c.ran, c.passed) for c in ref]
+        np.testing.assert_allclose([c.value for c in got], [c.value for c in ref], rtol=1e-9, atol=1e-12)

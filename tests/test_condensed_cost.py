@@ -27,3 +27,23 @@ def test_condensed_cost_equals_the_rolled_out_cost(example_design, example_spec,
         assert np.allclose(H, H.T) and np.all(np.linalg.eigvalsh(H) > 0)
         J = float(v.reshape(-1) @ H @ v.reshape(-1) + 2 * g @ v.reshape(-1) + c)
         assert J == pytest.approx(nominal_cost(data, x, theta, v), rel=1e-12, abs=1e-12)
+
+
+@pytest.mark.parametrize("n, m, p, N", [(1, 1, 1, 1), (2, 2, 3, 2), (3, 1, 2, 3), (3, 2, 4, 7), (2, 1, 3, 16)])
+def test_condensed_cost_other_dimensions(n, m, p, N):
+    """The same on random systems of other sizes and horizons."""
+    from amcp_drake.backends.base import TubeMPCData
+
+    rng = np.random.default_rng(100 * n + 10 * m + N)
+    sym = lambda k: (lambda M: M @ M.T + 0.1 * np.eye(k))(rng.normal(size=(k, k)))  # noqa: E731
+    base = TubeMPCData(A0=0.5 * rng.normal(size=(n, n)), B0=rng.normal(size=(n, m)), A=0.1 * rng.normal(size=(p, n, n)),
+                       B=0.1 * rng.normal(size=(p, n, m)), F=np.zeros((1, n)), G=np.zeros((1, m)), Q=sym(n), R=sym(m),
+                       N=N, K=0.2 * rng.normal(size=(m, n)), P=sym(n), H_x=np.zeros((1, n)), X0_vertices=np.zeros((1, n)),
+                       w_bar=np.zeros(1), f_bar=np.zeros(1), H_T=np.zeros((1, n)), h_T=np.zeros(1),
+                       H_theta=np.zeros((1, p)))
+    model = CondensedCost(base)
+    for _ in range(3):
+        x, theta, v = rng.normal(size=n), rng.uniform(-1.0, 1.0, size=p), rng.normal(size=(N, m))
+        H, g, c = model.matrices(x, theta)
+        J = float(v.reshape(-1) @ H @ v.reshape(-1) + 2 * g @ v.reshape(-1) + c)
+        assert J == pytest.approx(nominal_cost(base, x, theta, v), rel=1e-10, abs=1e-10)

@@ -45,7 +45,8 @@ class SetUpdateResult:
     Lambda: np.ndarray | None
     solve_time: float = 0.0
     points: np.ndarray | None = None
-    #: "lp" (an LP solver) or "vertices" (basis enumeration with its dual certificate, Drake only)
+    #: "lp" (an LP solver), "vertices" (Drake: primal basis enumeration with its dual certificate) or
+    #: "dual bases" / "dual bases, reused" (cvxpy: amcp_reference.set_update_dual)
     method: str = "lp"
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from amcp_drake.backends.base import TubeMPCData
+from amcp_drake.model.arrays import same_bits
 
 
 def _sqrt_psd(M: np.ndarray) -> np.ndarray:
@@ -48,7 +49,7 @@ class CondensedCost:
         and x̂ rolled out by (18) with θ̂_k: x̂ = Φ x_k + Γ v, û = K̄ x̂ + v. H (N·m, N·m) is symmetric;
         it depends on θ̂_k only and is reused while θ̂_k does not change."""
         theta_hat = np.asarray(theta_hat, float)
-        if self._last is None or not np.array_equal(self._last[0], theta_hat):
+        if self._last is None or not same_bits(self._last[0], theta_hat):
             self._last = (theta_hat.copy(), *self._blocks(theta_hat))
         _, H, S, T = self._last
         return H, S.T @ x, float(x @ T @ x)
@@ -60,9 +61,9 @@ class CondensedCost:
         powers = np.empty((N + 1, n, n))
         powers[0] = np.eye(n)
         for l in range(1, N + 1):
-            powers[l] = A_cl @ powers[l - 1]
+            np.matmul(A_cl, powers[l - 1], out=powers[l])   # written in place (same products, bit for bit)
         PB = np.zeros((N + 1, n, m))
-        PB[:N] = powers[:N] @ B_hat
+        np.matmul(powers[:N], B_hat, out=PB[:N])
         W = np.empty((N + 1, n, n + N * m))                     # block l: [A_cl^l | Γ_l]
         W[:, :, :n] = powers
         W[:, :, n:] = PB[self._lag].transpose(0, 2, 1, 3).reshape(N + 1, n, N * m)

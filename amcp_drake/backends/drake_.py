@@ -175,15 +175,15 @@ class DrakeBackend:
         """
         H_theta = np.asarray(H_theta, float)
         H_data, h_prev, h_data = (np.asarray(a, float) for a in (H_data, h_prev, h_data))
-        H_tilde = np.vstack([H_theta, H_data])
-        h_tilde = np.concatenate([h_prev, h_data])
-        _finite("set_update", H_tilde, h_tilde)
+        _finite("set_update", H_theta, H_data, h_prev, h_data)
         if self.set_update_method == "auto":
             start = time.perf_counter()
             answer = self._vertex_update.solve(H_theta, h_prev, H_data, h_data)
             if answer is not None:
                 return SetUpdateResult(SolveStatus.OPTIMAL, answer[0], answer[1], time.perf_counter() - start,
                                        points=answer[2], method="vertices")
+        H_tilde = np.vstack([H_theta, H_data])
+        h_tilde = np.concatenate([h_prev, h_data])
         q, p = H_theta.shape
         key = (q, len(h_tilde), p)
         if key not in self._set_update_cache:

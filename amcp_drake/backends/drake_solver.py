@@ -53,7 +53,7 @@ SOLVERS = {
 
 def finite_or_raise(name: str, *arrays: np.ndarray) -> None:
     for arr in arrays:
-        if not np.all(np.isfinite(arr)):
+        if not np.isfinite(arr).all():
             raise ValueError(f"{name}: non-finite coefficient passed to Drake (it would abort the interpreter)")
 
 

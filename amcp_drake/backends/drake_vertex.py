@@ -35,6 +35,7 @@ from amcp_drake.backends.condensed_cost import CondensedCost
 from amcp_drake.backends.daqp_fast import DaqpFastPath
 from amcp_drake.backends.drake_solver import DrakeSolver, infeasible_constraint_names
 from amcp_drake.backends.vertex_form import CLARABEL_OPTIONS, VertexEnumerationError, theta_vertices
+from amcp_drake.model.arrays import same_bits
 from amcp_drake.model.status import SolveStatus
 
 TUBE_ROWS = "(5b) tube propagation at the vertices of Theta_k (vertex form of (15c)-(15d))"
@@ -189,7 +190,7 @@ class DrakeVertexTubeMPC:
         """Vertices of Θ_k = {H θ <= h_theta}, and whether they are those of the previous step
         (Θ_k unchanged: same H and h to the bit), in which case they are not enumerated again."""
         last = self._last_vertices
-        if last is not None and np.array_equal(last[0], h_theta) and np.array_equal(last[1], H):
+        if last is not None and same_bits(last[0], h_theta) and same_bits(last[1], H):
             return last[2], True
         vertices = theta_vertices(H, h_theta)
         self._last_vertices = (h_theta.copy(), H.copy(), vertices)
@@ -204,7 +205,7 @@ class DrakeVertexTubeMPC:
         theta_hat = np.asarray(theta_hat, float)
         H = np.asarray(self.data.H_theta if H_theta is None else H_theta, float)
         for name, arr in (("x", x), ("h_theta", h_theta), ("theta_hat", theta_hat), ("H_theta", H)):
-            if not np.all(np.isfinite(arr)):
+            if not np.isfinite(arr).all():
                 return MPCSolution(SolveStatus.ERROR, None, None, None, None, None, detail=f"non-finite {name}")
         try:
             vertices, unchanged = self._vertices(H, h_theta)

@@ -26,6 +26,7 @@ from math import comb
 import numpy as np
 
 from amcp_drake.backends.vertex_form import SINGULAR_DET, combinations
+from amcp_drake.model.arrays import same_bits
 
 #: Largest number of row choices C(R, p) enumerated (Example 1: C(10, 3) = 120, about 60 µs);
 #: the LP is cheaper beyond a few thousand.
@@ -72,10 +73,10 @@ class VertexSetUpdate:
         H_theta, h_prev = np.asarray(H_theta, float), np.asarray(h_prev, float)
         H_data, h_data = np.atleast_2d(np.asarray(H_data, float)), np.asarray(h_data, float)
         last = self._last
-        if last is None or not (np.array_equal(last[1], h_prev) and np.array_equal(last[0], H_theta)):
+        if last is None or not (same_bits(last[1], h_prev) and same_bits(last[0], H_theta)):
             alone = _solve(H_theta, h_prev, np.zeros((0, H_theta.shape[1])), np.zeros(0))
             last = self._last = None if alone is None else (H_theta.copy(), h_prev.copy(), alone[3], *alone[:3])
-        if last is not None and np.all(last[2] @ H_data.T <= h_data):
+        if last is not None and (last[2] @ H_data.T <= h_data).all():
             Lambda = np.zeros((len(h_prev), len(h_prev) + len(h_data)))
             Lambda[:, : len(h_prev)] = last[4]
             return last[3].copy(), Lambda, last[5].copy()

@@ -23,10 +23,13 @@ run independently (certificate.claims, certificate.tube); these checks run *befo
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import nnls
+
+from amcp_drake.model.arrays import same_bits
 
 # Separate from the certificate's tolerances (certificate.claims SET_LP_TOL, PROJECTION_TOL;
 # certificate.tube QP_TOL) on purpose: the online layer may not import the certificate (layers in
@@ -78,7 +81,7 @@ class AnswerCheck:
 
     @property
     def passed(self) -> bool:
-        return self.ran and bool(np.isfinite(self.value)) and self.value <= self.tolerance
+        return self.ran and math.isfinite(self.value) and self.value <= self.tolerance
 
     def describe(self) -> str:
         if not self.ran:
@@ -97,13 +100,13 @@ def describe_failures(problem: str, checks: list[AnswerCheck]) -> str:
 
 
 def _finite_shape(name: str, array, shape: tuple[int, ...]) -> AnswerCheck:
-    ok = array is not None and np.shape(array) == shape and bool(np.all(np.isfinite(array)))
+    ok = array is not None and np.shape(array) == shape and bool(np.isfinite(array).all())
     return AnswerCheck(f"{name} finite, shape {shape}", 0.0 if ok else float("inf"), 0.0)
 
 
 def _unit(H: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    norms = np.linalg.norm(H, axis=1)
-    norms = np.where(norms > 0, norms, 1.0)
+    norms = np.sqrt((H * H).sum(axis=1))
+    norms[norms == 0.0] = 1.0
     return H / norms[:, None], h / norms
 
 
@@ -148,29 +151,29 @@ def check_set_update(h, Lambda, points, H_theta: np.ndarray, h_prev: np.ndarray,
     H_theta = np.asarray(H_theta, float)
     h_prev = np.asarray(h_prev, float)
     q, p = H_theta.shape
-    H_tilde = np.vstack([H_theta, np.asarray(H_data, float).reshape(-1, p)])
+    H_tilde = np.concatenate([H_theta, np.asarray(H_data, float).reshape(-1, p)])
     h_tilde = np.concatenate([h_prev, np.asarray(h_data, float).reshape(-1)])
     shape = _finite_shape("set update h", h, (q,))
     if not shape.passed:
         return [shape]
     h = np.asarray(h, float)
-    checks = [shape, AnswerCheck("set update nested h <= h_prev (10)", float(np.max(h - h_prev)), SET_NESTED_TOL)]
-    if Lambda is None or np.shape(Lambda) != (q, len(h_tilde)) or not np.all(np.isfinite(Lambda)):
+    checks = [shape, AnswerCheck("set update nested h <= h_prev (10)", float((h - h_prev).max()), SET_NESTED_TOL)]
+    if Lambda is None or np.shape(Lambda) != (q, len(h_tilde)) or not np.isfinite(Lambda).all():
         checks.append(AnswerCheck("set update outer bound (dual certificate)", float("nan"), SET_OUTER_TOL, ran=False))
     else:
-        lam = np.clip(np.asarray(Lambda, float), 0.0, None)
+        lam = np.maximum(np.asarray(Lambda, float), 0.0)
         residual = H_theta - lam @ H_tilde
         bound = lam @ h_tilde + np.abs(residual) @ np.asarray(theta_box, float)
-        checks.append(AnswerCheck("set update outer bound (dual certificate)", float(np.max(bound - h)), SET_OUTER_TOL))
+        checks.append(AnswerCheck("set update outer bound (dual certificate)", float((bound - h).max()), SET_OUTER_TOL))
     if points is None:
         checks.append(AnswerCheck("set update maximisers feasible and tight", float("nan"), SET_POINT_TOL, ran=False))
-    elif np.shape(points) != (q, p) or not np.all(np.isfinite(points)):
+    elif np.shape(points) != (q, p) or not np.isfinite(points).all():
         checks.append(AnswerCheck("set update maximisers feasible and tight", float("inf"), SET_POINT_TOL))
     else:
         pts = np.asarray(points, float)
         Ht_n, ht_n = _unit(H_tilde, h_tilde)
-        infeasible = float(np.max(pts @ Ht_n.T - ht_n[None, :]))
-        miss = float(np.max(np.abs(np.einsum("ij,ij->i", H_theta, pts) - h)))
+        infeasible = float((pts @ Ht_n.T - ht_n).max())
+        miss = float(np.abs((H_theta * pts).sum(axis=1) - h).max())
         checks.append(AnswerCheck("set update maximisers feasible and tight", max(infeasible, miss), SET_POINT_TOL))
     return checks
 
@@ -228,3 +231,153 @@ def check_tube(sol, data, x: np.ndarray, h_theta: np.ndarray, H_theta: np.ndarra
     else:
         checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float("nan"), TUBE_ROW_TOL, ran=False))
     return checks
+
+
+class TubeCheck:
+    """:func:`check_tube` with its rows preassembled (issue 16): the same rows, check names and values
+    (up to round-off), written once as matrices on y = [z (N+1)·n | α (N+1) | v N·m] and on
+    w_l = [z_l | z_{l+1} | α_l | α_{l+1} | v_l | 1] from the controller's data (never from a backend's
+    matrices, so the check stays independent of the solver's problem):
+
+    * ``fixed`` (dense): −α <= 0; (15b) −H_x z_0 − α_0 <= −H_x x_k (its right side written per
+      step); (15a) (F + G K)(z_l + α_l x^j) + G v_l <= 1 for every (l, j); terminal
+      H_T z_N + h_T α_N <= 1. One matrix-vector product, one maximum per block (``reduceat``).
+    * vertex form (no Λ), (5b) at (l, j, s): H_x(A_cl(θ^s)(z_l + α_l x^j) + B(θ^s) v_l − z_{l+1})
+      − α_{l+1} <= −w̄ for every vertex x^j of X0 and θ^s of Θ_k (no reduction over j). The
+      coefficients on w_l do not depend on l: one (v·S·u, 2n + 3 + m) matrix, rebuilt only when the
+      vertices of Θ_k change (compared to the bit); all N·v·S·u rows are one product W Cᵀ.
+    * plain form (Λ): Λ >= 0; (15c) Λ^j_l h_θ(l) + H_x(A0 x^j_l + B0 u^j_l − z_{l+1}) − α_{l+1} <= −w̄
+      and (15d) H_x D^j_l = Λ^j_l H_θ, their parts in (z, α, v) again one product with W each.
+    """
+
+    def __init__(self, data) -> None:
+        self.data = d = data
+        N, n, m = int(d.N), np.shape(d.A0)[0], np.shape(d.B0)[1]
+        self.N, self.n, self.m = N, n, m
+        self.H_x = np.asarray(d.H_x, float)
+        self.Xv = np.asarray(d.X0_vertices, float)
+        K, F, G = np.asarray(d.K, float), np.asarray(d.F, float), np.asarray(d.G, float)
+        H_T, h_T = np.asarray(d.H_T, float), np.asarray(d.h_T, float).reshape(-1)
+        self.K = K
+        self.a0, self.v0 = (N + 1) * n, (N + 1) * n + N + 1
+        size = self.v0 + N * m
+        u, nv, c, r = self.H_x.shape[0], len(self.Xv), F.shape[0], H_T.shape[0]
+        a0, v0 = self.a0, self.v0
+        alpha_rows = np.zeros((N + 1, size))
+        alpha_rows[:, a0:v0] = -np.eye(N + 1)
+        rows15b = np.zeros((u, size))
+        rows15b[:, :n] = -self.H_x
+        rows15b[:, a0] = -1.0
+        FK = F + G @ K
+        rows15a = np.zeros((N, nv, c, size))
+        for l in range(N):
+            rows15a[l, :, :, l * n:(l + 1) * n] = FK
+            rows15a[l, :, :, a0 + l] = self.Xv @ FK.T
+            rows15a[l, :, :, v0 + l * m:v0 + (l + 1) * m] = G
+        rowsT = np.zeros((r, size))
+        rowsT[:, N * n:(N + 1) * n] = H_T
+        rowsT[:, a0 + N] = h_T
+        self.fixed = np.vstack([alpha_rows, rows15b, rows15a.reshape(N * nv * c, size), rowsT])
+        self.b = np.concatenate([np.zeros(N + 1), np.zeros(u), np.ones(N * nv * c), np.ones(r)])
+        self._b15b = self.b[N + 1:N + 1 + u]                          # a view: −H_x x_k, written per step
+        self.starts = np.array([0, N + 1, N + 1 + u, N + 1 + u + N * nv * c])
+        self.Acl0 = np.asarray(d.A0, float) + np.asarray(d.B0, float) @ K
+        self.Acl = np.asarray(d.A, float) + np.asarray(d.B, float) @ K  # (p, n, n)
+        self.B0, self.B = np.asarray(d.B0, float), np.asarray(d.B, float)
+        self.w_bar = np.asarray(d.w_bar, float)
+        self._vertices = None
+        self._Ct = np.zeros((2 * n + 3 + m, 0))
+        self._w = np.ones((N, 2 * n + 3 + m))  # w_l = [z_l | z_{l+1} | α_l | α_{l+1} | v_l | 1]
+        self._plain_rows: tuple[np.ndarray, np.ndarray] | None = None  # (15c), (15d) on w_l, on first need
+
+    def _lambda_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """The parts of (15c) (v·u rows, with +w̄ on the constant column) and of (15d) (v·u·p rows:
+        H_x D^j_l, column p of D = (A_p + B_p K) x^j_l + B_p v_l) in w_l, transposed for W @ ·."""
+        n, m, u, nv = self.n, self.m, self.H_x.shape[0], len(self.Xv)
+        p, width = self.Acl.shape[0], 2 * n + 3 + m
+        HA0, HB0 = self.H_x @ self.Acl0, self.H_x @ self.B0
+        C = np.zeros((nv, u, width))
+        C[..., :n] = HA0
+        C[..., n:2 * n] = -self.H_x
+        C[..., 2 * n] = self.Xv @ HA0.T                                      # H_x A_cl0 x^j
+        C[..., 2 * n + 1] = -1.0
+        C[..., 2 * n + 2:2 * n + 2 + m] = HB0
+        C[..., -1] = self.w_bar
+        HA = np.einsum("ua,pab->upb", self.H_x, self.Acl)                    # (u, p, n): H_x A_cl,p
+        D = np.zeros((nv, u, p, width))
+        D[..., :n] = HA
+        D[..., 2 * n] = np.einsum("upb,jb->jup", HA, self.Xv)
+        D[..., 2 * n + 2:2 * n + 2 + m] = np.einsum("ua,pab->upb", self.H_x, self.B)
+        return C.reshape(nv * u, width).T.copy(), D.reshape(nv * u * p, width).T.copy()
+
+    def _tube_rows(self, theta_vertices: np.ndarray) -> None:
+        """C (v·S·u, 2n + 2 + m) and its right side −w̄ for the rows (5b) at Θ_k's vertices."""
+        T = np.asarray(theta_vertices, float)
+        n, m, u, nv, S = self.n, self.m, self.H_x.shape[0], len(self.Xv), len(T)
+        HA = self.H_x @ (self.Acl0 + np.tensordot(T, self.Acl, axes=1))   # (S, u, n)
+        HB = self.H_x @ (self.B0 + np.tensordot(T, self.B, axes=1))        # (S, u, m)
+        C = np.empty((nv, S, u, 2 * n + 2 + m))
+        C[..., :n] = HA
+        C[..., n:2 * n] = -self.H_x
+        C[..., 2 * n] = np.einsum("sua,ja->jsu", HA, self.Xv)              # H_x A_cl(θ^s) x^j
+        C[..., 2 * n + 1] = -1.0
+        C[..., 2 * n + 2:] = HB
+        # the last row (on w's constant column 1) moves the right side −w̄ to the left: rows <= 0
+        self._Ct = np.vstack([C.reshape(-1, 2 * n + 2 + m).T, np.tile(self.w_bar, nv * S)[None, :]])
+
+    def check(self, sol, x: np.ndarray, theta_vertices: np.ndarray | None = None, h_theta=None,
+              H_theta: np.ndarray | None = None) -> list[AnswerCheck]:
+        """The checks of :func:`check_tube` for ``sol`` at x_k. With Λ (plain form): ``h_theta`` (q,)
+        or per stage (N, q) and ``H_theta`` (None: the data's); without Λ (vertex form): the vertices
+        of Θ_k (None: the (5b) check is "not run")."""
+        N, n, m = self.N, self.n, self.m
+        v, z, alpha = sol.v, sol.z, sol.alpha
+        shapes = ((N, m), (N + 1, n), (N + 1,))
+        y = None
+        if all(a is not None and np.shape(a) == shape for a, shape in zip((v, z, alpha), shapes)):
+            z, alpha, v = np.asarray(z, float), np.asarray(alpha, float), np.asarray(v, float)
+            y = np.concatenate([z.reshape(-1), alpha, v.reshape(-1)])
+        if y is None or not np.isfinite(y).all():
+            return [_finite_shape("tube v", sol.v, shapes[0]), _finite_shape("tube z", sol.z, shapes[1]),
+                    _finite_shape("tube alpha", sol.alpha, shapes[2])]
+        checks = [AnswerCheck(f"{name} finite, shape {shape}", 0.0, 0.0)
+                  for name, shape in zip(("tube v", "tube z", "tube alpha"), shapes)]
+        np.matmul(self.H_x, -np.asarray(x, float), out=self._b15b)
+        worst = np.maximum.reduceat(self.fixed @ y - self.b, self.starts).tolist()
+        checks += [AnswerCheck("tube alpha >= 0", max(0.0, worst[0]), TUBE_ROW_TOL),
+                   AnswerCheck("tube x_k in X_0|k (15b)", worst[1], TUBE_ROW_TOL),
+                   AnswerCheck("tube constraints (15a)", worst[2], TUBE_ROW_TOL),
+                   AnswerCheck("tube terminal set", worst[3], TUBE_ROW_TOL)]
+        w = self._w
+        w[:, :n], w[:, n:2 * n] = z[:N], z[1:]
+        w[:, 2 * n], w[:, 2 * n + 1] = alpha[:N], alpha[1:]
+        w[:, 2 * n + 2:-1] = v
+        if sol.Lambda is not None:
+            return checks + self._lambda_checks(np.asarray(sol.Lambda, float), h_theta, H_theta)
+        if theta_vertices is None or len(theta_vertices) == 0:
+            checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float("nan"), TUBE_ROW_TOL, ran=False))
+            return checks
+        if self._vertices is None or not same_bits(self._vertices, np.asarray(theta_vertices, float)):
+            self._tube_rows(theta_vertices)
+            self._vertices = np.array(theta_vertices, float)
+        checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float((w @ self._Ct).max()),
+                                  TUBE_ROW_TOL))
+        return checks
+
+    def _lambda_checks(self, Lam: np.ndarray, h_theta, H_theta) -> list[AnswerCheck]:
+        """Λ >= 0, (15c) and (15d) of the plain form, as in :func:`check_tube`."""
+        N, u, nv = self.N, self.H_x.shape[0], len(self.Xv)
+        H_th = np.asarray(self.data.H_theta if H_theta is None else H_theta, float)
+        q = H_th.shape[0]
+        if Lam.shape != (N, nv, u, q) or not np.isfinite(Lam).all():
+            return [AnswerCheck(f"tube Lambda finite, shape {(N, nv, u, q)}", float("inf"), 0.0)]
+        if self._plain_rows is None:
+            self._plain_rows = self._lambda_rows()
+        C15c, C15d = self._plain_rows
+        h_st = np.broadcast_to(np.asarray(h_theta, float), (N, q))
+        lam_h = (Lam.reshape(N, nv * u, q) @ h_st[:, :, None])[..., 0]      # (N, v·u): Λ^j_l h_θ(l)
+        w = self._w
+        hd = (w @ C15d).reshape(N, nv, u, -1)                                # H_x D^j_l
+        return [AnswerCheck("tube Lambda >= 0", max(0.0, -float(Lam.min())), TUBE_ROW_TOL),
+                AnswerCheck("tube (15c)", float((w @ C15c + lam_h).max()), TUBE_ROW_TOL),
+                AnswerCheck("tube (15d)", float(np.abs(hd - Lam @ H_th).max()), TUBE_ROW_TOL)]

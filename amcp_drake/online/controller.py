@@ -14,6 +14,7 @@ import numpy as np
 
 from amcp_drake.backends import TubeMPCData, get_backend
 from amcp_drake.model import polytope
+from amcp_drake.model.arrays import same_bits
 from amcp_drake.model.errors import InconsistentDataError, ProblemError
 from amcp_drake.model.options import OnlineOptions
 from amcp_drake.model.problem import Problem
@@ -90,6 +91,7 @@ class AdaptiveMPC:
         self.backend = get_backend(backend, **backend_options)
         self._backend_spec = (backend, dict(backend_options))
         self._other_mpc = None  # the other formulation of (20), built on first need (answer checks)
+        self._tube_check: answer_checks.TubeCheck | None = None  # check_tube preassembled, on first need
         self.data = TubeMPCData(
             A0=problem.A0, B0=problem.B0, A=problem.A, B=problem.B, F=problem.F, G=problem.G, Q=problem.Q,
             R=problem.R, N=problem.N, K=design.K, P=design.P, H_x=design.H_x, X0_vertices=design.X0_vertices,
@@ -127,18 +129,33 @@ class AdaptiveMPC:
         #: (H, h, vertices) of the last Θ_k whose vertices the tube check enumerated (issue 16: reused
         #: while Θ_k is unchanged to the bit, which is most steps once Θ_k has settled)
         self._checked_vertices: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
+        self._regression_cache: tuple | None = None
 
     # -- (ii) set-membership update ------------------------------------------------------------
     def _delta(self, x_prev, u_prev, x) -> tuple[np.ndarray, np.ndarray]:
         """Δ_k of (6): {θ | −H_w D_{k−1} θ <= 1 + H_w d_k}, d_k = A0 x_{k−1} + B0 u_{k−1} − x_k, rows
         scaled to unit norm (see DELTA_ROW_MIN_NORM)."""
         pr = self.problem
+        D, d = self._regression(x_prev, u_prev, x)
+        H, h = -pr.H_w @ D, 1.0 + pr.H_w @ d
+        norms = np.sqrt((H * H).sum(axis=1))
+        keep = norms >= DELTA_ROW_MIN_NORM
+        if not keep.all():
+            H, h, norms = H[keep], h[keep], norms[keep]
+        return H / norms[:, None], h / norms + DELTA_MARGIN
+
+    def _regression(self, x_prev, u_prev, x) -> tuple[np.ndarray, np.ndarray]:
+        """(D_{k−1}, d_k) of (6): D(x_{k−1}, u_{k−1}) (n, p) and d_k = A0 x_{k−1} + B0 u_{k−1} − x_k,
+        computed once per step for Δ_k and the LMS (12) (``step`` clears the cache; the arguments
+        are compared by identity, they are the step's own arrays)."""
+        cached = self._regression_cache
+        if cached is not None and cached[0] is x_prev and cached[1] is u_prev and cached[2] is x:
+            return cached[3], cached[4]
+        pr = self.problem
         D = pr.regressor(x_prev, u_prev)
         d = pr.A0 @ x_prev + pr.B0 @ u_prev - x
-        H, h = -pr.H_w @ D, 1.0 + pr.H_w @ d
-        norms = np.linalg.norm(H, axis=1)
-        keep = norms >= DELTA_ROW_MIN_NORM
-        return H[keep] / norms[keep, None], h[keep] / norms[keep] + DELTA_MARGIN
+        self._regression_cache = (x_prev, u_prev, x, D, d)
+        return D, d
 
     def _box_of_theta0(self) -> np.ndarray:
         """max |θ_j| over Θ0 = {H_θ θ <= h_θ0} (2p HiGHS LPs; +inf in a direction where Θ0 is unbounded)."""
@@ -264,9 +281,10 @@ class AdaptiveMPC:
         way), else by θ̂_{k−1} if it is in S, else by the Chebyshev centre of S if it is in S. True
         when θ̂_k is set."""
         pr = self.problem
-        D = pr.regressor(x_prev, u_prev)
-        x_pred = pr.A_of(self.theta_hat) @ x_prev + pr.B_of(self.theta_hat) @ u_prev
-        theta_tilde = self.theta_hat + self.design.mu * D.T @ (x - x_pred)
+        D, d = self._regression(x_prev, u_prev, x)
+        # x_k − x̂_k with x̂_k = A(θ̂)x_{k−1} + B(θ̂)u_{k−1} = A0 x_{k−1} + B0 u_{k−1} + D θ̂ by (2): −(d_k + D θ̂)
+        error = -(d + D @ self.theta_hat)
+        theta_tilde = self.theta_hat + self.design.mu * D.T @ error
         record.theta_tilde = theta_tilde
         if self.options.projection == "Theta":
             H, h, target = pr.H_theta, pr.h_theta, "Θ"
@@ -372,19 +390,22 @@ class AdaptiveMPC:
 
     # -- (iii) answer checks of (20) and the other formulation as fallback --------------------------
     def _tube_checks(self, sol, x, h_arg, H_arg) -> list:
-        """answer_checks.check_tube with Θ_k's vertices (Qhull) when the answer has no Λ (vertex form)."""
+        """answer_checks.check_tube (preassembled: answer_checks.TubeCheck) with Θ_k's vertices (Qhull)
+        when the answer has no Λ (vertex form)."""
         vertices = None
         if sol.Lambda is None and sol.v is not None:
             H = np.asarray(self.design.H_theta if H_arg is None else H_arg, float)
             h = np.asarray(h_arg, float)
             h = h if h.ndim == 1 else h[0]
             last = self._checked_vertices
-            if last is not None and np.array_equal(last[1], h) and np.array_equal(last[0], H):
+            if last is not None and same_bits(last[1], h) and same_bits(last[0], H):
                 vertices = last[2]
             else:
                 vertices = self._theta_k_vertices(H, h)
                 self._checked_vertices = (H.copy(), h.copy(), vertices)
-        return answer_checks.check_tube(sol, self.data, x, h_arg, H_arg, vertices)
+        if self._tube_check is None or self._tube_check.data is not self.data:
+            self._tube_check = answer_checks.TubeCheck(self.data)
+        return self._tube_check.check(sol, x, vertices, h_arg, H_arg)
 
     #: An interior point for Qhull must be this far inside every unit row of Θ_k (θ units); closer,
     #: the Chebyshev centre is computed by an LP instead.
@@ -458,6 +479,7 @@ class AdaptiveMPC:
         x = np.asarray(x, float)
         if x.shape != (self.problem.n,) or not np.all(np.isfinite(x)):
             raise ProblemError("x", f"a finite state vector of length {self.problem.n}", f"{x!r}")
+        self._regression_cache = None
         record = StepRecord(k=self.k, x=x, u=None, status=SolveStatus.NOT_RUN, H_theta=self.H_theta,
                             h_theta=self.h_theta, theta_hat=self.theta_hat)
         if self._prev is not None and self.options.update != "none":

@@ -12,6 +12,7 @@ Conventions (design.md):
 
 from __future__ import annotations
 
+import time
 from collections import OrderedDict
 from collections.abc import Callable
 from typing import Any
@@ -22,10 +23,13 @@ from amcp_drake.backends.base import ProjectionResult, SetUpdateResult, TubeMPCD
 from amcp_drake.backends.projection_form import projection_form
 from amcp_drake.model.status import SolveStatus
 
+from .set_update_dual import DualBasesSetUpdate
 from .solver_call import STATUS_MAP, SolverCall, all_finite, map_status  # noqa: F401 - re-exported
 
 #: Formulations of the tube MPC QP (20): "plain" = (15a)-(15d) with Λ, "vertex" = (5b) at Θ_k's vertices.
 FORMULATIONS = ("plain", "vertex")
+#: Methods of the update (9): "auto" = exact by dual bases where that applies, else the LP; "lp" = the LP.
+SET_UPDATE_METHODS = ("auto", "lp")
 
 #: Clarabel tolerances of the projection QP (see CvxpyBackend.__init__). 1e-10 as Drake's: in the
 #: scaled form (backends.projection_form) the answer is as accurate as at 1e-11 (measured on collapsed
@@ -66,18 +70,26 @@ class CvxpyBackend:
     formulation: tube MPC QP (20) with the multipliers Λ of (15c)-(15d) ("plain", the reference
         and default) or with (5b) at the vertices of Θ_k ("vertex", same optimum, no Λ:
         ``MPCSolution.Lambda`` is None; see :mod:`amcp_reference.tube_vertex`).
+    set_update_method: "auto" (default): the update (9) exactly by dual bases with numpy, the last
+        answer's maximisers reused when they still certify it (:mod:`amcp_reference.set_update_dual`,
+        issue 16), the cvxpy LP where neither applies;
+        "lp": always the cvxpy LP.
     """
 
     name = "cvxpy"
 
     def __init__(self, solver: str = "CLARABEL", solver_options: dict | None = None,
-                 formulation: str = "plain") -> None:
+                 formulation: str = "plain", set_update_method: str = "auto") -> None:
         from .offline import SupportLP
         from .online import ProjectionQP, SetUpdateLP
 
         if formulation not in FORMULATIONS:
             raise ValueError(f"formulation {formulation!r} unknown to the cvxpy backend; choose one of {FORMULATIONS}")
+        if set_update_method not in SET_UPDATE_METHODS:
+            raise ValueError(f"set_update_method {set_update_method!r} unknown to the cvxpy backend; "
+                             f"choose one of {SET_UPDATE_METHODS}")
         self.formulation = formulation
+        self.set_update_method = set_update_method
         self._call = SolverCall(solver, solver_options)
         # the LP (9) has its own call object (same solver and options) so that profilers can tell
         # its solver time from the tube QP's (amcp_drake.studies.bench_cpu)
@@ -91,6 +103,7 @@ class CvxpyBackend:
         self.solver_name = self._call.name
         self._support = ProblemCache(SupportLP)
         self._set_update = ProblemCache(SetUpdateLP)
+        self._dual_update = DualBasesSetUpdate()
         self._project = ProblemCache(ProjectionQP)
 
     # -- offline -----------------------------------------------------------------------------
@@ -113,7 +126,10 @@ class CvxpyBackend:
 
     # -- online ------------------------------------------------------------------------------
     def set_update(self, H_theta, h_prev, H_data, h_data):
-        """LP (9) in per-row primal form; see :class:`amcp_reference.online.SetUpdateLP`."""
+        """The update (9). ``set_update_method="auto"`` (default): exact by dual bases
+        (:mod:`amcp_reference.set_update_dual`, numpy, certified row by row), the LP where that
+        does not apply; ``"lp"``: always the LP in per-row primal form
+        (:class:`amcp_reference.online.SetUpdateLP`)."""
         H_theta = np.atleast_2d(np.asarray(H_theta, float))
         H_data = np.atleast_2d(np.asarray(H_data, float))
         h_prev = np.asarray(h_prev, float).reshape(-1)
@@ -122,6 +138,12 @@ class CvxpyBackend:
         if (not all_finite(H_theta, H_data, h_prev, h_data) or h_prev.shape != (q,)
                 or H_data.shape != (len(h_data), p)):
             return SetUpdateResult(SolveStatus.ERROR, None, None)
+        if self.set_update_method == "auto":
+            start = time.perf_counter()
+            answer = self._dual_update.solve(H_theta, h_prev, H_data, h_data)
+            if answer is not None:
+                return SetUpdateResult(SolveStatus.OPTIMAL, answer[0], answer[1], time.perf_counter() - start,
+                                       points=answer[2], method="dual bases, reused" if answer[3] else "dual bases")
         return self._set_update.get((q, len(h_data), p)).solve(self._call_lp, H_theta, h_prev, H_data, h_data)
 
     def project(self, point, H, h):
