@@ -68,6 +68,25 @@ class WrongTube:
         return self.wrong(sol)
 
 
+class UnrefinedTube:
+    """A plain-form tube QP whose first try (``refine=False``) is changed by ``wrong(sol)``; with
+    ``refine=True`` it answers as the real solver (``wrong_refined`` changes that answer too)."""
+
+    REFINES = True
+
+    def __init__(self, real, wrong, wrong_refined=None):
+        self._real, self.wrong, self.wrong_refined, self.refined = real, wrong, wrong_refined, 0
+
+    def solve(self, *args, refine=False, **kwargs):
+        sol = self._real.solve(*args, refine=refine, **kwargs)
+        if sol.status is not SolveStatus.OPTIMAL:
+            return sol
+        if refine:
+            self.refined += 1
+            return self.wrong_refined(sol) if self.wrong_refined else sol
+        return self.wrong(sol)
+
+
 # -- fixtures: Example 1 (every step updates Θ_k) and campaign problem 0-19 (θ̃_1 outside Θ_1) ---------------
 @pytest.fixture(scope="module")
 def case_0_19():
@@ -252,6 +271,34 @@ def test_wrong_tube_answer_is_replaced_by_the_other_formulation(example_spec, ex
     assert np.max(np.abs(r.v - fresh.v)) <= 1e-6
     assert np.allclose(r.u, example_design.K @ r.x + fresh.v[0], atol=1e-6)
     assert traj.stop_reason == "completed"
+
+
+@pytest.mark.parametrize("backend", ["drake", "cvxpy"])
+def test_a_first_try_that_fails_the_checks_is_solved_again_with_iterative_refinement(example_spec, example_design,
+                                                                                     backend):
+    """The plain form's first try runs without iterative refinement (speed); an answer of it that
+    fails a check is solved again with refinement and, when that answer passes, applied as the
+    step's optimal answer with both noted (thorough profile: a first try 1.3e-6 outside (15c))."""
+    ctrl = _controller(example_spec, example_design, backend, options=None, formulation="plain")
+    ctrl.mpc = UnrefinedTube(ctrl.mpc, _negate_lambda)
+    traj = _run(ctrl, example_spec, 2)
+    assert ctrl.mpc.refined >= 2
+    r = traj.records[0]
+    assert r.status is SolveStatus.OPTIMAL
+    assert "first try without iterative refinement" in r.detail and "re-solved with iterative refinement (checked)" in r.detail
+    fresh = get_backend(backend, formulation="plain").tube_mpc(ctrl.data).solve(r.x, r.h_theta, r.theta_hat)
+    assert np.max(np.abs(r.v - fresh.v)) <= 1e-6
+    assert traj.stop_reason == "completed"
+
+
+def test_a_refined_answer_that_fails_too_falls_back_to_the_other_formulation(example_spec, example_design):
+    ctrl = _controller(example_spec, example_design, "drake", options=None, formulation="plain")
+    ctrl.mpc = UnrefinedTube(ctrl.mpc, _negate_lambda, wrong_refined=_negate_lambda)
+    traj = _run(ctrl, example_spec, 2)
+    r = traj.records[0]
+    assert r.status is SolveStatus.INACCURATE
+    assert "fallback: vertex form of (20) (checked)" in r.detail
+    assert "re-solved with iterative refinement" not in r.detail
 
 
 def test_wrong_tube_answer_without_another_formulation_is_not_solved(example_spec, example_design):

@@ -349,3 +349,21 @@ def test_a_wrong_optimal_under_a_pe_bound_is_dropped_and_the_loop_goes_on():
     assert [r.status for r in traj.records] == [SolveStatus.OPTIMAL] * len(traj.records)
     assert "candidate dropped" in traj.records[4].detail
     assert traj.records[4].pe_status.startswith("enforced")
+
+
+def test_a_first_try_outside_15c_is_solved_again_with_refinement_and_the_run_completes():
+    """Found by the thorough profile (PE, x_0 on the boundary of the feasible set): the first try of
+    the plain QP at step 0 (iterative refinement off, for speed) was 1.29e-6 outside (15c); the
+    step used to be "not solved" (PE allows only the plain form). Now it is solved again with
+    refinement, checked, and every step of the run is optimal."""
+    from pathlib import Path
+
+    from amcp_drake.model.problem_io import load_spec
+    from amcp_drake.model.status import SolveStatus
+    from amcp_drake.online.replay import run_scenario
+
+    spec = load_spec(Path(__file__).parent / "data" / "unrefined-first-try-problem.json")
+    traj = run_scenario(spec, "drake", steps=5)
+    assert "re-solved with iterative refinement (checked)" in traj.records[0].detail
+    assert [r.status for r in traj.records] == [SolveStatus.OPTIMAL] * len(traj.records)
+    assert traj.stop_reason == "completed"

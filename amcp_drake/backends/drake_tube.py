@@ -227,9 +227,10 @@ class DrakeTubeMPC:
         return self._A15c
 
     # -- solve ---------------------------------------------------------------------------------
-    def _solve(self):
+    def _solve(self, refine: bool = False):
         """(result, status, solver time, retry note): Clarabel with the retry ladder of
-        :mod:`.clarabel_retry`, any other solver once."""
+        :mod:`.clarabel_retry`, any other solver once; ``refine``: Clarabel's iterative refinement
+        from the first solve (the backend's own options, no :data:`NO_REFINEMENT` try)."""
         def once(extra_options):
             result, elapsed = self._solver.solve(self.prog, extra_options)
             return result, self._solver.status(result), elapsed
@@ -238,14 +239,20 @@ class DrakeTubeMPC:
             return (*once(None), "")
         # certainty-equivalence cost: no iterative refinement first (NO_REFINEMENT); the min-max
         # cone program (19) keeps Clarabel's defaults (its stalls are what the ladder is for)
-        first = None if self._minmax else {k: v for k, v in NO_REFINEMENT.items() if k not in self._solver.option_values}
+        first = None if (self._minmax or refine) else {k: v for k, v in NO_REFINEMENT.items()
+                                                       if k not in self._solver.option_values}
         return solve_with_retries(once, first)
 
-    def solve(self, x, h_theta, theta_hat, H_theta=None, u0_bounds=None) -> MPCSolution:
+    #: ``solve(..., refine=True)`` is supported (the controller's first fallback for an answer that
+    #: fails its checks, amcp_drake.online.controller).
+    REFINES = True
+
+    def solve(self, x, h_theta, theta_hat, H_theta=None, u0_bounds=None, refine: bool = False) -> MPCSolution:
         """Solve (20) at x_k with Θ_k = {H_θ θ <= h_theta} and point estimate θ̂_k.
 
         ``u0_bounds`` = (lo, hi) adds lo <= K x_k + v_{0|k} <= hi (±inf allowed), the PE
-        constraint of spec §8. ``h_theta`` may be (N, q): per-stage offsets of the predicted sets (26) (Section 4.1),
+        constraint of spec §8. ``refine``: Clarabel with iterative refinement from the start (the
+        first try is otherwise without it, :data:`.clarabel_retry.NO_REFINEMENT`). ``h_theta`` may be (N, q): per-stage offsets of the predicted sets (26) (Section 4.1),
         stage l of (15c)/(28b) then uses row l."""
         start = time.perf_counter()
         x = np.asarray(x, float)
@@ -273,7 +280,7 @@ class DrakeTubeMPC:
             Hv, g, const = self._cost_model.matrices(x, theta_hat)
             self._cost.UpdateCoefficients(2.0 * Hv, 2.0 * g, const, is_convex=True)
         update_time = time.perf_counter() - start
-        result, status, solver_time, detail = self._solve()
+        result, status, solver_time, detail = self._solve(refine)
         if status is not SolveStatus.OPTIMAL:
             names = infeasible_constraint_names(result, self.prog)
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names,

@@ -66,8 +66,8 @@ def _qp_inputs(edit: Callable[[AdaptiveMPC, np.ndarray, np.ndarray, np.ndarray],
     def change(ctrl: AdaptiveMPC) -> None:
         solve = ctrl.mpc.solve
 
-        def mutated(x, h_theta, theta_hat, H_theta=None):
-            return solve(*edit(ctrl, x, h_theta, theta_hat), H_theta)
+        def mutated(x, h_theta, theta_hat, H_theta=None, **kwargs):  # kwargs: u0_bounds, refine
+            return solve(*edit(ctrl, x, h_theta, theta_hat), H_theta, **kwargs)
 
         ctrl.mpc.solve = mutated
 

@@ -225,8 +225,13 @@ class CvxpyTubeMPC:
             form.params["A_cl_hat"].value = A_hat + B_hat @ d.K
             form.params["B_hat"].value = B_hat
 
-    def solve(self, x, h_theta, theta_hat, H_theta=None, u0_bounds=None) -> MPCSolution:
+    #: ``solve(..., refine=True)`` is supported (the controller's first fallback for an answer that
+    #: fails its checks, amcp_drake.online.controller).
+    REFINES = True
+
+    def solve(self, x, h_theta, theta_hat, H_theta=None, u0_bounds=None, refine: bool = False) -> MPCSolution:
         """Solve (20) at x_k with Θ_k = {H_θ θ <= h_theta} and the point estimate θ̂_k.
+        ``refine``: Clarabel with iterative refinement from the start (as in the Drake backend).
 
         ``h_theta`` may be (N, q): per-stage offsets of the predicted sets (26) (Section 4.1).
         ``u0_bounds`` = (lo, hi) adds lo <= K x_k + v_{0|k} <= hi (PE, spec §8); finite bounds
@@ -272,7 +277,7 @@ class CvxpyTubeMPC:
             form.params["u0_hi"].value = np.where(np.isfinite(hi), hi, U0_INF)
         self._set_parameters(form, x, h_theta, theta_hat)
         update_time = time.perf_counter() - start
-        status, solver_time, detail = self._solve(form.problem)
+        status, solver_time, detail = self._solve(form.problem, refine)
         if status is not SolveStatus.OPTIMAL:
             names = self._diagnose(x, h_theta, theta_hat) if status is SolveStatus.INFEASIBLE else ()
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names, detail=detail)
@@ -288,9 +293,10 @@ class CvxpyTubeMPC:
             cost = nominal_cost(self.data, x, theta_hat, v)
         return MPCSolution(status, v, z, alpha, Lam, cost, solver_time, update_time, detail=detail)
 
-    def _solve(self, problem: cp.Problem) -> tuple[SolveStatus, float, str]:
+    def _solve(self, problem: cp.Problem, refine: bool = False) -> tuple[SolveStatus, float, str]:
         """(status, solver time, detail): Clarabel with the retry ladder of
-        :mod:`amcp_drake.backends.clarabel_retry`, any other solver once."""
+        :mod:`amcp_drake.backends.clarabel_retry`, any other solver once; ``refine``: iterative
+        refinement from the first solve."""
         def once(extra_options):
             status, elapsed, detail = self._call.solve(problem, extra_options)
             return detail, status, elapsed
@@ -299,7 +305,7 @@ class CvxpyTubeMPC:
             return self._call.solve(problem)
         # certainty-equivalence cost: no iterative refinement first, as in the Drake backend
         minmax = getattr(self.data, "cost", "certainty_equivalence") == "minmax"
-        first = None if minmax else {k: v for k, v in NO_REFINEMENT.items() if k not in self._call.options}
+        first = None if (minmax or refine) else {k: v for k, v in NO_REFINEMENT.items() if k not in self._call.options}
         detail, status, elapsed, note = solve_with_retries(once, first)
         return status, elapsed, f"{detail} ({note})" if note else detail
 
