@@ -382,7 +382,8 @@ def test_preassembled_tube_check_equals_check_tube(example_spec, example_design,
             if sol.Lambda is not None:
                 wrong = dataclasses.replace(wrong, Lambda=sol.Lambda + scale * rng.standard_normal(sol.Lambda.shape))
             x = x0 + scale * rng.standard_normal(2)
-            for verts in ((vertices, None) if sol.Lambda is None else (None,)):
+            # the plain form is checked at Θ_k's vertices too when Θ_k is one set for every stage
+            for verts in ((vertices, None) if sol.Lambda is None or np.ndim(h) == 1 else (None,)):
                 ref = answer_checks.check_tube(wrong, data, x, h, None, verts)
                 got = fast.check(wrong, x, verts, h)
                 assert [(c.name, c.ran, c.passed) for c in got] == [(c.name, c.ran, c.passed) for c in ref]
@@ -396,3 +397,21 @@ def test_preassembled_tube_check_equals_check_tube(example_spec, example_design,
         ref, got = answer_checks.check_tube(b, data, x0, h, None, vertices), fast.check(b, x0, vertices, h)
         assert [(c.name, c.ran, c.passed) for c in got] == [(c.name, c.ran, c.passed) for c in ref]
         np.testing.assert_allclose([c.value for c in got], [c.value for c in ref], rtol=1e-9, atol=1e-12)
+
+
+def test_a_plain_answer_outside_5b_at_the_vertices_is_solved_again_with_refinement():
+    """Found by the thorough profile (Proposition 9, x_0 on the boundary of the feasible set): the
+    plain form's first try met (15c) and (15d) to 1e-6 each, yet its tube left (5b) at a vertex of
+    Θ_k by 1.25e-6; the plain answer is now checked at Θ_k's vertices too, solved again with
+    iterative refinement, and the recorded tube satisfies Proposition 9."""
+    pytest.importorskip("amcp_properties")
+    from amcp_drake.model.problem_io import load_spec
+    from amcp_drake.online.replay import run_scenario
+    from amcp_properties import claims
+
+    spec = load_spec(DATA / "plain-5b-first-try-problem.json")
+    traj = run_scenario(spec, "drake", steps=3)
+    assert "tube (5b) at the vertices of Θ_k" in traj.records[0].detail
+    assert "re-solved with iterative refinement (checked)" in traj.records[0].detail
+    assert all(r.status is SolveStatus.OPTIMAL for r in traj.records)
+    assert claims.prediction_tube(traj).passed

@@ -185,7 +185,9 @@ def check_tube(sol, data, x: np.ndarray, h_theta: np.ndarray, H_theta: np.ndarra
 
     ``data``: the controller's TubeMPCData; ``h_theta``: (q,) or per-stage (N, q) offsets (26);
     ``H_theta``: Θ_k's rows when they differ from ``data.H_theta`` (exact update (7));
-    ``theta_vertices``: vertices of Θ_k, used for (5b) when ``sol.Lambda`` is None (vertex form).
+    ``theta_vertices``: vertices of Θ_k for (5b) at the vertices: the vertex form's check of (5b),
+    and in the plain form a check beside (15c)-(15d) (which, each met to TUBE_ROW_TOL, bound (5b)
+    only to about TUBE_ROW_TOL·(1 + ‖θ‖)).
     Rows (vertex form of (15a)/(15b)): x^j_l = z_l + α_l x^j, u^j_l = K x^j_l + v_l,
     (15a) F x^j_l + G u^j_l <= 1; (15b) H_x (x_k − z_0) <= α_0; (15c) Λ^j_l h_θ(l) + H_x d^j_l
     − α_{l+1} <= −w̄; (15d) H_x D^j_l = Λ^j_l H_θ, Λ >= 0; terminal H_T z_N + h_T α_N <= 1; α >= 0.
@@ -224,7 +226,9 @@ def check_tube(sol, data, x: np.ndarray, h_theta: np.ndarray, H_theta: np.ndarra
         lam_h = np.einsum("lvuq,lq->lvu", Lam, h_st)
         checks.append(AnswerCheck("tube (15c)", float(np.max(lam_h + lhs_fixed - rhs)), TUBE_ROW_TOL))
         checks.append(AnswerCheck("tube (15d)", float(np.max(np.abs(HD - Lam @ H_th))), TUBE_ROW_TOL))
-    elif theta_vertices is not None:
+        if theta_vertices is None:  # per-stage sets (26) or no vertices: (15c)-(15d) are the checks
+            return checks
+    if theta_vertices is not None:
         worst = np.einsum("lvup,tp->lvut", HD, np.asarray(theta_vertices, float)).max(axis=3)
         checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float(np.max(worst + lhs_fixed - rhs)),
                                   TUBE_ROW_TOL))
@@ -353,8 +357,12 @@ class TubeCheck:
         w[:, 2 * n], w[:, 2 * n + 1] = alpha[:N], alpha[1:]
         w[:, 2 * n + 2:-1] = v
         if sol.Lambda is not None:
-            return checks + self._lambda_checks(np.asarray(sol.Lambda, float), h_theta, H_theta)
-        if theta_vertices is None or len(theta_vertices) == 0:
+            lambda_checks = self._lambda_checks(np.asarray(sol.Lambda, float), h_theta, H_theta)
+            checks += lambda_checks
+            if (theta_vertices is None or len(theta_vertices) == 0  # per-stage sets (26): (15c)-(15d) only
+                    or lambda_checks[0].value == float("inf")):     # Λ not finite or of the wrong shape
+                return checks
+        elif theta_vertices is None or len(theta_vertices) == 0:
             checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float("nan"), TUBE_ROW_TOL, ran=False))
             return checks
         if self._vertices is None or not same_bits(self._vertices, np.asarray(theta_vertices, float)):

@@ -391,9 +391,11 @@ class AdaptiveMPC:
     # -- (iii) answer checks of (20) and the other formulation as fallback --------------------------
     def _tube_checks(self, sol, x, h_arg, H_arg) -> list:
         """answer_checks.check_tube (preassembled: answer_checks.TubeCheck) with Θ_k's vertices (Qhull)
-        when the answer has no Λ (vertex form)."""
+        for the (5b) check: always in the vertex form; in the plain form too when Θ_k is one set for
+        every stage (d_θ = 0), since (15c) and (15d) each met to 1e-6 bound (5b) only to about
+        1e-6·(1 + ‖θ‖) (thorough profile: a plain answer 1.25e-6 outside (5b) passed them)."""
         vertices = None
-        if sol.Lambda is None and sol.v is not None:
+        if sol.v is not None and (sol.Lambda is None or np.ndim(h_arg) == 1):
             H = np.asarray(self.design.H_theta if H_arg is None else H_arg, float)
             h = np.asarray(h_arg, float)
             h = h if h.ndim == 1 else h[0]
