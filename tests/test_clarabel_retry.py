@@ -94,3 +94,19 @@ def test_cvxpy_retries_in_order_and_never_promotes(monkeypatch, cvxpy_mpc):
     sol = cvxpy_mpc.solve(*_args(cvxpy_mpc))
     assert len(calls) == 2 + len(CLARABEL_RETRY_LADDER)
     assert sol.status is SolveStatus.INACCURATE and sol.v is None and "Clarabel retries" in sol.detail
+
+
+def test_a_minmax_step_that_stalled_under_every_earlier_rung_is_solved():
+    """Found by the thorough profile (min-max cost (19), n = 3, N = 3, x_0 on the boundary): step 1
+    ended AlmostSolved in Drake after the five earlier rungs; the two rungs added for it solve it
+    (a clean "Solved", checked by the controller's answer checks like any answer)."""
+    from pathlib import Path
+
+    from amcp_drake.model.problem_io import load_spec
+    from amcp_drake.online.replay import run_scenario
+
+    spec = load_spec(Path(__file__).parent / "data" / "minmax-stall-problem.json")
+    assert spec.online.cost == "minmax"
+    traj = run_scenario(spec, "drake", steps=2)
+    assert [r.status for r in traj.records] == [SolveStatus.OPTIMAL] * len(traj.records)
+    assert traj.stop_reason == "completed"
