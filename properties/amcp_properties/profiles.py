@@ -12,8 +12,8 @@
   something fails; the unshrunk failing example is still saved and replayable.
 * ``thorough``: random seeds (new examples on every run), about 4x the ci examples per property
   and twice the steps, shrinking, and Hypothesis' example database in its default directory
-  (``.hypothesis/examples``), which replays earlier failures first. Sized to finish in about an
-  hour on a 2-core machine (the measured time is in the README): every example of a closed-loop
+  (``.hypothesis/examples``), which replays earlier failures first. Sized to finish within an
+  hour on a 2-core machine (measured: 31 min for both backends, README): every example of a closed-loop
   property is a fresh offline design plus a run (about 0.6 s), so the earlier sizes (2000 examples
   of 50 steps per property) would have taken about 9 hours and were never run to completion. For
   a longer search, run it repeatedly: the seeds are random and the database keeps what failed.
