@@ -332,8 +332,8 @@ class TubeCheck:
     def check(self, sol, x: np.ndarray, theta_vertices: np.ndarray | None = None, h_theta=None,
               H_theta: np.ndarray | None = None) -> list[AnswerCheck]:
         """The checks of :func:`check_tube` for ``sol`` at x_k. With Λ (plain form): ``h_theta`` (q,)
-        or per stage (N, q) and ``H_theta`` (None: the data's); without Λ (vertex form): the vertices
-        of Θ_k (None: the (5b) check is "not run")."""
+        or per stage (N, q) and ``H_theta`` (None: the data's), and (5b) at ``theta_vertices`` when
+        they are given; without Λ (vertex form): (5b) at the vertices of Θ_k (None: "not run")."""
         N, n, m = self.N, self.n, self.m
         v, z, alpha = sol.v, sol.z, sol.alpha
         shapes = ((N, m), (N + 1, n), (N + 1,))
@@ -357,10 +357,12 @@ class TubeCheck:
         w[:, 2 * n], w[:, 2 * n + 1] = alpha[:N], alpha[1:]
         w[:, 2 * n + 2:-1] = v
         if sol.Lambda is not None:
-            lambda_checks = self._lambda_checks(np.asarray(sol.Lambda, float), h_theta, H_theta)
-            checks += lambda_checks
-            if (theta_vertices is None or len(theta_vertices) == 0  # per-stage sets (26): (15c)-(15d) only
-                    or lambda_checks[0].value == float("inf")):     # Λ not finite or of the wrong shape
+            Lam = np.asarray(sol.Lambda, float)
+            malformed = self._malformed_lambda(Lam, H_theta)
+            if malformed is not None:  # as check_tube: nothing else is checked on such an answer
+                return checks + [malformed]
+            checks += self._lambda_checks(Lam, h_theta, H_theta)
+            if theta_vertices is None or len(theta_vertices) == 0:  # per-stage sets (26): (15c)-(15d) only
                 return checks
         elif theta_vertices is None or len(theta_vertices) == 0:
             checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float("nan"), TUBE_ROW_TOL, ran=False))
@@ -372,13 +374,19 @@ class TubeCheck:
                                   TUBE_ROW_TOL))
         return checks
 
+    def _malformed_lambda(self, Lam: np.ndarray, H_theta) -> AnswerCheck | None:
+        """The failed check of a Λ that is not finite or not of shape (N, v, u, q), else None."""
+        q = np.shape(self.data.H_theta if H_theta is None else H_theta)[0]
+        shape = (self.N, len(self.Xv), self.H_x.shape[0], q)
+        if Lam.shape != shape or not np.isfinite(Lam).all():
+            return AnswerCheck(f"tube Lambda finite, shape {shape}", float("inf"), 0.0)
+        return None
+
     def _lambda_checks(self, Lam: np.ndarray, h_theta, H_theta) -> list[AnswerCheck]:
-        """Λ >= 0, (15c) and (15d) of the plain form, as in :func:`check_tube`."""
+        """Λ >= 0, (15c) and (15d) of the plain form, as in :func:`check_tube` (Λ well formed)."""
         N, u, nv = self.N, self.H_x.shape[0], len(self.Xv)
         H_th = np.asarray(self.data.H_theta if H_theta is None else H_theta, float)
         q = H_th.shape[0]
-        if Lam.shape != (N, nv, u, q) or not np.isfinite(Lam).all():
-            return [AnswerCheck(f"tube Lambda finite, shape {(N, nv, u, q)}", float("inf"), 0.0)]
         if self._plain_rows is None:
             self._plain_rows = self._lambda_rows()
         C15c, C15d = self._plain_rows

@@ -336,9 +336,11 @@ class AdaptiveMPC:
 
     # -- (iii) the QP (20), with the PE two-QP procedure of spec §8 when enabled -----------------
     def _solve_qp(self, x, h_arg, H_arg, record: StepRecord):
+        """(answer, checked): the QP (20), or spec §8's PE procedure; ``checked`` is True when the
+        answer already passed the answer checks (a PE candidate is checked before it competes)."""
         opts = self.options
         if opts.pe_window is None:
-            return self.mpc.solve(x, h_arg, self.theta_hat, H_arg)
+            return self.mpc.solve(x, h_arg, self.theta_hat, H_arg), False
         from amcp_drake.online.excitation import RETRY_LEVEL_FACTORS, pe_bounds, pe_quadratic, pe_quadratic_at
 
         u_hist = np.array(self._u_hist)
@@ -346,7 +348,7 @@ class AdaptiveMPC:
         bounds = pe_bounds(quad)
         if bounds is None:
             record.pe_status = "inactive" if quad is None else "satisfied"
-            return self.mpc.solve(x, h_arg, self.theta_hat, H_arg)
+            return self.mpc.solve(x, h_arg, self.theta_hat, H_arg), False
         spent = 0.0
         level = quad.level
         # the rung's level, then reduced levels (RETRY_LEVEL_FACTORS) when no input reaches it
@@ -357,7 +359,7 @@ class AdaptiveMPC:
                 if bounds is None:  # the reduced level holds for every input
                     record.times["pe_solver"] = spent
                     record.pe_status, record.pe_dim, record.pe_level = "satisfied", int(quad.dim), float(quad.level)
-                    return self.mpc.solve(x, h_arg, self.theta_hat, H_arg)
+                    return self.mpc.solve(x, h_arg, self.theta_hat, H_arg), False
             best, best_b = None, None
             for b in bounds:
                 sol = self.mpc.solve(x, h_arg, self.theta_hat, H_arg, u0_bounds=b)
@@ -381,12 +383,12 @@ class AdaptiveMPC:
                 record.pe_dim = int(quad.dim)
                 record.pe_bounds = tuple(float(v) for v in best_b)
                 record.pe_level = float(quad.level)
-                return best
+                return best, True
         record.times["pe_solver"] = spent
         # no input satisfies both (20) and the PE constraint: (20) alone (SRC-1's fallback; the PE
         # constraint is not part of the recursive-feasibility argument)
         record.pe_status = "fallback"
-        return self.mpc.solve(x, h_arg, self.theta_hat, H_arg)
+        return self.mpc.solve(x, h_arg, self.theta_hat, H_arg), False
 
     # -- (iii) answer checks of (20) and the other formulation as fallback --------------------------
     def _tube_checks(self, sol, x, h_arg, H_arg) -> list:
@@ -448,31 +450,36 @@ class AdaptiveMPC:
         ladder: same program, same solver, and the answer applied is a checked one; found by the
         thorough profile: a first try 1.3e-6 outside (15c) at x_0 on the boundary of the feasible
         set). ``failed``: the first answer's failed checks when neither passes, else []."""
+        failed = self._failed_tube_checks(sol, x, h_arg, H_arg, record)
+        if not failed or not getattr(self.mpc, "REFINES", False):
+            return sol, failed
+        alt = self.mpc.solve(x, h_arg, self.theta_hat, H_arg, u0_bounds=u0_bounds, refine=True)
+        record.times["solver_refined"] = record.times.get("solver_refined", 0.0) + alt.solver_time
+        if alt.status is SolveStatus.OPTIMAL and not self._failed_tube_checks(alt, x, h_arg, H_arg, record):
+            self._note(record, answer_checks.describe_failures(f"{what}, first try without iterative refinement",
+                                                               failed) + "; re-solved with iterative refinement (checked)")
+            return alt, []
+        return sol, failed
+
+    def _failed_tube_checks(self, sol, x, h_arg, H_arg, record: StepRecord) -> list:
+        """The failed answer checks of ``sol`` (:meth:`_tube_checks`); their CPU time is added to
+        ``record.times["answer_checks_cpu"]``."""
         t0 = time.process_time()
         failed = answer_checks.failures(self._tube_checks(sol, x, h_arg, H_arg))
-        try:
-            if not failed or not getattr(self.mpc, "REFINES", False):
-                return sol, failed
-            alt = self.mpc.solve(x, h_arg, self.theta_hat, H_arg, u0_bounds=u0_bounds, refine=True)
-            record.times["solver_refined"] = record.times.get("solver_refined", 0.0) + alt.solver_time
-            if alt.status is SolveStatus.OPTIMAL and not answer_checks.failures(self._tube_checks(alt, x, h_arg, H_arg)):
-                self._note(record, answer_checks.describe_failures(f"{what}, first try without iterative refinement",
-                                                                   failed) + "; re-solved with iterative refinement (checked)")
-                return alt, []
-            return sol, failed
-        finally:
-            record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - t0
+        record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - t0
+        return failed
 
-    def _verified_qp(self, sol, x, h_arg, H_arg, record: StepRecord):
-        """The answer of (20) to apply, or None. An "optimal" answer that fails a check is first solved
-        again with iterative refinement (:meth:`_checked_or_refined`, plain form); if that fails too,
-        the step status is "inaccurate" and the other formulation is solved and applied if its answer
-        passes the same checks, else the step is not solved (u = None, the controller's answer to an
-        unsolved QP)."""
+    def _verified_qp(self, sol, checked: bool, x, h_arg, H_arg, record: StepRecord):
+        """The answer of (20) to apply, or None. An "optimal" answer (``checked``: it passed the checks
+        already) that fails a check is first solved again with iterative refinement
+        (:meth:`_checked_or_refined`, plain form); if that fails too, the step status is "inaccurate"
+        and the other formulation is solved and applied if its answer passes the same checks, else the
+        step is not solved (u = None, the controller's answer to an unsolved QP)."""
         if sol.status is not SolveStatus.OPTIMAL:
             return None
-        u0_bounds = record.pe_bounds  # the PE bound of the applied candidate (None without PE)
-        sol, failed = self._checked_or_refined(sol, x, h_arg, H_arg, u0_bounds, record, "tube QP (20)")
+        if checked:
+            return sol
+        sol, failed = self._checked_or_refined(sol, x, h_arg, H_arg, None, record, "tube QP (20)")
         spent = 0.0
         try:
             if not failed:
@@ -532,12 +539,12 @@ class AdaptiveMPC:
         h_arg = self.h_theta
         if self.options.d_theta > 0:
             h_arg = record.h_theta_stages = self.stage_offsets(self.h_theta)
-        sol = self._solve_qp(x, h_arg, H_arg, record)
+        sol, checked = self._solve_qp(x, h_arg, H_arg, record)
         record.status = sol.status
         record.times["qp_update"] = sol.update_time
         record.times["solver"] = sol.solver_time
         record.infeasible_constraints = sol.infeasible_constraints
-        sol = self._verified_qp(sol, x, h_arg, H_arg, record)
+        sol = self._verified_qp(sol, checked, x, h_arg, H_arg, record)
         u = None
         if sol is not None:
             record.v, record.z, record.alpha, record.Lambda, record.cost = sol.v, sol.z, sol.alpha, sol.Lambda, sol.cost
