@@ -450,14 +450,16 @@ class RandomCase:
         return complete_spec(self)
 
 
-def complete_spec(case) -> ProblemSpec:
+def complete_spec(case, theta_star=None) -> ProblemSpec:
     """The complete problem file of a case: problem, design options, the ``online`` options of the
     run, and a scenario with x0, θ*, steps and the explicit disturbance array ``case.w`` (a pinning
     w_0 included), so that the file alone determines the run (``amcp certify problem.json`` repeats
     it). ``case`` needs ``spec``, ``x0``, ``theta_star``, ``w`` and ``options``; ``seed`` (which
-    drew ``w``) is kept for the record. Campaign replays and property-suite failures are written so."""
+    drew ``w``) is kept for the record; ``theta_star`` replaces ``case.theta_star`` (a θ*_k
+    sequence). Campaign replays and property-suite failures are written so."""
     w = np.asarray(case.w, float)
-    scenario = Scenario(x0=np.asarray(case.x0, float), theta_star=np.asarray(case.theta_star, float), steps=len(w),
+    theta = case.theta_star if theta_star is None else theta_star
+    scenario = Scenario(x0=np.asarray(case.x0, float), theta_star=np.asarray(theta, float), steps=len(w),
                         disturbance=w, seed=int(getattr(case, "seed", 0)) % (2**31))
     return ProblemSpec(case.spec.problem, case.spec.design, scenario, online=case.options)
 

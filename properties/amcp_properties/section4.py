@@ -29,10 +29,11 @@ from amcp_drake.model import polytope
 from amcp_drake.model.check_result import CheckResult, judge
 from amcp_drake.model.errors import InconsistentDataError
 from amcp_drake.model.options import OnlineOptions
-from amcp_drake.model.problem import ProblemSpec, Scenario
+from amcp_drake.model.problem import ProblemSpec
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.online.controller import AdaptiveMPC
 from amcp_drake.online.simulate import Trajectory, simulate
+from amcp_drake.studies.random_problems import complete_spec
 
 from . import profiles
 from .cases import Case, Memo
@@ -104,10 +105,7 @@ class Section4Case(Case):
         """The complete problem file of this case: its options as the ``online`` section, its θ*
         (the θ*_k sequence of a time-varying case) and the explicit disturbance array in the
         scenario, so that ``amcp certify problem.json`` repeats the run."""
-        theta = self.theta_seq if self.theta_seq is not None else self.theta_star
-        scenario = Scenario(x0=np.asarray(self.x0, float), theta_star=np.asarray(theta, float), steps=len(self.w),
-                            disturbance=np.asarray(self.w, float), seed=int(self.seed) % (2**31))
-        return ProblemSpec(self.problem, self.spec.design, scenario, online=self.options)
+        return complete_spec(self, theta_star=self.theta_seq)
 
 
 class Section4Runner(Memo):
