@@ -20,28 +20,26 @@ def example_design(example_spec):
     return design(example_spec.problem, example_spec.design, backend="drake")
 
 
-@pytest.fixture(scope="session")
-def example_run(example_spec, example_design):
-    """Example 1, 50 steps from x0 = [2, 3], uniform disturbance (seed 0), Drake backend."""
+def _example_1_run(spec, offline, backend: str):
+    """Example 1, 50 steps from x0 = [2, 3], uniform disturbance (seed 0), on ``backend``."""
     from amcp_drake.online.controller import AdaptiveMPC
     from amcp_drake.online.simulate import simulate
 
-    sc = example_spec.scenario
-    ctrl = AdaptiveMPC(example_spec.problem, example_design, backend="drake")
-    return simulate(ctrl, sc.x0, sc.theta_star, 50, "uniform", seed=0,
-                    mu_state_bound=example_spec.design.mu_state_bound)
+    sc = spec.scenario
+    ctrl = AdaptiveMPC(spec.problem, offline, backend=backend)
+    return simulate(ctrl, sc.x0, sc.theta_star, 50, "uniform", seed=0, mu_state_bound=spec.design.mu_state_bound)
+
+
+@pytest.fixture(scope="session")
+def example_run(example_spec, example_design):
+    """Example 1, 50 steps from x0 = [2, 3], uniform disturbance (seed 0), Drake backend."""
+    return _example_1_run(example_spec, example_design, "drake")
 
 
 @pytest.fixture(scope="session")
 def example_run_cvxpy(example_spec, example_design):
     """The run of ``example_run`` (Example 1, 50 steps, seed 0) with the cvxpy backend."""
-    from amcp_drake.online.controller import AdaptiveMPC
-    from amcp_drake.online.simulate import simulate
-
-    sc = example_spec.scenario
-    ctrl = AdaptiveMPC(example_spec.problem, example_design, backend="cvxpy")
-    return simulate(ctrl, sc.x0, sc.theta_star, 50, "uniform", seed=0,
-                    mu_state_bound=example_spec.design.mu_state_bound)
+    return _example_1_run(example_spec, example_design, "cvxpy")
 
 
 def scalar_problem(**changes):
