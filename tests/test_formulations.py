@@ -38,7 +38,7 @@ BACKENDS = ["drake", "cvxpy"]
 def tube_data(problem: Problem, d) -> TubeMPCData:
     return TubeMPCData(A0=problem.A0, B0=problem.B0, A=problem.A, B=problem.B, F=problem.F, G=problem.G, Q=problem.Q,
                        R=problem.R, N=problem.N, K=d.K, P=d.P, H_x=d.H_x, X0_vertices=d.X0_vertices, w_bar=d.w_bar,
-                       f_bar=d.f_bar, H_T=d.H_T, h_T=d.h_T, H_theta=d.H_theta)
+                       f_bar=d.f_bar, H_T=d.H_T, h_T=d.h_T, H_theta=d.H_theta, h_theta0=d.h_theta0)
 
 
 def solvers(data: TubeMPCData, backend: str):

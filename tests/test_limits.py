@@ -47,15 +47,18 @@ def test_nonredundant_rows_of_an_unbounded_set_in_a_subspace():
 
 def test_the_estimate_counts_the_variables_and_rows_drake_builds(example_spec, example_design):
     """Example 1 (n = 2, m = 1, p = 3, 8 facets, 6 rows of Θ, 3 rows of Z), N = 4: the estimate's
-    variables equal the decision vector of the Drake tube QP, and its rows bound the rows built
+    variables equal the decision vector of the Drake tube QP with every row of (15c) (q − p = 3
+    multipliers per row, the other p solved from (15d)), and its rows bound the rows built
     (the terminal set is estimated by the rows of Z, so the difference is exactly that)."""
+    from amcp_drake.backends.drake_tube import DrakeTubeMPC
     from amcp_drake.online.controller import AdaptiveMPC
 
     problem = example_spec.problem.with_changes(N=4)
     design = example_design
     ctrl = AdaptiveMPC(problem, design, backend="drake")
-    prog = ctrl.mpc.prog
+    prog = DrakeTubeMPC(ctrl.data, ctrl.mpc._solver, prune=False).prog
     est = estimate_for(problem, example_spec.design, steps=1)
+    assert ctrl.mpc.prog.num_vars() < prog.num_vars()  # the default program leaves dominated rows out
     assert est.vertices == max_vertices(8, 2) == len(design.X0_vertices) == 8
     assert est.variables == prog.num_vars()
     linear_rows = sum(b.evaluator().num_constraints() for b in prog.linear_constraints()) \

@@ -69,6 +69,7 @@ class TubeMPCData:
     * ``w_bar`` (u,), ``f_bar`` (c,): offline constants of Proposition 9;
     * ``H_T`` (r, n), ``h_T`` (r,): terminal set X_f = {(z, α) | H_T z + h_T α <= 1, α >= 0};
     * ``H_theta`` (q, p): the shape of Θ_k in (15c)-(15d); constant while q is constant;
+    * ``h_theta0`` (q,) or None: Θ0 = {H_θ θ <= h_θ0} ⊇ Θ_k for every k (the design's Θ0);
     * ``cost``: ``"certainty_equivalence"`` (17)-(18) or ``"minmax"`` (19) in epigraph form
       (Remark 13; plain formulation only).
     """
@@ -95,6 +96,9 @@ class TubeMPCData:
     h_T: np.ndarray
     H_theta: np.ndarray
     cost: str = "certainty_equivalence"
+    #: offsets of Θ0 = {H_θ θ <= h_θ0} ⊇ every Θ_k (the design's); optional: with it the Drake plain
+    #: form leaves out the rows of (15c) implied by others on Θ0 (backends/dominated_rows.py)
+    h_theta0: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,13 +1,20 @@
 """The tube MPC QP (20) in Drake: constraints (15a)-(15d), terminal set, cost (17)-(18).
 
-The program is built once per controller with sparse matrix constraints. Each step updates:
+The program is built once per controller with sparse matrix constraints. (15d) is solved for p of
+the q multipliers of each row (:mod:`.multiplier_basis`, issue 16): the program holds the other
+q − p (Λ_N >= 0), the rows Λ_B = c M − Λ_N H_N M >= 0, and (15c) in the form
+c κ + Λ_N s + H_x d^j_l − α_{l+1} <= −w̄; the same feasible set in (z, α, v) as (15c)-(15d) with
+all q multipliers, half the variables and no equality rows (Example 1, 8 facets, N = 10: 1 963
+variables instead of 3 883; Clarabel 17 -> 11 ms CPU). The full Λ is recovered from the solution,
+so the answer checks and certificates re-check (15c), (15d) and Λ >= 0 as before. Each step updates:
 
 * the right-hand side of (15b) (it holds x_k),
-* the Λ-coefficients h_θk of (15c) (``LinearConstraint.UpdateCoefficients``),
+* the (15c) coefficients from h_θk (``LinearConstraint.UpdateCoefficients`` on a preallocated
+  matrix whose values are written in place),
 * the quadratic cost in v (``QuadraticCost.UpdateCoefficients``), condensed from (18) with θ̂_k.
 
-Decision vector y = [z (N+1)·n | α (N+1) | v N·m | Λ N·v·u·q], Λ ordered (l, j, i, r):
-Λ^j_{l|k}[i, r] sits at offset ((l·v + j)·u + i)·q + r.
+Decision vector y = [z (N+1)·n | α (N+1) | v N·m | Λ_N N·v·u·(q−p)], Λ_N ordered (l, j, i, r):
+Λ^j_{l|k}[i, N_r] sits at offset ((l·v + j)·u + i)·(q−p) + r.
 """
 
 from __future__ import annotations
@@ -21,7 +28,10 @@ from pydrake.solvers import MathematicalProgram
 from amcp_drake.backends.base import MPCSolution, TubeMPCData
 from amcp_drake.backends.clarabel_retry import NO_REFINEMENT, solve_with_retries
 from amcp_drake.backends.condensed_cost import CondensedCost
+from amcp_drake.backends.dominated_rows import kept_vertices
 from amcp_drake.backends.drake_solver import infeasible_constraint_names
+from amcp_drake.backends.multiplier_basis import MultiplierBasis, optimal_multipliers
+from amcp_drake.backends.vertex_form import VertexEnumerationError, theta_vertices
 from amcp_drake.model.status import SolveStatus
 
 
@@ -31,15 +41,15 @@ def _sqrtm(M: np.ndarray) -> np.ndarray:
 
 
 class _Layout:
-    """Offsets of the blocks of the decision vector."""
+    """Offsets of the blocks of the decision vector; ``rows`` rows of (15c) with q multipliers Λ_N each."""
 
-    def __init__(self, n: int, m: int, N: int, nv: int, u: int, q: int) -> None:
+    def __init__(self, n: int, m: int, N: int, nv: int, u: int, q: int, rows: int) -> None:
         self.n, self.m, self.N, self.nv, self.u, self.q = n, m, N, nv, u, q
         self.z0 = 0
         self.a0 = (N + 1) * n
         self.v0 = self.a0 + N + 1
         self.L0 = self.v0 + N * m
-        self.size = self.L0 + N * nv * u * q
+        self.size = self.L0 + rows * q
 
     def z(self, l: int) -> slice:
         return slice(self.z0 + l * self.n, self.z0 + (l + 1) * self.n)
@@ -50,17 +60,15 @@ class _Layout:
     def v(self, l: int) -> slice:
         return slice(self.v0 + l * self.m, self.v0 + (l + 1) * self.m)
 
-    def lam(self, l: int, j: int, i: int) -> slice:
-        start = self.L0 + ((l * self.nv + j) * self.u + i) * self.q
-        return slice(start, start + self.q)
-
 
 class DrakeTubeMPC:
     """QP (20) built once; :meth:`solve` updates x_k, h_θk, θ̂_k and solves."""
 
-    def __init__(self, data: TubeMPCData, solver) -> None:
+    def __init__(self, data: TubeMPCData, solver, prune: bool = True) -> None:
         self.data = data
         self._solver = solver
+        self._prune = prune
+        self._all_rows: DrakeTubeMPC | None = None  # the program with every row, on first need
         self._cost_model = CondensedCost(data)
         self._build(np.asarray(data.H_theta, float))
 
@@ -74,11 +82,13 @@ class DrakeTubeMPC:
         nv, u = Xv.shape[0], H_x.shape[0]
         q, p = H_theta.shape
         self.H_theta = H_theta
-        lay = self.layout = _Layout(n, m, N, nv, u, q)
         K = d.K
         FGK = d.F + d.G @ K
         Acl0 = d.A0 + d.B0 @ K
         Acl_i = d.A + d.B @ K  # (p, n, n)
+        self.basis = MultiplierBasis.of(H_theta)
+        keep = self._kept_vertices(Acl0, Acl_i)
+        lay = self.layout = _Layout(n, m, N, nv, u, q - p, N * int(keep.sum()))
 
         prog = self.prog = MathematicalProgram()
         y = self.y = prog.NewContinuousVariables(lay.size, "y")
@@ -101,42 +111,10 @@ class DrakeTubeMPC:
         self._c15b = prog.AddLinearConstraint(A15b.tocsc(), np.full(u, -np.inf), np.zeros(u), y).evaluator()
         self._c15b.set_description("(15b) x_k in X_0|k")
 
-        # (15c): Λ h_θ + H_x d^j_l - α_{l+1} 1 <= -w̄; d^j_l = Acl0 (z_l + α_l x^j) + B0 v_l - z_{l+1}
-        rows15c = N * nv * u
-        C = sp.lil_matrix((rows15c, lay.size))
-        HA = H_x @ Acl0
-        HB = H_x @ d.B0
-        for l in range(N):
-            for j in range(nv):
-                rows = slice((l * nv + j) * u, (l * nv + j + 1) * u)
-                C[rows, lay.z(l)] = HA
-                C[rows, lay.a(l)] = (HA @ Xv[j]).reshape(-1, 1)
-                C[rows, lay.v(l)] = HB
-                C[rows, lay.z(l + 1)] = -H_x
-                C[rows, lay.a(l + 1)] = -np.ones((u, 1))
-        self._C15c = C.tocsc()
-        self._rows15c = rows15c
-        self._ub15c = np.tile(-d.w_bar, N * nv)
-        self._A15c = self._preallocate_15c()
-        self._lb15c = np.full(rows15c, -np.inf)
-        self._c15c = prog.AddLinearConstraint(self._matrix_15c(np.zeros(q)), self._lb15c, self._ub15c, y).evaluator()
-        self._c15c.set_description("(15c) tube propagation with multipliers")
-
-        # (15d): H_x D^j_l = Λ^j_l H_θ, entry (i, i'): [H_x]_i (Acl_i' (z_l + α_l x^j) + B_i' v_l) - Λ[i,:] H_θ[:, i'] = 0
-        rows15d = N * nv * u * p
-        A15d = sp.lil_matrix((rows15d, lay.size))
-        for l in range(N):
-            for j in range(nv):
-                for i in range(u):
-                    for ip in range(p):
-                        row = ((l * nv + j) * u + i) * p + ip
-                        hx = H_x[i] @ Acl_i[ip]
-                        A15d[row, lay.z(l)] = hx
-                        A15d[row, lay.a(l)] = hx @ Xv[j]
-                        A15d[row, lay.v(l)] = H_x[i] @ d.B[ip]
-                        A15d[row, lay.lam(l, j, i)] = -H_theta[:, ip]
-        prog.AddLinearEqualityConstraint(A15d.tocsc(), np.zeros(rows15d), y
-                                         ).evaluator().set_description("(15d) H_x D = Lambda H_theta")
+        # (15c)-(15d) with (15d) solved for p of the q multipliers of each row (.multiplier_basis):
+        # Λ_N >= 0 are variables, Λ_B = c M − Λ_N H_N M >= 0 are rows, (15c) reads
+        # c κ + Λ_N s + H_x d^j_l − α_{l+1} <= −w̄ with (κ, s) from h_θk, written per step
+        self._build_tube_rows(prog, y, Acl0, Acl_i, keep)
 
         # terminal set: H_T z_N + h_T α_N <= 1
         r = d.H_T.shape[0]
@@ -148,7 +126,7 @@ class DrakeTubeMPC:
 
         # α >= 0 and Λ >= 0
         prog.AddBoundingBoxConstraint(0.0, np.inf, y[lay.a0:lay.a0 + N + 1]).evaluator().set_description("alpha >= 0")
-        prog.AddBoundingBoxConstraint(0.0, np.inf, y[lay.L0:]).evaluator().set_description("Lambda >= 0")
+        prog.AddBoundingBoxConstraint(0.0, np.inf, y[lay.L0:]).evaluator().set_description("Lambda_N >= 0 (the multipliers not solved from (15d))")
 
         # optional bound lo <= K x_k + v_0 <= hi on the first input (PE two-QP procedure, spec §8);
         # inactive (±inf) unless ``solve`` gets ``u0_bounds``
@@ -200,33 +178,154 @@ class DrakeTubeMPC:
         prog.AddQuadraticCost(2.0 * np.eye(N + 1), np.zeros(N + 1), 0.0, s, is_convex=True
                               ).evaluator().set_description("(19) min-max cost")
 
-    def _preallocate_15c(self) -> sp.csc_matrix:
-        """The matrix of (15c) with its Λ block allocated once: [C | kron(I, h_θᵀ)]. Row ρ = (l, j, i)
-        of (15c) holds Λ^j_{l|k}[i, :] h_θ in the q columns L0 + ρ·q + r, one entry per column, so in
-        CSC order the Λ entries are the last ``rows15c·q`` stored values, in (ρ, r) order; each step
-        writes h_θ (or the per-stage offsets) there (:meth:`_matrix_15c`) and nothing is rebuilt."""
-        lay = self.layout
-        rows, q = self._rows15c, lay.q
-        left = self._C15c[:, : lay.L0].tocsc()
-        left.sort_indices()
-        lam = sp.csc_matrix((np.ones(rows * q), np.repeat(np.arange(rows), q), np.arange(rows * q + 1)),
-                            shape=(rows, rows * q))
-        A = sp.hstack([left, lam], format="csc")
-        self._lam_values = A.data[left.nnz:].reshape(rows, q)  # a view into A.data
-        return A
+    def _build_tube_rows(self, prog, y, Acl0: np.ndarray, Acl_i: np.ndarray, keep: np.ndarray) -> None:
+        """Rows ρ = (l, j, i) of (15c) and of Λ_B >= 0 (.multiplier_basis), vectorised, for the rows
+        kept by :func:`.dominated_rows.kept_vertices` (all rows when ``prune`` is off or Θ0 is unknown).
+
+        Each row touches the 2n + m + 2 columns [z_l | α_l | v_l | z_{l+1} | α_{l+1}] of y (``_cols``)
+        and its own q − p columns of Λ_N. ``_C_vals`` (rows, E) are the coefficients of
+        H_x d^j_l − α_{l+1} (15c); ``_G_vals`` (rows, E, p) those of c_ρ = H_x D^j_l (zero on z_{l+1},
+        α_{l+1}): c_ρ[r] = Σ_e G[ρ, e, r] y[cols[ρ, e]]. The (15c) matrix is preallocated in CSC;
+        each step writes C + G κ and s into its data through ``_perm15c`` (nothing is rebuilt)."""
+        d, lay, basis = self.data, self.layout, self.basis
+        N, nv, u = lay.N, lay.nv, lay.u
+        l_all = np.repeat(np.arange(N), nv * u)                 # stage of row ρ = (l·v + j)·u + i
+        j_all = np.tile(np.repeat(np.arange(nv), u), N)         # vertex x^j of row ρ
+        i_all = np.tile(np.arange(u), N * nv)                   # facet [H_x]_i of row ρ
+        kept = keep[i_all, j_all]
+        self._kept_rows, self._left_out = np.flatnonzero(kept), np.flatnonzero(~kept)
+        self._stage_of_row, self._stage_left_out = l_all[kept], l_all[~kept]
+        self._cols, self._C_vals, self._G_vals = self._row_coefficients(l_all[kept], j_all[kept], i_all[kept], Acl0, Acl_i)
+        self._E_c = lay.n + 1 + lay.m                           # c_ρ lives on [z_l | α_l | v_l]
+        if len(self._left_out):
+            cols, _, G = self._row_coefficients(l_all[~kept], j_all[~kept], i_all[~kept], Acl0, Acl_i)
+            self._cols_left_out, self._G_left_out = cols[:, :self._E_c], G[:, :self._E_c]
+        rows = self._rows15c = len(self._kept_rows)
+        qn = lay.q
+        E = self._cols.shape[1]
+        lam_cols = lay.L0 + np.arange(rows * qn).reshape(rows, qn)
+        # (15c): base entries then Λ_N entries, in this order in ``values``; CSC order via _perm15c
+        r15 = np.concatenate([np.repeat(np.arange(rows), E), np.repeat(np.arange(rows), qn)])
+        c15 = np.concatenate([self._cols.ravel(), lam_cols.ravel()])
+        A = sp.csc_matrix((np.arange(1.0, len(r15) + 1.0), (r15, c15)), shape=(rows, lay.size))
+        A.sort_indices()
+        self._perm15c = A.data.astype(np.int64) - 1
+        self._A15c = A
+        self._ub15c = -np.asarray(d.w_bar, float)[i_all[kept]]
+        self._lb15c = np.full(rows, -np.inf)
+        self._c15c = prog.AddLinearConstraint(self._matrix_15c(np.zeros(basis.q)), self._lb15c, self._ub15c, y
+                                              ).evaluator()
+        self._c15c.set_description("(15c) tube propagation with multipliers")
+        # Λ_B >= 0 as −c_ρ M + Λ_N H_N M <= 0, rows (ρ, b): fixed coefficients
+        p = len(basis.basic)
+        GM = -(self._G_vals[:, :self._E_c] @ basis.M)          # (rows, E_c, p)
+        rb = np.arange(rows * p).reshape(rows, p)
+        r_b = np.concatenate([np.broadcast_to(rb[:, None, :], GM.shape).ravel(),
+                              np.broadcast_to(rb[:, None, :], (rows, qn, p)).ravel()])
+        c_b = np.concatenate([np.broadcast_to(self._cols[:, :self._E_c, None], GM.shape).ravel(),
+                              np.broadcast_to(lam_cols[:, :, None], (rows, qn, p)).ravel()])
+        v_b = np.concatenate([GM.ravel(), np.broadcast_to(basis.HNM[None], (rows, qn, p)).ravel()])
+        AB = sp.csc_matrix((v_b, (r_b, c_b)), shape=(rows * p, lay.size))
+        prog.AddLinearConstraint(AB, np.full(rows * p, -np.inf), np.zeros(rows * p), y
+                                 ).evaluator().set_description("(15d) H_x D = Lambda H_theta, solved for Lambda_B >= 0")
+
+    def _kept_vertices(self, Acl0: np.ndarray, Acl_i: np.ndarray) -> np.ndarray:
+        """Mask (u, v) of the rows (l, j, i) kept (:mod:`.dominated_rows`): all rows unless ``prune``
+        is on, Θ0 is known (``TubeMPCData.h_theta0``) and the program is built for its shape."""
+        d = self.data
+        all_rows = np.ones((len(d.H_x), len(d.X0_vertices)), dtype=bool)
+        self._theta0_h = None
+        h0 = getattr(d, "h_theta0", None)
+        if not self._prune or h0 is None or not np.array_equal(self.H_theta, np.asarray(d.H_theta, float)):
+            return all_rows
+        try:
+            theta0_vertices = theta_vertices(self.H_theta, np.asarray(h0, float))
+        except VertexEnumerationError:
+            return all_rows
+        self._theta0_h = np.asarray(h0, float)
+        return kept_vertices(d.H_x, Acl0, Acl_i, d.X0_vertices, theta0_vertices)
+
+    def _row_coefficients(self, l_of, j_of, i_of, Acl0, Acl_i) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(cols (r, E), C (r, E), G (r, E, p)) of the rows (l_of, j_of, i_of) (see _build_tube_rows)."""
+        d, lay = self.data, self.layout
+        n, m = lay.n, lay.m
+        Xv = np.asarray(d.X0_vertices, float)
+        H_x = np.asarray(d.H_x, float)
+        rows = len(l_of)
+        cols = np.concatenate([lay.z0 + l_of[:, None] * n + np.arange(n), (lay.a0 + l_of)[:, None],
+                               lay.v0 + l_of[:, None] * m + np.arange(m),
+                               lay.z0 + (l_of + 1)[:, None] * n + np.arange(n), (lay.a0 + l_of + 1)[:, None]],
+                              axis=1)                          # (rows, E), E = 2n + m + 2
+        HA0, HB0 = H_x @ Acl0, H_x @ d.B0
+        C = np.concatenate([HA0[i_of], (HA0 @ Xv.T)[i_of, j_of][:, None], HB0[i_of], -H_x[i_of],
+                            -np.ones((rows, 1))], axis=1)
+        Gz = np.einsum("ia,pab->ibp", H_x, Acl_i)              # (u, n, p): [H_x]_i A_cl,r
+        Gv = np.einsum("ia,pab->ibp", H_x, np.asarray(d.B, float))  # (u, m, p): [H_x]_i B_r
+        G = np.zeros((rows, cols.shape[1], Gz.shape[2]))
+        G[:, :n] = Gz[i_of]
+        G[:, n] = np.einsum("rbp,rb->rp", Gz[i_of], Xv[j_of])  # [H_x]_i A_cl,r x^j on α_l
+        G[:, n + 1:n + 1 + m] = Gv[i_of]
+        return cols, C, G
 
     def _matrix_15c(self, h_theta: np.ndarray) -> sp.csc_matrix:
         """Constraint matrix of (15c) for offsets h_θk (q,), or of (28b) for per-stage offsets
-        h_{θ l|k} (N, q) of the predicted sets (26): the rows of stage l (ordered (l, j, i)) get
-        Λ^j_{l|k} h_{θ l|k}. Written into the preallocated matrix; returns that matrix."""
-        if h_theta.ndim == 1:
-            self._lam_values[:] = h_theta
+        h_{θ l|k} (N, q) of the predicted sets (26) (row ρ of stage l uses row l): coefficients
+        C + G κ on [z | α | v] and s on Λ_N, (κ, s) = ``basis.offsets(h)``. Written into the
+        preallocated matrix; returns that matrix."""
+        kappa, slack = self.basis.offsets(h_theta)
+        if np.ndim(h_theta) == 2:
+            kappa, slack = kappa[self._stage_of_row], slack[self._stage_of_row]
+            base = self._C_vals + np.einsum("rep,rp->re", self._G_vals, kappa)
+            lam = slack
         else:
-            per_stage = self.layout.nv * self.layout.u
-            self._lam_values.reshape(len(h_theta), per_stage, -1)[:] = h_theta[:, None, :]
+            base = self._C_vals + self._G_vals @ kappa
+            lam = np.broadcast_to(slack, (self._rows15c, len(slack)))
+        self._A15c.data[:] = np.concatenate([base.ravel(), lam.ravel()])[self._perm15c]
         return self._A15c
 
+    def _multipliers(self, yv: np.ndarray, h_theta: np.ndarray) -> np.ndarray | None:
+        """Λ (N, v, u, q) of (15c)-(15d) from the solution: on kept rows Λ_N read and
+        Λ_B = c M − Λ_N H_N M; on left-out rows the optimal multipliers of the row's own LP
+        (:func:`.multiplier_basis.optimal_multipliers`, per stage for per-stage offsets). None when
+        those cannot be found (the caller solves the program with every row)."""
+        lay = self.layout
+        E = self._E_c
+        q = self.basis.q
+        c = np.einsum("re,rep->rp", yv[self._cols[:, :E]], self._G_vals[:, :E])
+        lam_n = yv[lay.L0:lay.size].reshape(self._rows15c, lay.q)
+        lam = np.empty((lay.N * lay.nv * lay.u, q))
+        lam[self._kept_rows] = self.basis.full(c, lam_n)
+        if len(self._left_out):
+            c_out = np.einsum("re,rep->rp", yv[self._cols_left_out], self._G_left_out)
+            stages = [slice(None)] if np.ndim(h_theta) == 1 else range(lay.N)
+            for stage in stages:
+                rows = slice(None) if np.ndim(h_theta) == 1 else self._stage_left_out == stage
+                found = optimal_multipliers(self.H_theta, h_theta if np.ndim(h_theta) == 1 else h_theta[stage],
+                                            c_out[rows])
+                if found is None:
+                    return None
+                lam[self._left_out[rows]] = found
+        return lam.reshape(lay.N, lay.nv, lay.u, q)
+
     # -- solve ---------------------------------------------------------------------------------
+    #: Θ_k ⊆ Θ0 is taken to hold when h_θk <= h_θ0 + THETA0_TOL·max(1, |h_θ0|) row-wise (same H_θ):
+    #: the set updates keep Θ_k nested to rounding (answer_checks.SET_NESTED_TOL bounds the rest);
+    #: a row left out is then implied up to α_l·‖∇g‖·THETA0_TOL, far below the answer checks' 1e-6.
+    THETA0_TOL = 1e-9
+
+    def _inside_theta0(self, h_theta: np.ndarray) -> bool:
+        h0 = self._theta0_h
+        return h0 is not None and bool(np.all(h_theta <= h0 + self.THETA0_TOL * np.maximum(1.0, np.abs(h0))))
+
+    def _with_every_row(self, x, h_theta, theta_hat, H_theta, u0_bounds, refine, why: str) -> MPCSolution:
+        """The step solved by the program with every row of (15c) (built on first need)."""
+        from dataclasses import replace
+
+        if self._all_rows is None:
+            self._all_rows = DrakeTubeMPC(self.data, self._solver, prune=False)
+        sol = self._all_rows.solve(x, h_theta, theta_hat, H_theta, u0_bounds=u0_bounds, refine=refine)
+        return replace(sol, detail=f"every row of (15c): {why}; {sol.detail}".rstrip("; "))
+
     def _solve(self, refine: bool = False):
         """(result, status, solver time, retry note): Clarabel with the retry ladder of
         :mod:`.clarabel_retry`, any other solver once; ``refine``: Clarabel's iterative refinement
@@ -266,6 +365,9 @@ class DrakeTubeMPC:
                                detail=f"h_theta has shape {h_theta.shape}, expected (q,) or (N, q)")
         if H_theta is not None and (np.shape(H_theta) != self.H_theta.shape or not np.array_equal(H_theta, self.H_theta)):
             self._build(np.asarray(H_theta, float))
+        if len(self._left_out) and not self._inside_theta0(h_theta):
+            return self._with_every_row(x, h_theta, theta_hat, H_theta, u0_bounds, refine,
+                                        "Theta_k not inside Theta_0, the rows left out of (15c) may be needed")
         lay = self.layout
         H_x = np.asarray(self.data.H_x, float)
         self._c15b.set_bounds(np.full(lay.u, -np.inf), -H_x @ x)
@@ -291,7 +393,10 @@ class DrakeTubeMPC:
         z = yv[: lay.a0].reshape(N + 1, n)
         alpha = yv[lay.a0:lay.v0]
         v = yv[lay.v0:lay.L0].reshape(N, m)
-        Lam = yv[lay.L0:].reshape(N, lay.nv, lay.u, lay.q)
+        Lam = self._multipliers(yv, h_theta)
+        if Lam is None:
+            return self._with_every_row(x, h_theta, theta_hat, H_theta, u0_bounds, refine,
+                                        "no optimal multipliers found for the rows left out of (15c)")
         vf = v.reshape(-1)
         if self._minmax:
             cost = float(np.sum(result.GetSolution(self._s) ** 2))

@@ -286,6 +286,9 @@ class DrakeVertexTubeMPC:
 
         if self._plain is None:
             H0 = self.data.H_theta if H_theta is None else H_theta
-            self._plain = DrakeTubeMPC(replace(self.data, H_theta=np.asarray(H0, float)), self._plain_solver)
+            # h_theta0 describes Θ0 in the shape of data.H_theta only
+            same = H_theta is None or np.array_equal(H_theta, self.data.H_theta)
+            self._plain = DrakeTubeMPC(replace(self.data, H_theta=np.asarray(H0, float),
+                                               h_theta0=self.data.h_theta0 if same else None), self._plain_solver)
         sol = self._plain.solve(x, h_theta, theta_hat, H_theta)
         return replace(sol, detail=f"plain form (15) fallback: {reason}; {sol.detail}".rstrip("; "))

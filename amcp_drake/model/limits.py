@@ -1,15 +1,19 @@
 """Resource limits: an estimate of the size of a run checked before anything is built, and the
 removal of redundant rows of W, Θ and Z at load.
 
-**Size estimate** (:func:`estimate_run_size`). The tube QP (20) in the plain form (15), as built by
-``backends/drake_tube.py`` (the cvxpy backend builds the same rows), has for n states, m inputs,
-p parameters, horizon N, u facets and v vertices of the tube shape X0, q rows of Θ (plus
-``design.theta_extra_directions``) and c rows of Z:
+**Size estimate** (:func:`estimate_run_size`). The tube QP (20) in the plain form (15) has, for n
+states, m inputs, p parameters, horizon N, u facets and v vertices of the tube shape X0, q rows of Θ
+(plus ``design.theta_extra_directions``) and c rows of Z:
 
-* variables: (N+1)·n (z) + (N+1) (α) + N·m (v) + N·v·u·q (Λ of (15c)-(15d));
-* rows: N·c (15a) + u (15b) + N·v·u (15c) + N·v·u·p (15d) + c (terminal set, estimated by c rows;
-  its true size is known only after the design);
-* nonzeros: N·c·(n+m+1) + u·(n+1) + N·v·u·(2n+m+2+q) + N·v·u·p·(n+m+1+q) + c·(n+1).
+* variables, as built by ``backends/drake_tube.py`` with every row of (15c) (``prune=False``, its
+  fallback): (N+1)·n (z) + (N+1) (α) + N·m (v) + N·v·u·(q−p) (the multipliers Λ_N; the other p of
+  each row are solved from (15d), ``backends/multiplier_basis.py``); its default program leaves out
+  the rows implied by others on Θ0 (``backends/dominated_rows.py``, not known before the design) and
+  is smaller; the cvxpy backend keeps all N·v·u·q multipliers;
+* rows: N·c (15a) + u (15b) + N·v·u (15c) + N·v·u·p ((15d) in cvxpy, Λ_B >= 0 in Drake) + c
+  (terminal set, estimated by c rows; its true size is known only after the design);
+* nonzeros, of the cvxpy form (the larger of the two, so the memory bound holds for both):
+  N·c·(n+m+1) + u·(n+1) + N·v·u·(2n+m+2+q) + N·v·u·p·(n+m+1+q) + c·(n+1).
 
 v is not known before the design; it is bounded by the upper bound theorem (McMullen 1970) for a
 polytope with u facets in dimension n (exact for n <= 2: v = u). The set update LP (9) adds q + q·r·L
@@ -115,7 +119,7 @@ def estimate_run_size(n: int, m: int, p: int, N: int, facets: int, theta_rows: i
     """The size of a run (module docstring); Python integers, so absurd inputs cannot overflow."""
     nv, u, q, c = max_vertices(facets, n), facets, theta_rows, z_rows
     block = N * nv * u
-    variables = (N + 1) * n + (N + 1) + N * m + block * q
+    variables = (N + 1) * n + (N + 1) + N * m + block * (q - p)
     rows = N * c + u + block + block * p + c
     nonzeros = (N * c * (n + m + 1) + u * (n + 1) + block * (2 * n + m + 2 + q) + block * p * (n + m + 1 + q)
                 + c * (n + 1))

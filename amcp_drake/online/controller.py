@@ -95,7 +95,7 @@ class AdaptiveMPC:
         self.data = TubeMPCData(
             A0=problem.A0, B0=problem.B0, A=problem.A, B=problem.B, F=problem.F, G=problem.G, Q=problem.Q,
             R=problem.R, N=problem.N, K=design.K, P=design.P, H_x=design.H_x, X0_vertices=design.X0_vertices,
-            w_bar=design.w_bar, f_bar=design.f_bar, H_T=design.H_T, h_T=design.h_T, H_theta=design.H_theta,
+            w_bar=design.w_bar, f_bar=design.f_bar, H_T=design.H_T, h_T=design.h_T, H_theta=design.H_theta, h_theta0=design.h_theta0,
             cost=self.options.cost)
         if self.options.cost != "certainty_equivalence" and getattr(self.backend, "formulation", "plain") != "plain":
             raise ProblemError("formulation", "'plain' (the min-max cost (19) needs formulation='plain')",

@@ -1,0 +1,130 @@
+"""(15d) solved for p of the q multipliers of each row of (15c): the Drake plain form's Λ (issue 16).
+
+Each row ρ = (l, j, i) of (15c)-(15d) has a multiplier row Λ_ρ = Λ^j_{l|k}[i, :] ∈ R^q with
+
+    (15d)  Λ_ρ H_θ = c_ρ,   c_ρ = [H_x]_i D^j_{l|k} ∈ R^p (linear in z_l, α_l, v_l),   Λ_ρ >= 0,
+    (15c)  Λ_ρ h_θ + [H_x]_i d^j_{l|k} − α_{l+1} <= −w̄_i.
+
+H_θ (q, p) has full column rank (Θ is bounded, spec §2), so some p of its rows, B, form an
+invertible H_B. With M = H_B^{-1} the equality (15d) is Λ_B = c_ρ M − Λ_N (H_N M) exactly, and
+
+    Λ_ρ h_θ = c_ρ κ + Λ_N s,    κ = M h_B (the point where the facets B are active),
+                                s = h_N − H_N κ (the other facets' slacks there).
+
+So (15c)-(15d) with Λ >= 0 are, with no loss, the q − p free multipliers Λ_N >= 0, the p rows
+Λ_B = c_ρ M − Λ_N H_N M >= 0 and (15c) with the coefficients κ on c_ρ and s on Λ_N: no equality
+rows, and q − p instead of q multipliers per row (Example 1, 8-facet X0: 1 963 variables instead
+of 3 883 and no 1 920 equalities). The full Λ_ρ is recovered from the solution by
+:meth:`MultiplierBasis.full`, so the certificates re-check (15c), (15d) and Λ >= 0 on the same
+multipliers as before.
+
+B is chosen by QR with column pivoting of H_θᵀ (the best-conditioned greedy choice); for a box
+H_θ = [I; −I] (rows interleaved or not) it picks one row of each pair and M is a signed identity.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from math import comb
+
+import numpy as np
+import scipy.linalg
+
+#: Multipliers of a basis count as >= 0 down to −DUAL_FEASIBILITY_TOL·max(1, ‖c_ρ‖): rounding of
+#: c H_B^{-1} for an optimal basis with a zero multiplier (a degenerate optimum), far below the
+#: answer checks' 1e-6 (online.answer_checks.TUBE_ROW_TOL).
+DUAL_FEASIBILITY_TOL = 1e-9
+#: Largest condition number of H_B accepted: above it H_θ is treated as rank deficient (an
+#: unbounded Θ, which the problem validation rejects before any QP is built).
+MAX_BASIS_CONDITION = 1e10
+
+
+@dataclass(frozen=True, eq=False)
+class MultiplierBasis:
+    """The split of the q rows of H_θ into p basic rows B and q − p others N (see the module)."""
+
+    basic: np.ndarray      #: B (p,), row indices of H_θ, increasing
+    nonbasic: np.ndarray   #: N (q − p,), the other row indices, increasing
+    M: np.ndarray          #: H_B^{-1} (p, p)
+    H_N: np.ndarray        #: the rows N of H_θ (q − p, p)
+    HNM: np.ndarray        #: H_N M (q − p, p)
+
+    @classmethod
+    def of(cls, H_theta: np.ndarray) -> MultiplierBasis:
+        """The basis of H_θ (q, p) chosen by QR with column pivoting of H_θᵀ. Raises ValueError
+        when H_θ has no p rows with a condition number below :data:`MAX_BASIS_CONDITION`."""
+        H = np.asarray(H_theta, float)
+        q, p = H.shape
+        if q <= p:
+            raise ValueError(f"H_theta has {q} rows for {p} parameters: Theta is unbounded")
+        _, _, pivots = scipy.linalg.qr(H.T, mode="economic", pivoting=True)
+        basic = np.sort(pivots[:p])
+        H_B = H[basic]
+        if np.linalg.cond(H_B) > MAX_BASIS_CONDITION:
+            raise ValueError(f"H_theta has no {p} well-conditioned rows (cond {np.linalg.cond(H_B):.3g}): "
+                             "Theta is unbounded or nearly so")
+        nonbasic = np.setdiff1d(np.arange(q), basic)
+        M = np.linalg.inv(H_B)
+        return cls(basic, nonbasic, M, H[nonbasic], H[nonbasic] @ M)
+
+    @property
+    def q(self) -> int:
+        return len(self.basic) + len(self.nonbasic)
+
+    def offsets(self, h_theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(κ, s) of (15c) for offsets h_θ (..., q): κ = M h_B (..., p), s = h_N − H_N κ (..., q − p)."""
+        h = np.asarray(h_theta, float)
+        kappa = h[..., self.basic] @ self.M.T
+        return kappa, h[..., self.nonbasic] - kappa @ self.H_N.T
+
+    def full(self, c: np.ndarray, lam_nonbasic: np.ndarray) -> np.ndarray:
+        """Λ (..., q) from c (..., p) and Λ_N (..., q − p): Λ_B = c M − Λ_N H_N M, so Λ H_θ = c."""
+        lam = np.empty(np.shape(c)[:-1] + (self.q,))
+        lam[..., self.basic] = c @ self.M - lam_nonbasic @ self.HNM
+        lam[..., self.nonbasic] = lam_nonbasic
+        return lam
+
+
+def optimal_multipliers(H_theta: np.ndarray, h_theta: np.ndarray, c: np.ndarray) -> np.ndarray | None:
+    """For each row c_ρ of ``c`` (r, p): Λ_ρ >= 0 (q,) with Λ_ρ H_θ = c_ρ and Λ_ρ h_θ minimal, i.e.
+    the multipliers of (15c)-(15d) for one row, with Λ_ρ h_θ = max {c_ρ θ : H_θ θ <= h_θ} (LP
+    duality). Used for the rows of (15c) that the plain form leaves out (:mod:`.dominated_rows`).
+
+    By enumeration of the bases of H_θ: a basis B (p rows, det(H_B) != 0 on unit rows) whose point
+    θ_B = H_B^{-1} h_B is in Θ_k (primal feasible) and whose multipliers λ_B = c_ρ H_B^{-1} are >= 0
+    (dual feasible) is optimal (an LP with a finite optimum has such a basis). Per row the basis
+    with the largest min(λ_B) is taken; Λ_ρ is λ_B on B and 0 elsewhere, so Λ_ρ H_θ = c_ρ to
+    rounding. Returns None when H_θ has more than :data:`.vertex_form.MAX_COMBINATIONS` bases or a
+    row has no basis with min(λ_B) >= −:data:`DUAL_FEASIBILITY_TOL`·max(1, ‖c_ρ‖) (the caller
+    then solves the program with every row)."""
+    from amcp_drake.backends.vertex_form import FEASIBILITY_TOL, MAX_COMBINATIONS, SINGULAR_DET, combinations
+
+    H = np.asarray(H_theta, float)
+    h = np.asarray(h_theta, float)
+    c = np.atleast_2d(np.asarray(c, float))
+    q, p = H.shape
+    if comb(q, p) > MAX_COMBINATIONS:
+        return None
+    norms = np.linalg.norm(H, axis=1)
+    Hn, hn = H / norms[:, None], h / norms
+    combos = combinations(q, p)
+    invertible = np.abs(np.linalg.det(Hn[combos])) > SINGULAR_DET
+    combos = combos[invertible]
+    points = np.linalg.solve(H[combos], h[combos][..., None])[..., 0]                  # (b, p)
+    feasible = np.all(points @ Hn.T <= hn + FEASIBILITY_TOL * np.maximum(1.0, np.abs(hn)), axis=1)
+    combos = combos[feasible]
+    if len(combos) == 0:
+        return None
+    inv = np.linalg.inv(H[combos])                                                      # (b, p, p)
+    lam = np.einsum("rk,bkp->rbp", c, inv)                                              # c H_B^{-1}
+    worst = lam.min(axis=2)                                                             # (r, b)
+    best = worst.argmax(axis=1)
+    rows = np.arange(len(c))
+    if np.any(worst[rows, best] < -DUAL_FEASIBILITY_TOL * np.maximum(1.0, np.linalg.norm(c, axis=1))):
+        return None
+    out = np.zeros((len(c), q))
+    out[rows[:, None], combos[best]] = lam[rows, best]
+    return out
+
+
+__all__ = ["DUAL_FEASIBILITY_TOL", "MAX_BASIS_CONDITION", "MultiplierBasis", "optimal_multipliers"]
