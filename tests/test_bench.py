@@ -107,6 +107,24 @@ def test_scaling_sweeps_cover_N_p_facets_and_n(quick_result):
     assert table.count("\n") == 2 + sum(len(rows) for rows in scaling.values())
 
 
+def test_feasible_x0_takes_the_first_multiple_whose_qp_is_feasible(example_spec, example_design):
+    """x0 = 8·[2, 3] (infeasible) -> the first scale in X0_SCALES whose QP (20) at k = 0 is feasible,
+    checked at every scale with the cvxpy backend (the function itself uses Drake)."""
+    from amcp_drake.backends import get_backend
+    from amcp_drake.model.status import SolveStatus
+    from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_drake.studies.bench_scaling import X0_SCALES, feasible_x0
+
+    pr, d = example_spec.problem, example_design
+    x0 = 8.0 * np.array([2.0, 3.0])
+    got, scale = feasible_x0(pr, d, x0)
+    qp = get_backend("cvxpy").tube_mpc(AdaptiveMPC(pr, d, backend="cvxpy").data)
+    feasible = [qp.solve(s * x0, d.h_theta0, pr.theta_hat0).status is SolveStatus.OPTIMAL for s in X0_SCALES]
+    assert True in feasible and not feasible[0]
+    assert scale == X0_SCALES[feasible.index(True)]
+    np.testing.assert_array_equal(got, scale * x0)
+
+
 def test_problem_with_n_embeds_example_1():
     from amcp_drake.model.examples import lorenzen2019
     from amcp_drake.studies.bench_scaling import W_BOUND_N, problem_with_n

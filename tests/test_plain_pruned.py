@@ -109,6 +109,8 @@ def _residuals_every_row(sol, data, h, H_theta) -> tuple[float, float, float]:
 
 @pytest.mark.parametrize("seed", range(3))
 def test_pruned_and_every_row_programs_agree_and_every_multiplier_is_recorded(example, seed):
+    """Random Θ_k ⊆ Θ0 one after the other on the same program (its cache of Θ_k's bases is keyed
+    by the bits of h_θ: a stale entry would give the left-out rows wrong multipliers)."""
     spec, d, data, pruned, every = example
     rng = np.random.default_rng(10 + seed)
     theta_hat = np.asarray(spec.problem.theta_hat0, float)
@@ -147,7 +149,7 @@ def test_no_multipliers_for_the_rows_left_out_solves_with_every_row(example, mon
 
     spec, d, data, _, every = example
     pruned = DrakeTubeMPC(data, DrakeSolver("clarabel", TIGHT))
-    monkeypatch.setattr(drake_tube, "optimal_multipliers", lambda H, h, c: None)
+    monkeypatch.setattr(drake_tube, "optimal_multipliers", lambda *args: None)
     theta_hat = np.asarray(spec.problem.theta_hat0, float)
     x = np.array([1.0, 0.5])
     a, b = pruned.solve(x, d.h_theta0, theta_hat), every.solve(x, d.h_theta0, theta_hat)
@@ -160,3 +162,29 @@ def test_without_theta0_every_row_is_built(example):
     spec, d, data, pruned, every = example
     plain = DrakeTubeMPC(dataclasses.replace(data, h_theta0=None), DrakeSolver("clarabel", TIGHT))
     assert plain.prog.num_vars() == every.prog.num_vars() > pruned.prog.num_vars()
+
+
+def test_the_bases_of_theta_k_follow_its_offsets(example):
+    """With a cut in Θ's shape the feasible bases of Θ_k change with h_θ (for a box they do not):
+    the program's cache returns the bases of the offsets asked for, and the left-out rows'
+    multipliers stay right after Θ_k changes."""
+    from amcp_drake.backends.multiplier_basis import feasible_bases
+
+    spec, d, data, *_ = example
+    cut = np.array([[1.0, 1.0, 0.0]]) / np.sqrt(2.0)
+    H = np.vstack([d.H_theta, cut])
+    h0 = np.concatenate([d.h_theta0, [10.0]])                      # the cut is redundant on Θ0
+    shaped = dataclasses.replace(data, H_theta=H, h_theta0=h0)
+    qp = DrakeTubeMPC(shaped, DrakeSolver("clarabel", TIGHT))
+    assert len(qp._left_out)
+    theta_hat = np.zeros(3)
+    x = np.array([0.5, 0.5])
+    for h_cut in (10.0, 0.1, 10.0):                                 # inactive, cutting a corner, inactive
+        h = np.concatenate([d.h_theta0, [h_cut]])
+        expected = feasible_bases(H, h)
+        got = qp._bases_of(h)
+        assert sorted(map(tuple, got.rows)) == sorted(map(tuple, expected.rows))
+        sol = qp.solve(x, h, theta_hat)
+        assert sol.status is SolveStatus.OPTIMAL and "every row" not in sol.detail
+        c15, d15, lam_min = _residuals_every_row(sol, shaped, h, H)
+        assert c15 <= 1e-7 and d15 <= 1e-9 and lam_min >= -1e-9

@@ -30,7 +30,12 @@ from amcp_drake.backends.clarabel_retry import NO_REFINEMENT, solve_with_retries
 from amcp_drake.backends.condensed_cost import CondensedCost
 from amcp_drake.backends.dominated_rows import kept_vertices
 from amcp_drake.backends.drake_solver import infeasible_constraint_names
-from amcp_drake.backends.multiplier_basis import MultiplierBasis, optimal_multipliers
+from amcp_drake.backends.multiplier_basis import (
+    FeasibleBases,
+    MultiplierBasis,
+    feasible_bases,
+    optimal_multipliers,
+)
 from amcp_drake.backends.vertex_form import VertexEnumerationError, theta_vertices
 from amcp_drake.model.status import SolveStatus
 
@@ -69,6 +74,7 @@ class DrakeTubeMPC:
         self._solver = solver
         self._prune = prune
         self._all_rows: DrakeTubeMPC | None = None  # the program with every row, on first need
+        self._bases_cache: dict[tuple[bytes, bytes], FeasibleBases | None] = {}
         self._cost_model = CondensedCost(data)
         self._build(np.asarray(data.H_theta, float))
 
@@ -124,9 +130,9 @@ class DrakeTubeMPC:
         prog.AddLinearConstraint(AT.tocsc(), np.full(r, -np.inf), np.ones(r), y
                                  ).evaluator().set_description("terminal set (z_N, alpha_N) in Xf")
 
-        # α >= 0 and Λ >= 0
+        # α >= 0 and Λ_N >= 0
         prog.AddBoundingBoxConstraint(0.0, np.inf, y[lay.a0:lay.a0 + N + 1]).evaluator().set_description("alpha >= 0")
-        prog.AddBoundingBoxConstraint(0.0, np.inf, y[lay.L0:]).evaluator().set_description("Lambda_N >= 0 (the multipliers not solved from (15d))")
+        prog.AddBoundingBoxConstraint(0.0, np.inf, y[lay.L0:]).evaluator().set_description("Lambda >= 0")
 
         # optional bound lo <= K x_k + v_0 <= hi on the first input (PE two-QP procedure, spec §8);
         # inactive (±inf) unless ``solve`` gets ``u0_bounds``
@@ -226,8 +232,10 @@ class DrakeTubeMPC:
                               np.broadcast_to(lam_cols[:, :, None], (rows, qn, p)).ravel()])
         v_b = np.concatenate([GM.ravel(), np.broadcast_to(basis.HNM[None], (rows, qn, p)).ravel()])
         AB = sp.csc_matrix((v_b, (r_b, c_b)), shape=(rows * p, lay.size))
+        # the same description as Λ_N >= 0: together they are Λ >= 0 of (15c)-(15d) ((15d) holds by
+        # construction), and the property suite's mutant "tube_lambda_nonneg_dropped" drops both
         prog.AddLinearConstraint(AB, np.full(rows * p, -np.inf), np.zeros(rows * p), y
-                                 ).evaluator().set_description("(15d) H_x D = Lambda H_theta, solved for Lambda_B >= 0")
+                                 ).evaluator().set_description("Lambda >= 0")
 
     def _kept_vertices(self, Acl0: np.ndarray, Acl_i: np.ndarray) -> np.ndarray:
         """Mask (u, v) of the rows (l, j, i) kept (:mod:`.dominated_rows`): all rows unless ``prune``
@@ -300,12 +308,23 @@ class DrakeTubeMPC:
             stages = [slice(None)] if np.ndim(h_theta) == 1 else range(lay.N)
             for stage in stages:
                 rows = slice(None) if np.ndim(h_theta) == 1 else self._stage_left_out == stage
-                found = optimal_multipliers(self.H_theta, h_theta if np.ndim(h_theta) == 1 else h_theta[stage],
-                                            c_out[rows])
+                h = h_theta if np.ndim(h_theta) == 1 else h_theta[stage]
+                found = optimal_multipliers(self.H_theta, h, c_out[rows], self._bases_of(h))
                 if found is None:
                     return None
                 lam[self._left_out[rows]] = found
         return lam.reshape(lay.N, lay.nv, lay.u, q)
+
+    def _bases_of(self, h: np.ndarray) -> FeasibleBases | None:
+        """:func:`.multiplier_basis.feasible_bases` of (H_θ, h), reused while h is the same to the bit
+        (Θ_k unchanged, most steps once it has settled; per-stage offsets keep one entry per stage)."""
+        key = (h.tobytes(), self.H_theta.tobytes())
+        cache = self._bases_cache
+        if key not in cache:
+            if len(cache) > self.layout.N:
+                cache.clear()
+            cache[key] = feasible_bases(self.H_theta, h)
+        return cache[key]
 
     # -- solve ---------------------------------------------------------------------------------
     #: Θ_k ⊆ Θ0 is taken to hold when h_θk <= h_θ0 + THETA0_TOL·max(1, |h_θ0|) row-wise (same H_θ):

@@ -85,46 +85,69 @@ class MultiplierBasis:
         return lam
 
 
-def optimal_multipliers(H_theta: np.ndarray, h_theta: np.ndarray, c: np.ndarray) -> np.ndarray | None:
-    """For each row c_ρ of ``c`` (r, p): Λ_ρ >= 0 (q,) with Λ_ρ H_θ = c_ρ and Λ_ρ h_θ minimal, i.e.
-    the multipliers of (15c)-(15d) for one row, with Λ_ρ h_θ = max {c_ρ θ : H_θ θ <= h_θ} (LP
-    duality). Used for the rows of (15c) that the plain form leaves out (:mod:`.dominated_rows`).
+@dataclass(frozen=True, eq=False)
+class FeasibleBases:
+    """The primal feasible bases of Θ_k = {H_θ θ <= h_θ} (:func:`feasible_bases`): ``rows`` (b, p) row
+    indices, ``inverse`` (p, b·p) = [H_B1^{-1} | H_B2^{-1} | …], so that c @ inverse holds c H_B^{-1}
+    for every basis at once."""
 
-    By enumeration of the bases of H_θ: a basis B (p rows, det(H_B) != 0 on unit rows) whose point
-    θ_B = H_B^{-1} h_B is in Θ_k (primal feasible) and whose multipliers λ_B = c_ρ H_B^{-1} are >= 0
-    (dual feasible) is optimal (an LP with a finite optimum has such a basis). Per row the basis
-    with the largest min(λ_B) is taken; Λ_ρ is λ_B on B and 0 elsewhere, so Λ_ρ H_θ = c_ρ to
-    rounding. Returns None when H_θ has more than :data:`.vertex_form.MAX_COMBINATIONS` bases or a
-    row has no basis with min(λ_B) >= −:data:`DUAL_FEASIBILITY_TOL`·max(1, ‖c_ρ‖) (the caller
-    then solves the program with every row)."""
+    q: int
+    rows: np.ndarray
+    inverse: np.ndarray
+
+
+def feasible_bases(H_theta: np.ndarray, h_theta: np.ndarray) -> FeasibleBases | None:
+    """The bases B of H_θ (p rows, det(H_B) != 0 on unit rows) whose point θ_B = H_B^{-1} h_B is in
+    Θ_k (to :data:`.vertex_form.FEASIBILITY_TOL`, as the vertex enumeration); None when H_θ has more
+    than :data:`.vertex_form.MAX_COMBINATIONS` bases or none is feasible (Θ_k empty)."""
     from amcp_drake.backends.vertex_form import FEASIBILITY_TOL, MAX_COMBINATIONS, SINGULAR_DET, combinations
 
     H = np.asarray(H_theta, float)
     h = np.asarray(h_theta, float)
-    c = np.atleast_2d(np.asarray(c, float))
     q, p = H.shape
     if comb(q, p) > MAX_COMBINATIONS:
         return None
     norms = np.linalg.norm(H, axis=1)
     Hn, hn = H / norms[:, None], h / norms
     combos = combinations(q, p)
-    invertible = np.abs(np.linalg.det(Hn[combos])) > SINGULAR_DET
-    combos = combos[invertible]
+    combos = combos[np.abs(np.linalg.det(Hn[combos])) > SINGULAR_DET]
     points = np.linalg.solve(H[combos], h[combos][..., None])[..., 0]                  # (b, p)
-    feasible = np.all(points @ Hn.T <= hn + FEASIBILITY_TOL * np.maximum(1.0, np.abs(hn)), axis=1)
-    combos = combos[feasible]
+    combos = combos[np.all(points @ Hn.T <= hn + FEASIBILITY_TOL * np.maximum(1.0, np.abs(hn)), axis=1)]
     if len(combos) == 0:
         return None
-    inv = np.linalg.inv(H[combos])                                                      # (b, p, p)
-    lam = np.einsum("rk,bkp->rbp", c, inv)                                              # c H_B^{-1}
+    inverse = np.linalg.inv(H[combos])                                                  # (b, p, p)
+    return FeasibleBases(q, combos, inverse.transpose(1, 0, 2).reshape(p, -1))
+
+
+def optimal_multipliers(H_theta: np.ndarray, h_theta: np.ndarray, c: np.ndarray,
+                        bases: FeasibleBases | None = None) -> np.ndarray | None:
+    """For each row c_ρ of ``c`` (r, p): Λ_ρ >= 0 (q,) with Λ_ρ H_θ = c_ρ and Λ_ρ h_θ minimal, i.e.
+    the multipliers of (15c)-(15d) for one row, with Λ_ρ h_θ = max {c_ρ θ : H_θ θ <= h_θ} (LP
+    duality). Used for the rows of (15c) that the plain form leaves out (:mod:`.dominated_rows`).
+
+    By enumeration of the bases of H_θ (``bases``: :func:`feasible_bases` of (H_θ, h_θ), computed
+    here when not given): a basis B whose point θ_B = H_B^{-1} h_B is in Θ_k (primal feasible) and
+    whose multipliers λ_B = c_ρ H_B^{-1} are >= 0 (dual feasible) is optimal (an LP with a finite
+    optimum has such a basis). Per row the basis with the largest min(λ_B) is taken; Λ_ρ is λ_B on
+    B and 0 elsewhere, so Λ_ρ H_θ = c_ρ to rounding. Returns None when there are no feasible bases
+    (or too many) or a row has no basis with min(λ_B) >= −:data:`DUAL_FEASIBILITY_TOL`·max(1, ‖c_ρ‖)
+    (the caller then solves the program with every row)."""
+    if bases is None:
+        bases = feasible_bases(H_theta, h_theta)
+        if bases is None:
+            return None
+    c = np.atleast_2d(np.asarray(c, float))
+    r, p = c.shape
+    lam = (c @ bases.inverse).reshape(r, -1, p)                                         # c H_B^{-1}
     worst = lam.min(axis=2)                                                             # (r, b)
     best = worst.argmax(axis=1)
-    rows = np.arange(len(c))
-    if np.any(worst[rows, best] < -DUAL_FEASIBILITY_TOL * np.maximum(1.0, np.linalg.norm(c, axis=1))):
+    rows = np.arange(r)
+    if np.any(worst[rows, best] < -DUAL_FEASIBILITY_TOL * np.maximum(1.0, np.sqrt((c * c).sum(axis=1)))):
         return None
-    out = np.zeros((len(c), q))
-    out[rows[:, None], combos[best]] = lam[rows, best]
+    out = np.zeros((r, bases.q))
+    out[rows[:, None], bases.rows[best]] = lam[rows, best]
     return out
 
 
-__all__ = ["DUAL_FEASIBILITY_TOL", "MAX_BASIS_CONDITION", "MultiplierBasis", "optimal_multipliers"]
+__all__ = ["DUAL_FEASIBILITY_TOL", "MAX_BASIS_CONDITION", "FeasibleBases", "MultiplierBasis", "feasible_bases",
+           "optimal_multipliers"]

@@ -9,6 +9,10 @@ Defaults (Example 1, spec §9): N = 10, X0 with 8 facets, n = 2, p = 3, x0 = [2,
   B₄ = [0.02, 0]ᵀ; Θ = [−1, 1]^p);
 * ``n`` ∈ {2, 3, 4}: :func:`problem_with_n`, Example 1 embedded in n states (n = 2 is Example 1).
 
+x0 is Example 1's [2, 3] (zero-padded for n > 2); where the tube QP (20) at k = 0 is infeasible for
+it (the n = 4 point), the largest of its multiples in :data:`X0_SCALES` whose QP is feasible
+(:func:`feasible_x0`; the row's ``x0_scale`` and the table say which).
+
 Every point is designed (its CPU and wall time reported: ``design_cpu_s``, ``design_s``), then the
 configurations (default: Drake plain (15), vertex, vertex + DAQP fast path) run in lockstep with
 the per-step CPU and wall times of :func:`amcp_drake.studies.bench.lockstep`. :func:`scaling_markdown`
@@ -33,6 +37,27 @@ THETA_STAR_4 = np.array([0.8, 0.2, -0.5, 0.3])
 #: Disturbance bound of the n >= 3 points, |w_i| <= 0.05: with Example 1's 0.1 the terminal set of
 #: the n = 3 and n = 4 systems below is empty for every X0 template tried (4 to 18 facets).
 W_BOUND_N = 0.05
+
+
+#: Multiples of x0 tried, in order, until the tube QP (20) at k = 0 is feasible (feasible_x0).
+X0_SCALES = (1.0, 0.5, 0.25, 0.125)
+
+
+def feasible_x0(problem, design, x0: np.ndarray) -> tuple[np.ndarray, float]:
+    """(s·x0, s) for the first s in X0_SCALES at which the QP (20) with Θ_0 and θ̂_0 (Drake, vertex
+    form) is solved to optimality; (x0, 1.0) when none is (the run then reports the infeasibility)."""
+    from amcp_drake.backends import TubeMPCData, get_backend
+    from amcp_drake.model.status import SolveStatus
+
+    d = design
+    data = TubeMPCData(A0=problem.A0, B0=problem.B0, A=problem.A, B=problem.B, F=problem.F, G=problem.G, Q=problem.Q,
+                       R=problem.R, N=problem.N, K=d.K, P=d.P, H_x=d.H_x, X0_vertices=d.X0_vertices, w_bar=d.w_bar,
+                       f_bar=d.f_bar, H_T=d.H_T, h_T=d.h_T, H_theta=d.H_theta, h_theta0=d.h_theta0)
+    qp = get_backend("drake", formulation="vertex").tube_mpc(data)
+    for scale in X0_SCALES:
+        if qp.solve(scale * x0, d.h_theta0, problem.theta_hat0).status is SolveStatus.OPTIMAL:
+            return scale * x0, scale
+    return x0, 1.0
 
 
 def problem_with_p(problem, p: int):
@@ -104,9 +129,11 @@ def scaling_benchmark(settings, progress: Callable[[str], None] = lambda s: None
                              "design_cpu_s": time.thread_time() - cpu})
                 continue
             timing = {"design_s": time.perf_counter() - wall, "design_cpu_s": time.thread_time() - cpu}
+            x0, scale = feasible_x0(problem, d, x0)
             runs = lockstep(problem, d, configs, x0, theta_star, settings.scaling_steps, settings.seed)
             rows.extend(summaries(runs, {axis: value, "N": problem.N, "p": problem.p, "n": problem.n,
-                                          "x0_facets": int(len(d.H_x)), "steps": settings.scaling_steps, **timing}))
+                                          "x0_facets": int(len(d.H_x)), "steps": settings.scaling_steps,
+                                          "x0_scale": scale, **timing}))
         out[axis] = rows
     return out
 
@@ -126,8 +153,9 @@ def scaling_markdown(scaling: dict[str, list[dict[str, Any]]]) -> str:
             fp = r.get("fast_path")
             fp_text = "" if fp is None else f"{fp['daqp']} / {fp['fallback']}"
             status = "" if r["status"] == "completed" else f" [{r['status']}]"
+            scaled = "" if r.get("x0_scale", 1.0) == 1.0 else f" (x0 × {r['x0_scale']:g})"
             lines.append(
-                f"| {axis} = {r[axis]} | {r['N']} | {r['x0_facets']} | {r['n']} | {r['p']} "
+                f"| {axis} = {r[axis]}{scaled} | {r['N']} | {r['x0_facets']} | {r['n']} | {r['p']} "
                 f"| {r['design_cpu_s']:.1f} ({r['design_s']:.1f}) | {r['backend']} {r['formulation']}{status} "
                 f"| {_fmt(t['cpu_total']['median'])} ({_fmt(t['total']['median'])}) "
                 f"| {_fmt(t['cpu_qp_solver']['median'])} | {_fmt(t['cpu_outside_solvers']['median'])} "
