@@ -161,10 +161,14 @@ class CvxpyBackend:
     def tube_mpc(self, data: TubeMPCData):
         """Build the tube MPC QP (20) once; see :class:`amcp_reference.tube_mpc.CvxpyTubeMPC`
         (plain) and :class:`amcp_reference.tube_vertex.CvxpyVertexTubeMPC` (vertex)."""
+        # the tube QP is solved once per step with new parameter values and the same structure: Clarabel's
+        # solver is kept and updated (SolverCall keep_solver; measured on Example 1, vertex form: 0.6-0.9 ms
+        # CPU less per step, v equal to a fresh solver's to 3e-13 over 300 steps)
+        call = SolverCall(self._call.name, self._call.options, keep_solver=True)
         if self.formulation == "vertex":
             from .tube_vertex import CvxpyVertexTubeMPC
 
-            return CvxpyVertexTubeMPC(data, self._call)
+            return CvxpyVertexTubeMPC(data, call)
         from .tube_mpc import CvxpyTubeMPC
 
-        return CvxpyTubeMPC(data, self._call)
+        return CvxpyTubeMPC(data, call)

@@ -43,12 +43,18 @@ def all_finite(*arrays: Any) -> bool:
 class SolverCall:
     """A cvxpy solver name plus options; :meth:`solve` never raises ``SolverError``."""
 
-    def __init__(self, solver: str, options: dict | None) -> None:
+    def __init__(self, solver: str, options: dict | None, keep_solver: bool = False) -> None:
+        """``keep_solver``: solve with cvxpy's ``warm_start=True``, which for Clarabel keeps the solver
+        of the last solve of the same Problem and passes the new data to its ``update`` (the KKT
+        structure and its symbolic factorisation are reused; Clarabel has no iterate warm start).
+        cvxpy builds a new solver when the update is refused (another sparsity pattern, a setting
+        that cannot change)."""
         name = str(solver).upper()
         if name not in cp.installed_solvers():
             raise ValueError(f"solver {solver!r} is not installed for cvxpy; installed: {cp.installed_solvers()}")
         self.name = name
         self.options = dict(options or {})
+        self.keep_solver = keep_solver
 
     def solve(self, problem: cp.Problem, extra_options: dict | None = None) -> tuple[SolveStatus, float, str]:
         """Solve ``problem``; return (canonical status, solver time in s, detail). ``extra_options``
@@ -62,8 +68,8 @@ class SolverCall:
             with warnings.catch_warnings():
                 # cvxpy warns "Solution may be inaccurate"; the status already says so
                 warnings.filterwarnings("ignore", message="Solution may be inaccurate", category=UserWarning)
-                problem.solve(solver=self.name, **(self.options if not extra_options
-                                                   else {**self.options, **extra_options}))
+                problem.solve(solver=self.name, warm_start=self.keep_solver,
+                              **(self.options if not extra_options else {**self.options, **extra_options}))
         except cp.error.SolverError as exc:
             return SolveStatus.ERROR, time.perf_counter() - start, f"SolverError: {exc}"
         wall = time.perf_counter() - start

@@ -120,7 +120,7 @@ class CvxpyVertexTubeMPC:
         self.data = data
         self._plain_call = call
         if call.name == "CLARABEL":
-            call = SolverCall(call.name, {**CLARABEL_OPTIONS, **call.options})
+            call = SolverCall(call.name, {**CLARABEL_OPTIONS, **call.options}, keep_solver=True)
         self._call = call
         self._forms: dict[int, _VertexFormulation] = {}
         self._elastic: dict[int, _VertexFormulation] = {}
