@@ -12,6 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 from amcp_drake.cli import main
+from amcp_drake.studies.bench_run import RESOLVE_MARKS, count_resolves
 
 STAT_KEYS = {"median", "p90", "mean", "max", "n"}
 WALL_NAMES = {"set_update", "set_update_solver", "lms", "qp_update", "solver", "total"}
@@ -62,11 +63,26 @@ def test_example_runs_cover_both_backends_formulations_and_x0_sizes(quick_result
             assert r["fast_path"]["daqp"] + r["fast_path"]["fallback"] == 4  # steps 0..3
         else:
             assert r["fast_path"] is None
+        assert set(r["resolves"]) == set(RESOLVE_MARKS) and all(0 <= v <= 4 for v in r["resolves"].values())
     kinds = {(q["kind"], q.get("backend") or q.get("formulation"), q["x0_facets"]) for q in data["example"]["ratios"]}
     assert kinds == {(k, who, x) for k, who in (("plain/vertex", "drake"), ("plain/vertex", "cvxpy"),
                                                 ("vertex/fast", "drake"), ("cvxpy/drake", "plain"),
                                                 ("cvxpy/drake", "vertex")) for x in (4, 8)}
     assert all(q[key] > 0 for q in data["example"]["ratios"] for key in ("total", "solver", "total_cpu", "solver_cpu"))
+
+
+def test_resolves_are_counted_from_the_messages_the_code_writes(example_spec, example_design):
+    """The marks of RESOLVE_MARKS match the texts the solvers and the controller write: a real
+    Clarabel retry note, a real step of the reduced plain form outside Θ0 (every row), and the
+    controller's fallback note; a clean step counts nowhere."""
+    from amcp_drake.backends.clarabel_retry import describe
+    from amcp_drake.online.controller import AdaptiveMPC
+
+    ctrl = AdaptiveMPC(example_spec.problem, example_design, backend="drake")
+    outside = ctrl.mpc.solve(np.array([1.0, 0.5]), 1.2 * np.asarray(example_design.h_theta0), np.zeros(3))
+    details = [describe(0), outside.detail, "", "tube QP (20): tube (15c) 2e-06 > 1e-06; fallback: vertex form of (20) (checked)"]
+    assert count_resolves(details) == {"clarabel_retry": 1, "refined_resolve": 0, "every_row": 1, "plain_fallback": 0,
+                                       "answer_check_fallback": 1}
 
 
 def stats_cpu_parts_fit(times_ms) -> bool:

@@ -383,6 +383,8 @@ def format_summary(result: dict[str, Any]) -> str:
             extra = f"  max|dv| vs plain {dv:.1e}" if dv is not None else ""
             if r.get("fast_path"):
                 extra += f"  DAQP {r['fast_path']['daqp']}, fallbacks {r['fast_path']['fallback']}"
+            resolves = {k: v for k, v in (r.get("resolves") or {}).items() if v}
+            extra += "  re-solves: " + (", ".join(f"{k} {v}" for k, v in resolves.items()) or "none")
             lines.append(f"{r['backend']:7s} {r['formulation']:6s} {r['x0_facets']:>3d} " + " ".join(cells) + status + extra)
         for q in example["ratios"]:
             who = q.get("backend") or q.get("formulation")

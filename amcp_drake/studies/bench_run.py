@@ -45,10 +45,42 @@ class RunResult:
     status: str = "completed"
     build_cpu_s: float = 0.0
     fast_path: dict[str, int] | None = None   # fast path: steps answered by DAQP and fallbacks
+    #: steps that needed more than the first solve (:func:`count_resolves`; full and first steps)
+    resolves: dict[str, int] = field(default_factory=dict)
 
     @property
     def label(self) -> str:
         return f"{self.backend}/{self.formulation}"
+
+
+#: Kinds of extra work a step can need, counted per run: name -> text that marks it in the QP
+#: solution's detail (``MPCSolution.detail``) or in the step's answer-check notes (``StepRecord.detail``).
+RESOLVE_MARKS = {
+    "clarabel_retry": "Clarabel retr",                      # the retry ladder (clarabel_retry)
+    "refined_resolve": "re-solved with iterative refinement",  # first try without refinement failed
+    "every_row": "every row of (15c)",                      # reduced plain form -> every row
+    "plain_fallback": "plain form (15) fallback",            # vertex form without Θ_k's vertices
+    "answer_check_fallback": "fallback: ",                   # an answer failed its check: another method
+}
+
+
+def count_resolves(details: list[str]) -> dict[str, int]:
+    """Per kind of :data:`RESOLVE_MARKS`, the number of steps whose notes (``details``: one string
+    per step, the QP's detail and the step's answer-check notes joined) contain its mark."""
+    return {kind: sum(mark in d for d in details) for kind, mark in RESOLVE_MARKS.items()}
+
+
+def _record_qp_details(ctrl, details: list[str]) -> None:
+    """Wrap ``ctrl.mpc.solve`` (this controller only) so that each QP solution's detail is kept
+    (one call and one append per solve inside the timed step, about 1 µs)."""
+    solve = ctrl.mpc.solve
+
+    def recorded(*args, **kwargs):
+        sol = solve(*args, **kwargs)
+        details.append(sol.detail)
+        return sol
+
+    ctrl.mpc.solve = recorded
 
 
 # -- running -----------------------------------------------------------------------------------
@@ -67,6 +99,8 @@ def lockstep(problem, design, configs: list[tuple[str, str]], x0, theta_star, st
     w = disturbance_sequence(problem, "uniform", steps + 1, seed=seed)
     theta_star = np.asarray(theta_star, float)
     runs, profiles, states = [], [], []
+    qp_details: list[list[str]] = []   # per run: the QP details of the current step
+    step_notes: list[list[str]] = []   # per run: one string per step (QP details + answer-check notes)
     for backend, formulation in configs:
         start, cpu = time.perf_counter(), time.thread_time()
         ctrl = AdaptiveMPC(problem, design, backend=backend, **FORMULATION_OPTIONS[formulation])
@@ -76,6 +110,9 @@ def lockstep(problem, design, configs: list[tuple[str, str]], x0, theta_star, st
         runs.append(run)
         profiles.append(CpuProfile(ctrl))
         states.append(np.asarray(x0, float))
+        qp_details.append([])
+        _record_qp_details(ctrl, qp_details[-1])
+        step_notes.append([])
     active = [True] * len(runs)
     was_enabled = gc.isenabled()
     gc.collect()
@@ -85,11 +122,13 @@ def lockstep(problem, design, configs: list[tuple[str, str]], x0, theta_star, st
             for c, (run, prof) in enumerate(zip(runs, profiles)):
                 if not active[c]:
                     continue
+                qp_details[c].clear()
                 try:
                     u, rec, cpu_parts = prof.step(states[c])
                 except AmcpError as exc:
                     run.status, active[c] = f"error at k={k}: {exc}", False
                     continue
+                step_notes[c].append("; ".join([*qp_details[c], rec.detail]))
                 run.v.append(None if rec.v is None else np.asarray(rec.v, float))
                 if u is None:
                     run.status, active[c] = f"{rec.status.value} at k={k}", False
@@ -103,8 +142,9 @@ def lockstep(problem, design, configs: list[tuple[str, str]], x0, theta_star, st
     finally:
         if was_enabled:
             gc.enable()
-    for run, prof in zip(runs, profiles):
+    for run, prof, notes in zip(runs, profiles, step_notes):
         run.fast_path = getattr(prof.ctrl.mpc, "fast_path_counts", None)
+        run.resolves = count_resolves(notes)
     return runs
 
 
@@ -130,9 +170,9 @@ def summaries(runs: list[RunResult], extra: dict[str, Any]) -> list[dict[str, An
                     "build_s": run.build_s, "build_cpu_s": run.build_cpu_s,
                     "times_ms": {name: _stats(vals) for name, vals in run.times.items()},
                     "max_abs_dv_vs_plain": _max_dv(run, plain) if plain is not None and plain is not run else None,
-                    "fast_path": run.fast_path})
+                    "fast_path": run.fast_path, "resolves": run.resolves})
         out.append(row)
     return out
 
 
-__all__ = ["FORMULATION_OPTIONS", "TIME_KEYS", "RunResult", "lockstep", "summaries"]
+__all__ = ["FORMULATION_OPTIONS", "RESOLVE_MARKS", "TIME_KEYS", "RunResult", "count_resolves", "lockstep", "summaries"]
