@@ -88,8 +88,9 @@ class MultiplierBasis:
 @dataclass(frozen=True, eq=False)
 class FeasibleBases:
     """The primal feasible bases of Θ_k = {H_θ θ <= h_θ} (:func:`feasible_bases`): ``rows`` (b, p) row
-    indices, ``inverse`` (p, b·p) = [H_B1^{-1} | H_B2^{-1} | …], so that c @ inverse holds c H_B^{-1}
-    for every basis at once."""
+    indices, ``inverse`` (p, p·b) with column k·b + j = column k of H_Bj^{-1}, so that
+    (c @ inverse).reshape(r, p, b)[ρ, :, j] is c_ρ H_Bj^{-1} for every basis at once (the minimum over
+    the p multipliers is taken by p − 1 elementwise minima of (r, b) slices)."""
 
     q: int
     rows: np.ndarray
@@ -116,7 +117,7 @@ def feasible_bases(H_theta: np.ndarray, h_theta: np.ndarray) -> FeasibleBases | 
     if len(combos) == 0:
         return None
     inverse = np.linalg.inv(H[combos])                                                  # (b, p, p)
-    return FeasibleBases(q, combos, inverse.transpose(1, 0, 2).reshape(p, -1))
+    return FeasibleBases(q, combos, inverse.transpose(1, 2, 0).reshape(p, -1))
 
 
 def optimal_multipliers(H_theta: np.ndarray, h_theta: np.ndarray, c: np.ndarray,
@@ -138,14 +139,18 @@ def optimal_multipliers(H_theta: np.ndarray, h_theta: np.ndarray, c: np.ndarray,
             return None
     c = np.atleast_2d(np.asarray(c, float))
     r, p = c.shape
-    lam = (c @ bases.inverse).reshape(r, -1, p)                                         # c H_B^{-1}
-    worst = lam.min(axis=2)                                                             # (r, b)
+    lam = (c @ bases.inverse).reshape(r, p, -1)                                         # [ρ, :, j] = c_ρ H_Bj^{-1}
+    worst = lam[:, 0].copy()                                                            # min over the p
+    norm2 = c[:, 0] * c[:, 0]                                                           # multipliers and
+    for k in range(1, p):                                                               # ‖c_ρ‖², by slices
+        np.minimum(worst, lam[:, k], out=worst)                                        # (numpy reduces a
+        norm2 += c[:, k] * c[:, k]                                                      # short axis slowly)
     best = worst.argmax(axis=1)
     rows = np.arange(r)
-    if np.any(worst[rows, best] < -DUAL_FEASIBILITY_TOL * np.maximum(1.0, np.sqrt((c * c).sum(axis=1)))):
+    if np.any(worst[rows, best] < -DUAL_FEASIBILITY_TOL * np.maximum(1.0, np.sqrt(norm2))):
         return None
     out = np.zeros((r, bases.q))
-    out[rows[:, None], bases.rows[best]] = lam[rows, best]
+    out[rows[:, None], bases.rows[best]] = lam[rows, :, best]
     return out
 
 
