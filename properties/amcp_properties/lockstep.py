@@ -3,7 +3,14 @@
 The leader's trajectory fixes x_k, Θ_{k-1}, θ̂_{k-1}, (x_{k-1}, u_{k-1}) and the moving window; the
 follower backend receives exactly these at every step and performs one step of the algorithm
 (set update (9), projected LMS (12), QP (20)). Any difference then comes from the formulation
-or the solver, never from drift. Both backends use Clarabel (their defaults) and the same design.
+or the solver, never from drift. Both backends use Clarabel with :data:`ACCURATE` tolerances
+(leader and follower, :func:`accurate_run`) and the same design: "cross-backend comparisons use
+the same accurate solver". At Clarabel's defaults (1e-8 on the gap) v is determined only to about
+1e-5 on flat optima: the thorough profile found a run (x0 on the boundary, vertex disturbances,
+tests/data/lockstep-flat-optimum-problem.json) whose step-0 v differed by 1.14e-5 > 1.06e-5
+between the backends at defaults, with the cvxpy answer 1.2e-5 and the Drake answer 9e-7 from the
+optimum (both backends agree to 3.6e-9 at ACCURATE; the code before issue 16's session 4 gave the
+same 1.14e-5).
 
 The follower's estimator state is set through the controller's attributes (``H_theta``,
 ``h_theta``, ``theta_hat``, ``_prev``, ``_window``), as ``amcp_drake.comparison.compare`` does.
@@ -19,9 +26,13 @@ from amcp_drake.model.check_result import CheckResult, judge
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.online.controller import AdaptiveMPC
 
+#: Clarabel options of both backends in the comparison (tube QP, and the LPs and projections, which
+#: already run at 1e-10): the tolerances of tests/test_formulations.py.
+ACCURATE = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10}
+
 #: quantity -> (absolute, relative) tolerance; a difference d passes when d <= abs + rel·scale.
 #: v is unique (the cost (17) is strictly convex in v, R ≻ 0) and both QPs are solved by Clarabel
-#: to 1e-8; h_θ by LPs at 1e-10 (or simplex); θ̂ by projection QPs at 1e-10 (both, scaled form).
+#: to 1e-10 (ACCURATE); h_θ by LPs at 1e-10 (or simplex); θ̂ by projection QPs at 1e-10 (both, scaled form).
 #: Worst |difference| / tolerance on 60 generated runs (seed 31, Drake leading): v 0.006,
 #: h_θ 0.003, cost 0.0007, θ̂ 0.14 (the same tolerances as amcp_drake.comparison.compare.TOLERANCES).
 TOLERANCES = {"v": (1e-5, 1e-5), "cost": (1e-5, 1e-6), "h_theta": (1e-6, 1e-6), "theta_hat": (1e-6, 1e-6)}
@@ -49,10 +60,22 @@ def _diff(step: int, quantity: str, a, b) -> Difference:
     return Difference(step, quantity, float(np.max(np.abs(a - b))) if a.size else 0.0, abs_tol + rel_tol * scale)
 
 
+def accurate_controller(case, backend: str) -> AdaptiveMPC:
+    """The controller of ``case`` on ``backend`` with Clarabel at :data:`ACCURATE` tolerances."""
+    return AdaptiveMPC(case.problem, case.design, backend=backend, options=case.options, solver_options=ACCURATE)
+
+
+def accurate_run(case, backend: str):
+    """The leader's run for the comparison (:func:`amcp_properties.cases.run` with :func:`accurate_controller`)."""
+    from .cases import run
+
+    return run(case, backend, accurate_controller(case, backend))
+
+
 def follow(traj, case, follower: str) -> tuple[list[Difference], list[tuple[int, str, str]]]:
-    """Replay every step of ``traj`` on ``follower``; returns the differences and the statuses
-    (step, leader, follower) that differ."""
-    ctrl = AdaptiveMPC(case.problem, case.design, backend=follower, options=case.options)
+    """Replay every step of ``traj`` on ``follower`` (at :data:`ACCURATE` tolerances, as the leader
+    of :func:`accurate_run`); returns the differences and the statuses (step, leader, follower) that differ."""
+    ctrl = accurate_controller(case, follower)
     window = case.options.window if case.options.update == "window" else 1
     diffs: list[Difference] = []
     statuses: list[tuple[int, str, str]] = []
