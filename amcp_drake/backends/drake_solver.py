@@ -19,6 +19,7 @@ from pydrake.solvers import (
     SolverOptions,
 )
 
+from amcp_drake.model.arrays import all_finite
 from amcp_drake.model.status import SolveStatus
 
 #: Drake's SolutionResult -> canonical status.
@@ -53,7 +54,7 @@ SOLVERS = {
 
 def finite_or_raise(name: str, *arrays: np.ndarray) -> None:
     for arr in arrays:
-        if not np.isfinite(arr).all():
+        if not all_finite(arr):
             raise ValueError(f"{name}: non-finite coefficient passed to Drake (it would abort the interpreter)")
 
 

@@ -35,7 +35,7 @@ from amcp_drake.backends.condensed_cost import CondensedCost
 from amcp_drake.backends.daqp_fast import DaqpFastPath
 from amcp_drake.backends.drake_solver import DrakeSolver, infeasible_constraint_names
 from amcp_drake.backends.vertex_form import CLARABEL_OPTIONS, VertexEnumerationError, theta_vertices
-from amcp_drake.model.arrays import same_bits
+from amcp_drake.model.arrays import all_finite, same_bits
 from amcp_drake.model.status import SolveStatus
 
 TUBE_ROWS = "(5b) tube propagation at the vertices of Theta_k (vertex form of (15c)-(15d))"
@@ -205,7 +205,7 @@ class DrakeVertexTubeMPC:
         theta_hat = np.asarray(theta_hat, float)
         H = np.asarray(self.data.H_theta if H_theta is None else H_theta, float)
         for name, arr in (("x", x), ("h_theta", h_theta), ("theta_hat", theta_hat), ("H_theta", H)):
-            if not np.isfinite(arr).all():
+            if not all_finite(arr):
                 return MPCSolution(SolveStatus.ERROR, None, None, None, None, None, detail=f"non-finite {name}")
         try:
             vertices, unchanged = self._vertices(H, h_theta)
@@ -214,7 +214,7 @@ class DrakeVertexTubeMPC:
         if not unchanged:
             self._vertex_version += 1
         S = len(vertices)
-        b15b = self._minus_H_x @ x
+        b15b = np.matmul(self._minus_H_x, x, out=self._c15b_ub)  # −H_x x_k, the upper bound of (15b)
         Hv, g, const = self._cost_model.matrices(x, theta_hat)
         fast_note = ""
         if self._fast is not None:
@@ -226,8 +226,7 @@ class DrakeVertexTubeMPC:
             rows.write(self._block(vertices))
             self._tube.UpdateCoefficients(rows.A, rows.lb, rows.ub)
             self._tube_S, self._drake_version = S, self._vertex_version
-        self._c15b_ub[:] = b15b
-        self._c15b.UpdateUpperBound(self._c15b_ub)
+        self._c15b.UpdateUpperBound(b15b)
         self._cost.UpdateCoefficients(2.0 * Hv, 2.0 * g, const, is_convex=True)
         update_time = time.perf_counter() - start
         result, solver_time = self._solver.solve(self.prog)

@@ -16,4 +16,15 @@ def same_bits(a: np.ndarray, b: np.ndarray) -> bool:
     return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
 
 
-__all__ = ["same_bits"]
+_isfinite = np.isfinite
+_and_reduce = np.logical_and.reduce
+
+
+def all_finite(a: np.ndarray) -> bool:
+    """``np.isfinite(a).all()`` for a float array, without ``ndarray.all``'s Python wrapper
+    (``numpy._core._methods._all`` calls this same ``logical_and.reduce``): ~1 µs less per call in
+    the online loop, which checks a dozen small arrays per step."""
+    return bool(_and_reduce(_isfinite(a), axis=None))
+
+
+__all__ = ["all_finite", "same_bits"]

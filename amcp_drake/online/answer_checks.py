@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import nnls
 
-from amcp_drake.model.arrays import same_bits
+from amcp_drake.model.arrays import all_finite, same_bits
 
 # Separate from the certificate's tolerances (certificate.claims SET_LP_TOL, PROJECTION_TOL;
 # certificate.tube QP_TOL) on purpose: the online layer may not import the certificate (layers in
@@ -68,6 +68,10 @@ SET_POINT_TOL = 1e-7
 #: order 1-10; 1e-6 allows that and is far below any violation that matters (bounds of order 0.1-1).
 TUBE_ROW_TOL = 1e-6
 
+# ufunc reductions called directly (``ndarray.max`` reaches the same reduction through a Python wrapper)
+_max = np.maximum.reduce
+_add_reduce = np.add.reduce
+
 
 @dataclass(frozen=True)
 class AnswerCheck:
@@ -100,12 +104,12 @@ def describe_failures(problem: str, checks: list[AnswerCheck]) -> str:
 
 
 def _finite_shape(name: str, array, shape: tuple[int, ...]) -> AnswerCheck:
-    ok = array is not None and np.shape(array) == shape and bool(np.isfinite(array).all())
+    ok = array is not None and np.shape(array) == shape and all_finite(array)
     return AnswerCheck(f"{name} finite, shape {shape}", 0.0 if ok else float("inf"), 0.0)
 
 
 def _unit(H: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    norms = np.sqrt((H * H).sum(axis=1))
+    norms = np.sqrt(_add_reduce(H * H, axis=1))
     norms[norms == 0.0] = 1.0
     return H / norms[:, None], h / norms
 
@@ -157,23 +161,24 @@ def check_set_update(h, Lambda, points, H_theta: np.ndarray, h_prev: np.ndarray,
     if not shape.passed:
         return [shape]
     h = np.asarray(h, float)
-    checks = [shape, AnswerCheck("set update nested h <= h_prev (10)", float((h - h_prev).max()), SET_NESTED_TOL)]
-    if Lambda is None or np.shape(Lambda) != (q, len(h_tilde)) or not np.isfinite(Lambda).all():
+    checks = [shape, AnswerCheck("set update nested h <= h_prev (10)", float(_max(h - h_prev, axis=None)), SET_NESTED_TOL)]
+    if Lambda is None or np.shape(Lambda) != (q, len(h_tilde)) or not all_finite(Lambda):
         checks.append(AnswerCheck("set update outer bound (dual certificate)", float("nan"), SET_OUTER_TOL, ran=False))
     else:
         lam = np.maximum(np.asarray(Lambda, float), 0.0)
         residual = H_theta - lam @ H_tilde
         bound = lam @ h_tilde + np.abs(residual) @ np.asarray(theta_box, float)
-        checks.append(AnswerCheck("set update outer bound (dual certificate)", float((bound - h).max()), SET_OUTER_TOL))
+        checks.append(AnswerCheck("set update outer bound (dual certificate)", float(_max(bound - h, axis=None)),
+                                  SET_OUTER_TOL))
     if points is None:
         checks.append(AnswerCheck("set update maximisers feasible and tight", float("nan"), SET_POINT_TOL, ran=False))
-    elif np.shape(points) != (q, p) or not np.isfinite(points).all():
+    elif np.shape(points) != (q, p) or not all_finite(points):
         checks.append(AnswerCheck("set update maximisers feasible and tight", float("inf"), SET_POINT_TOL))
     else:
         pts = np.asarray(points, float)
         Ht_n, ht_n = _unit(H_tilde, h_tilde)
-        infeasible = float((pts @ Ht_n.T - ht_n).max())
-        miss = float(np.abs((H_theta * pts).sum(axis=1) - h).max())
+        infeasible = float(_max(pts @ Ht_n.T - ht_n, axis=None))
+        miss = float(_max(np.abs(_add_reduce(H_theta * pts, axis=1) - h), axis=None))
         checks.append(AnswerCheck("set update maximisers feasible and tight", max(infeasible, miss), SET_POINT_TOL))
     return checks
 
@@ -292,6 +297,16 @@ class TubeCheck:
         self._vertices = None
         self._Ct = np.zeros((2 * n + 3 + m, 0))
         self._w = np.ones((N, 2 * n + 3 + m))  # w_l = [z_l | z_{l+1} | α_l | α_{l+1} | v_l | 1]
+        # w gathered from [y | 1] by one np.take (the same copies as writing its five column blocks)
+        one = size
+        self._w_index = np.array([np.concatenate([np.arange(l * n, (l + 2) * n), [a0 + l, a0 + l + 1],
+                                                  np.arange(v0 + l * m, v0 + (l + 1) * m), [one]])
+                                  for l in range(N)], dtype=np.intp)
+        self._one = np.ones(1)
+        self._shapes = ((N, m), (N + 1, n), (N + 1,))
+        # the three "finite, shape" rows of an answer that has them (immutable: the same objects every step)
+        self._finite_rows = tuple(AnswerCheck(f"{name} finite, shape {shape}", 0.0, 0.0)
+                                  for name, shape in zip(("tube v", "tube z", "tube alpha"), self._shapes))
         self._plain_rows: tuple[np.ndarray, np.ndarray] | None = None  # (15c), (15d) on w_l, on first need
 
     def _lambda_rows(self) -> tuple[np.ndarray, np.ndarray]:
@@ -334,28 +349,24 @@ class TubeCheck:
         """The checks of :func:`check_tube` for ``sol`` at x_k. With Λ (plain form): ``h_theta`` (q,)
         or per stage (N, q) and ``H_theta`` (None: the data's), and (5b) at ``theta_vertices`` when
         they are given; without Λ (vertex form): (5b) at the vertices of Θ_k (None: "not run")."""
-        N, n, m = self.N, self.n, self.m
         v, z, alpha = sol.v, sol.z, sol.alpha
-        shapes = ((N, m), (N + 1, n), (N + 1,))
+        shapes = self._shapes
         y = None
         if all(a is not None and np.shape(a) == shape for a, shape in zip((v, z, alpha), shapes)):
             z, alpha, v = np.asarray(z, float), np.asarray(alpha, float), np.asarray(v, float)
-            y = np.concatenate([z.reshape(-1), alpha, v.reshape(-1)])
-        if y is None or not np.isfinite(y).all():
+            y1 = np.concatenate([z.reshape(-1), alpha, v.reshape(-1), self._one])  # [y | 1]
+            y = y1[:-1]
+        if y is None or not all_finite(y):
             return [_finite_shape("tube v", sol.v, shapes[0]), _finite_shape("tube z", sol.z, shapes[1]),
                     _finite_shape("tube alpha", sol.alpha, shapes[2])]
-        checks = [AnswerCheck(f"{name} finite, shape {shape}", 0.0, 0.0)
-                  for name, shape in zip(("tube v", "tube z", "tube alpha"), shapes)]
+        checks = list(self._finite_rows)
         np.matmul(self.H_x, -np.asarray(x, float), out=self._b15b)
         worst = np.maximum.reduceat(self.fixed @ y - self.b, self.starts).tolist()
         checks += [AnswerCheck("tube alpha >= 0", max(0.0, worst[0]), TUBE_ROW_TOL),
                    AnswerCheck("tube x_k in X_0|k (15b)", worst[1], TUBE_ROW_TOL),
                    AnswerCheck("tube constraints (15a)", worst[2], TUBE_ROW_TOL),
                    AnswerCheck("tube terminal set", worst[3], TUBE_ROW_TOL)]
-        w = self._w
-        w[:, :n], w[:, n:2 * n] = z[:N], z[1:]
-        w[:, 2 * n], w[:, 2 * n + 1] = alpha[:N], alpha[1:]
-        w[:, 2 * n + 2:-1] = v
+        w = np.take(y1, self._w_index, out=self._w, mode="clip")  # (indices valid; "clip" skips a buffer) w_l = [z_l | z_{l+1} | α_l | α_{l+1} | v_l | 1]
         if sol.Lambda is not None:
             Lam = np.asarray(sol.Lambda, float)
             malformed = self._malformed_lambda(Lam, H_theta)
@@ -370,7 +381,7 @@ class TubeCheck:
         if self._vertices is None or not same_bits(self._vertices, np.asarray(theta_vertices, float)):
             self._tube_rows(theta_vertices)
             self._vertices = np.array(theta_vertices, float)
-        checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float((w @ self._Ct).max()),
+        checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float(_max(w @ self._Ct, axis=None)),
                                   TUBE_ROW_TOL))
         return checks
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from amcp_drake.backends import TubeMPCData, get_backend
 from amcp_drake.model import polytope
-from amcp_drake.model.arrays import same_bits
+from amcp_drake.model.arrays import all_finite, same_bits
 from amcp_drake.model.errors import InconsistentDataError, ProblemError
 from amcp_drake.model.options import OnlineOptions
 from amcp_drake.model.problem import Problem
@@ -35,6 +35,11 @@ DELTA_ROW_MIN_NORM = 1e-6
 #: set with interior), Δ_k ⊆ Δ_k^ε keeps Lemma 3 exact, and a disturbance outside W by more than
 #: this distance is still reported as inconsistent data.
 DELTA_MARGIN = 1e-6
+
+# ufunc reductions called directly: ``ndarray.all``/``sum`` and ``np.all`` reach these same reductions
+# through Python wrappers (~1-2 µs per call in the online loop, issue 16)
+_and_reduce = np.logical_and.reduce
+_add_reduce = np.add.reduce
 
 
 
@@ -111,6 +116,7 @@ class AdaptiveMPC:
                 raise ProblemError("formulation", "'plain' (the PE constraint needs formulation='plain')",
                                    repr(self.backend.formulation))
         self.mpc = self.backend.tube_mpc(self.data)
+        self._minus_H_w = -problem.H_w  # −H_w of Δ_k (6), negated once (the same product bit for bit)
         #: ‖[H_θ]_i‖: the dilation D_l of Section 4.1 on un-normalised rows (same set as on unit rows)
         self._row_norms = np.linalg.norm(np.asarray(design.H_theta, float), axis=1)
         #: max |θ_j| over Θ0 ⊇ Θ_k (scipy, once): bounds the residual of Λ H̃ = H_θ in check_set_update
@@ -137,10 +143,10 @@ class AdaptiveMPC:
         scaled to unit norm (see DELTA_ROW_MIN_NORM)."""
         pr = self.problem
         D, d = self._regression(x_prev, u_prev, x)
-        H, h = -pr.H_w @ D, 1.0 + pr.H_w @ d
-        norms = np.sqrt((H * H).sum(axis=1))
+        H, h = self._minus_H_w @ D, 1.0 + pr.H_w @ d
+        norms = np.sqrt(_add_reduce(H * H, axis=1))
         keep = norms >= DELTA_ROW_MIN_NORM
-        if not keep.all():
+        if not _and_reduce(keep, axis=None):
             H, h, norms = H[keep], h[keep], norms[keep]
         return H / norms[:, None], h / norms + DELTA_MARGIN
 
@@ -290,7 +296,7 @@ class AdaptiveMPC:
             H, h, target = pr.H_theta, pr.h_theta, "Θ"
         else:
             H, h, target = self.H_theta, self.h_theta, "Θ_k"
-        if np.all(H @ theta_tilde <= h):
+        if _and_reduce(H @ theta_tilde <= h, axis=None):
             # the projection of a point of the set is the point itself: no QP needed
             self.theta_hat = theta_tilde
             record.projection_status = SolveStatus.OPTIMAL
@@ -511,7 +517,7 @@ class AdaptiveMPC:
         """Steps (i)-(iv) at the measured state x_k."""
         start = time.perf_counter()
         x = np.asarray(x, float)
-        if x.shape != (self.problem.n,) or not np.all(np.isfinite(x)):
+        if x.shape != (self.problem.n,) or not all_finite(x):
             raise ProblemError("x", f"a finite state vector of length {self.problem.n}", f"{x!r}")
         self._regression_cache = None
         record = StepRecord(k=self.k, x=x, u=None, status=SolveStatus.NOT_RUN, H_theta=self.H_theta,
