@@ -52,24 +52,24 @@ class CondensedCost:
         if self._last is None or not same_bits(self._last[0], theta_hat):
             self._last = (theta_hat.copy(), *self._blocks(theta_hat))
         _, H, S, T = self._last
-        return H, S.T @ x, float(x @ T @ x)
+        return H, S.T @ x, float(np.dot(np.dot(x, T), x))  # S.T: a strided view, matmul kept (np.dot would copy: other bits)
 
     def _blocks(self, theta_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         d, n, m, N = self.data, self.n, self.m, self.N
-        B_hat = d.B0 + (theta_hat @ self._B_flat).reshape(n, m)
-        A_cl = d.A0 + (theta_hat @ self._A_flat).reshape(n, n) + B_hat @ self.K
+        B_hat = d.B0 + np.dot(theta_hat, self._B_flat).reshape(n, m)
+        A_cl = d.A0 + np.dot(theta_hat, self._A_flat).reshape(n, n) + np.dot(B_hat, self.K)
         powers = np.empty((N + 1, n, n))
         powers[0] = np.eye(n)
         for l in range(1, N + 1):
-            np.matmul(A_cl, powers[l - 1], out=powers[l])   # written in place (same products, bit for bit)
+            np.dot(A_cl, powers[l - 1], out=powers[l])   # written in place (same products, bit for bit)
         PB = np.zeros((N + 1, n, m))
         np.matmul(powers[:N], B_hat, out=PB[:N])
         W = np.empty((N + 1, n, n + N * m))                     # block l: [A_cl^l | Γ_l]
         W[:, :, :n] = powers
         W[:, :, n:] = PB[self._lag].transpose(0, 2, 1, 3).reshape(N + 1, n, N * m)
-        G = np.concatenate([(self.Qh @ W[:N]).reshape(N * n, -1), self.Ph @ W[N],
+        G = np.concatenate([(self.Qh @ W[:N]).reshape(N * n, -1), np.dot(self.Ph, W[N]),
                             (self.Rh @ (self.K @ W[:N] + self._v_identity)).reshape(N * m, -1)])
-        M = G.T @ G
+        M = np.dot(G.T, G)
         H = M[n:, n:]
         return 0.5 * (H + H.T), M[:n, n:], M[:n, :n]
 

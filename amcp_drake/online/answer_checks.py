@@ -71,6 +71,8 @@ TUBE_ROW_TOL = 1e-6
 # ufunc reductions called directly (``ndarray.max`` reaches the same reduction through a Python wrapper)
 _max = np.maximum.reduce
 _add_reduce = np.add.reduce
+#: np.dot for 1-D/2-D operands: the same BLAS call as ``@`` (the same bits) without the matmul ufunc's dispatch
+_dot = np.dot
 
 
 @dataclass(frozen=True)
@@ -166,8 +168,8 @@ def check_set_update(h, Lambda, points, H_theta: np.ndarray, h_prev: np.ndarray,
         checks.append(AnswerCheck("set update outer bound (dual certificate)", float("nan"), SET_OUTER_TOL, ran=False))
     else:
         lam = np.maximum(np.asarray(Lambda, float), 0.0)
-        residual = H_theta - lam @ H_tilde
-        bound = lam @ h_tilde + np.abs(residual) @ np.asarray(theta_box, float)
+        residual = H_theta - _dot(lam, H_tilde)
+        bound = _dot(lam, h_tilde) + _dot(np.abs(residual), np.asarray(theta_box, float))
         checks.append(AnswerCheck("set update outer bound (dual certificate)", float(_max(bound - h, axis=None)),
                                   SET_OUTER_TOL))
     if points is None:
@@ -177,7 +179,7 @@ def check_set_update(h, Lambda, points, H_theta: np.ndarray, h_prev: np.ndarray,
     else:
         pts = np.asarray(points, float)
         Ht_n, ht_n = _unit(H_tilde, h_tilde)
-        infeasible = float(_max(pts @ Ht_n.T - ht_n, axis=None))
+        infeasible = float(_max(_dot(pts, Ht_n.T) - ht_n, axis=None))
         miss = float(_max(np.abs(_add_reduce(H_theta * pts, axis=1) - h), axis=None))
         checks.append(AnswerCheck("set update maximisers feasible and tight", max(infeasible, miss), SET_POINT_TOL))
     return checks
@@ -360,8 +362,8 @@ class TubeCheck:
             return [_finite_shape("tube v", sol.v, shapes[0]), _finite_shape("tube z", sol.z, shapes[1]),
                     _finite_shape("tube alpha", sol.alpha, shapes[2])]
         checks = list(self._finite_rows)
-        np.matmul(self.H_x, -np.asarray(x, float), out=self._b15b)
-        worst = np.maximum.reduceat(self.fixed @ y - self.b, self.starts).tolist()
+        _dot(self.H_x, -np.asarray(x, float), out=self._b15b)
+        worst = np.maximum.reduceat(_dot(self.fixed, y) - self.b, self.starts).tolist()
         checks += [AnswerCheck("tube alpha >= 0", max(0.0, worst[0]), TUBE_ROW_TOL),
                    AnswerCheck("tube x_k in X_0|k (15b)", worst[1], TUBE_ROW_TOL),
                    AnswerCheck("tube constraints (15a)", worst[2], TUBE_ROW_TOL),
@@ -381,7 +383,7 @@ class TubeCheck:
         if self._vertices is None or not same_bits(self._vertices, np.asarray(theta_vertices, float)):
             self._tube_rows(theta_vertices)
             self._vertices = np.array(theta_vertices, float)
-        checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float(_max(w @ self._Ct, axis=None)),
+        checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float(_max(_dot(w, self._Ct), axis=None)),
                                   TUBE_ROW_TOL))
         return checks
 

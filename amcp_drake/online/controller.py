@@ -40,6 +40,9 @@ DELTA_MARGIN = 1e-6
 # through Python wrappers (~1-2 µs per call in the online loop, issue 16)
 _and_reduce = np.logical_and.reduce
 _add_reduce = np.add.reduce
+#: np.dot for 1-D/2-D operands: the same BLAS call as ``@`` (gemv/gemm, the same bits: checked on the run's
+#: shapes) without the matmul ufunc's dispatch, ~0.4 µs less per product
+_dot = np.dot
 
 
 
@@ -143,7 +146,7 @@ class AdaptiveMPC:
         scaled to unit norm (see DELTA_ROW_MIN_NORM)."""
         pr = self.problem
         D, d = self._regression(x_prev, u_prev, x)
-        H, h = self._minus_H_w @ D, 1.0 + pr.H_w @ d
+        H, h = _dot(self._minus_H_w, D), 1.0 + _dot(pr.H_w, d)
         norms = np.sqrt(_add_reduce(H * H, axis=1))
         keep = norms >= DELTA_ROW_MIN_NORM
         if not _and_reduce(keep, axis=None):
@@ -159,7 +162,7 @@ class AdaptiveMPC:
             return cached[3], cached[4]
         pr = self.problem
         D = pr.regressor(x_prev, u_prev)
-        d = pr.A0 @ x_prev + pr.B0 @ u_prev - x
+        d = _dot(pr.A0, x_prev) + _dot(pr.B0, u_prev) - x
         self._regression_cache = (x_prev, u_prev, x, D, d)
         return D, d
 
@@ -289,14 +292,14 @@ class AdaptiveMPC:
         pr = self.problem
         D, d = self._regression(x_prev, u_prev, x)
         # x_k − x̂_k with x̂_k = A(θ̂)x_{k−1} + B(θ̂)u_{k−1} = A0 x_{k−1} + B0 u_{k−1} + D θ̂ by (2): −(d_k + D θ̂)
-        error = -(d + D @ self.theta_hat)
-        theta_tilde = self.theta_hat + self.design.mu * D.T @ error
+        error = -(d + _dot(D, self.theta_hat))
+        theta_tilde = self.theta_hat + _dot(self.design.mu * D.T, error)
         record.theta_tilde = theta_tilde
         if self.options.projection == "Theta":
             H, h, target = pr.H_theta, pr.h_theta, "Θ"
         else:
             H, h, target = self.H_theta, self.h_theta, "Θ_k"
-        if _and_reduce(H @ theta_tilde <= h, axis=None):
+        if _and_reduce(_dot(H, theta_tilde) <= h, axis=None):
             # the projection of a point of the set is the point itself: no QP needed
             self.theta_hat = theta_tilde
             record.projection_status = SolveStatus.OPTIMAL
@@ -554,7 +557,7 @@ class AdaptiveMPC:
         u = None
         if sol is not None:
             record.v, record.z, record.alpha, record.Lambda, record.cost = sol.v, sol.z, sol.alpha, sol.Lambda, sol.cost
-            u = self.design.K @ x + sol.v[0]
+            u = _dot(self.design.K, x) + sol.v[0]
             record.u = u
             self._prev = (x, u)
             self._u_hist.append(float(u[0]))
