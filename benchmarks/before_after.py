@@ -7,7 +7,8 @@ into a temporary directory with its packages renamed (``amcp_drake_before``, ``a
 so both versions live in this one process. Each configuration runs twice — the revision's code and the
 working tree's — and all closed loops advance in lockstep (step k of each, then step k+1) with the
 same disturbances, so "before" and "after" share the machine's noise. Medians of the thread CPU time
-per part (amcp_drake.studies.bench_cpu, each version its own), and max |Δv|, |Δh_θ| between the two
+per part (amcp_drake.studies.bench_cpu, each version its own), the wall time of each full step
+(``perf_counter``), and max |Δv|, |Δh_θ| between the two
 versions of each configuration. Run it from the repository root with the working tree on PYTHONPATH.
 """
 
@@ -21,6 +22,7 @@ import subprocess
 import sys
 import tarfile
 import tempfile
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -73,17 +75,20 @@ def main() -> None:
             for tag, cls, profile in (("before", BeforeMPC, BeforeProfile), ("after", AdaptiveMPC, CpuProfile)):
                 ctrl = cls(problem, d, backend=backend, formulation=formulation, **options)
                 runs.append({"name": f"{cfg} {tag}", "profile": profile(ctrl), "x": np.asarray(sc.x0, float),
-                             "cpu": {p: [] for p in PARTS}, "v": [], "h": []})
+                             "cpu": {p: [] for p in PARTS}, "wall": [], "v": [], "h": []})
         gc.collect()
         gc.disable()
         for k in range(args.steps + 1):
             for run in runs:
+                start = time.perf_counter()
                 u, rec, parts = run["profile"].step(run["x"])
+                elapsed = time.perf_counter() - start
                 if u is None:
                     raise SystemExit(f"{run['name']}: step {k} {rec.status} {rec.detail}")
                 if k >= 1:
                     for p in PARTS:
                         run["cpu"][p].append(parts[p])
+                    run["wall"].append(elapsed)
                 run["v"].append(rec.v)
                 run["h"].append(rec.h_theta)
                 run["x"] = problem.step(run["x"], u, sc.theta_star, w[k])
@@ -91,15 +96,18 @@ def main() -> None:
     load = os.getloadavg()
     print(f"Example 1, X0 8 facets, N = {problem.N}, {args.steps} steps, before = {args.before}: CPU ms medians; "
           f"load average {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} (1 / 5 / 15 min)")
-    print(f"{'config':40s}" + "".join(f"{p:>16s}" for p in PARTS))
+    print(f"{'config':40s}" + "".join(f"{p:>16s}" for p in PARTS) + f"{'wall total':>12s}")
     for run in runs:
-        print(f"{run['name']:40s}" + "".join(f"{1e3 * np.median(run['cpu'][p]):16.3f}" for p in PARTS))
+        print(f"{run['name']:40s}" + "".join(f"{1e3 * np.median(run['cpu'][p]):16.3f}" for p in PARTS)
+              + f"{1e3 * np.median(run['wall']):12.3f}")
     print()
     for before, after in zip(runs[::2], runs[1::2]):
         dv = max(float(np.max(np.abs(np.asarray(a) - np.asarray(b)))) for a, b in zip(before["v"], after["v"]))
         dh = max(float(np.max(np.abs(np.asarray(a) - np.asarray(b)))) for a, b in zip(before["h"], after["h"]))
         ratio = np.median(after["cpu"]["total"]) / np.median(before["cpu"]["total"])
-        print(f"{after['name'][:-6]:34s} total after/before {ratio:.3f}; max |Δv| {dv:.1e}, max |Δh_θ| {dh:.1e}")
+        wall = np.median(after["wall"]) / np.median(before["wall"])
+        print(f"{after['name'][:-6]:34s} total after/before {ratio:.3f} CPU, {wall:.3f} wall; "
+              f"max |Δv| {dv:.1e}, max |Δh_θ| {dh:.1e}")
 
 
 if __name__ == "__main__":
