@@ -47,3 +47,24 @@ def test_condensed_cost_other_dimensions(n, m, p, N):
         H, g, c = model.matrices(x, theta)
         J = float(v.reshape(-1) @ H @ v.reshape(-1) + 2 * g @ v.reshape(-1) + c)
         assert J == pytest.approx(nominal_cost(base, x, theta, v), rel=1e-10, abs=1e-10)
+
+
+def test_buffers_written_in_place_carry_nothing_between_calls(example_design, example_spec):
+    """The powers, W and G are buffers rewritten by every call (issue 16): alternating θ̂ gives, to the
+    bit, what a fresh model gives for each θ̂, and an answer already returned is not changed by a later
+    call (the returned H, g, c are never views of the buffers)."""
+    from amcp_drake.online.controller import AdaptiveMPC
+
+    data = AdaptiveMPC(example_spec.problem, example_design, backend="drake", formulation="vertex").data
+    rng = np.random.default_rng(7)
+    x = rng.normal(size=np.shape(data.B0)[0])
+    thetas = [rng.uniform(-1.0, 1.0, size=np.shape(data.A)[0]) for _ in range(3)]
+    fresh = [CondensedCost(data).matrices(x, theta) for theta in thetas]
+    model = CondensedCost(data)
+    kept = []
+    for i in (0, 1, 2, 0, 2, 1):
+        H, g, c = model.matrices(x, thetas[i])
+        kept.append((i, H, g, c, H.copy(), g.copy()))
+        assert H.tobytes() == fresh[i][0].tobytes() and g.tobytes() == fresh[i][1].tobytes() and c == fresh[i][2]
+    for i, H, g, c, H_then, g_then in kept:
+        assert H.tobytes() == H_then.tobytes() and g.tobytes() == g_then.tobytes()

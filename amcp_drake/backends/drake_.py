@@ -173,8 +173,8 @@ class DrakeBackend:
         cuts none of them (:class:`.set_update_vertices.VertexSetUpdate`), and the LP of
         :mod:`.drake_set_update` where that does not apply; ``"lp"``: always the LP.
         """
-        H_theta = np.asarray(H_theta, float)
-        H_data, h_prev, h_data = (np.asarray(a, float) for a in (H_data, h_prev, h_data))
+        H_theta, h_prev = np.asarray(H_theta, float), np.asarray(h_prev, float)
+        H_data, h_data = np.asarray(H_data, float), np.asarray(h_data, float)
         _finite("set_update", H_theta, H_data, h_prev, h_data)
         if self.set_update_method == "auto":
             start = time.perf_counter()

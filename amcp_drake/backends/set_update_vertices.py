@@ -71,7 +71,9 @@ class VertexSetUpdate:
               h_data: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """As :func:`solve_by_vertices`."""
         H_theta, h_prev = np.asarray(H_theta, float), np.asarray(h_prev, float)
-        H_data, h_data = np.atleast_2d(np.asarray(H_data, float)), np.asarray(h_data, float)
+        H_data, h_data = np.asarray(H_data, float), np.asarray(h_data, float)
+        if H_data.ndim < 2:
+            H_data = np.atleast_2d(H_data)
         last = self._last
         if last is None or not (same_bits(last[1], h_prev) and same_bits(last[0], H_theta)):
             alone = _solve(H_theta, h_prev, np.zeros((0, H_theta.shape[1])), np.zeros(0))
