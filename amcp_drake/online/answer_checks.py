@@ -110,6 +110,13 @@ def _finite_shape(name: str, array, shape: tuple[int, ...]) -> AnswerCheck:
     return AnswerCheck(f"{name} finite, shape {shape}", 0.0 if ok else float("inf"), 0.0)
 
 
+def _has_shape(array, shape: tuple[int, ...]) -> bool:
+    """``array is not None and np.shape(array) == shape``, without np.shape's dispatch for an ndarray."""
+    if isinstance(array, np.ndarray):
+        return array.shape == shape
+    return array is not None and np.shape(array) == shape
+
+
 def _unit(H: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     norms = np.sqrt(_add_reduce(H * H, axis=1))
     norms[norms == 0.0] = 1.0
@@ -298,13 +305,17 @@ class TubeCheck:
         self.w_bar = np.asarray(d.w_bar, float)
         self._vertices = None
         self._Ct = np.zeros((2 * n + 3 + m, 0))
+        self._tube_values = np.zeros((N, 0))  # W C written per check (its width follows Θ_k's vertex count)
         self._w = np.ones((N, 2 * n + 3 + m))  # w_l = [z_l | z_{l+1} | α_l | α_{l+1} | v_l | 1]
         # w gathered from [y | 1] by one np.take (the same copies as writing its five column blocks)
         one = size
         self._w_index = np.array([np.concatenate([np.arange(l * n, (l + 2) * n), [a0 + l, a0 + l + 1],
                                                   np.arange(v0 + l * m, v0 + (l + 1) * m), [one]])
                                   for l in range(N)], dtype=np.intp)
+        self._y1 = np.ones(size + 1)     # [y | 1], written per check
         self._one = np.ones(1)
+        self._rows = np.empty(len(self.b))  # fixed @ y − b, written per check
+        self._minus_H_x = -self.H_x      # −H_x x_k = H_x (−x_k) bit for bit (negation is exact)
         self._shapes = ((N, m), (N + 1, n), (N + 1,))
         # the three "finite, shape" rows of an answer that has them (immutable: the same objects every step)
         self._finite_rows = tuple(AnswerCheck(f"{name} finite, shape {shape}", 0.0, 0.0)
@@ -354,16 +365,17 @@ class TubeCheck:
         v, z, alpha = sol.v, sol.z, sol.alpha
         shapes = self._shapes
         y = None
-        if all(a is not None and np.shape(a) == shape for a, shape in zip((v, z, alpha), shapes)):
+        if _has_shape(v, shapes[0]) and _has_shape(z, shapes[1]) and _has_shape(alpha, shapes[2]):
             z, alpha, v = np.asarray(z, float), np.asarray(alpha, float), np.asarray(v, float)
-            y1 = np.concatenate([z.reshape(-1), alpha, v.reshape(-1), self._one])  # [y | 1]
+            y1 = np.concatenate([z.reshape(-1), alpha, v.reshape(-1), self._one], out=self._y1)  # [y | 1]
             y = y1[:-1]
         if y is None or not all_finite(y):
             return [_finite_shape("tube v", sol.v, shapes[0]), _finite_shape("tube z", sol.z, shapes[1]),
                     _finite_shape("tube alpha", sol.alpha, shapes[2])]
         checks = list(self._finite_rows)
-        _dot(self.H_x, -np.asarray(x, float), out=self._b15b)
-        worst = np.maximum.reduceat(_dot(self.fixed, y) - self.b, self.starts).tolist()
+        _dot(self._minus_H_x, np.asarray(x, float), out=self._b15b)
+        rows = np.subtract(_dot(self.fixed, y, out=self._rows), self.b, out=self._rows)
+        worst = np.maximum.reduceat(rows, self.starts).tolist()
         checks += [AnswerCheck("tube alpha >= 0", max(0.0, worst[0]), TUBE_ROW_TOL),
                    AnswerCheck("tube x_k in X_0|k (15b)", worst[1], TUBE_ROW_TOL),
                    AnswerCheck("tube constraints (15a)", worst[2], TUBE_ROW_TOL),
@@ -383,8 +395,9 @@ class TubeCheck:
         if self._vertices is None or not same_bits(self._vertices, np.asarray(theta_vertices, float)):
             self._tube_rows(theta_vertices)
             self._vertices = np.array(theta_vertices, float)
-        checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float(_max(_dot(w, self._Ct), axis=None)),
-                                  TUBE_ROW_TOL))
+            self._tube_values = np.empty((self.N, self._Ct.shape[1]))
+        tube = _dot(w, self._Ct, out=self._tube_values)
+        checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float(_max(tube, axis=None)), TUBE_ROW_TOL))
         return checks
 
     def _malformed_lambda(self, Lam: np.ndarray, H_theta) -> AnswerCheck | None:
