@@ -255,8 +255,8 @@ class DrakeVertexTubeMPC:
         N, n, m = self.N, self.n, self.m
         z = yv[: self.a0].reshape(N + 1, n)
         alpha = yv[self.a0:self.v0]
-        v = yv[self.v0:].reshape(N, m)
-        vf = v.reshape(-1)
+        vf = yv[self.v0:]
+        v = vf.reshape(N, m)
         cost = float(np.dot(np.dot(vf, Hv), vf) + np.dot(2 * g, vf) + const)  # np.dot: the BLAS call of @
         return MPCSolution(SolveStatus.OPTIMAL, v, z, alpha, None, cost, solver_time, update_time, detail=detail)
 

@@ -23,6 +23,7 @@ run independently (certificate.claims, certificate.tube); these checks run *befo
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -106,8 +107,14 @@ def describe_failures(problem: str, checks: list[AnswerCheck]) -> str:
 
 
 def _finite_shape(name: str, array, shape: tuple[int, ...]) -> AnswerCheck:
-    ok = array is not None and np.shape(array) == shape and all_finite(array)
-    return AnswerCheck(f"{name} finite, shape {shape}", 0.0 if ok else float("inf"), 0.0)
+    ok = _has_shape(array, shape) and all_finite(array)
+    return AnswerCheck(_finite_name(name, shape), 0.0 if ok else float("inf"), 0.0)
+
+
+@functools.lru_cache(maxsize=64)
+def _finite_name(name: str, shape: tuple[int, ...]) -> str:
+    """The name of a "finite, shape" check (formatted once per (name, shape))."""
+    return f"{name} finite, shape {shape}"
 
 
 def _has_shape(array, shape: tuple[int, ...]) -> bool:
@@ -171,7 +178,7 @@ def check_set_update(h, Lambda, points, H_theta: np.ndarray, h_prev: np.ndarray,
         return [shape]
     h = np.asarray(h, float)
     checks = [shape, AnswerCheck("set update nested h <= h_prev (10)", float(_max(h - h_prev, axis=None)), SET_NESTED_TOL)]
-    if Lambda is None or np.shape(Lambda) != (q, len(h_tilde)) or not all_finite(Lambda):
+    if not _has_shape(Lambda, (q, len(h_tilde))) or not all_finite(Lambda):
         checks.append(AnswerCheck("set update outer bound (dual certificate)", float("nan"), SET_OUTER_TOL, ran=False))
     else:
         lam = np.maximum(np.asarray(Lambda, float), 0.0)
@@ -181,7 +188,7 @@ def check_set_update(h, Lambda, points, H_theta: np.ndarray, h_prev: np.ndarray,
                                   SET_OUTER_TOL))
     if points is None:
         checks.append(AnswerCheck("set update maximisers feasible and tight", float("nan"), SET_POINT_TOL, ran=False))
-    elif np.shape(points) != (q, p) or not all_finite(points):
+    elif not _has_shape(points, (q, p)) or not all_finite(points):
         checks.append(AnswerCheck("set update maximisers feasible and tight", float("inf"), SET_POINT_TOL))
     else:
         pts = np.asarray(points, float)
