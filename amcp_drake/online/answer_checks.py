@@ -72,6 +72,7 @@ TUBE_ROW_TOL = 1e-6
 # ufunc reductions called directly (``ndarray.max`` reaches the same reduction through a Python wrapper)
 _max = np.maximum.reduce
 _add_reduce = np.add.reduce
+_and_reduce = np.logical_and.reduce
 #: np.dot for 1-D/2-D operands: the same BLAS call as ``@`` (the same bits) without the matmul ufunc's dispatch
 _dot = np.dot
 
@@ -126,7 +127,8 @@ def _has_shape(array, shape: tuple[int, ...]) -> bool:
 
 def _unit(H: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     norms = np.sqrt(_add_reduce(H * H, axis=1))
-    norms[norms == 0.0] = 1.0
+    if not _and_reduce(norms, axis=None):  # a zero row (rare): divided by 1 instead
+        norms[norms == 0.0] = 1.0
     return H / norms[:, None], h / norms
 
 
