@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from scipy.optimize import nnls
@@ -77,10 +77,12 @@ _and_reduce = np.logical_and.reduce
 _dot = np.dot
 
 
-@dataclass(frozen=True)
-class AnswerCheck:
+class AnswerCheck(NamedTuple):
     """One check of one answer: ``value`` is the measured violation (<= ``tolerance`` passes);
-    ``ran`` is False when the answer lacks what the check needs (recorded, never a pass)."""
+    ``ran`` is False when the answer lacks what the check needs (recorded, never a pass).
+
+    Immutable; a NamedTuple rather than a frozen dataclass because a dozen are made per step of the
+    online loop (0.2 µs each instead of 0.55, issue 16)."""
 
     name: str
     value: float
