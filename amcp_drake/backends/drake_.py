@@ -175,7 +175,8 @@ class DrakeBackend:
         """
         H_theta, h_prev = np.asarray(H_theta, float), np.asarray(h_prev, float)
         H_data, h_data = np.asarray(H_data, float), np.asarray(h_data, float)
-        _finite("set_update", H_theta, H_data, h_prev, h_data)
+        # one finiteness test of the four inputs (the same verdict as four: a concatenation is finite iff each part is)
+        _finite("set_update", np.concatenate((H_theta.ravel(), H_data.ravel(), h_prev.ravel(), h_data.ravel())))
         if self.set_update_method == "auto":
             start = time.perf_counter()
             answer = self._vertex_update.solve(H_theta, h_prev, H_data, h_data)

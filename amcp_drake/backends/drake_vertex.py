@@ -204,9 +204,11 @@ class DrakeVertexTubeMPC:
         h_theta = np.asarray(h_theta, float)
         theta_hat = np.asarray(theta_hat, float)
         H = np.asarray(self.data.H_theta if H_theta is None else H_theta, float)
-        for name, arr in (("x", x), ("h_theta", h_theta), ("theta_hat", theta_hat), ("H_theta", H)):
-            if not all_finite(arr):
-                return MPCSolution(SolveStatus.ERROR, None, None, None, None, None, detail=f"non-finite {name}")
+        # one finiteness test of the four inputs (a concatenation is finite iff each part is); the loop names the culprit
+        if not all_finite(np.concatenate((x.ravel(), h_theta.ravel(), theta_hat.ravel(), H.ravel()))):
+            for name, arr in (("x", x), ("h_theta", h_theta), ("theta_hat", theta_hat), ("H_theta", H)):
+                if not all_finite(arr):
+                    return MPCSolution(SolveStatus.ERROR, None, None, None, None, None, detail=f"non-finite {name}")
         try:
             vertices, unchanged = self._vertices(H, h_theta)
         except VertexEnumerationError as exc:
