@@ -329,7 +329,7 @@ class TubeCheck:
         self._minus_H_x = -self.H_x      # −H_x x_k = H_x (−x_k) bit for bit (negation is exact)
         self._shapes = ((N, m), (N + 1, n), (N + 1,))
         # the three "finite, shape" rows of an answer that has them (immutable: the same objects every step)
-        self._finite_rows = tuple(AnswerCheck(f"{name} finite, shape {shape}", 0.0, 0.0)
+        self._finite_rows = tuple(AnswerCheck(_finite_name(name, shape), 0.0, 0.0)
                                   for name, shape in zip(("tube v", "tube z", "tube alpha"), self._shapes))
         self._plain_rows: tuple[np.ndarray, np.ndarray] | None = None  # (15c), (15d) on w_l, on first need
 
@@ -391,7 +391,8 @@ class TubeCheck:
                    AnswerCheck("tube x_k in X_0|k (15b)", worst[1], TUBE_ROW_TOL),
                    AnswerCheck("tube constraints (15a)", worst[2], TUBE_ROW_TOL),
                    AnswerCheck("tube terminal set", worst[3], TUBE_ROW_TOL)]
-        w = np.take(y1, self._w_index, out=self._w, mode="clip")  # (indices valid; "clip" skips a buffer) w_l = [z_l | z_{l+1} | α_l | α_{l+1} | v_l | 1]
+        # w_l = [z_l | z_{l+1} | α_l | α_{l+1} | v_l | 1] (the indices are valid: "clip" only skips a buffer)
+        w = np.take(y1, self._w_index, out=self._w, mode="clip")
         if sol.Lambda is not None:
             Lam = np.asarray(sol.Lambda, float)
             malformed = self._malformed_lambda(Lam, H_theta)
