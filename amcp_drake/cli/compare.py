@@ -29,6 +29,10 @@ from amcp_drake.cli.common import (
 @click.option("--mode", type=click.Choice(["lockstep", "independent"]), default="lockstep", show_default=True)
 @click.option("--drake-solver", default="clarabel", show_default=True, help="Drake solver (clarabel, osqp, scs, ...).")
 @click.option("--cvxpy-solver", default="CLARABEL", show_default=True, help="cvxpy solver (CLARABEL, OSQP, SCS, ...).")
+@click.option("--accurate", is_flag=True,
+              help="Both backends' Clarabel at tolerances 1e-10 instead of its defaults (1e-8), as the property "
+                   "suite's lockstep comparison: at the defaults v is determined only to about 1e-5 where the "
+                   "optimum is flat, which can exceed the v tolerance. Clarabel only.")
 @online_options
 @click.option("--out", "out_file", type=click.Path(), default="amcp-out/compare.json", show_default=True,
               callback=output_file_callback,
@@ -37,16 +41,22 @@ from amcp_drake.cli.common import (
 @click.option("--quiet", is_flag=True, help="Only the summary, no per-step table.")
 @max_memory_option
 @bad_input_exits_2
-def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_solver, cvxpy_solver, online, out_file,
-                formulation, quiet, max_memory):
+def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_solver, cvxpy_solver, accurate, online,
+                out_file, formulation, quiet, max_memory):
     """Compare u, v, cost, h_theta and theta_hat (and report z, alpha) of both backends per step."""
-    from amcp_drake.comparison.compare import INFORMATIONAL, TOLERANCES, independent, lockstep
+    from amcp_drake.comparison.compare import ACCURATE_CLARABEL, INFORMATIONAL, TOLERANCES, independent, lockstep
+    from amcp_drake.model.errors import ProblemError
     from amcp_drake.model.problem_io import write_json_atomic
+
+    if accurate and (drake_solver.lower(), cvxpy_solver.upper()) != ("clarabel", "CLARABEL"):
+        raise ProblemError("--accurate", "Clarabel in both backends (--drake-solver clarabel --cvxpy-solver CLARABEL)",
+                           f"--drake-solver {drake_solver} --cvxpy-solver {cvxpy_solver}")
 
     spec, steps, options = prepare_run(problem_file, example, x0_template, steps, online, max_memory)
     seed = spec.scenario.seed if seed is None else seed
-    backend_options = ({"solver": drake_solver, "formulation": formulation},
-                       {"solver": cvxpy_solver, "formulation": formulation})
+    tolerances = {"solver_options": dict(ACCURATE_CLARABEL)} if accurate else {}
+    backend_options = ({"solver": drake_solver, "formulation": formulation, **tolerances},
+                       {"solver": cvxpy_solver, "formulation": formulation, **tolerances})
     run = lockstep if mode == "lockstep" else independent
     comp = run(spec, steps, seed, options=options, backend_options=backend_options)
 
@@ -66,7 +76,7 @@ def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_sol
             click.echo(f"{k:3d}  {a[:10] + '/' + b[:10]:22s} {cells}{flag}")
         click.echo("")
     click.echo(f"{comp.mode} comparison, backends {comp.backends[0]} ({drake_solver}) vs {comp.backends[1]} ({cvxpy_solver}), "
-               f"{steps} steps, seed {seed}")
+               f"{steps} steps, seed {seed}" + (", Clarabel at 1e-10 (--accurate)" if accurate else ""))
     click.echo(f"{'quantity':14s} {'largest diff':>13s} {'at step':>8s} {'tolerance':>11s}  (abs + rel*scale)   verdict")
     for q, d in sorted(comp.worst().items()):
         abs_tol, rel_tol = TOLERANCES.get(q, (float("nan"), float("nan")))

@@ -29,6 +29,12 @@ from amcp_drake.offline.design import OfflineDesign, design
 from amcp_drake.online.controller import AdaptiveMPC
 from amcp_drake.online.simulate import disturbance_sequence
 
+#: Clarabel options of both backends for ``amcp compare --accurate`` and the property suite's
+#: lockstep comparison ("cross-backend comparisons use the same accurate solver"): at Clarabel's
+#: defaults v is determined only to ~1e-5 on flat optima (the thorough profile found a step-0 v
+#: 1.14e-5 apart, tests/data/lockstep-flat-optimum-problem.json; 3.6e-9 with these).
+ACCURATE_CLARABEL = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10}
+
 #: quantity -> (absolute, relative) tolerance; a difference d passes when d <= abs + rel * scale.
 #: Both backends default to Clarabel with feasibility/gap tolerances 1e-8 (QP) and 1e-10 (LPs);
 #: measured worst differences on 50 steps of Example 1 are ~1e-7 in v and ~1e-9 in h_θ, so these

@@ -22,13 +22,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from amcp_drake.comparison.compare import ACCURATE_CLARABEL
 from amcp_drake.model.check_result import CheckResult, judge
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.online.controller import AdaptiveMPC
 
 #: Clarabel options of both backends in the comparison (tube QP, and the LPs and projections, which
-#: already run at 1e-10): the tolerances of tests/test_formulations.py.
-ACCURATE = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10}
+#: already run at 1e-10): the tolerances of tests/test_formulations.py and of ``amcp compare --accurate``.
+ACCURATE = ACCURATE_CLARABEL
 
 #: quantity -> (absolute, relative) tolerance; a difference d passes when d <= abs + rel·scale.
 #: v is unique (the cost (17) is strictly convex in v, R ≻ 0) and both QPs are solved by Clarabel
