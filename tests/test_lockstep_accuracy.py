@@ -34,3 +34,29 @@ def test_a_flat_optimum_agrees_in_lockstep_at_accurate_tolerances():
         result = backends_agree(traj, case, follower)
         assert result.passed, result.detail
         assert len(traj.records) == sc.steps + 1 and np.isfinite(result.margin)
+
+
+def test_a_loose_window_lp_answer_is_caught_and_replaced():
+    """Saved by the thorough profile (n = 1, p = 3, moving window of 5, data offsets up to 2e3): at
+    step 11 Drake's LP (9) (Clarabel at 1e-10, "solved") gave one h_i 0.21 above the support: a valid
+    but loose bound (multipliers ~1e5 cancelling), which the answer checks could not see without a
+    maximiser. The LP's duals are now the maximisers, the tightness check fails (0.166 > 1e-7), the
+    HiGHS support LPs answer, and the backends agree in lockstep, cvxpy and Drake leading in turn."""
+    pytest.importorskip("amcp_properties")
+    from amcp_drake.model.problem_io import load_spec
+    from amcp_drake.offline.design import design
+    from amcp_drake.online.simulate import simulate
+    from amcp_properties.lockstep import accurate_controller, backends_agree
+
+    spec = load_spec(DATA / "window-loose-lp-problem.json")
+    assert spec.online.update == "window"
+    sc = spec.scenario
+    case = SimpleNamespace(problem=spec.problem, design=design(spec.problem, spec.design, backend="drake"),
+                           options=spec.online)
+    for leader, follower in (("cvxpy", "drake"), ("drake", "cvxpy")):
+        traj = simulate(accurate_controller(case, leader), sc.x0, sc.theta_star_for(sc.steps), sc.steps,
+                        sc.disturbance_for(sc.steps), seed=sc.seed)
+        result = backends_agree(traj, case, follower)
+        assert result.passed, result.detail
+        if leader == "drake":
+            assert any("set update maximisers feasible and tight" in r.detail for r in traj.records)

@@ -90,14 +90,16 @@ def auto_backend():
 
 
 def test_in_place_lp_equals_the_rebuilt_lp_on_random_data(lp_backend):
-    """One backend, one preallocated program per shape, 60 calls with other data written in place."""
+    """One backend, one preallocated program per shape, 60 calls with other data written in place;
+    the LP's maximisers (the duals of Λ H̃ = H_θ) are in the set and attain h row by row."""
     rng = np.random.default_rng(16)
     for _ in range(60):
         H, h, Hd, hd = random_case(rng, flat=rng.random() < 0.2)
         res = lp_backend.set_update(H, h, Hd, hd)
         assert res.status is SolveStatus.OPTIMAL and res.method == "lp"
         np.testing.assert_allclose(res.h, rebuilt_lp(H, h, Hd, hd), rtol=0, atol=H_TOL)
-        assert_certificate(H, h, Hd, hd, res.h, res.Lambda)
+        assert res.points is not None
+        assert_certificate(H, h, Hd, hd, res.h, res.Lambda, res.points)
 
 
 def test_vertex_update_equals_the_rebuilt_lp_on_random_data(auto_backend):

@@ -194,8 +194,8 @@ class DrakeBackend:
         # then ends in NumericalError, AlmostSolved or even a false "unbounded" (found by the
         # property suite). The simplex method of CLP (the fallback) is exact on degenerate LPs.
         solvers = (self._lp,) if self._lp_fallback is None else (self._lp, self._lp_fallback)
-        status, h, Lam, elapsed = self._set_update_cache[key].solve(solvers, H_theta, H_tilde, h_tilde)
-        return SetUpdateResult(status, h, Lam, elapsed, method="lp")
+        status, h, Lam, points, elapsed = self._set_update_cache[key].solve(solvers, H_theta, H_tilde, h_tilde)
+        return SetUpdateResult(status, h, Lam, elapsed, points=points, method="lp")
 
     # -- online: projection QP of (12) -------------------------------------------------------
     def project(self, point, H, h):

@@ -38,7 +38,8 @@ class DrakeSetUpdateLP:
         self._in_A = sp.csc_matrix((np.concatenate([np.ones(q * R), -np.ones(q)]),
                                     np.concatenate([np.repeat(np.arange(q), R), np.arange(q)]),
                                     np.arange(q * R + q + 1)), shape=(q, q * R + q))
-        self._eq = prog.AddLinearEqualityConstraint(self._eq_A, np.zeros(q * p), lam_flat).evaluator()
+        self._eq_binding = prog.AddLinearEqualityConstraint(self._eq_A, np.zeros(q * p), lam_flat)
+        self._eq = self._eq_binding.evaluator()
         self._eq.set_description("(9) Lambda H_tilde = H_theta")
         self._in_lb, self._in_ub = np.full(q, -np.inf), np.zeros(q)
         self._in = prog.AddLinearConstraint(self._in_A, self._in_lb, self._in_ub,
@@ -57,8 +58,16 @@ class DrakeSetUpdateLP:
         self._in.UpdateCoefficients(self._in_A, self._in_lb, self._in_ub)
 
     def solve(self, solvers, H_theta: np.ndarray, H_tilde: np.ndarray, h_tilde: np.ndarray):
-        """(status, h, Λ, solver seconds) with the first solver, then the next ones while the
-        status is not optimal (``solvers``: ``DrakeSolver`` objects, e.g. Clarabel then CLP)."""
+        """(status, h, Λ, points, solver seconds) with the first solver, then the next ones while the
+        status is not optimal (``solvers``: ``DrakeSolver`` objects, e.g. Clarabel then CLP).
+
+        ``points`` (q, p): the multipliers of Λ H̃ = H_θ, which are, by LP duality, a maximiser
+        θ_i ∈ Θ_{k−1} ∩ Δ_k of [H_θ]_i θ per row (stationarity in Λ_i gives h̃ − H̃ θ_i >= 0 and the
+        dual objective Σ [H_θ]_i θ_i = Σ h_i). They let the answer checks test the LP's h for
+        tightness, not only for validity: found by the thorough profile, a moving-window LP with data
+        offsets up to 2e3 that Clarabel called solved with one h_i 0.21 above the support (a valid
+        but loose bound, multipliers ~1e5 cancelling). The sign convention of the solver's duals is
+        taken as the one whose points are feasible; None when the solver gives no duals."""
         self.write(H_theta, H_tilde, h_tilde)
         elapsed = 0.0
         status, result = SolveStatus.ERROR, None
@@ -69,9 +78,20 @@ class DrakeSetUpdateLP:
             if status is SolveStatus.OPTIMAL:
                 break
         if status is not SolveStatus.OPTIMAL:
-            return status, None, None, elapsed
+            return status, None, None, None, elapsed
         x = result.get_x_val()
-        return status, x[self._h_index], x[self._lam_index].reshape(self.q, self.R), elapsed
+        return (status, x[self._h_index], x[self._lam_index].reshape(self.q, self.R),
+                self._maximisers(result, H_tilde, h_tilde), elapsed)
+
+    def _maximisers(self, result, H_tilde: np.ndarray, h_tilde: np.ndarray) -> np.ndarray | None:
+        try:
+            duals = np.asarray(result.GetDualSolution(self._eq_binding), float).reshape(self.q, self.p)
+        except (RuntimeError, ValueError):  # a solver without duals
+            return None
+        if not np.isfinite(duals).all():
+            return None
+        violation = [float(np.max(sign * duals @ H_tilde.T - h_tilde)) for sign in (1.0, -1.0)]
+        return duals if violation[0] <= violation[1] else -duals
 
 
 __all__ = ["DrakeSetUpdateLP"]
