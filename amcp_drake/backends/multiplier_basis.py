@@ -98,10 +98,10 @@ class FeasibleBases:
 
 
 def feasible_bases(H_theta: np.ndarray, h_theta: np.ndarray) -> FeasibleBases | None:
-    """The bases B of H_θ (p rows, det(H_B) != 0 on unit rows) whose point θ_B = H_B^{-1} h_B is in
-    Θ_k (to :data:`.vertex_form.FEASIBILITY_TOL`, as the vertex enumeration); None when H_θ has more
-    than :data:`.vertex_form.MAX_COMBINATIONS` bases or none is feasible (Θ_k empty)."""
-    from amcp_drake.backends.vertex_form import FEASIBILITY_TOL, MAX_COMBINATIONS, SINGULAR_DET, combinations
+    """The bases B of H_θ whose point θ_B = H_B^{-1} h_B is in Θ_k, enumerated as the vertices are
+    (:func:`.vertex_form.basic_feasible_solutions`); None when H_θ has more than
+    :data:`.vertex_form.MAX_COMBINATIONS` bases or none is feasible (Θ_k empty)."""
+    from amcp_drake.backends.vertex_form import MAX_COMBINATIONS, VertexEnumerationError, basic_feasible_solutions
 
     H = np.asarray(H_theta, float)
     h = np.asarray(h_theta, float)
@@ -109,12 +109,9 @@ def feasible_bases(H_theta: np.ndarray, h_theta: np.ndarray) -> FeasibleBases | 
     if comb(q, p) > MAX_COMBINATIONS:
         return None
     norms = np.linalg.norm(H, axis=1)
-    Hn, hn = H / norms[:, None], h / norms
-    combos = combinations(q, p)
-    combos = combos[np.abs(np.linalg.det(Hn[combos])) > SINGULAR_DET]
-    points = np.linalg.solve(H[combos], h[combos][..., None])[..., 0]                  # (b, p)
-    combos = combos[np.all(points @ Hn.T <= hn + FEASIBILITY_TOL * np.maximum(1.0, np.abs(hn)), axis=1)]
-    if len(combos) == 0:
+    try:
+        combos, _ = basic_feasible_solutions(H / norms[:, None], h / norms)
+    except VertexEnumerationError:
         return None
     inverse = np.linalg.inv(H[combos])                                                  # (b, p, p)
     return FeasibleBases(q, combos, inverse.transpose(1, 2, 0).reshape(p, -1))

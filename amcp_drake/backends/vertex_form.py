@@ -92,6 +92,18 @@ def theta_vertices(H: np.ndarray, h: np.ndarray) -> np.ndarray:
         raise VertexEnumerationError(f"theta_vertices: {q} rows cannot bound a set in R^{p}")
     if _n_choose_k(q, p) > MAX_COMBINATIONS:
         return _qhull_vertices(Hn, hn)
+    _, points = basic_feasible_solutions(Hn, hn)
+    return _unique(points)
+
+
+def basic_feasible_solutions(Hn: np.ndarray, hn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The basic feasible solutions of {θ | Hn θ <= hn} (unit rows, q >= p): (bases (b, p), points
+    (b, p)) for every choice of p rows with |det| > SINGULAR_DET whose point H_B^{-1} h_B meets every
+    row to FEASIBILITY_TOL·max(1, |h|). Every choice is tried (the caller keeps q choose p within
+    MAX_COMBINATIONS). Raises :class:`VertexEnumerationError` when no p rows are independent
+    (unbounded set) or no basis is feasible (empty set). Shared by :func:`theta_vertices` and
+    :func:`amcp_drake.backends.multiplier_basis.feasible_bases`."""
+    q, p = Hn.shape
     combos = combinations(q, p)
     M = Hn[combos]                       # (C, p, p)
     b = hn[combos]                       # (C, p)
@@ -100,10 +112,9 @@ def theta_vertices(H: np.ndarray, h: np.ndarray) -> np.ndarray:
         raise VertexEnumerationError("theta_vertices: no p linearly independent rows (unbounded set)")
     points = np.linalg.solve(M[basis], b[basis][..., None])[..., 0]
     feasible = np.all(points @ Hn.T <= hn + FEASIBILITY_TOL * np.maximum(1.0, np.abs(hn)), axis=1)
-    points = points[feasible]
-    if len(points) == 0:
+    if not np.any(feasible):
         raise VertexEnumerationError("theta_vertices: Theta_k is empty (no basic feasible solution)")
-    return _unique(points)
+    return combos[basis][feasible], points[feasible]
 
 
 def _n_choose_k(q: int, p: int) -> int:
