@@ -12,28 +12,37 @@ import pytest
 DATA = Path(__file__).parent / "data"
 
 
-def test_a_flat_optimum_agrees_in_lockstep_at_accurate_tolerances():
-    """Saved by the thorough profile (n = 3, p = 2, N = 2, x0 on the boundary, vertex disturbances):
-    at Clarabel's defaults (1e-8) the step-0 v of the two backends differed by 1.14e-5 > 1.06e-5
-    (cvxpy 1.2e-5 and Drake 9e-7 from the optimum: the optimum is flat, and the code before
-    session 4 of issue 16 gave the same). At ACCURATE tolerances the backends agree in lockstep
-    over the saved run, Drake and cvxpy leading in turn."""
+def lockstep_both_ways(problem_file: str):
+    """The saved scenario of ``problem_file`` run at ACCURATE tolerances with each backend leading
+    and the other following (amcp_properties.lockstep): (spec, {leader: (trajectory, result)})."""
     pytest.importorskip("amcp_properties")
     from amcp_drake.model.problem_io import load_spec
     from amcp_drake.offline.design import design
     from amcp_drake.online.simulate import simulate
     from amcp_properties.lockstep import accurate_controller, backends_agree
 
-    spec = load_spec(DATA / "lockstep-flat-optimum-problem.json")
+    spec = load_spec(DATA / problem_file)
     sc = spec.scenario
     case = SimpleNamespace(problem=spec.problem, design=design(spec.problem, spec.design, backend="drake"),
                            options=spec.online)
+    runs = {}
     for leader, follower in (("drake", "cvxpy"), ("cvxpy", "drake")):
         traj = simulate(accurate_controller(case, leader), sc.x0, sc.theta_star_for(sc.steps), sc.steps,
                         sc.disturbance_for(sc.steps), seed=sc.seed)
-        result = backends_agree(traj, case, follower)
+        runs[leader] = (traj, backends_agree(traj, case, follower))
+    return spec, runs
+
+
+def test_a_flat_optimum_agrees_in_lockstep_at_accurate_tolerances():
+    """Saved by the thorough profile (n = 3, p = 2, N = 2, x0 on the boundary, vertex disturbances):
+    at Clarabel's defaults (1e-8) the step-0 v of the two backends differed by 1.14e-5 > 1.06e-5
+    (cvxpy 1.2e-5 and Drake 9e-7 from the optimum: the optimum is flat, and the code before
+    session 4 of issue 16 gave the same). At ACCURATE tolerances the backends agree in lockstep
+    over the saved run, Drake and cvxpy leading in turn."""
+    spec, runs = lockstep_both_ways("lockstep-flat-optimum-problem.json")
+    for traj, result in runs.values():
         assert result.passed, result.detail
-        assert len(traj.records) == sc.steps + 1 and np.isfinite(result.margin)
+        assert len(traj.records) == spec.scenario.steps + 1 and np.isfinite(result.margin)
 
 
 def test_a_loose_window_lp_answer_is_caught_and_replaced():
@@ -42,21 +51,8 @@ def test_a_loose_window_lp_answer_is_caught_and_replaced():
     but loose bound (multipliers ~1e5 cancelling), which the answer checks could not see without a
     maximiser. The LP's duals are now the maximisers, the tightness check fails (0.166 > 1e-7), the
     HiGHS support LPs answer, and the backends agree in lockstep, cvxpy and Drake leading in turn."""
-    pytest.importorskip("amcp_properties")
-    from amcp_drake.model.problem_io import load_spec
-    from amcp_drake.offline.design import design
-    from amcp_drake.online.simulate import simulate
-    from amcp_properties.lockstep import accurate_controller, backends_agree
-
-    spec = load_spec(DATA / "window-loose-lp-problem.json")
+    spec, runs = lockstep_both_ways("window-loose-lp-problem.json")
     assert spec.online.update == "window"
-    sc = spec.scenario
-    case = SimpleNamespace(problem=spec.problem, design=design(spec.problem, spec.design, backend="drake"),
-                           options=spec.online)
-    for leader, follower in (("cvxpy", "drake"), ("drake", "cvxpy")):
-        traj = simulate(accurate_controller(case, leader), sc.x0, sc.theta_star_for(sc.steps), sc.steps,
-                        sc.disturbance_for(sc.steps), seed=sc.seed)
-        result = backends_agree(traj, case, follower)
+    for traj, result in runs.values():
         assert result.passed, result.detail
-        if leader == "drake":
-            assert any("set update maximisers feasible and tight" in r.detail for r in traj.records)
+    assert any("set update maximisers feasible and tight" in r.detail for r in runs["drake"][0].records)
