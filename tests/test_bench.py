@@ -80,8 +80,9 @@ def test_resolves_are_counted_from_the_messages_the_code_writes(example_spec, ex
 
     ctrl = AdaptiveMPC(example_spec.problem, example_design, backend="drake")
     outside = ctrl.mpc.solve(np.array([1.0, 0.5]), 1.2 * np.asarray(example_design.h_theta0), np.zeros(3))
-    details = [describe(0), outside.detail, "", "tube QP (20): tube (15c) 2e-06 > 1e-06; fallback: vertex form of (20) (checked)"]
-    assert count_resolves(details) == {"clarabel_retry": 1, "refined_resolve": 0, "every_row": 1, "plain_fallback": 0,
+    details = [describe(0), outside.detail, "", "tube QP (20): tube (15c) 2e-06 > 1e-06; fallback: vertex form of (20) (checked)",
+               "plain form (15) fallback: Qhull failed"]  # the vertex form's note (drake_vertex._solve_plain)
+    assert count_resolves(details) == {"clarabel_retry": 1, "refined_resolve": 0, "every_row": 1, "plain_fallback": 1,
                                        "answer_check_fallback": 1}
 
 

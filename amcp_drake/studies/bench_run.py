@@ -60,7 +60,9 @@ RESOLVE_MARKS = {
     "refined_resolve": "re-solved with iterative refinement",  # first try without refinement failed
     "every_row": "every row of (15c)",                      # reduced plain form -> every row
     "plain_fallback": "plain form (15) fallback",            # vertex form without Θ_k's vertices
-    "answer_check_fallback": "fallback: ",                   # an answer failed its check: another method
+    # an answer failed its check, another method answered (the controller's notes end "...; fallback: ...";
+    # the leading "; " keeps "plain form (15) fallback: " out of this count)
+    "answer_check_fallback": "; fallback: ",
 }
 
 
