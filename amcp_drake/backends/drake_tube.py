@@ -1,20 +1,26 @@
 """The tube MPC QP (20) in Drake: constraints (15a)-(15d), terminal set, cost (17)-(18).
 
-The program is built once per controller with sparse matrix constraints. (15d) is solved for p of
-the q multipliers of each row (:mod:`.multiplier_basis`, issue 16): the program holds the other
-q − p (Λ_N >= 0), the rows Λ_B = c M − Λ_N H_N M >= 0, and (15c) in the form
-c κ + Λ_N s + H_x d^j_l − α_{l+1} <= −w̄; the same feasible set in (z, α, v) as (15c)-(15d) with
-all q multipliers, half the variables and no equality rows (Example 1, 8 facets, N = 10: 1 963
-variables instead of 3 883; Clarabel 17 -> 11 ms CPU). The full Λ is recovered from the solution,
-so the answer checks and certificates re-check (15c), (15d) and Λ >= 0 as before. Each step updates:
+The program is built once per controller with sparse matrix constraints, reduced exactly (issue 16):
+
+* (15d) is solved for p of the q multipliers of each row (:mod:`.multiplier_basis`): the program
+  holds the other q − p (Λ_N >= 0), the rows Λ_B = c M − Λ_N H_N M >= 0, and (15c) in the form
+  c κ + Λ_N s + H_x d^j_l − α_{l+1} <= −w̄, with no equality rows;
+* the rows (l, j, i) of (15c) that another vertex of X0 implies on all of Θ0 are left out
+  (:mod:`.dominated_rows`; when Θ_k is not inside Θ0, H_θ changes or no Θ0 is given, the step is
+  solved by the program with every row, ``prune=False``).
+
+Both keep the feasible set in (z, α, v). Example 1, 8 facets, N = 10: 283 variables instead of
+3 883, Clarabel 17 -> 1.6 ms CPU. The full Λ is recovered (kept rows from the solution, left-out rows
+from their own LPs), so the answer checks and certificates re-check (15c), (15d) and Λ >= 0 on
+every row as before. Each step updates:
 
 * the right-hand side of (15b) (it holds x_k),
 * the (15c) coefficients from h_θk (``LinearConstraint.UpdateCoefficients`` on a preallocated
   matrix whose values are written in place),
 * the quadratic cost in v (``QuadraticCost.UpdateCoefficients``), condensed from (18) with θ̂_k.
 
-Decision vector y = [z (N+1)·n | α (N+1) | v N·m | Λ_N N·v·u·(q−p)], Λ_N ordered (l, j, i, r):
-Λ^j_{l|k}[i, N_r] sits at offset ((l·v + j)·u + i)·(q−p) + r.
+Decision vector y = [z (N+1)·n | α (N+1) | v N·m | Λ_N (kept rows)·(q−p)], Λ_N of the ρ-th kept row
+(kept rows in (l, j, i) order) at offset ρ·(q−p) + r.
 """
 
 from __future__ import annotations
