@@ -267,6 +267,8 @@ def test_wrong_tube_answer_is_replaced_by_the_other_formulation(example_spec, ex
     assert r.status is SolveStatus.INACCURATE
     other = "vertex" if formulation == "plain" else "plain"
     assert check in r.detail and f"fallback: {other} form of (20) (checked)" in r.detail
+    if formulation == "plain":  # the applied answer's detail follows the first one's (StepRecord.qp_detail)
+        assert "vertex form" in r.qp_detail
     fresh = get_backend(backend, formulation=other).tube_mpc(ctrl.data).solve(r.x, r.h_theta, r.theta_hat)
     assert np.max(np.abs(r.v - fresh.v)) <= 1e-6
     assert np.allclose(r.u, example_design.K @ r.x + fresh.v[0], atol=1e-6)

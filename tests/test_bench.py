@@ -12,7 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 from amcp_drake.cli import main
-from amcp_drake.studies.bench_run import RESOLVE_MARKS, count_resolves
+from amcp_drake.studies.resolves import RESOLVE_MARKS, count_resolves
 
 STAT_KEYS = {"median", "p90", "mean", "max", "n"}
 WALL_NAMES = {"set_update", "set_update_solver", "lms", "qp_update", "solver", "total"}

@@ -52,6 +52,9 @@ def test_local_cluster_campaign_stores_every_problem_and_answers_the_summary(tmp
     assert "problems stored: 6" in text and "coverage" in text
     for key in ("theta_k_lower_dim", "theta_star_vertex", "theta_star_facet"):  # issue 13: hard-case coverage
         assert key in text, key
+    for key in ("resolve_every_row", "resolve_clarabel_retry", "resolve_answer_check_fallback"):  # extra solves
+        assert key in text, key
+    assert "resolve_plain_fallback" not in text  # the campaign runs the plain form: no vertex-form fallback
     assert "<table id='claims'>" in report_html(store)
     # a second run without --resume is refused, with --resume nothing is re-run
     from amcp_drake.model.errors import ProblemError

@@ -80,6 +80,10 @@ class StepRecord:
     #: Which answer check failed and which fallback was used (amcp_drake.online.answer_checks, docs/decisions.md
     #: "Verified solver answers"); "" when every answer of the step passed its checks.
     detail: str = ""
+    #: ``MPCSolution.detail`` of the step's QP (20) answer (which program answered, retries, fallbacks
+    #: inside the backend); when the answer applied is another one (refined, or the other formulation
+    #: after a failed check), its detail follows after "; ". Counted by amcp_drake.studies.resolves.
+    qp_detail: str = ""
     times: dict[str, float] = field(default_factory=dict)
 
 
@@ -549,12 +553,16 @@ class AdaptiveMPC:
         if self.options.d_theta > 0:
             h_arg = record.h_theta_stages = self.stage_offsets(self.h_theta)
         sol, checked = self._solve_qp(x, h_arg, H_arg, record)
+        first = sol
+        record.qp_detail = sol.detail
         record.status = sol.status
         record.times["qp_update"] = sol.update_time
         record.times["solver"] = sol.solver_time
         record.infeasible_constraints = sol.infeasible_constraints
         sol = self._verified_qp(sol, checked, x, h_arg, H_arg, record)
         u = None
+        if sol is not None and sol is not first:
+            record.qp_detail = f"{record.qp_detail}; {sol.detail}"
         if sol is not None:
             record.v, record.z, record.alpha, record.Lambda, record.cost = sol.v, sol.z, sol.alpha, sol.Lambda, sol.cost
             u = _dot(self.design.K, x) + sol.v[0]

@@ -17,6 +17,9 @@ from typing import Any
 
 import numpy as np
 
+from amcp_drake.studies import resolves
+from amcp_drake.studies.resolves import RESOLVE_MARKS, count_resolves
+
 #: Formulations the bench knows: the QP (20) forms, plus "fast" = the vertex form with the DAQP fast
 #: path (Drake only): name -> keyword arguments of AdaptiveMPC.
 FORMULATION_OPTIONS = {"plain": {"formulation": "plain"}, "vertex": {"formulation": "vertex"},
@@ -53,38 +56,6 @@ class RunResult:
         return f"{self.backend}/{self.formulation}"
 
 
-#: Kinds of extra work a step can need, counted per run: name -> text that marks it in the QP
-#: solution's detail (``MPCSolution.detail``) or in the step's answer-check notes (``StepRecord.detail``).
-RESOLVE_MARKS = {
-    "clarabel_retry": "Clarabel retr",                      # the retry ladder (clarabel_retry)
-    "refined_resolve": "re-solved with iterative refinement",  # first try without refinement failed
-    "every_row": "every row of (15c)",                      # reduced plain form -> every row
-    "plain_fallback": "plain form (15) fallback",            # vertex form without Θ_k's vertices
-    # an answer failed its check, another method answered (the controller's notes end "...; fallback: ...";
-    # the leading "; " keeps "plain form (15) fallback: " out of this count)
-    "answer_check_fallback": "; fallback: ",
-}
-
-
-def count_resolves(details: list[str]) -> dict[str, int]:
-    """Per kind of :data:`RESOLVE_MARKS`, the number of steps whose notes (``details``: one string
-    per step, the QP's detail and the step's answer-check notes joined) contain its mark."""
-    return {kind: sum(mark in d for d in details) for kind, mark in RESOLVE_MARKS.items()}
-
-
-def _record_qp_details(ctrl, details: list[str]) -> None:
-    """Wrap ``ctrl.mpc.solve`` (this controller only) so that each QP solution's detail is kept
-    (one call and one append per solve inside the timed step, about 1 µs)."""
-    solve = ctrl.mpc.solve
-
-    def recorded(*args, **kwargs):
-        sol = solve(*args, **kwargs)
-        details.append(sol.detail)
-        return sol
-
-    ctrl.mpc.solve = recorded
-
-
 # -- running -----------------------------------------------------------------------------------
 
 def lockstep(problem, design, configs: list[tuple[str, str]], x0, theta_star, steps: int, seed: int) -> list[RunResult]:
@@ -101,7 +72,6 @@ def lockstep(problem, design, configs: list[tuple[str, str]], x0, theta_star, st
     w = disturbance_sequence(problem, "uniform", steps + 1, seed=seed)
     theta_star = np.asarray(theta_star, float)
     runs, profiles, states = [], [], []
-    qp_details: list[list[str]] = []   # per run: the QP details of the current step
     step_notes: list[list[str]] = []   # per run: one string per step (QP details + answer-check notes)
     for backend, formulation in configs:
         start, cpu = time.perf_counter(), time.thread_time()
@@ -112,8 +82,6 @@ def lockstep(problem, design, configs: list[tuple[str, str]], x0, theta_star, st
         runs.append(run)
         profiles.append(CpuProfile(ctrl))
         states.append(np.asarray(x0, float))
-        qp_details.append([])
-        _record_qp_details(ctrl, qp_details[-1])
         step_notes.append([])
     active = [True] * len(runs)
     was_enabled = gc.isenabled()
@@ -124,13 +92,12 @@ def lockstep(problem, design, configs: list[tuple[str, str]], x0, theta_star, st
             for c, (run, prof) in enumerate(zip(runs, profiles)):
                 if not active[c]:
                     continue
-                qp_details[c].clear()
                 try:
                     u, rec, cpu_parts = prof.step(states[c])
                 except AmcpError as exc:
                     run.status, active[c] = f"error at k={k}: {exc}", False
                     continue
-                step_notes[c].append("; ".join([*qp_details[c], rec.detail]))
+                step_notes[c].append(resolves.step_notes(rec))
                 run.v.append(None if rec.v is None else np.asarray(rec.v, float))
                 if u is None:
                     run.status, active[c] = f"{rec.status.value} at k={k}", False

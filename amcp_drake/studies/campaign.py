@@ -155,6 +155,21 @@ def _coverage(traj) -> dict[str, float]:
             "theta_star_near_boundary": float(closeness < 1e-2), **hard_case_coverage(traj)}
 
 
+def _resolve_counts(traj, backend: str) -> dict[str, float]:
+    """How many steps of the run needed more than the first solve, per kind of
+    :data:`amcp_drake.studies.resolves.RESOLVE_MARKS` that can occur in a campaign run: the vertex
+    form's fall back to the plain form only with :data:`FORMULATION` "vertex", the reduced plain
+    form's fall back to every row of (15c) only in the Drake backend's plain form (the cvxpy plain
+    form always has every row). Keys ``resolve_<kind>``; the summary shows the fraction of problems
+    with at least one such step (for every_row: how often the campaign did not test the reduced
+    program alone)."""
+    from amcp_drake.studies.resolves import count_resolves, step_notes
+
+    counts = count_resolves([step_notes(r) for r in traj.records])
+    applies = {"plain_fallback": FORMULATION == "vertex", "every_row": FORMULATION == "plain" and backend == "drake"}
+    return {f"resolve_{kind}": float(n) for kind, n in counts.items() if applies.get(kind, True)}
+
+
 def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure_dir: str,
                 steps: int = CAMPAIGN_STEPS, draw: Callable | None = None) -> dict[str, Any]:
     """Draw, run and certify problem ``idx`` on each backend (a Dask task; also callable directly).
@@ -183,7 +198,7 @@ def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure
             cert = certify(traj, spec)
             result["claims"][backend] = {c.name: {"status": c.status, "margin": c.margin} for c in cert.claims}
             result["verdicts"][backend] = cert.verdict
-            result["coverage"][backend] = _coverage(traj)
+            result["coverage"][backend] = {**_coverage(traj), **_resolve_counts(traj, backend)}
         failed = any(c["status"] != "pass" for claims in result["claims"].values() for c in claims.values())
         result["status"] = "fail" if failed else "pass"
         if failed:

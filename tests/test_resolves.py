@@ -1,0 +1,56 @@
+"""Steps that needed more than the first solve (amcp_drake.studies.resolves): the controller records
+the QP answer's detail on the step, and the bench and the campaign count the marks in it."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from amcp_drake.model.options import OnlineOptions
+from amcp_drake.model.status import SolveStatus
+from amcp_drake.online.controller import AdaptiveMPC, StepRecord
+from amcp_drake.studies.resolves import count_resolves, step_notes
+
+
+def _outside_theta0_step(example_spec, example_design, backend):
+    """One step of the plain form with Θ_k = 1.2·Θ0 (not inside Θ0: the Drake backend's reduced
+    program does not apply and it solves the program with every row)."""
+    ctrl = AdaptiveMPC(example_spec.problem, example_design, backend=backend, formulation="plain",
+                       options=OnlineOptions(update="none"))
+    ctrl.h_theta = 1.2 * np.asarray(example_design.h_theta0, float)
+    u, record = ctrl.step(np.array([1.0, 0.5]))
+    assert u is not None, record.status
+    return record
+
+
+def test_the_step_records_its_qp_answers_detail_and_the_every_row_program_is_counted(example_spec, example_design):
+    record = _outside_theta0_step(example_spec, example_design, "drake")
+    assert "every row of (15c)" in record.qp_detail
+    assert count_resolves([step_notes(record)])["every_row"] == 1
+
+
+def test_a_step_inside_theta0_counts_nowhere(example_spec, example_design):
+    ctrl = AdaptiveMPC(example_spec.problem, example_design, backend="drake", formulation="plain")
+    u, record = ctrl.step(np.asarray(example_spec.scenario.x0, float))
+    assert u is not None, record.status
+    assert set(count_resolves([step_notes(record)]).values()) == {0}
+
+
+def test_the_campaign_counts_extra_solves_only_where_they_can_occur():
+    from amcp_drake.studies.campaign import _resolve_counts
+
+    def traj(*notes):
+        records = [StepRecord(k=k, x=np.zeros(1), u=None, status=SolveStatus.OPTIMAL, H_theta=np.eye(1),
+                              h_theta=np.ones(1), theta_hat=np.zeros(1), qp_detail=qp, detail=note)
+                   for k, (qp, note) in enumerate(notes)]
+        return SimpleNamespace(records=records)
+
+    run = traj(("solved; every row of (15c): Theta_k not inside Theta0", ""), ("solved", ""),
+               ("solved", "tube QP (20): tube (15c) 2e-06 > 1e-06; fallback: vertex form of (20) (checked)"),
+               ("solved; every row of (15c): H_theta changed", ""))
+    drake = _resolve_counts(run, "drake")
+    assert drake == {"resolve_clarabel_retry": 0.0, "resolve_refined_resolve": 0.0, "resolve_every_row": 2.0,
+                     "resolve_answer_check_fallback": 1.0}
+    # the cvxpy plain form always has every row: the key is not reported rather than reported as 0
+    assert _resolve_counts(run, "cvxpy") == {k: v for k, v in drake.items() if k != "resolve_every_row"}
