@@ -330,6 +330,25 @@ def test_check_projection_accepts_the_exact_projection_and_rejects_others():
         assert any(c.name.startswith(name) for c in failed), (wrong, failed)
 
 
+def test_projection_candidate_check_is_absolute_for_short_distances():
+    """θ̃ inside S = [−1, 1]² and a known point of S 1e-14 from it (the LMS step at the origin): an
+    answer 1e-10 from θ̃ (solver round-off) passes; before, the relative test gave 1e4 > 1e-8 (campaign
+    seed 0 #131: up to 1.25e8). An answer 1e-6 off still fails, and so does 1e-6 relative at distance 10."""
+    H = np.vstack([np.eye(2), -np.eye(2)])
+    h = np.ones(4)
+    name = "projection no farther than a known point of the set"
+    point = np.array([0.15, 0.2])
+
+    def failed(theta, candidate, pt=point):
+        return [c.name for c in answer_checks.failures(answer_checks.check_projection(theta, pt, H, h, (candidate,)))]
+
+    assert name not in failed(point + [1e-10, 0.0], point + [1e-14, 0.0])
+    assert name in failed(point + [1e-6, 0.0], point)
+    far = np.array([11.0, 0.0])              # Π(far) = (1, 0), at distance 10
+    assert name not in failed(np.array([1.0, 0.0]), np.array([1.0, 0.0]), far)
+    assert name in failed(np.array([1.0, 1e-2]), np.array([1.0, 0.0]), far)  # 5e-7 relative
+
+
 def test_check_set_update_uses_the_dual_certificate():
     """Θ_(k−1) = [−1, 1]², one datum θ_1 <= 0.5: the offsets [0.5, 1, 1, 1] with Λ = rows picking the datum
     for row 1 pass; claiming 0.4 for row 1 fails the outer bound (θ = (0.5, 0) is in the intersection)."""

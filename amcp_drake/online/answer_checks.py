@@ -41,8 +41,11 @@ from amcp_drake.model.arrays import all_finite, same_bits
 #: slab emptied by round-off (width in [−1e-8, 0)) is answered by its mid-plane, <= 5e-9 outside each row;
 #: 1e-8 covers both and is an order below the certificate's PROJECTION_TOL (1e-7).
 PROJECTION_MEMBERSHIP_TOL = 1e-8
-#: Projection: ‖θ̂ − θ̃‖ may exceed the distance of a known point of S by this much relative to that
-#: distance (round-off of two norms of order 1, plus the solver's 1e-10 gap on the scaled objective).
+#: Projection: ‖θ̂ − θ̃‖ may exceed the distance of a known point of S by this much relative to
+#: max(that distance, 1) (round-off of two norms of order 1, plus the solver's 1e-10 gap on the scaled
+#: objective). The floor 1 makes it absolute (θ units, as PROJECTION_MEMBERSHIP_TOL) for short
+#: distances: when θ̃ lies in S and θ̂_{k−1} is 1e-17 from it (the state at the origin, the LMS step
+#: ~0), a relative test failed a solver's 1e-9 round-off by 1e8 (campaign seed 0 #131).
 PROJECTION_CANDIDATE_RTOL = 1e-8
 #: Projection KKT: rows within this of θ̂ (θ units, unit rows) count as active. The membership tolerance
 #: (a point may sit 1e-8 inside a row it should touch) times 10, so thin slabs keep both rows active.
@@ -153,7 +156,7 @@ def check_projection(theta, point: np.ndarray, H: np.ndarray, h: np.ndarray,
     if best:
         ref = min(best)
         checks.append(AnswerCheck("projection no farther than a known point of the set",
-                                  (dist - ref) / max(ref, 1e-300), PROJECTION_CANDIDATE_RTOL))
+                                  (dist - ref) / max(ref, 1.0), PROJECTION_CANDIDATE_RTOL))
     active = slack <= PROJECTION_ACTIVE_TOL
     gap = point - theta
     if np.any(active):
