@@ -17,20 +17,16 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import clarabel
 import numpy as np
 from scipy.optimize import linprog
 
-from amcp_drake.model.examples import lorenzen2019_spec
-from amcp_drake.offline.design import design
 from amcp_drake.online.controller import AdaptiveMPC
-from amcp_drake.online.simulate import disturbance_sequence
 
 sys.path.insert(0, str(Path(__file__).parent))
-from solver_floor import drake_clarabel_data  # noqa: E402
+from solver_floor import drake_clarabel_data, example_1  # noqa: E402
 
 #: A row is implied when the LP maximum of its left side stays this close to its bound.
 IMPLIED_TOL = 1e-9
@@ -67,10 +63,7 @@ def main() -> None:
     parser.add_argument("--step", type=int, default=60)
     parser.add_argument("--facets", type=int, default=8)
     args = parser.parse_args()
-    spec = lorenzen2019_spec()
-    d = design(spec.problem, replace(spec.design, x0_facets=args.facets), backend="drake")
-    problem, sc = spec.problem, spec.scenario
-    w = disturbance_sequence(problem, "uniform", args.step + 1, seed=0)
+    problem, sc, d, w = example_1(args.facets, args.step)
     ctrl = AdaptiveMPC(problem, d, backend="drake", formulation="vertex")
     x = np.asarray(sc.x0, float)
     for k in range(args.step + 1):

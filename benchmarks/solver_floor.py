@@ -87,15 +87,20 @@ def _settings(options: dict) -> clarabel.DefaultSettings:
     return settings
 
 
+def example_1(facets: int, steps: int):
+    """(problem, scenario, design, disturbances): Example 1 with an X0 of ``facets`` facets (N = 10),
+    the design on Drake, ``steps`` + 1 disturbances uniform on W (seed 0)."""
+    spec = lorenzen2019_spec()
+    d = design(spec.problem, replace(spec.design, x0_facets=facets), backend="drake")
+    return spec.problem, spec.scenario, d, disturbance_sequence(spec.problem, "uniform", steps + 1, seed=0)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--facets", type=int, default=8)
     args = parser.parse_args()
-    spec = lorenzen2019_spec()
-    d = design(spec.problem, replace(spec.design, x0_facets=args.facets), backend="drake")
-    problem, sc = spec.problem, spec.scenario
-    w = disturbance_sequence(problem, "uniform", args.steps + 1, seed=0)
+    problem, sc, d, w = example_1(args.facets, args.steps)
     drake = AdaptiveMPC(problem, d, backend="drake", formulation="vertex")
     cvx = AdaptiveMPC(problem, d, backend="cvxpy", formulation="vertex")
     profiles = {"drake": CpuProfile(drake), "cvxpy": CpuProfile(cvx)}
