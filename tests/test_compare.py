@@ -133,3 +133,32 @@ def test_cli_compare_accurate_runs_both_backends_at_tight_tolerances(tmp_path):
     result = CliRunner().invoke(main, ["compare", "--accurate", "--cvxpy-solver", "OSQP", "--steps", "2",
                                        "--out", str(tmp_path / "osqp.json")])
     assert result.exit_code == 2 and "--accurate" in result.output and not (tmp_path / "osqp.json").exists()
+
+
+def test_cli_compare_names_a_flat_optimum_and_suggests_accurate(tmp_path):
+    """The vertex form on the saved flat optimum: at the defaults v differs by ~3e-5 at step 0 while
+    the cost agrees; the verdict stays DISAGREE (exit 1) and a hint names the step and --accurate.
+    With --accurate both agree and there is no hint."""
+    from pathlib import Path
+
+    from amcp_drake.cli import main
+
+    problem = Path(__file__).parent / "data" / "lockstep-flat-optimum-problem.json"
+    args = ["compare", str(problem), "--steps", "1", "--quiet", "--formulation", "vertex"]
+    result = CliRunner().invoke(main, [*args, "--out", str(tmp_path / "d.json")])
+    assert result.exit_code == 1, result.output
+    assert "hint: at step 0 v differs while the cost agrees" in result.output
+    assert json.loads((tmp_path / "d.json").read_text())["flat_optimum_steps"] == [0]
+    result = CliRunner().invoke(main, [*args, "--accurate", "--out", str(tmp_path / "a.json")])
+    assert result.exit_code == 0, result.output
+    assert "hint:" not in result.output
+
+
+def test_flat_optimum_steps_need_v_apart_and_the_cost_within_tolerance():
+    from amcp_drake.comparison.compare import Comparison, Difference
+
+    comp = Comparison("lockstep", ("drake", "cvxpy"), differences=[
+        Difference("v", 2, 3e-5, 1.0, 1e-5, False), Difference("cost", 2, 1e-8, 1.0, 1e-5, True),
+        Difference("v", 3, 3e-5, 1.0, 1e-5, False), Difference("cost", 3, 1e-3, 1.0, 1e-5, False),
+        Difference("v", 4, 1e-9, 1.0, 1e-5, True), Difference("cost", 4, 1e-9, 1.0, 1e-5, True)])
+    assert comp.flat_optimum_steps() == [2]

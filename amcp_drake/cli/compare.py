@@ -96,6 +96,12 @@ def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_sol
         first = min(bad, key=lambda d: (d.step if d.step is not None else -1))
         click.echo(f"DISAGREE: {len(bad)} differences over tolerance; first: {first.quantity} at step {first.step} "
                    f"(diff {first.difference:.3e} > tol {first.tolerance:.3e})")
+    flat = comp.flat_optimum_steps()
+    if flat and not accurate:
+        listed = ", ".join(map(str, flat[:5])) + (", ..." if len(flat) > 5 else "")
+        click.echo(f"hint: at step {listed} v differs while the cost agrees: the optimum may be flat, where the "
+                   "solvers' default tolerances fix the cost but not v; --accurate compares both backends with "
+                   "Clarabel at 1e-10 (the property suite's setting)")
     write_json_atomic(comp.to_dict(), out_file)
     click.echo(f"all differences written to {out_file}")
     click.echo("backends agree" if comp.agree else "backends DISAGREE")

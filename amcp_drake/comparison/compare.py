@@ -108,6 +108,14 @@ class Comparison:
     def disagreements(self) -> list[Difference]:
         return [d for d in self.differences if not d.agree]
 
+    def flat_optimum_steps(self) -> list[int]:
+        """Steps where v disagrees while the cost agrees: the signature of a flat optimum, where the
+        solvers' duality gap fixes the cost but not the minimiser (the thorough profile's
+        tests/data/lockstep-flat-optimum-problem.json: v 1.1e-5 apart at Clarabel's defaults, 3.6e-9
+        at 1e-10). Only a hint for the reader: the verdict is unchanged."""
+        cost_agrees = {d.step for d in self.differences if d.quantity == "cost" and d.agree}
+        return sorted({d.step for d in self.differences if d.quantity == "v" and not d.agree and d.step in cost_agrees})
+
     def to_dict(self) -> dict[str, Any]:
         return {"mode": self.mode, "backends": list(self.backends), "agree": self.agree,
                 "tolerances": {k: {"abs": a, "rel": r} for k, (a, r) in TOLERANCES.items()},
@@ -115,7 +123,7 @@ class Comparison:
                 "statuses": [{"step": k, "a": a, "b": b} for k, a, b in self.statuses],
                 "differences": [d.to_dict() for d in self.differences],
                 "informational": [d.to_dict() for d in self.informational],
-                "drift": self.drift, "notes": self.notes}
+                "drift": self.drift, "notes": self.notes, "flat_optimum_steps": self.flat_optimum_steps()}
 
 
 def _diff(quantity: str, step: int | None, a, b) -> Difference:
