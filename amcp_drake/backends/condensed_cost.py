@@ -85,22 +85,22 @@ class CondensedCost:
         if self._last is None or not same_bits(self._last[0], theta_hat):
             self._last = (theta_hat.copy(), *self._blocks(theta_hat))
         _, H, S, T = self._last
-        return H, S.T @ x, float(np.dot(np.dot(x, T), x))  # S.T: a strided view, matmul kept (np.dot would copy: other bits)
+        return H, S.T @ x, float(x.dot(T).dot(x))  # S.T: a strided view, matmul kept (np.dot would copy: other bits)
 
     def _blocks(self, theta_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         d, n, m = self.data, self.n, self.m
-        B_hat = d.B0 + np.dot(theta_hat, self._B_flat).reshape(n, m)
-        A_cl = d.A0 + np.dot(theta_hat, self._A_flat).reshape(n, n) + np.dot(B_hat, self.K)
+        B_hat = d.B0 + theta_hat.dot(self._B_flat).reshape(n, m)
+        A_cl = d.A0 + theta_hat.dot(self._A_flat).reshape(n, n) + B_hat.dot(self.K)
         for previous, power in self._power_steps:
-            np.dot(A_cl, previous, out=power)                   # written in place (same products, bit for bit)
+            A_cl.dot(previous, out=power)                   # written in place (same products, bit for bit)
         np.matmul(self._powers_head, B_hat, out=self._PB_head)
-        np.take(self._source, self._W_index, out=self._W, mode="clip")   # W (indices valid: "clip" skips a buffer)
+        self._source.take(self._W_index, out=self._W, mode="clip")   # W (indices valid: "clip" skips a buffer)
         np.matmul(self.Qh, self._W_head, out=self._G_Q)
-        np.dot(self.Ph, self._W_last, out=self._G_P)
+        self.Ph.dot(self._W_last, out=self._G_P)
         KW = np.matmul(self.K, self._W_head, out=self._KW)
         KW += self._v_identity
         np.matmul(self.Rh, KW, out=self._G_R)
-        M = np.dot(self._G_T, self._G)
+        M = self._G_T.dot(self._G)
         H = M[n:, n:]
         return 0.5 * (H + H.T), M[:n, n:], M[:n, :n]
 

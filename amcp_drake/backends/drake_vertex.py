@@ -216,7 +216,7 @@ class DrakeVertexTubeMPC:
         if not unchanged:
             self._vertex_version += 1
         S = len(vertices)
-        b15b = np.dot(self._minus_H_x, x, out=self._c15b_ub)  # −H_x x_k, the upper bound of (15b)
+        b15b = self._minus_H_x.dot(x, out=self._c15b_ub)  # −H_x x_k, the upper bound of (15b)
         Hv, g, const = self._cost_model.matrices(x, theta_hat)
         fast_note = ""
         if self._fast is not None:
@@ -259,7 +259,7 @@ class DrakeVertexTubeMPC:
         alpha = yv[self.a0:self.v0]
         vf = yv[self.v0:]
         v = vf.reshape(N, m)
-        cost = float(np.dot(np.dot(vf, Hv), vf) + np.dot(2 * g, vf) + const)  # np.dot: the BLAS call of @
+        cost = float(vf.dot(Hv).dot(vf) + (2 * g).dot(vf) + const)  # np.dot: the BLAS call of @
         return MPCSolution(SolveStatus.OPTIMAL, v, z, alpha, None, cost, solver_time, update_time, detail=detail)
 
     def _solve_fast(self, S, vertices, b15b, Hv, g, const, start) -> tuple[MPCSolution | None, str]:

@@ -78,7 +78,7 @@ class VertexSetUpdate:
         if last is None or not (same_bits(last[1], h_prev) and same_bits(last[0], H_theta)):
             alone = _solve(H_theta, h_prev, np.zeros((0, H_theta.shape[1])), np.zeros(0))
             last = self._last = None if alone is None else (H_theta.copy(), h_prev.copy(), alone[3], *alone[:3])
-        if last is not None and np.logical_and.reduce(np.dot(last[2], H_data.T) <= h_data, axis=None):
+        if last is not None and np.logical_and.reduce(last[2].dot(H_data.T) <= h_data, axis=None):
             Lambda = np.zeros((len(h_prev), len(h_prev) + len(h_data)))
             Lambda[:, : len(h_prev)] = last[4]
             return last[3].copy(), Lambda, last[5].copy()

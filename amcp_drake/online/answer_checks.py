@@ -189,8 +189,8 @@ def check_set_update(h, Lambda, points, H_theta: np.ndarray, h_prev: np.ndarray,
         checks.append(AnswerCheck("set update outer bound (dual certificate)", float("nan"), SET_OUTER_TOL, ran=False))
     else:
         lam = np.maximum(np.asarray(Lambda, float), 0.0)
-        residual = H_theta - _dot(lam, H_tilde)
-        bound = _dot(lam, h_tilde) + _dot(np.abs(residual), np.asarray(theta_box, float))
+        residual = H_theta - lam.dot(H_tilde)
+        bound = lam.dot(h_tilde) + np.abs(residual).dot(np.asarray(theta_box, float))
         checks.append(AnswerCheck("set update outer bound (dual certificate)", float(_max(bound - h, axis=None)),
                                   SET_OUTER_TOL))
     if points is None:
@@ -200,7 +200,7 @@ def check_set_update(h, Lambda, points, H_theta: np.ndarray, h_prev: np.ndarray,
     else:
         pts = np.asarray(points, float)
         Ht_n, ht_n = _unit(H_tilde, h_tilde)
-        infeasible = float(_max(_dot(pts, Ht_n.T) - ht_n, axis=None))
+        infeasible = float(_max(pts.dot(Ht_n.T) - ht_n, axis=None))
         miss = float(_max(np.abs(_add_reduce(H_theta * pts, axis=1) - h), axis=None))
         checks.append(AnswerCheck("set update maximisers feasible and tight", max(infeasible, miss), SET_POINT_TOL))
     return checks
@@ -387,15 +387,15 @@ class TubeCheck:
             return [_finite_shape("tube v", sol.v, shapes[0]), _finite_shape("tube z", sol.z, shapes[1]),
                     _finite_shape("tube alpha", sol.alpha, shapes[2])]
         checks = list(self._finite_rows)
-        _dot(self._minus_H_x, np.asarray(x, float), out=self._b15b)
-        rows = np.subtract(_dot(self.fixed, y, out=self._rows), self.b, out=self._rows)
+        self._minus_H_x.dot(np.asarray(x, float), out=self._b15b)
+        rows = np.subtract(self.fixed.dot(y, out=self._rows), self.b, out=self._rows)
         worst = np.maximum.reduceat(rows, self.starts).tolist()
         checks += [AnswerCheck("tube alpha >= 0", max(0.0, worst[0]), TUBE_ROW_TOL),
                    AnswerCheck("tube x_k in X_0|k (15b)", worst[1], TUBE_ROW_TOL),
                    AnswerCheck("tube constraints (15a)", worst[2], TUBE_ROW_TOL),
                    AnswerCheck("tube terminal set", worst[3], TUBE_ROW_TOL)]
         # w_l = [z_l | z_{l+1} | α_l | α_{l+1} | v_l | 1] (the indices are valid: "clip" only skips a buffer)
-        w = np.take(y1, self._w_index, out=self._w, mode="clip")
+        w = y1.take(self._w_index, out=self._w, mode="clip")
         if sol.Lambda is not None:
             Lam = np.asarray(sol.Lambda, float)
             malformed = self._malformed_lambda(Lam, H_theta)
@@ -411,7 +411,7 @@ class TubeCheck:
             self._tube_rows(theta_vertices)
             self._vertices = np.array(theta_vertices, float)
             self._tube_values = np.empty((self.N, self._Ct.shape[1]))
-        tube = _dot(w, self._Ct, out=self._tube_values)
+        tube = w.dot(self._Ct, out=self._tube_values)
         checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float(_max(tube, axis=None)), TUBE_ROW_TOL))
         return checks
 

@@ -150,7 +150,7 @@ class AdaptiveMPC:
         scaled to unit norm (see DELTA_ROW_MIN_NORM)."""
         pr = self.problem
         D, d = self._regression(x_prev, u_prev, x)
-        H, h = _dot(self._minus_H_w, D), 1.0 + _dot(pr.H_w, d)
+        H, h = self._minus_H_w.dot(D), 1.0 + pr.H_w.dot(d)
         norms = np.sqrt(_add_reduce(H * H, axis=1))
         keep = norms >= DELTA_ROW_MIN_NORM
         if not _and_reduce(keep, axis=None):
@@ -166,7 +166,7 @@ class AdaptiveMPC:
             return cached[3], cached[4]
         pr = self.problem
         D = pr.regressor(x_prev, u_prev)
-        d = _dot(pr.A0, x_prev) + _dot(pr.B0, u_prev) - x
+        d = pr.A0.dot(x_prev) + pr.B0.dot(u_prev) - x
         self._regression_cache = (x_prev, u_prev, x, D, d)
         return D, d
 
@@ -296,14 +296,14 @@ class AdaptiveMPC:
         pr = self.problem
         D, d = self._regression(x_prev, u_prev, x)
         # x_k − x̂_k with x̂_k = A(θ̂)x_{k−1} + B(θ̂)u_{k−1} = A0 x_{k−1} + B0 u_{k−1} + D θ̂ by (2): −(d_k + D θ̂)
-        error = -(d + _dot(D, self.theta_hat))
-        theta_tilde = self.theta_hat + _dot(self.design.mu * D.T, error)
+        error = -(d + D.dot(self.theta_hat))
+        theta_tilde = self.theta_hat + (self.design.mu * D.T).dot(error)
         record.theta_tilde = theta_tilde
         if self.options.projection == "Theta":
             H, h, target = pr.H_theta, pr.h_theta, "Θ"
         else:
             H, h, target = self.H_theta, self.h_theta, "Θ_k"
-        if _and_reduce(_dot(H, theta_tilde) <= h, axis=None):
+        if _and_reduce(H.dot(theta_tilde) <= h, axis=None):
             # the projection of a point of the set is the point itself: no QP needed
             self.theta_hat = theta_tilde
             record.projection_status = SolveStatus.OPTIMAL
@@ -565,7 +565,7 @@ class AdaptiveMPC:
             record.qp_detail = f"{record.qp_detail}; {sol.detail}"
         if sol is not None:
             record.v, record.z, record.alpha, record.Lambda, record.cost = sol.v, sol.z, sol.alpha, sol.Lambda, sol.cost
-            u = _dot(self.design.K, x) + sol.v[0]
+            u = self.design.K.dot(x) + sol.v[0]
             record.u = u
             self._prev = (x, u)
             self._u_hist.append(float(u[0]))
