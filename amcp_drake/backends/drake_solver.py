@@ -86,12 +86,15 @@ class DrakeSolver:
         return result, time.perf_counter() - start
 
     def status(self, result) -> SolveStatus:
-        status = STATUS_MAP.get(result.get_solution_result(), SolveStatus.ERROR)
-        if status is SolveStatus.OPTIMAL and self.name == "clarabel":
+        # is_success() is Drake's solution_result == kSolutionFound (STATUS_MAP: OPTIMAL), 0.2 µs against
+        # ~1 µs for hashing the pybind11 enum into STATUS_MAP (issue 16: called once per QP)
+        if not result.is_success():
+            return STATUS_MAP.get(result.get_solution_result(), SolveStatus.ERROR)
+        if self.name == "clarabel":
             details = result.get_solver_details()
             if getattr(details, "status", "Solved") in _CLARABEL_INACCURATE:
                 return SolveStatus.INACCURATE
-        return status
+        return SolveStatus.OPTIMAL
 
 
 def infeasible_constraint_names(result, prog: MathematicalProgram, tol: float = INFEASIBLE_NAME_TOL) -> tuple[str, ...]:
