@@ -371,6 +371,69 @@ def test_check_set_update_uses_the_dual_certificate():
     assert names == ["set update maximisers feasible and tight"]
 
 
+def test_set_update_check_reuses_only_what_is_unchanged():
+    """SetUpdateCheck (issue 16: the parts of check_set_update that depend only on the answer and Θ_(k−1)
+    reused while those are unchanged to the bit) gives the rows of check_set_update, names, verdicts and
+    values to the bit, on a sequence that repeats one answer while Δ_k, h_(k−1), H_θ, h, the number of
+    data rows and the finiteness of Λ and of the maximisers change one at a time (a part reused for a
+    changed input shows a stale value here)."""
+    H = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+    H_tilted = np.array([[1.0, 0.0], [0.6, 0.8], [-1.0, 0.0], [0.0, -1.0]])
+    h_prev = np.ones(4)
+    box = np.array([1.0, 1.0])
+    one_datum = (np.array([[1.0, 0.0]]), np.array([0.5]))
+    other_datum = (np.array([[0.8, 0.6]]), np.array([0.7]))
+    two_data = (np.array([[1.0, 0.0], [0.0, 1.0]]), np.array([0.5, 0.9]))
+    Lam = np.hstack([np.eye(4), np.zeros((4, 1))])
+    Lam[0] = [0, 0, 0, 0, 1.0]
+    Lam2 = np.hstack([Lam, np.zeros((4, 1))])
+    good = np.array([0.5, 1.0, 1.0, 1.0])
+    points = np.array([[0.5, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+    nan_points = points.copy()
+    nan_points[1, 0] = np.nan
+    nan_Lam = Lam.copy()
+    nan_Lam[2, 1] = np.nan
+    # each case differs from the one before it in one input (a part reused for it would be stale)
+    cases = [
+        (good, Lam, points, H, h_prev, *one_datum),
+        (good, Lam, points, H, h_prev, *other_datum),              # Δ_k: dual bound, feasibility
+        (good, Lam, points, H, h_prev - [0.0, 0.1, 0.0, 0.0], *other_datum),  # h_(k−1): nesting (10)
+        (good, Lam, points, H, h_prev, *other_datum),
+        (good, Lam, points, H_tilted, h_prev, *other_datum),       # H_θ: residual and miss
+        (good, Lam, points, H, h_prev, *other_datum),
+        (good - [0.1, 0, 0, 0], Lam, points, H, h_prev, *other_datum),  # h: miss
+        (good, Lam, points, H, h_prev, *other_datum),
+        (good, 2.0 * Lam, points, H, h_prev, *other_datum),        # Λ: dual bound
+        (good, Lam, points, H, h_prev, *other_datum),
+        (good, Lam2, points, H, h_prev, *two_data),                # two data rows
+        (good, Lam2, points, H, h_prev, *one_datum),               # Λ of the wrong width: not run
+        (good, Lam2, points, H, h_prev, *two_data),
+        (good, Lam, points, H, h_prev, *one_datum),
+        (good, Lam, nan_points, H, h_prev, *one_datum),            # non-finite maximisers
+        (good, Lam, nan_points, H, h_prev, *other_datum),
+        (good, Lam, points, H, h_prev, *other_datum),
+        (good, Lam, None, H, h_prev, *other_datum),                # no maximisers
+        (good, Lam, points, H, h_prev, *other_datum),
+        (good, nan_Lam, points, H, h_prev, *other_datum),          # non-finite Λ
+        (good, nan_Lam, points, H, h_prev, *one_datum),
+        (good, Lam, points, H, h_prev, *one_datum),
+        (good + [np.nan, 0, 0, 0], Lam, points, H, h_prev, *one_datum),  # non-finite h: one row
+        (good, Lam, points, H, h_prev, *one_datum),
+    ]
+    checker = answer_checks.SetUpdateCheck()
+
+    def rows(checks):
+        return [(c.name, np.float64(c.value).tobytes(), c.tolerance, c.ran) for c in checks]
+
+    for i, args in enumerate(cases):
+        got = checker.check(*args, box)
+        assert rows(got) == rows(answer_checks.check_set_update(*args, box)), i
+    # the answer repeated with new data is checked against the new data: a cut datum fails it
+    cut = (np.array([[1.0, 0.0]]), np.array([0.3]))
+    failed = answer_checks.failures(checker.check(good, Lam, points, H, h_prev, *cut, box))
+    assert [c.name for c in failed] == ["set update maximisers feasible and tight"]
+
+
 @pytest.mark.parametrize("formulation", ["vertex", "plain"])
 def test_preassembled_tube_check_equals_check_tube(example_spec, example_design, formulation):
     """TubeCheck (issue 16: the rows of check_tube preassembled, one product per block) gives the names,

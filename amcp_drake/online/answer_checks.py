@@ -178,35 +178,82 @@ def check_set_update(h, Lambda, points, H_theta: np.ndarray, h_prev: np.ndarray,
     ``Lambda`` (q, q + r): multipliers of (9); ``points`` (q, p) or None: maximisers per row;
     ``theta_box`` (p,): max |θ_j| over Θ0 ⊇ Θ_{k−1} (bounds the residual of Λ H̃ = H_θ).
     Rows of H_θ and H_data are unit rows (design.H_theta, controller._delta)."""
+    return _set_update_rows(h, Lambda, points, H_theta, h_prev, H_data, h_data, theta_box, None)[0]
+
+
+class SetUpdateCheck:
+    """:func:`check_set_update` for the online loop (issue 16): the same rows, names and values, with the
+    parts that depend only on the answer (h, Λ, maximisers) and on Θ_{k−1} (H_θ, h_{k−1}) — the rows of h
+    ("finite, shape" and the nesting (10)), the finiteness of Λ and max(Λ, 0), the finiteness of the
+    maximisers and their miss of the offsets h — taken from the last call when those five arrays are
+    unchanged to the bit (the same operations on the same operands give the same values). Once Θ_k has
+    settled, the vertex update returns the same answer at most steps; the rows with Δ_k (the dual bound
+    and the maximisers' feasibility) are computed at every call."""
+
+    def __init__(self) -> None:
+        #: ((h, h_prev, Λ, maximisers, H_θ) copies, their known parts) of the last call, or None
+        self._last: tuple | None = None
+
+    def check(self, h, Lambda, points, H_theta, h_prev, H_data, h_data, theta_box) -> list[AnswerCheck]:
+        """As :func:`check_set_update`."""
+        key = (h, h_prev, Lambda, points, H_theta)
+        arrays = (type(h) is np.ndarray and type(h_prev) is np.ndarray and type(Lambda) is np.ndarray
+                  and type(points) is np.ndarray and type(H_theta) is np.ndarray)
+        last = self._last
+        known = None
+        if (arrays and last is not None and same_bits(last[0][0], h) and same_bits(last[0][1], h_prev)
+                and same_bits(last[0][2], Lambda) and same_bits(last[0][3], points)
+                and same_bits(last[0][4], H_theta)):
+            known = last[1]
+        checks, parts = _set_update_rows(h, Lambda, points, H_theta, h_prev, H_data, h_data, theta_box, known)
+        if known is None:
+            self._last = (tuple(a.copy() for a in key), parts) if arrays and parts is not None else None
+        return checks
+
+
+def _set_update_rows(h, Lambda, points, H_theta, h_prev, H_data, h_data, theta_box,
+                     known: tuple | None) -> tuple[list[AnswerCheck], tuple | None]:
+    """The rows of :func:`check_set_update`, and its parts that depend only on (h, h_prev, Λ, maximisers,
+    H_θ): (the two rows of h, max(Λ, 0) or None, the maximisers' miss or None). ``known``: those parts
+    from an earlier call with the same five arrays to the bit (:class:`SetUpdateCheck`), or None to
+    compute them. Returns (rows, parts; None when h failed its "finite, shape" row)."""
     H_theta = np.asarray(H_theta, float)
     h_prev = np.asarray(h_prev, float)
     q, p = H_theta.shape
     H_tilde = np.concatenate([H_theta, np.asarray(H_data, float).reshape(-1, p)])
     h_tilde = np.concatenate([h_prev, np.asarray(h_data, float).reshape(-1)])
-    shape = _finite_shape("set update h", h, (q,))
-    if not shape.passed:
-        return [shape]
-    h = np.asarray(h, float)
-    checks = [shape, AnswerCheck("set update nested h <= h_prev (10)", float(_max(h - h_prev, axis=None)), SET_NESTED_TOL)]
-    if not _has_shape(Lambda, (q, len(h_tilde))) or not all_finite(Lambda):
+    if known is None:
+        shape = _finite_shape("set update h", h, (q,))
+        if not shape.passed:
+            return [shape], None
+        h = np.asarray(h, float)
+        head = (shape, AnswerCheck("set update nested h <= h_prev (10)", float(_max(h - h_prev, axis=None)),
+                                   SET_NESTED_TOL))
+        lam = miss = None
+    else:
+        head, lam, miss = known  # lam: Λ was finite; miss: the maximisers were finite, of shape (q, p)
+    checks = list(head)
+    if not _has_shape(Lambda, (q, len(h_tilde))) or (lam is None and not all_finite(Lambda)):
         checks.append(AnswerCheck("set update outer bound (dual certificate)", float("nan"), SET_OUTER_TOL, ran=False))
     else:
-        lam = np.maximum(np.asarray(Lambda, float), 0.0)
+        if lam is None:
+            lam = np.maximum(np.asarray(Lambda, float), 0.0)
         residual = H_theta - lam.dot(H_tilde)
         bound = lam.dot(h_tilde) + np.abs(residual).dot(np.asarray(theta_box, float))
         checks.append(AnswerCheck("set update outer bound (dual certificate)", float(_max(bound - h, axis=None)),
                                   SET_OUTER_TOL))
     if points is None:
         checks.append(AnswerCheck("set update maximisers feasible and tight", float("nan"), SET_POINT_TOL, ran=False))
-    elif not _has_shape(points, (q, p)) or not all_finite(points):
+    elif miss is None and (not _has_shape(points, (q, p)) or not all_finite(points)):
         checks.append(AnswerCheck("set update maximisers feasible and tight", float("inf"), SET_POINT_TOL))
     else:
         pts = np.asarray(points, float)
         Ht_n, ht_n = _unit(H_tilde, h_tilde)
         infeasible = float(_max(pts.dot(Ht_n.T) - ht_n, axis=None))
-        miss = float(_max(np.abs(_add_reduce(H_theta * pts, axis=1) - h), axis=None))
+        if miss is None:
+            miss = float(_max(np.abs(_add_reduce(H_theta * pts, axis=1) - h), axis=None))
         checks.append(AnswerCheck("set update maximisers feasible and tight", max(infeasible, miss), SET_POINT_TOL))
-    return checks
+    return checks, (head, lam, miss)
 
 
 # -- (20) ------------------------------------------------------------------------------------------

@@ -104,6 +104,7 @@ class AdaptiveMPC:
         self._backend_spec = (backend, dict(backend_options))
         self._other_mpc = None  # the other formulation of (20), built on first need (answer checks)
         self._tube_check: answer_checks.TubeCheck | None = None  # check_tube preassembled, on first need
+        self._set_check = answer_checks.SetUpdateCheck()  # check_set_update, its answer-only parts reused
         self.data = TubeMPCData(
             A0=problem.A0, B0=problem.B0, A=problem.A, B=problem.B, F=problem.F, G=problem.G, Q=problem.Q,
             R=problem.R, N=problem.N, K=design.K, P=design.P, H_x=design.H_x, X0_vertices=design.X0_vertices,
@@ -206,7 +207,7 @@ class AdaptiveMPC:
                                                     "intersection is empty")
         t0 = time.process_time()
         def check(h, Lam, pts):
-            return answer_checks.check_set_update(h, Lam, pts, H_theta, self.h_theta, H_data, h_data, self._theta_box)
+            return self._set_check.check(h, Lam, pts, H_theta, self.h_theta, H_data, h_data, self._theta_box)
 
         if result.status is SolveStatus.OPTIMAL:
             checks = check(result.h, result.Lambda, getattr(result, "points", None))
