@@ -124,6 +124,7 @@ class AdaptiveMPC:
                 raise ProblemError("formulation", "'plain' (the PE constraint needs formulation='plain')",
                                    repr(self.backend.formulation))
         self.mpc = self.backend.tube_mpc(self.data)
+        self._x_shape = (problem.n,)
         self._minus_H_w = -problem.H_w  # −H_w of Δ_k (6), negated once (the same product bit for bit)
         #: ‖[H_θ]_i‖: the dilation D_l of Section 4.1 on un-normalised rows (same set as on unit rows)
         self._row_norms = np.linalg.norm(np.asarray(design.H_theta, float), axis=1)
@@ -467,6 +468,10 @@ class AdaptiveMPC:
         failed = self._failed_tube_checks(sol, x, h_arg, H_arg, record)
         if not failed or not getattr(self.mpc, "REFINES", False):
             return sol, failed
+        return self._refined(sol, failed, x, h_arg, H_arg, u0_bounds, record, what)
+
+    def _refined(self, sol, failed, x, h_arg, H_arg, u0_bounds, record: StepRecord, what: str):
+        """The second half of :meth:`_checked_or_refined`: ``sol`` failed ``failed``; the refined re-solve."""
         alt = self.mpc.solve(x, h_arg, self.theta_hat, H_arg, u0_bounds=u0_bounds, refine=True)
         record.times["solver_refined"] = record.times.get("solver_refined", 0.0) + alt.solver_time
         if alt.status is SolveStatus.OPTIMAL and not self._failed_tube_checks(alt, x, h_arg, H_arg, record):
@@ -493,7 +498,12 @@ class AdaptiveMPC:
             return None
         if checked:
             return sol
-        sol, failed = self._checked_or_refined(sol, x, h_arg, H_arg, None, record, "tube QP (20)")
+        # _checked_or_refined written out: the common path (every check passed) is one call
+        failed = self._failed_tube_checks(sol, x, h_arg, H_arg, record)
+        if not failed:
+            return sol
+        if getattr(self.mpc, "REFINES", False):
+            sol, failed = self._refined(sol, failed, x, h_arg, H_arg, None, record, "tube QP (20)")
         spent = 0.0
         try:
             if not failed:
@@ -525,7 +535,7 @@ class AdaptiveMPC:
         """Steps (i)-(iv) at the measured state x_k."""
         start = time.perf_counter()
         x = np.asarray(x, float)
-        if x.shape != (self.problem.n,) or not all_finite(x):
+        if x.shape != self._x_shape or not all_finite(x):
             raise ProblemError("x", f"a finite state vector of length {self.problem.n}", f"{x!r}")
         self._regression_cache = None
         record = StepRecord(k=self.k, x=x, u=None, status=SolveStatus.NOT_RUN, H_theta=self.H_theta,
