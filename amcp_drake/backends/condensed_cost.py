@@ -9,7 +9,9 @@ from __future__ import annotations
 import numpy as np
 
 from amcp_drake.backends.base import TubeMPCData
-from amcp_drake.model.arrays import same_bits
+from amcp_drake.model.arrays import same_bits, scalar_operand
+
+_HALF = scalar_operand(0.5)  # ½ of the symmetric part, a 0-d array (model.arrays.scalar_operand)
 
 
 def _sqrt_psd(M: np.ndarray) -> np.ndarray:
@@ -102,7 +104,7 @@ class CondensedCost:
         np.matmul(self.Rh, KW, out=self._G_R)
         M = self._G_T.dot(self._G)
         H = M[n:, n:]
-        return 0.5 * (H + H.T), M[:n, n:], M[:n, :n]
+        return _HALF * (H + H.T), M[:n, n:], M[:n, :n]
 
 
 __all__ = ["CondensedCost"]

@@ -35,8 +35,10 @@ from amcp_drake.backends.condensed_cost import CondensedCost
 from amcp_drake.backends.daqp_fast import DaqpFastPath
 from amcp_drake.backends.drake_solver import DrakeSolver, infeasible_constraint_names
 from amcp_drake.backends.vertex_form import CLARABEL_OPTIONS, VertexEnumerationError, theta_vertices
-from amcp_drake.model.arrays import all_finite, same_bits
+from amcp_drake.model.arrays import all_finite, same_bits, scalar_operand
 from amcp_drake.model.status import SolveStatus
+
+_TWO = scalar_operand(2.0)  # the factor 2 of Drake's ½ yᵀQy + bᵀy as a 0-d array (model.arrays.scalar_operand)
 
 TUBE_ROWS = "(5b) tube propagation at the vertices of Theta_k (vertex form of (15c)-(15d))"
 
@@ -218,7 +220,7 @@ class DrakeVertexTubeMPC:
         S = len(vertices)
         b15b = self._minus_H_x.dot(x, out=self._c15b_ub)  # −H_x x_k, the upper bound of (15b)
         Hv, g, const = self._cost_model.matrices(x, theta_hat)
-        g2 = 2.0 * g  # 2g: Drake's linear term (½ yᵀ(2H)y + (2g)ᵀy) and the cost's 2gᵀv, computed once
+        g2 = _TWO * g  # 2g: Drake's linear term (½ yᵀ(2H)y + (2g)ᵀy) and the cost's 2gᵀv, computed once
         fast_note = ""
         if self._fast is not None:
             sol, fast_note = self._solve_fast(S, vertices, b15b, Hv, g, g2, const, start)
@@ -230,7 +232,7 @@ class DrakeVertexTubeMPC:
             self._tube.UpdateCoefficients(rows.A, rows.lb, rows.ub)
             self._tube_S, self._drake_version = S, self._vertex_version
         self._c15b.UpdateUpperBound(b15b)
-        self._cost.UpdateCoefficients(2.0 * Hv, g2, const, True)  # is_convex positional: pybind11's keyword path costs ~0.5 µs
+        self._cost.UpdateCoefficients(_TWO * Hv, g2, const, True)  # is_convex positional: pybind11's keyword path costs ~0.5 µs
         update_time = time.perf_counter() - start
         result, solver_time = self._solver.solve(self.prog)
         status = self._solver.status(result)

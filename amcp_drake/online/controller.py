@@ -14,7 +14,7 @@ import numpy as np
 
 from amcp_drake.backends import TubeMPCData, get_backend
 from amcp_drake.model import polytope
-from amcp_drake.model.arrays import all_finite, same_bits
+from amcp_drake.model.arrays import all_finite, same_bits, scalar_operand
 from amcp_drake.model.errors import InconsistentDataError, ProblemError
 from amcp_drake.model.options import OnlineOptions
 from amcp_drake.model.problem import Problem
@@ -43,6 +43,11 @@ _add_reduce = np.add.reduce
 #: np.dot for 1-D/2-D operands: the same BLAS call as ``@`` (gemv/gemm, the same bits: checked on the run's
 #: shapes) without the matmul ufunc's dispatch, ~0.4 µs less per product
 _dot = np.dot
+# the constant operands of Δ_k (6) as 0-d arrays (model.arrays.scalar_operand: the same operations, no
+# conversion of a Python float per call)
+_ONE = scalar_operand(1.0)
+_DELTA_ROW_MIN_NORM = scalar_operand(DELTA_ROW_MIN_NORM)
+_DELTA_MARGIN = scalar_operand(DELTA_MARGIN)
 
 
 
@@ -125,6 +130,7 @@ class AdaptiveMPC:
                                    repr(self.backend.formulation))
         self.mpc = self.backend.tube_mpc(self.data)
         self._x_shape = (problem.n,)
+        self._mu = scalar_operand(design.mu)  # the LMS gain μ of (12) as a 0-d array (scalar_operand)
         self._minus_H_w = -problem.H_w  # −H_w of Δ_k (6), negated once (the same product bit for bit)
         #: ‖[H_θ]_i‖: the dilation D_l of Section 4.1 on un-normalised rows (same set as on unit rows)
         self._row_norms = np.linalg.norm(np.asarray(design.H_theta, float), axis=1)
@@ -152,12 +158,12 @@ class AdaptiveMPC:
         scaled to unit norm (see DELTA_ROW_MIN_NORM)."""
         pr = self.problem
         D, d = self._regression(x_prev, u_prev, x)
-        H, h = self._minus_H_w.dot(D), 1.0 + pr.H_w.dot(d)
+        H, h = self._minus_H_w.dot(D), _ONE + pr.H_w.dot(d)
         norms = np.sqrt(_add_reduce(H * H, axis=1))
-        keep = norms >= DELTA_ROW_MIN_NORM
+        keep = norms >= _DELTA_ROW_MIN_NORM
         if not _and_reduce(keep, axis=None):
             H, h, norms = H[keep], h[keep], norms[keep]
-        return H / norms[:, None], h / norms + DELTA_MARGIN
+        return H / norms[:, None], h / norms + _DELTA_MARGIN
 
     def _regression(self, x_prev, u_prev, x) -> tuple[np.ndarray, np.ndarray]:
         """(D_{k−1}, d_k) of (6): D(x_{k−1}, u_{k−1}) (n, p) and d_k = A0 x_{k−1} + B0 u_{k−1} − x_k,
@@ -299,7 +305,7 @@ class AdaptiveMPC:
         D, d = self._regression(x_prev, u_prev, x)
         # x_k − x̂_k with x̂_k = A(θ̂)x_{k−1} + B(θ̂)u_{k−1} = A0 x_{k−1} + B0 u_{k−1} + D θ̂ by (2): −(d_k + D θ̂)
         error = -(d + D.dot(self.theta_hat))
-        theta_tilde = self.theta_hat + (self.design.mu * D.T).dot(error)
+        theta_tilde = self.theta_hat + (self._mu * D.T).dot(error)
         record.theta_tilde = theta_tilde
         if self.options.projection == "Theta":
             H, h, target = pr.H_theta, pr.h_theta, "Θ"
