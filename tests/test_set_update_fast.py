@@ -135,6 +135,26 @@ def test_reused_vertices_when_the_data_cut_nothing_and_when_they_cut_a_little():
     assert out[0][0] == pytest.approx(1.0 - 1e-7, abs=1e-12)
 
 
+def test_reused_multipliers_are_fresh_for_each_theta_and_number_of_data_rows():
+    """The reuse case's Λ (a copy of one template per Θ_(k−1) and number of data rows, issue 16) equals
+    that of a fresh VertexSetUpdate while Θ_(k−1) (two sets whose redundant seventh row has different
+    multipliers) and the number of data rows change, and an answer overwritten by the caller does not
+    change the next one."""
+    H1 = np.vstack([np.eye(3), -np.eye(3), np.ones((1, 3)) / np.sqrt(3.0)])
+    H2 = np.vstack([np.eye(3), -np.eye(3), np.array([[1.0, -1.0, 1.0]]) / np.sqrt(3.0)])
+    h = np.r_[np.ones(6), 10.0]
+    one = (np.array([[1.0, 0.0, 0.0]]), np.array([5.0]))
+    two = (np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]), np.array([5.0, 6.0]))
+    update = VertexSetUpdate()
+    for H, data in [(H1, one), (H1, one), (H1, two), (H2, two), (H2, one), (H1, one)]:
+        out = update.solve(H, h, *data)
+        for got, want in zip(out, VertexSetUpdate().solve(H, h, *data)):
+            np.testing.assert_array_equal(got, want)
+        assert_certificate(H, h, *data, *out)
+        for array in out:
+            array[...] = 7.0  # the caller's arrays
+
+
 def test_empty_intersection_is_left_to_the_lp(auto_backend):
     assert solve_by_vertices([[1.0], [-1.0]], [1.0, 1.0], [[1.0]], [-2.0]) is None
     res = auto_backend.set_update([[1.0], [-1.0]], [1.0, 1.0], [[1.0]], [-2.0])

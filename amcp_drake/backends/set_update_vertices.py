@@ -66,6 +66,9 @@ class VertexSetUpdate:
     def __init__(self) -> None:
         # (H_θ, h_{k−1}, vertices (F, p), h, Λ (q, q), maximisers (q, p)) of Θ_{k−1} alone, or None
         self._last: tuple[np.ndarray, ...] | None = None
+        # Λ of the reuse case for the current _last and number of data rows (zeros on the rows of Δ_k):
+        # each answer is a copy of it, one call instead of zeros and a slice assignment (issue 16)
+        self._lambda_template: np.ndarray | None = None
 
     def solve(self, H_theta: np.ndarray, h_prev: np.ndarray, H_data: np.ndarray,
               h_data: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
@@ -78,10 +81,14 @@ class VertexSetUpdate:
         if last is None or not (same_bits(last[1], h_prev) and same_bits(last[0], H_theta)):
             alone = _solve(H_theta, h_prev, np.zeros((0, H_theta.shape[1])), np.zeros(0))
             last = self._last = None if alone is None else (H_theta.copy(), h_prev.copy(), alone[3], *alone[:3])
+            self._lambda_template = None
         if last is not None and np.logical_and.reduce(last[2].dot(H_data.T) <= h_data, axis=None):
-            Lambda = np.zeros((len(h_prev), len(h_prev) + len(h_data)))
-            Lambda[:, : len(h_prev)] = last[4]
-            return last[3].copy(), Lambda, last[5].copy()
+            q = len(h_prev)
+            template = self._lambda_template
+            if template is None or template.shape[1] != q + len(h_data):
+                template = self._lambda_template = np.zeros((q, q + len(h_data)))
+                template[:, :q] = last[4]
+            return last[3].copy(), template.copy(), last[5].copy()
         return solve_by_vertices(H_theta, h_prev, H_data, h_data)
 
 
