@@ -263,7 +263,7 @@ class DrakeVertexTubeMPC:
         alpha = yv[self.a0:self.v0]
         vf = yv[self.v0:]
         v = vf.reshape(N, m)
-        cost = float(vf.dot(Hv).dot(vf) + g2.dot(vf) + const)  # np.dot: the BLAS call of @
+        cost = float(vf.dot(Hv).dot(vf) + g2.dot(vf) + const)  # ndarray.dot: the BLAS call of @
         return MPCSolution(SolveStatus.OPTIMAL, v, z, alpha, None, cost, solver_time, update_time, detail=detail)
 
     def _solve_fast(self, S, vertices, b15b, Hv, g, g2, const, start) -> tuple[MPCSolution | None, str]:

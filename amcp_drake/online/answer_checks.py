@@ -77,8 +77,8 @@ TUBE_ROW_TOL = 1e-6
 _max = np.maximum.reduce
 _add_reduce = np.add.reduce
 _and_reduce = np.logical_and.reduce
-#: np.dot for 1-D/2-D operands: the same BLAS call as ``@`` (the same bits) without the matmul ufunc's dispatch
-_dot = np.dot
+# Products of 1-D/2-D operands as ``a.dot(b)``: the BLAS call of ``@`` (the same bits) without the matmul
+# ufunc's dispatch, and np.dot's routine without NumPy 2's Python-level dispatcher
 
 
 class AnswerCheck(NamedTuple):

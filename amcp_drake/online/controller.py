@@ -40,9 +40,9 @@ DELTA_MARGIN = 1e-6
 # through Python wrappers (~1-2 µs per call in the online loop, issue 16)
 _and_reduce = np.logical_and.reduce
 _add_reduce = np.add.reduce
-#: np.dot for 1-D/2-D operands: the same BLAS call as ``@`` (gemv/gemm, the same bits: checked on the run's
-#: shapes) without the matmul ufunc's dispatch, ~0.4 µs less per product
-_dot = np.dot
+# Products of 1-D/2-D operands as ``a.dot(b)``: the BLAS call of ``@`` (gemv/gemm, the same bits: checked on
+# the run's shapes) without the matmul ufunc's dispatch, and the routine of ``np.dot`` without NumPy 2's
+# Python-level dispatcher (~0.3 µs per call; docs/decisions.md, "The overhead outside the solvers ...")
 # the constant operands of Δ_k (6) as 0-d arrays (model.arrays.scalar_operand: the same operations, no
 # conversion of a Python float per call)
 _ONE = scalar_operand(1.0)
