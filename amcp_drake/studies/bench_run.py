@@ -89,7 +89,10 @@ def lockstep(problem, design, configs: list[tuple[str, str]], x0, theta_star, st
     gc.disable()
     try:
         for k in range(steps + 1):
-            for c, (run, prof) in enumerate(zip(runs, profiles)):
+            # the order alternates step by step: a configuration that runs right after another one's
+            # solver call finds the caches evicted (measured: 5-37 µs of bias per step, session 5)
+            for c in (range(len(runs)) if k % 2 == 0 else reversed(range(len(runs)))):
+                run, prof = runs[c], profiles[c]
                 if not active[c]:
                     continue
                 try:
