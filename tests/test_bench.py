@@ -32,7 +32,7 @@ def quick_result(tmp_path_factory):
 
 def test_quick_bench_writes_json_and_png(quick_result):
     out, output, data = quick_result
-    assert data["format"] == "amcp-bench" and data["version"] == 2
+    assert data["format"] == "amcp-bench" and data["version"] == 3
     assert {"created", "machine", "settings", "time_keys", "reference_ms", "example", "scaling", "target",
             "elapsed_s"} <= set(data)
     assert data["settings"]["quick"] is True and data["settings"]["steps"] == 3
@@ -103,6 +103,19 @@ def test_target_block_reports_the_drake_vertex_median_without_judging_speed(quic
         "drake_plain_total": 12.0, "drake_fast_total": 1.2}
     for t in issue16.values():
         assert t["measured"] > 0 and t["met"] is (t["measured"] <= t["limit"])
+        assert t["measured_among_all"] > 0
+    # the targets come from the runs of their own (TARGET_RUNS): each configuration alone, the ratio from the pair
+    own = {(r["setting"], r["backend"], r["formulation"]): r for r in data["example"]["target_runs"]}
+    assert set(own) == {("alone", "drake", "vertex"), ("alone", "drake", "plain"), ("alone", "drake", "fast"),
+                        ("pair", "drake", "vertex"), ("pair", "cvxpy", "vertex")}
+    assert issue16["drake_vertex_total"]["measured"] == own[("alone", "drake", "vertex")]["times_ms"]["cpu_total"]["median"]
+    assert issue16["drake_fast_total"]["measured"] == own[("alone", "drake", "fast")]["times_ms"]["cpu_total"]["median"]
+    pair = (own[("pair", "cvxpy", "vertex")]["times_ms"]["cpu_total"]["median"]
+            / own[("pair", "drake", "vertex")]["times_ms"]["cpu_total"]["median"])
+    assert issue16["cvxpy_over_drake_vertex"]["measured"] == pytest.approx(pair, rel=1e-12)
+    all_runs = {(r["x0_facets"], r["backend"], r["formulation"]): r for r in data["example"]["runs"]}
+    assert (issue16["drake_plain_total"]["measured_among_all"]
+            == all_runs[(8, "drake", "plain")]["times_ms"]["cpu_total"]["median"])
 
 
 def test_scaling_sweeps_cover_N_p_facets_and_n(quick_result):
@@ -165,6 +178,10 @@ def test_only_one_backend_and_formulation(tmp_path):
     assert data["scaling"] is None and not (tmp_path / "bench.png").exists()
     assert {(r["backend"], r["formulation"]) for r in data["example"]["runs"]} == {("drake", "vertex")}
     assert data["example"]["ratios"] == [] and data["target"]["cvxpy_ms"] is None
+    assert [(r["setting"], r["backend"], r["formulation"]) for r in data["example"]["target_runs"]] == [
+        ("alone", "drake", "vertex")]
+    issue16 = {t["name"]: t for t in data["target"]["issue16_cpu"]}
+    assert issue16["cvxpy_over_drake_vertex"]["measured"] is None and issue16["cvxpy_over_drake_vertex"]["met"] is None
 
 
 def test_bad_step_count_exits_2(tmp_path):
