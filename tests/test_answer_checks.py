@@ -200,6 +200,30 @@ def test_wrong_set_update_is_caught_and_recomputed(example_spec, example_design,
     assert traj.stop_reason == "completed"
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_a_set_update_above_the_previous_offsets_by_round_off_is_clipped_to_them(example_spec, example_design,
+                                                                                  backend):
+    """An answer of (9) 5e-9 above h_(k−1) in the rows the data do not cut passes its checks (nested to
+    1e-8); the controller keeps min(h, h_(k−1)), so Θ_k ⊆ Θ_(k−1) holds exactly (campaign seed 4 #37:
+    a window update drifted 4e-9 above h_θ0 and the Drake plain form left its reduced program)."""
+    seen = []
+
+    def bumped(real, h_prev):
+        untouched = np.asarray(real.h) >= h_prev - 1e-12
+        seen.append((np.array(real.h), np.array(h_prev), untouched))
+        return np.asarray(real.h) + 5e-9 * untouched
+
+    ctrl = _controller(example_spec, example_design, backend, options=None)
+    ctrl.backend = WrongBackend(ctrl.backend, wrong_set_update=bumped)
+    traj = _run(ctrl, example_spec, 2)
+    r = traj.records[1]
+    real_h, h_prev, untouched = seen[0]
+    assert untouched.any() and not untouched.all()   # some rows kept, some cut by the data
+    assert r.set_status is SolveStatus.OPTIMAL and "fallback" not in r.detail
+    np.testing.assert_array_equal(r.h_theta, np.where(untouched, h_prev, real_h))
+    assert np.all(r.h_theta <= h_prev)
+
+
 def test_set_update_keeps_previous_set_when_every_solver_fails(example_spec, example_design, monkeypatch):
     from amcp_drake.online import controller as controller_module
 
