@@ -80,10 +80,11 @@ TARGET_FACETS = 8
 #: Issue 16's targets are timed on runs of their own (session 5): each absolute target with its
 #: configuration alone (one closed loop, nothing interleaved), the cvxpy/Drake ratio with the two vertex
 #: forms interleaved as a pair. In the run of every configuration the neighbours evict the caches
-#: between two steps (the cvxpy plain form: 3 883 variables); measured in three bench runs (session 5,
-#: load 1.5–1.7): the fast path 0.76–1.00 ms alone against 1.04–1.26 among all, the Drake vertex step
-#: within the minute-to-minute noise (2.10–3.26 against 2.23–2.61). The table of that run stays the one
-#: for comparing configurations.
+#: between two steps (the cvxpy plain form: 3 883 variables). Measured (session 5, benchmarks/README.md,
+#: "Targets at the end of session 5"): four bench runs on a quiet machine, Drake vertex alone 1.85,
+#: 1.75, 2.07, 2.18 ms against 2.28, 1.96, 2.20, 2.02 among all, the fast path 0.60–1.05 against
+#: 0.88–1.08; three runs at load 1.5–1.7 within the noise both ways. The table of the run of all
+#: configurations stays the one for comparing configurations.
 TARGET_RUNS = ((("drake", "vertex"),), (("drake", "plain"),), (("drake", "fast"),),
                (("drake", "vertex"), ("cvxpy", "vertex")))
 
