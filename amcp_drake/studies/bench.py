@@ -82,7 +82,7 @@ TARGET_FACETS = 8
 #: forms interleaved as a pair. In the run of every configuration the neighbours evict the caches
 #: between two steps (the cvxpy plain form: 3 883 variables). Measured (session 5, benchmarks/README.md,
 #: "Targets at the end of session 5"): four bench runs on a quiet machine, Drake vertex alone 1.85,
-#: 1.75, 2.07, 2.18 ms against 2.28, 1.96, 2.20, 2.02 among all, the fast path 0.60–1.05 against
+#: 1.75, 2.18, 2.07 ms against 2.28, 1.96, 2.02, 2.20 among all, the fast path 0.60–1.05 against
 #: 0.88–1.08; three runs at load 1.5–1.7 within the noise both ways. The table of the run of all
 #: configurations stays the one for comparing configurations.
 TARGET_RUNS = ((("drake", "vertex"),), (("drake", "plain"),), (("drake", "fast"),),
