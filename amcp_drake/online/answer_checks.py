@@ -24,7 +24,6 @@ run independently (certificate.claims, certificate.tube); these checks run *befo
 from __future__ import annotations
 
 import functools
-import math
 from math import isfinite as _isfinite
 from typing import NamedTuple
 
@@ -95,7 +94,7 @@ class AnswerCheck(NamedTuple):
 
     @property
     def passed(self) -> bool:
-        return self.ran and math.isfinite(self.value) and self.value <= self.tolerance
+        return self.ran and _within(self.value, self.tolerance)
 
     def describe(self) -> str:
         if not self.ran:
@@ -103,12 +102,17 @@ class AnswerCheck(NamedTuple):
         return f"{self.name} {self.value:.3g} > {self.tolerance:.0e}"
 
 
+def _within(value: float, tolerance: float) -> bool:
+    """The pass criterion of every check: a finite value no larger than the tolerance."""
+    return _isfinite(value) and value <= tolerance
+
+
 def failures(checks: list[AnswerCheck]) -> list[AnswerCheck]:
     """The checks that ran and failed (a check that did not run is not a failure: see ``ran``).
 
-    ``AnswerCheck.passed`` written inline on the fields (name, value, tolerance, ran) by index (a dozen
-    checks per step of the online loop, issue 16)."""
-    return [c for c in checks if c[3] and not (_isfinite(c[1]) and c[1] <= c[2])]
+    Reads the fields (name, value, tolerance, ran) by index rather than through the ``passed``
+    property (a dozen checks per step of the online loop, issue 16); the criterion is :func:`_within`."""
+    return [c for c in checks if c[3] and not _within(c[1], c[2])]
 
 
 def describe_failures(problem: str, checks: list[AnswerCheck]) -> str:

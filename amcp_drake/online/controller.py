@@ -40,11 +40,11 @@ DELTA_MARGIN = 1e-6
 # through Python wrappers (~1-2 µs per call in the online loop, issue 16)
 _and_reduce = np.logical_and.reduce
 _add_reduce = np.add.reduce
-# Products of 1-D/2-D operands as ``a.dot(b)``: the BLAS call of ``@`` (gemv/gemm, the same bits: checked on
-# the run's shapes) without the matmul ufunc's dispatch, and the routine of ``np.dot`` without NumPy 2's
-# Python-level dispatcher (~0.3 µs per call; docs/decisions.md, "The overhead outside the solvers ...")
-# the constant operands of Δ_k (6) as 0-d arrays (model.arrays.scalar_operand: the same operations, no
-# conversion of a Python float per call)
+# Products of 1-D/2-D operands are written ``a.dot(b)``: the BLAS call of ``@`` (gemv/gemm, the same bits:
+# checked on the run's shapes) without the matmul ufunc's dispatch, and the routine of ``np.dot`` without
+# NumPy 2's Python-level dispatcher (~0.3 µs per call; docs/decisions.md, "The overhead outside the solvers").
+# The constant operands of Δ_k (6) as 0-d arrays (model.arrays.scalar_operand: the same operations, no
+# conversion of a Python float per call):
 _ONE = scalar_operand(1.0)
 _DELTA_ROW_MIN_NORM = scalar_operand(DELTA_ROW_MIN_NORM)
 _DELTA_MARGIN = scalar_operand(DELTA_MARGIN)
@@ -482,10 +482,6 @@ class AdaptiveMPC:
         failed = self._failed_tube_checks(sol, x, h_arg, H_arg, record)
         if not failed or not getattr(self.mpc, "REFINES", False):
             return sol, failed
-        return self._refined(sol, failed, x, h_arg, H_arg, u0_bounds, record, what)
-
-    def _refined(self, sol, failed, x, h_arg, H_arg, u0_bounds, record: StepRecord, what: str):
-        """The second half of :meth:`_checked_or_refined`: ``sol`` failed ``failed``; the refined re-solve."""
         alt = self.mpc.solve(x, h_arg, self.theta_hat, H_arg, u0_bounds=u0_bounds, refine=True)
         record.times["solver_refined"] = record.times.get("solver_refined", 0.0) + alt.solver_time
         if alt.status is SolveStatus.OPTIMAL and not self._failed_tube_checks(alt, x, h_arg, H_arg, record):
@@ -512,12 +508,7 @@ class AdaptiveMPC:
             return None
         if checked:
             return sol
-        # _checked_or_refined written out: the common path (every check passed) is one call
-        failed = self._failed_tube_checks(sol, x, h_arg, H_arg, record)
-        if not failed:
-            return sol
-        if getattr(self.mpc, "REFINES", False):
-            sol, failed = self._refined(sol, failed, x, h_arg, H_arg, None, record, "tube QP (20)")
+        sol, failed = self._checked_or_refined(sol, x, h_arg, H_arg, None, record, "tube QP (20)")
         spent = 0.0
         try:
             if not failed:
