@@ -17,8 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from amcp_drake.studies import resolves
-from amcp_drake.studies.resolves import RESOLVE_MARKS, count_resolves
+from amcp_drake.studies.resolves import count_resolves, step_notes
 
 #: Formulations the bench knows: the QP (20) forms, plus "fast" = the vertex form with the DAQP fast
 #: path (Drake only): name -> keyword arguments of AdaptiveMPC.
@@ -72,7 +71,7 @@ def lockstep(problem, design, configs: list[tuple[str, str]], x0, theta_star, st
     w = disturbance_sequence(problem, "uniform", steps + 1, seed=seed)
     theta_star = np.asarray(theta_star, float)
     runs, profiles, states = [], [], []
-    step_notes: list[list[str]] = []   # per run: one string per step (QP details + answer-check notes)
+    notes: list[list[str]] = []   # per run: one string per step (QP details + answer-check notes)
     for backend, formulation in configs:
         start, cpu = time.perf_counter(), time.thread_time()
         ctrl = AdaptiveMPC(problem, design, backend=backend, **FORMULATION_OPTIONS[formulation])
@@ -82,7 +81,7 @@ def lockstep(problem, design, configs: list[tuple[str, str]], x0, theta_star, st
         runs.append(run)
         profiles.append(CpuProfile(ctrl))
         states.append(np.asarray(x0, float))
-        step_notes.append([])
+        notes.append([])
     active = [True] * len(runs)
     was_enabled = gc.isenabled()
     gc.collect()
@@ -100,7 +99,7 @@ def lockstep(problem, design, configs: list[tuple[str, str]], x0, theta_star, st
                 except AmcpError as exc:
                     run.status, active[c] = f"error at k={k}: {exc}", False
                     continue
-                step_notes[c].append(resolves.step_notes(rec))
+                notes[c].append(step_notes(rec))
                 run.v.append(None if rec.v is None else np.asarray(rec.v, float))
                 if u is None:
                     run.status, active[c] = f"{rec.status.value} at k={k}", False
@@ -114,9 +113,9 @@ def lockstep(problem, design, configs: list[tuple[str, str]], x0, theta_star, st
     finally:
         if was_enabled:
             gc.enable()
-    for run, prof, notes in zip(runs, profiles, step_notes):
+    for run, prof, run_notes in zip(runs, profiles, notes):
         run.fast_path = getattr(prof.ctrl.mpc, "fast_path_counts", None)
-        run.resolves = count_resolves(notes)
+        run.resolves = count_resolves(run_notes)
     return runs
 
 
@@ -147,4 +146,4 @@ def summaries(runs: list[RunResult], extra: dict[str, Any]) -> list[dict[str, An
     return out
 
 
-__all__ = ["FORMULATION_OPTIONS", "RESOLVE_MARKS", "TIME_KEYS", "RunResult", "count_resolves", "lockstep", "summaries"]
+__all__ = ["FORMULATION_OPTIONS", "TIME_KEYS", "RunResult", "lockstep", "summaries"]
