@@ -63,6 +63,16 @@ def test_pe_ladder_rung_is_attainable_and_climbs():
     assert lam >= level - 1e-9
 
 
+def test_pe_quadratic_reads_only_the_last_window_plus_n_inputs(rng):
+    """The controller keeps only the last pe_window + n inputs (its history does not grow with k): the
+    constraint from that tail is the one from the whole history, to the bit."""
+    n, window = 3, 4
+    for length in (window - 1 + n, window + n, window + n + 1, 40):
+        past = rng.normal(size=length)
+        whole, tail = pe_quadratic(past, n, window, 0.3), pe_quadratic(past[-(window + n):], n, window, 0.3)
+        assert tail == whole, (length, tail, whole)
+
+
 def test_pe_bounds_cases():
     from amcp_drake.online.excitation import PEQuadratic
 
@@ -137,6 +147,7 @@ def test_pe_run_enforces_window_constraint(example_spec, example_design, tmp_pat
         assert lo - BOUND_TOL <= u[r.k] <= hi + BOUND_TOL
         enforced += 1
     assert enforced > 5
+    assert len(ctrl._u_hist) == window + pr.n  # the history the PE constraint needs, not all 25 inputs
     # the PE records survive a save/load round trip (one-sided bounds hold ±inf)
     path = traj.save(tmp_path / "t.json")
     back = Trajectory.load(path)

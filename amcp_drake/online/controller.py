@@ -146,6 +146,8 @@ class AdaptiveMPC:
         self.theta_hat = np.array(self.problem.theta_hat0)
         self._prev: tuple[np.ndarray, np.ndarray] | None = None
         self._window: list[tuple[np.ndarray, np.ndarray]] = []
+        #: the last inputs u_k (m = 1) the PE constraint needs: pe_quadratic reads only the last
+        #: pe_window − 1 + n of them, so at most pe_window + n are kept (none without PE)
         self._u_hist: list[float] = []
         #: (H, h, vertices) of the last Θ_k whose vertices the tube check enumerated (issue 16: reused
         #: while Θ_k is unchanged to the bit, which is most steps once Θ_k has settled)
@@ -584,7 +586,9 @@ class AdaptiveMPC:
             u = self.design.K.dot(x) + sol.v[0]
             record.u = u
             self._prev = (x, u)
-            self._u_hist.append(float(u[0]))
+            if self.options.pe_window is not None:
+                self._u_hist.append(float(u[0]))
+                del self._u_hist[:-(self.options.pe_window + self.problem.n)]
         self.k += 1
         record.times["total"] = time.perf_counter() - start
         return u, record
