@@ -190,3 +190,41 @@ def test_hard_case_coverage_of_a_pinned_run_and_of_a_plain_one():
     assert cov == {"theta_k_lower_dim": 1.0, "theta_star_vertex": 1.0, "theta_star_facet": 0.0}
     plain = hard_case_coverage(simulate(ctrl, x0, np.zeros(2), 3, np.zeros((3, 2))))
     assert plain == {"theta_k_lower_dim": 0.0, "theta_star_vertex": 0.0, "theta_star_facet": 0.0}
+
+
+def _run_of_sets(*sets):
+    """A stand-in trajectory whose records hold only the sets Θ_0, Θ_1, ... (what the coverage reads)."""
+    from types import SimpleNamespace
+
+    return SimpleNamespace(records=[SimpleNamespace(H_theta=np.asarray(H, float), h_theta=np.asarray(h, float))
+                                    for H, h in sets])
+
+
+BOX = (np.vstack([np.eye(2), -np.eye(2)]), np.ones(4))  # Θ_0 = [−1, 1]²
+
+
+@pytest.mark.parametrize(("later", "shrank"), [
+    (BOX, False),                                                            # nothing learned
+    ((BOX[0], np.array([1.0 - 2e-6, 1, 1, 1])), True),                       # (9): an offset lowered by 2e-6
+    ((BOX[0], np.array([1.0 - 5e-7, 1, 1, 1])), False),                      # ... by less than SHRINK_TOL
+    ((np.vstack([BOX[0], [[1.0, 1.0]]]), np.r_[BOX[1], 1.9]), True),         # (7): a row cuts the corner (1, 1)
+    ((np.vstack([BOX[0], [[1.0, 1.0]]]), np.r_[BOX[1], 2.0]), False),        # (7): a row through the corner only
+    ((np.vstack([BOX[0][1:], [[2.0, 2.0]]]), np.r_[BOX[1][1:], 3.8]), True), # (7): a row removed, one cut in
+])
+def test_theta_shrank_sees_every_update_whatever_its_rows(later, shrank):
+    """Θ_k shrank below Θ_0 exactly when a vertex of Θ_0 is cut off: the exact update (7) appends rows
+    (the earlier offset comparison on Θ_0's rows never saw it shrink); the cuts are by hand
+    ((2 − 1.9)/√2 ≈ 0.07 at the corner (1, 1))."""
+    from amcp_drake.studies.random_problems import theta_shrank
+
+    assert theta_shrank(_run_of_sets(BOX, BOX, later)) is shrank
+
+
+def test_the_radius_of_the_last_set_is_measured_when_the_update_changed_its_rows():
+    """The exact update (7) records Θ_k with rows of its own: Θ_0 ∩ {θ_1 <= 0.5} = [−1, 0.5] × [−1, 1]
+    has Chebyshev radius 0.75 (by hand), which was "not measured" while only Θ_0's row count was read."""
+    from amcp_drake.studies.random_problems import last_theta_k_radius
+
+    cut = (np.vstack([BOX[0], [[2.0, 0.0]]]), np.r_[BOX[1], 1.0])
+    assert last_theta_k_radius(_run_of_sets(BOX, cut)) == pytest.approx(0.75, abs=1e-9)
+    assert np.isnan(last_theta_k_radius(_run_of_sets(BOX)))

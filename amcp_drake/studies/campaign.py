@@ -144,14 +144,12 @@ def _coverage(traj) -> dict[str, float]:
     """Did the run exercise the claims? Constraints active, Θ_k shrinking, θ* near ∂Θ_k, and the
     hard cases of issue 13 (:func:`~amcp_drake.studies.random_problems.hard_case_coverage`: a
     lower-dimensional Θ_k, θ* at a vertex / on a facet of Θ)."""
-    from amcp_drake.studies.random_problems import hard_case_coverage
+    from amcp_drake.studies.random_problems import hard_case_coverage, theta_shrank
 
     pr = traj.problem
     z = max((pr.in_Z(x, u) for x, u in zip(traj.x, traj.u)), default=-np.inf)
-    h = [r.h_theta for r in traj.records if len(r.h_theta) == len(traj.records[0].h_theta)]
-    shrank = float(np.sum(h[0]) - np.sum(h[-1])) if len(h) > 1 else 0.0
     closeness = min(float(np.min(r.h_theta - r.H_theta @ traj.theta_star)) for r in traj.records)
-    return {"constraints_active": float(z > -ACTIVE_TOL), "theta_shrank": float(shrank > 1e-6),
+    return {"constraints_active": float(z > -ACTIVE_TOL), "theta_shrank": float(theta_shrank(traj)),
             "theta_star_near_boundary": float(closeness < 1e-2), **hard_case_coverage(traj)}
 
 

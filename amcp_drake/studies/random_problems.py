@@ -538,16 +538,49 @@ def theta_star_face(problem: Problem, theta_star: np.ndarray) -> str:
     return "vertex" if np.linalg.matrix_rank(problem.H_theta[active]) == problem.p else "facet"
 
 
+#: Θ_k "shrank" below Θ_0 when a vertex of Θ_0 lies outside Θ_k by more than this (rows of unit
+#: norm; the update's LPs and vertex solves are accurate to ~1e-9).
+SHRINK_TOL = 1e-6
+
+
+def _recorded_sets(traj) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(H_θk, h_θk) of every record k >= 1 that holds a set (a failed step may record none). Each record
+    has its own H_θk: the exact update (7) appends and removes rows, (9) and the window keep those of Θ_0."""
+    out = []
+    for r in traj.records[1:]:
+        H, h = np.asarray(r.H_theta, float), np.asarray(r.h_theta, float)
+        if h.ndim == 1 and h.size and H.ndim == 2 and H.shape[0] == h.size:
+            out.append((H, h))
+    return out
+
+
 def last_theta_k_radius(traj) -> float:
     """Chebyshev radius (rows of unit norm) of the last recorded Θ_k, k >= 1, of a trajectory
     (nan when no update was recorded; -inf when empty). The sets are nested (Lemma 3, a property
     of its own), so the last one is the thinnest; one LP per run keeps coverage cheap."""
-    h0_shape = np.shape(traj.records[0].h_theta)
-    updated = [r for r in traj.records[1:] if np.shape(r.h_theta) == h0_shape and np.size(r.h_theta)]
-    if not updated:
+    sets = _recorded_sets(traj)
+    if not sets:
         return float("nan")
-    H, h = polytope.normalize_rows(np.asarray(updated[-1].H_theta, float), np.asarray(updated[-1].h_theta, float))
+    H, h = polytope.normalize_rows(*sets[-1])
     return polytope.chebyshev_center(H, h)[1]
+
+
+def theta_shrank(traj) -> bool:
+    """Whether some recorded Θ_k, k >= 1, is smaller than Θ_0: a vertex of Θ_0 lies outside Θ_k by more
+    than :data:`SHRINK_TOL` (rows of unit norm). Θ_k ⊆ Θ_0 (Lemma 3), so Θ_k = Θ_0 exactly when Θ_k
+    holds every vertex of Θ_0 (it is convex). The test does not depend on the rows: (9) and the window
+    lower the offsets of Θ_0's rows, the exact update (7) appends rows (until session 6 both coverage
+    reports compared offsets on Θ_0's rows, and a run of (7) never counted as shrinking)."""
+    r0 = traj.records[0]
+    V = polytope.theta_vertices(np.asarray(r0.H_theta, float), np.asarray(r0.h_theta, float))
+    if V is None:
+        return False
+    for H, h in _recorded_sets(traj):
+        if H.shape[1] == V.shape[1]:
+            Hn, hn = polytope.normalize_rows(H, h)
+            if float(np.max(V @ Hn.T - hn)) > SHRINK_TOL:
+                return True
+    return False
 
 
 def hard_case_coverage(traj) -> dict[str, float]:

@@ -26,14 +26,14 @@ from hypothesis import event
 
 from amcp_drake.studies.random_problems import (
     LOWER_DIM_TOL,
+    SHRINK_TOL,
     last_theta_k_radius,
+    theta_shrank,
     theta_star_face,
 )
 
 #: A constraint row of Z is "active" when F x + G u >= 1 − ACTIVE_TOL at some step.
 ACTIVE_TOL = 1e-3
-#: Θ_k "shrank" when some offset decreased by more than this (LP accuracy is ~1e-9).
-SHRINK_TOL = 1e-6
 #: θ* is "on the boundary" of Θ_k when its distance to it is below this, "near" below NEAR_TOL.
 ON_BOUNDARY_TOL = 1e-6
 NEAR_TOL = 1e-2
@@ -41,7 +41,7 @@ NEAR_TOL = 1e-2
 #: Coverage fractions reported per test (feature name -> description).
 FEATURES = {
     "constraints_active": f"a row of Z active (F x + G u >= 1 - {ACTIVE_TOL:g})",
-    "theta_shrank": "Θ_k shrank below Θ_0",
+    "theta_shrank": f"Θ_k shrank below Θ_0 (a vertex of Θ_0 cut off by > {SHRINK_TOL:g})",
     "theta_star_on_boundary": f"θ* within {ON_BOUNDARY_TOL:g} of ∂Θ_k",
     "theta_star_near_boundary": f"θ* within {NEAR_TOL:g} of ∂Θ_k",
     "completed": "the run completed every step",
@@ -89,14 +89,12 @@ def features(traj, labels: dict | None = None) -> RunFeatures:
         max_constraint = float(np.max(values))
     else:
         max_constraint = float("nan")
-    h0 = np.asarray(traj.records[0].h_theta, float)
-    shrank = any(r.h_theta.shape == h0.shape and np.any(r.h_theta < h0 - SHRINK_TOL) for r in traj.records)
     distance = np.inf
     for r in traj.records:
         norms = np.linalg.norm(r.H_theta, axis=1)
         distance = min(distance, float(np.min((r.h_theta - r.H_theta @ traj.theta_star) / norms)))
     return RunFeatures(constraints_active=bool(max_constraint >= 1.0 - ACTIVE_TOL), max_constraint=max_constraint,
-                       theta_shrank=bool(shrank), theta_star_distance=max(distance, 0.0),
+                       theta_shrank=theta_shrank(traj), theta_star_distance=max(distance, 0.0),
                        completed=traj.stop_reason == "completed", labels=dict(labels or {}),
                        theta_k_radius=last_theta_k_radius(traj), theta_star_face=theta_star_face(pr, traj.theta_star))
 

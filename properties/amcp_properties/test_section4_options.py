@@ -56,6 +56,7 @@ import pytest
 from hypothesis import event, given, note, settings
 
 from amcp_drake.model.status import SolveStatus
+from amcp_drake.studies.random_problems import theta_shrank
 
 from . import claims, profiles, section4
 from .coverage import RunFeatures
@@ -93,7 +94,7 @@ def _observe(case, traj, test, backend, coverage, option, flags):
     dist = section4.theta_distances(traj)
     labels = dict(case.labels, **{k: str(bool(v)) for k, v in flags.items()})
     f = RunFeatures(constraints_active=bool(zmax >= 1.0 - 1e-3), max_constraint=zmax,
-                    theta_shrank=any(np.any(r.h_theta < traj.records[0].h_theta - 1e-6) for r in traj.records),
+                    theta_shrank=theta_shrank(traj),
                     theta_star_distance=max(float(np.min(dist)), 0.0) if len(dist) else np.inf,
                     completed=flags["completed"], labels=labels)
     coverage.record(f"{test}[{backend}]", f)
