@@ -42,7 +42,8 @@ TASK_RETRIES = 2
 #: The generator of campaign problems and its version: a store records it (``generator`` setting), so a
 #: store made with another generator is never resumed. Change it whenever problem ``idx`` of a seed
 #: would come out different (another generator, or a change of random_problems' draws).
-GENERATOR_VERSION = "amcp_drake.studies.random_problems.random_case/1"
+#: Version 2 (session 6): the online options draw the exact update (7) too (the problems are those of 1).
+GENERATOR_VERSION = "amcp_drake.studies.random_problems.random_case/2"
 #: The offline design of every campaign problem is computed on this backend; every online backend
 #: then runs on that design (as the property suite does), and the replay command names it.
 DESIGN_BACKEND = "drake"

@@ -392,8 +392,11 @@ def can_pin_at(problem: Problem, x0: np.ndarray, theta_star: np.ndarray) -> bool
 
 
 def random_online_options(rng: np.random.Generator) -> OnlineOptions:
-    """(9) fixed complexity or moving window of 1-10 (Remark 4); projection onto Θ (12) or Θ_k (Remark 7)."""
-    return OnlineOptions(update=("fixed", "window")[int(rng.integers(2))], window=int(rng.integers(1, 11)),
+    """(9) fixed complexity, moving window of 1-10 (Remark 4) or the exact update (7), one third each
+    (as ``amcp_properties.strategies.online_options``; (7) since session 6, generator version 2);
+    projection onto Θ (12) or Θ_k (Remark 7). The last draws of :func:`random_case`: the problems and
+    scenarios of a seed are those of version 1."""
+    return OnlineOptions(update=("fixed", "window", "exact")[int(rng.integers(3))], window=int(rng.integers(1, 11)),
                          projection=("Theta", "Theta_k")[int(rng.integers(2))])
 
 
