@@ -38,6 +38,7 @@ def test_every_literature_example_is_registered_and_cites_its_source():
         pr = spec_from_dict(raw).problem
         shapes.append((pr.n, pr.m))
     assert any(n >= 3 or m >= 2 for n, m in shapes)  # issue 14: at least one with n >= 3 or m >= 2
+    assert any(n >= 3 for n, _ in shapes)  # and one with at least three states (massera2017: n = 3)
     references = {json.loads((resources.files("amcp_drake") / "data" / f"{n}.json").read_text())["source"]["reference"]
                   for n in LITERATURE_EXAMPLES}
     assert len(references) >= 2
@@ -52,12 +53,31 @@ def test_parameters_fit_the_model_class():
         "parsi2020_mimo": (np.array([[0.85, 0.5], [0.2, 0.6]]) + 0.95 * np.diag([0.1, 0.1]),
                            np.array([[1.0, 0.4], [0.2, 0.4]]) + 0.3 * np.array([[0, 0.5], [0, 0.4]])),
         "bujarbaruah2022": (np.array([[1.0, 0.05], [0.0, 1.0]]), np.array([[0.0], [1.1]])),
+        # gcmpc's simulation: x+ = (F + H*delta*E1) x + (G + H*delta*E2) u, here with delta = theta* = 0.5
+        "massera2017": (np.array([[1.1, 0, 0], [0, 0, 1.2], [-1, 1, 0]])
+                        + 0.5 * np.array([[0.7], [0.5], [-0.7]]) @ np.array([[0.4, 0.5, -0.6]]),
+                        np.array([[0, 1], [1, 1], [-1, 0]]) + 0.5 * np.array([[0.7], [0.5], [-0.7]]) @ np.array([[0.4, -0.4]])),
     }
     for name in LITERATURE_EXAMPLES:
         spec = get_example(name)
         pr, th = spec.problem, spec.scenario.theta_star
         np.testing.assert_allclose(pr.A_of(th), truth[name][0], atol=1e-12, err_msg=name)
         np.testing.assert_allclose(pr.B_of(th), truth[name][1], atol=1e-12, err_msg=name)
+
+
+def test_massera2017_is_the_papers_uncertain_system():
+    """The vertex systems F ± H E1, G ± H E2 that gcmpc's rmpc_enum.m enumerates are A(θ), B(θ) at the
+    vertices θ = ±1 of Θ, and the state rows of Z are the paper's |x_i| <= 1 (Ak x + ck <= 0)."""
+    pr = get_example("massera2017").problem
+    F, G = np.array([[1.1, 0, 0], [0, 0, 1.2], [-1, 1, 0]]), np.array([[0, 1], [1, 1], [-1, 0]])
+    H, E1, E2 = np.array([[0.7], [0.5], [-0.7]]), np.array([[0.4, 0.5, -0.6]]), np.array([[0.4, -0.4]])
+    for delta in (1.0, -1.0):
+        np.testing.assert_allclose(pr.A_of([delta]), F + delta * H @ E1, atol=1e-12)
+        np.testing.assert_allclose(pr.B_of([delta]), G + delta * H @ E2, atol=1e-12)
+    theta_rows = pr.H_theta / pr.h_theta[:, None]
+    assert sorted(theta_rows.ravel().tolist()) == [-1.0, 1.0]  # Θ = [-1, 1], |δ| <= 1
+    state_rows = pr.F[np.all(pr.G == 0, axis=1)]
+    assert sorted(map(tuple, state_rows.tolist())) == sorted(map(tuple, np.vstack([np.eye(3), -np.eye(3)]).tolist()))
 
 
 def test_sls_family_is_registered_with_eps_a():

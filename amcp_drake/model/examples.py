@@ -50,6 +50,16 @@ def bujarbaruah2022_spec() -> ProblemSpec:
     return _data_spec("bujarbaruah2022")
 
 
+def massera2017_spec() -> ProblemSpec:
+    """Massera, Terra & Wolf, guaranteed-cost robust MPC (ACC 2017), the paper's example of its public
+    code (cmassera/gcmpc @ 5033d89): x⁺ = (F + Hδ E1)x + (G + Hδ E2)u, |δ| <= 1, so n = 3, m = 2,
+    p = 1, A1 = H E1, B1 = H E2 (open loop unstable, B uncertain); |x_i| <= 1, Q = I, R = I, N = 10.
+    Added (the paper has neither): W = {|w_i| <= 0.05} and |u_j| <= 2 (Z must bound u for μ of (11)).
+    θ̂0 = 0, θ* = 0.5, x0 = [0.5, 0.5, 0.5] (the paper's [1, 1, 1] is outside the feasible set of (20)
+    here). Default design (automatic X0). Choices: docs/decisions.md."""
+    return _data_spec("massera2017")
+
+
 def lorenzen2019() -> Problem:
     """Example 1 of Lorenzen, Cannon & Allgöwer (2019), spec §9."""
     return lorenzen2019_spec().problem
@@ -80,10 +90,10 @@ def lorenzen2019_ex2_theta_star(steps: int = 100, amplitude: float = 0.3, period
 
 EXAMPLES = {"lorenzen2019": lorenzen2019_spec, "lorenzen2019_ex2": lorenzen2019_ex2_spec,
             "parsi2020_siso": parsi2020_siso_spec, "parsi2020_mimo": parsi2020_mimo_spec,
-            "bujarbaruah2022": bujarbaruah2022_spec,
+            "bujarbaruah2022": bujarbaruah2022_spec, "massera2017": massera2017_spec,
             **{f"sls_mpc_2d_eps{e:g}": (lambda e=e: sls_mpc_2d_spec(e)) for e in SLS_EPS_A_SWEEP}}
 #: The built-in systems taken from other publications than Lorenzen et al. (2019) (issue 14).
-LITERATURE_EXAMPLES = ("parsi2020_siso", "parsi2020_mimo", "bujarbaruah2022")
+LITERATURE_EXAMPLES = ("parsi2020_siso", "parsi2020_mimo", "bujarbaruah2022", "massera2017")
 #: The SLS-MPC 2-D family (Chen et al. 2024; constructor amcp_drake.model.sls_mpc_2d) at the ε_A of
 #: issue 14's sweep; any ε_A through ``sls_mpc_2d_spec(eps_A)``.
 SLSMPC2D_EXAMPLES = tuple(f"sls_mpc_2d_eps{e:g}" for e in SLS_EPS_A_SWEEP)
