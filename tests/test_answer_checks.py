@@ -340,6 +340,76 @@ def test_wrong_tube_answer_without_another_formulation_is_not_solved(example_spe
     assert traj.stop_reason == "step 0: status optimal_inaccurate"
 
 
+class GivesUpTube:
+    """A tube QP that answers ``status`` with no solution (a solver's numerical failure after its retries)."""
+
+    REFINES = True
+
+    def __init__(self, real, status):
+        self._real, self.status, self.calls = real, status, 0
+
+    def solve(self, *args, **kwargs):
+        from amcp_drake.backends.base import MPCSolution
+
+        self.calls += 1
+        return MPCSolution(self.status, None, None, None, None, None, detail=f"stub: {self.status.value}")
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("formulation", ["plain", "vertex"])
+@pytest.mark.parametrize("status", [SolveStatus.INACCURATE, SolveStatus.ERROR])
+def test_a_tube_qp_without_an_answer_falls_back_to_the_other_formulation(example_spec, example_design, backend,
+                                                                          formulation, status):
+    """A QP (20) that ends "inaccurate" or with a solver error (no answer, after the retry ladder) is
+    solved in the other formulation, whose answer is checked and applied; the step's status stays
+    "inaccurate" (the first backend answer failed). Found on massera2017 (cvxpy, plain form, θ* = −1):
+    the run used to stop there although the vertex form solved the step."""
+    ctrl = _controller(example_spec, example_design, backend, options=None, formulation=formulation)
+    ctrl.mpc = GivesUpTube(ctrl.mpc, status)
+    traj = _run(ctrl, example_spec, 2)
+    assert ctrl.mpc.calls >= 2 and traj.stop_reason == "completed"
+    r = traj.records[0]
+    assert r.status is SolveStatus.INACCURATE and r.u is not None
+    other = "vertex" if formulation == "plain" else "plain"
+    assert f"tube QP (20): status {status.value}" in r.detail
+    assert f"fallback: {other} form of (20) (checked)" in r.detail
+    fresh = get_backend(backend, formulation=other).tube_mpc(ctrl.data).solve(r.x, r.h_theta, r.theta_hat)
+    assert np.max(np.abs(r.v - fresh.v)) <= 1e-6
+    assert np.allclose(r.u, example_design.K @ r.x + fresh.v[0], atol=1e-6)
+
+
+def test_an_infeasible_tube_qp_has_no_fallback(example_spec, example_design):
+    """"Infeasible" is an answer (the certificate's recursive feasibility fails there), not a numerical
+    failure: the other formulation is not asked and the step is not solved."""
+    ctrl = _controller(example_spec, example_design, "drake", options=None, formulation="plain")
+    ctrl.mpc = GivesUpTube(ctrl.mpc, SolveStatus.INFEASIBLE)
+    traj = _run(ctrl, example_spec, 2)
+    assert len(traj.records) == 1 and traj.records[0].u is None
+    assert traj.records[0].status is SolveStatus.INFEASIBLE and "fallback" not in traj.records[0].detail
+
+
+def test_massera2017_step_that_cvxpy_plain_form_could_not_solve_is_solved():
+    """Regression (massera2017, θ* = −1, uniform disturbances, seed 3, cvxpy): at step 14, with
+    Θ_14 = [−1, −0.98725], Clarabel ended the plain form "AlmostSolved" under every rung of the retry
+    ladder (relative gap stalled at 1.15e-7), and the run stopped. Drake's plain form and both
+    vertex forms solve this QP (cost 0.25129). Now the step is solved, by the plain form if a future
+    Clarabel manages, else by the checked vertex-form fallback."""
+    from amcp_drake.model.examples import get_example
+    from amcp_drake.offline.design import design
+    from amcp_drake.online.controller import AdaptiveMPC
+
+    spec = get_example("massera2017")
+    offline = design(spec.problem, spec.design, backend="cvxpy")
+    ctrl = AdaptiveMPC(spec.problem, offline, backend="cvxpy", formulation="plain")
+    ctrl.h_theta = np.array([-0.9872451948108746, 0.9999999999411466])
+    ctrl.theta_hat = np.array([-0.131851241551105])
+    u, r = ctrl.step(np.array([0.0513887048026173, 0.2228770115475585, -0.1979463514878846]))
+    assert u is not None
+    assert r.status is SolveStatus.OPTIMAL or "fallback: vertex form of (20) (checked)" in r.detail
+    fresh = get_backend("drake", formulation="vertex").tube_mpc(ctrl.data).solve(r.x, r.h_theta, r.theta_hat)
+    assert abs(r.cost - fresh.cost) <= 1e-6 and np.max(np.abs(r.v - fresh.v)) <= 1e-5
+
+
 # -- the checks themselves, on hand-made answers ---------------------------------------------------------------
 def test_check_projection_accepts_the_exact_projection_and_rejects_others():
     from tests.test_projection_degenerate import exact_projection

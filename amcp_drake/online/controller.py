@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from amcp_drake.backends import TubeMPCData, get_backend
+from amcp_drake.backends.clarabel_retry import RETRIED
 from amcp_drake.model import polytope
 from amcp_drake.model.arrays import all_finite, same_bits, scalar_operand
 from amcp_drake.model.errors import InconsistentDataError, ProblemError
@@ -35,6 +36,13 @@ DELTA_ROW_MIN_NORM = 1e-6
 #: set with interior), Δ_k ⊆ Δ_k^ε keeps Lemma 3 exact, and a disturbance outside W by more than
 #: this distance is still reported as inconsistent data.
 DELTA_MARGIN = 1e-6
+#: Statuses of the tube QP (20) that are no answer for numerical reasons ("inaccurate", a solver
+#: error), reached after the backend's own retries (the same set that starts the Clarabel retry
+#: ladder): the other formulation is tried, as for an "optimal" answer that fails its checks.
+#: "Infeasible" is an answer and is reported as such. Found on massera2017 (n = 3, θ* = −1, cvxpy):
+#: the plain form stalled "AlmostSolved" at a relative gap of 1.15e-7 under every rung of the ladder
+#: while the vertex form solved the same QP; the run used to stop there.
+QP_NO_ANSWER = RETRIED
 
 # ufunc reductions called directly: ``ndarray.all``/``sum`` and ``np.all`` reach these same reductions
 # through Python wrappers (~1-2 µs per call in the online loop, issue 16)
@@ -505,18 +513,32 @@ class AdaptiveMPC:
         already) that fails a check is first solved again with iterative refinement
         (:meth:`_checked_or_refined`, plain form); if that fails too, the step status is "inaccurate"
         and the other formulation is solved and applied if its answer passes the same checks, else the
-        step is not solved (u = None, the controller's answer to an unsolved QP)."""
+        step is not solved (u = None, the controller's answer to an unsolved QP). A QP that ends with
+        no answer for numerical reasons (:data:`QP_NO_ANSWER`, after the backend's retries) goes to
+        the other formulation the same way (status "inaccurate" when its answer is applied); an
+        "infeasible" QP is an answer and has no fallback."""
         if sol.status is not SolveStatus.OPTIMAL:
-            return None
+            if sol.status not in QP_NO_ANSWER:
+                return None
+            alt = self._other_formulation_answer(
+                f"tube QP (20): status {sol.status.value}, no answer ({sol.detail})", x, h_arg, H_arg, record)
+            if alt is not None:
+                record.status = SolveStatus.INACCURATE
+            return alt
         if checked:
             return sol
         sol, failed = self._checked_or_refined(sol, x, h_arg, H_arg, None, record, "tube QP (20)")
+        if not failed:
+            return sol
+        record.status = SolveStatus.INACCURATE
+        return self._other_formulation_answer(answer_checks.describe_failures("tube QP (20)", failed),
+                                              x, h_arg, H_arg, record)
+
+    def _other_formulation_answer(self, note: str, x, h_arg, H_arg, record: StepRecord):
+        """The other formulation's answer of (20) when it passes the answer checks, else None; ``note``
+        (why the first answer is not used) and the outcome are written to ``record.detail``."""
         spent = 0.0
         try:
-            if not failed:
-                return sol
-            record.status = SolveStatus.INACCURATE
-            note = answer_checks.describe_failures("tube QP (20)", failed)
             other = self._other_formulation()
             if other is None:
                 self._note(record, note + "; no other formulation for these options: step not solved")
