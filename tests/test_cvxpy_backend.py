@@ -568,3 +568,53 @@ def test_the_kept_clarabel_solver_answers_as_a_fresh_one(example_spec, example_d
         solvers["fresh"].append(fresh.mpc.problem._solver_cache["CLARABEL"])
     assert all(s is solvers["kept"][1] for s in solvers["kept"][1:])          # one solver, updated
     assert all(a is not b for a, b in zip(solvers["fresh"], solvers["fresh"][1:]))  # a new one per step
+
+
+def test_options_of_one_solve_do_not_stick_to_the_kept_clarabel_solver():
+    """cvxpy's warm start applies a call's options on top of the kept solver's settings, so the
+    options of one solve (a rung of the retry ladder, the first try without iterative refinement)
+    used to stay in force for every later solve of the same problem: found on massera2017 (cvxpy,
+    θ* = −1), where after one full retry ladder later steps ran with max_step_fraction 0.5, no
+    equilibration and no refinement, and stalled "AlmostSolved" though a fresh solver solved them.
+    Here a solve with max_iter = 1 (stops "inaccurate") must not limit the next solve."""
+    import cvxpy as cp
+
+    from amcp_reference.solver_call import SolverCall
+
+    x = cp.Variable(3)
+    problem = cp.Problem(cp.Minimize(cp.sum_squares(x - np.array([1.0, -2.0, 0.5]))), [cp.sum(x) <= 0, x >= -1])
+    call = SolverCall("CLARABEL", {}, keep_solver=True)
+    assert call.solve(problem)[0] is SolveStatus.OPTIMAL
+    assert call.solve(problem, {"max_iter": 1})[0] is SolveStatus.INACCURATE
+    status, _, detail = call.solve(problem)
+    assert status is SolveStatus.OPTIMAL, detail
+    assert problem._solver_cache["CLARABEL"].get_settings().max_iter == 200  # Clarabel's default again
+    # the projection of (1, -2, 0.5) onto {Σx <= 0, x >= -1} by hand (KKT): x2 = -1, x1 = 1 - λ,
+    # x3 = 0.5 - λ, Σx = 0 gives λ = 0.25
+    np.testing.assert_allclose(x.value, [0.75, -1.0, 0.25], atol=1e-7)
+
+
+def test_a_kept_clarabel_solver_that_gave_no_answer_is_built_anew_for_the_next_solve():
+    """A kept solver is updated with the new data but keeps the scaling and state of its first
+    setup; found on massera2017 (cvxpy, θ* = −1, vertex disturbances, Θ_k 1e-6 wide): the kept
+    solver updated from step 17 ended step 18 "AlmostSolved" under the whole retry ladder, while a
+    solver built for step 18 solved it. So after a solve without an answer (inaccurate or a solver
+    error) the next solve builds a new solver; after an answer the solver is kept."""
+    import cvxpy as cp
+
+    from amcp_reference.solver_call import SolverCall
+
+    x = cp.Variable(3)
+    problem = cp.Problem(cp.Minimize(cp.sum_squares(x - np.array([1.0, -2.0, 0.5]))), [cp.sum(x) <= 0, x >= -1])
+    call = SolverCall("CLARABEL", {}, keep_solver=True)
+    assert call.solve(problem)[0] is SolveStatus.OPTIMAL
+    first = problem._solver_cache["CLARABEL"]
+    assert call.solve(problem)[0] is SolveStatus.OPTIMAL
+    assert problem._solver_cache["CLARABEL"] is first                      # an answer: kept
+    assert call.solve(problem, {"max_iter": 1})[0] is SolveStatus.INACCURATE
+    assert problem._solver_cache["CLARABEL"] is first                      # updated, not rebuilt
+    assert call.solve(problem)[0] is SolveStatus.OPTIMAL
+    rebuilt = problem._solver_cache["CLARABEL"]
+    assert rebuilt is not first                                            # no answer: built anew
+    assert call.solve(problem)[0] is SolveStatus.OPTIMAL
+    assert problem._solver_cache["CLARABEL"] is rebuilt                    # and kept again

@@ -40,6 +40,25 @@ def all_finite(*arrays: Any) -> bool:
     return all(np.all(np.isfinite(np.asarray(a, float))) for a in arrays)
 
 
+def clarabel_defaults() -> dict[str, Any]:
+    """Every setting of ``clarabel.DefaultSettings()`` with its default value, except ``verbose``
+    (cvxpy sets it from ``Problem.solve(verbose=...)``).
+
+    Why: with ``warm_start=True`` cvxpy's Clarabel interface updates the kept solver with the call's
+    options applied on top of the solver's *current* settings, so an option given once (a rung of
+    the retry ladder, ``NO_REFINEMENT``) stayed in force for every later solve of the same problem
+    (found on massera2017 with cvxpy and θ* = −1: after one full retry ladder, later steps ran
+    without equilibration or refinement at max_step_fraction 0.5 and stalled "AlmostSolved" where a
+    fresh solver was "Solved"; tests/test_cvxpy_backend.py). Passing every setting restores the
+    defaults first. Read from the installed Clarabel, so a new setting is included.
+    """
+    import clarabel
+
+    defaults = clarabel.DefaultSettings()
+    return {name: getattr(defaults, name) for name in dir(defaults)
+            if not name.startswith("_") and name != "verbose" and not callable(getattr(defaults, name))}
+
+
 class SolverCall:
     """A cvxpy solver name plus options; :meth:`solve` never raises ``SolverError``."""
 
@@ -48,13 +67,20 @@ class SolverCall:
         of the last solve of the same Problem and passes the new data to its ``update`` (the KKT
         structure and its symbolic factorisation are reused; Clarabel has no iterate warm start).
         cvxpy builds a new solver when the update is refused (another sparsity pattern, a setting
-        that cannot change)."""
+        that cannot change). cvxpy applies a call's options on top of the kept solver's settings, so
+        every solve of a kept Clarabel solver passes all of Clarabel's settings (its defaults, then
+        ``options``, then the call's ``extra_options``): the options of one solve never stay in
+        force for the next (see :func:`clarabel_defaults`)."""
         name = str(solver).upper()
         if name not in cp.installed_solvers():
             raise ValueError(f"solver {solver!r} is not installed for cvxpy; installed: {cp.installed_solvers()}")
         self.name = name
         self.options = dict(options or {})
         self.keep_solver = keep_solver
+        self._base = {**clarabel_defaults(), **self.options} if keep_solver and name == "CLARABEL" else self.options
+        #: True after a solve of a kept solver that ended without an answer (inaccurate, solver error):
+        #: the next solve builds a new solver (cvxpy warm_start=False), which is kept from then on
+        self._rebuild = False
 
     def solve(self, problem: cp.Problem, extra_options: dict | None = None) -> tuple[SolveStatus, float, str]:
         """Solve ``problem``; return (canonical status, solver time in s, detail). ``extra_options``
@@ -64,18 +90,25 @@ class SolverCall:
         the wall time of ``Problem.solve`` (which then includes cvxpy's parameter application).
         """
         start = time.perf_counter()
+        warm, self._rebuild = self.keep_solver and not self._rebuild, False
         try:
             with warnings.catch_warnings():
                 # cvxpy warns "Solution may be inaccurate"; the status already says so
                 warnings.filterwarnings("ignore", message="Solution may be inaccurate", category=UserWarning)
-                problem.solve(solver=self.name, warm_start=self.keep_solver,
-                              **(self.options if not extra_options else {**self.options, **extra_options}))
+                problem.solve(solver=self.name, warm_start=warm,
+                              **(self._base if not extra_options else {**self._base, **extra_options}))
         except cp.error.SolverError as exc:
+            self._rebuild = self.keep_solver
             return SolveStatus.ERROR, time.perf_counter() - start, f"SolverError: {exc}"
         wall = time.perf_counter() - start
         stats = problem.solver_stats
         elapsed = stats.solve_time if stats is not None and stats.solve_time is not None else wall
-        return map_status(problem.status), float(elapsed), str(problem.status)
+        status = map_status(problem.status)
+        # a kept solver keeps the equilibration and state of its first setup through cvxpy's update;
+        # when it gives no answer, the next solve starts from a new one (found on massera2017: a solver
+        # updated from the previous step stalled "AlmostSolved" where a new one solved the step)
+        self._rebuild = self.keep_solver and status in (SolveStatus.INACCURATE, SolveStatus.ERROR)
+        return status, float(elapsed), str(problem.status)
 
 
-__all__ = ["STATUS_MAP", "SolverCall", "all_finite", "map_status"]
+__all__ = ["STATUS_MAP", "SolverCall", "all_finite", "clarabel_defaults", "map_status"]
