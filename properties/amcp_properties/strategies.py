@@ -50,6 +50,7 @@ from amcp_drake.studies.random_problems import (
     DISTURBANCE_KINDS,
     INITIAL_STATE_KINDS,
     THETA_STAR_KINDS,
+    UPDATE_DRAWS,
     GenerationError,
     ProblemShape,
     apply_pin,
@@ -289,8 +290,9 @@ def pins(draw, shape: ProblemShape | None, theta_kind: str):
 
 def online_options() -> st.SearchStrategy[OnlineOptions]:
     """(9) fixed complexity, moving window (Remark 4) or the exact update (7) (Theorem 14 holds for (7)
-    or (9); (7) was not drawn before session 6), one third each; projection onto Θ (12) or Θ_k (Remark 7)."""
-    return st.builds(OnlineOptions, update=st.sampled_from(("fixed", "window", "exact")), window=st.integers(1, 10),
+    or (9); (7) was not drawn before session 6) with the weights of
+    :data:`~amcp_drake.studies.random_problems.UPDATE_DRAWS`; projection onto Θ (12) or Θ_k (Remark 7)."""
+    return st.builds(OnlineOptions, update=st.sampled_from(UPDATE_DRAWS), window=st.integers(1, 10),
                      projection=st.sampled_from(("Theta", "Theta_k")))
 
 
