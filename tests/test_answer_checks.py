@@ -236,9 +236,9 @@ def test_set_update_keeps_previous_set_when_every_solver_fails(example_spec, exa
     assert np.array_equal(traj.records[1].h_theta, traj.records[0].h_theta)
 
 
-def test_exact_update_with_a_wrongly_removed_row_keeps_every_row(example_spec, example_design):
+def test_exact_update_with_every_row_wrongly_removed_keeps_the_set(example_spec, example_design):
     """(7): a support LP that calls every row redundant would make Θ_k ⊄ Θ_(k−1); HiGHS re-checks the
-    removed rows and the step keeps all rows."""
+    removed rows, puts back those not implied, and the step keeps the set Θ_0 ∩ Δ_1."""
     from amcp_drake.model.options import OnlineOptions
 
     ctrl = _controller(example_spec, example_design, "drake", options=OnlineOptions(update="exact"))
@@ -252,8 +252,69 @@ def test_exact_update_with_a_wrongly_removed_row_keeps_every_row(example_spec, e
     traj = _run(ctrl, example_spec, 2)
     r = traj.records[1]
     assert r.set_status is SolveStatus.INACCURATE
-    assert "fallback: no row removed" in r.detail
-    assert len(r.h_theta) == len(example_design.h_theta0) + len(example_spec.problem.H_w)
+    assert "fallback: those rows kept" in r.detail
+    # rows of (7) only, and every row of Θ_0 ∩ Δ_1 implied by them (scipy): the same set as (7)
+    from scipy.optimize import linprog
+
+    H_d, h_d = ctrl._delta(traj.x[0], traj.u[0], traj.x[1])
+    H_all = np.vstack([np.asarray(example_design.H_theta), H_d])
+    h_all = np.concatenate([np.asarray(example_design.h_theta0), h_d])
+    assert all(any(np.array_equal(row, a) for a in H_all) for row in r.H_theta)
+    for row, bound in zip(H_all, h_all):
+        res = linprog(-row, A_ub=r.H_theta, b_ub=r.h_theta, bounds=[(None, None)] * 3, method="highs")
+        assert res.status == 0 and -res.fun <= bound + 1e-8
+
+
+def test_exact_update_keeps_only_the_removed_rows_that_are_not_implied(example_spec, example_design):
+    """(7): a support LP that calls every data row of Δ_k redundant (and answers the others truly):
+    HiGHS finds the data rows that cut Θ_(k−1); exactly those are put back, the truly redundant ones
+    stay removed, and the kept rows describe Θ_(k−1) ∩ Δ_k (every row of the intersection is implied
+    by them, scipy LPs here). Until session 6 one such row kept every row, and a backend LP 4e-8 off
+    grew Θ_k by ~7 rows a step (campaign seed 13 #6, generator 2)."""
+    from scipy.optimize import linprog
+
+    from amcp_drake.model.options import OnlineOptions
+
+    ctrl = _controller(example_spec, example_design, "drake", options=OnlineOptions(update="exact"))
+    real = ctrl.backend
+    q = len(example_design.h_theta0)
+
+    class LyingOnData(WrongBackend):
+        def support(self, H, h, directions):
+            d = np.atleast_2d(directions)
+            is_data = [not any(np.allclose(row, t) for t in np.asarray(example_design.H_theta)) for row in d]
+            return np.where(is_data, -1e3, real.support(H, h, d))  # "every data row is implied"
+
+    def implied_by(H, h, row, bound):
+        res = linprog(-row, A_ub=H, b_ub=h, bounds=[(None, None)] * H.shape[1], method="highs")
+        return res.status == 0 and -res.fun <= bound + 1e-9 * max(1.0, abs(bound))
+
+    x0 = np.asarray(example_spec.scenario.x0, float)
+    u0, _ = ctrl.step(x0)
+    H0, h0 = np.array(ctrl.H_theta), np.array(ctrl.h_theta)
+    # a disturbance whose Δ_1 has data rows of both kinds: some cut Θ_0, some do not (scipy decides)
+    for w0 in np.vstack([example_spec.problem.w_vertices(), np.zeros((1, 2))]):
+        x1 = example_spec.problem.step(x0, u0, example_spec.scenario.theta_star, w0)
+        H_d, h_d = ctrl._delta(x0, u0, x1)
+        # the specification, written out here with scipy: in order, a data row is put back when the rows
+        # kept so far (Θ_0's, then the data rows put back before it) do not imply it
+        cuts = []
+        for j, (row, bound) in enumerate(zip(H_d, h_d)):
+            if not implied_by(np.vstack([H0, H_d[cuts]]), np.concatenate([h0, h_d[cuts]]), row, bound):
+                cuts.append(j)
+        if 0 < len(cuts) < len(h_d):
+            break
+    else:
+        pytest.fail("no vertex of W gives a Δ_1 with rows of both kinds")
+    ctrl.backend = LyingOnData(real)
+    _, r = ctrl.step(x1)
+    assert r.set_status is SolveStatus.INACCURATE and "fallback: those rows kept" in r.detail
+    kept = np.asarray(r.H_theta)
+    assert np.array_equal(kept[:q], H0) and np.array_equal(r.h_theta[:q], h0)     # Θ_0 (a box) keeps its rows
+    assert np.array_equal(kept[q:], H_d[cuts]) and np.array_equal(r.h_theta[q:], h_d[cuts])  # and the cuts only
+    H_all, h_all = np.vstack([H0, H_d]), np.concatenate([h0, h_d])
+    for row, bound in zip(H_all, h_all):                                          # the same set as (7)
+        assert implied_by(kept, r.h_theta, row, bound + 1e-8)
 
 
 # -- (c) tube QP (20) ------------------------------------------------------------------------------------------
