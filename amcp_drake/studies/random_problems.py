@@ -394,7 +394,8 @@ def can_pin_at(problem: Problem, x0: np.ndarray, theta_star: np.ndarray) -> bool
 #: The set updates drawn, equally likely: (9) and the moving window twice each, the exact update (7)
 #: once (1/5 of the runs). (7) since session 6; its steps cost ~10x those of (9) (the redundancy LPs
 #: and, in the plain form, a program with every row of its own H_θk): with 1/3 of the runs the ci
-#: property profile took 585 s of CPU instead of 263 s (measured in one session, same load).
+#: property profile took 585 s of CPU instead of 263 s (measured in one session, same load, before
+#: the put-back fix of the exact update, which made (7) runs cheaper; docs/decisions.md).
 UPDATE_DRAWS = ("fixed", "window", "fixed", "window", "exact")
 
 
