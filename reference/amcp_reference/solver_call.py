@@ -13,6 +13,7 @@ import cvxpy as cp
 import cvxpy.settings as cps
 import numpy as np
 
+from amcp_drake.backends.clarabel_retry import RETRIED
 from amcp_drake.model.status import SolveStatus
 
 #: cvxpy status string -> canonical status (cvxpy.settings). Inaccurate certificates of
@@ -107,7 +108,7 @@ class SolverCall:
         # a kept solver keeps the equilibration and state of its first setup through cvxpy's update;
         # when it gives no answer, the next solve starts from a new one (found on massera2017: a solver
         # updated from the previous step stalled "AlmostSolved" where a new one solved the step)
-        self._rebuild = self.keep_solver and status in (SolveStatus.INACCURATE, SolveStatus.ERROR)
+        self._rebuild = self.keep_solver and status in RETRIED
         return status, float(elapsed), str(problem.status)
 
 
