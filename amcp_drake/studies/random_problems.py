@@ -587,10 +587,9 @@ def theta_shrank(traj) -> bool:
     if V is None:
         return False
     for H, h in _recorded_sets(traj):
-        if H.shape[1] == V.shape[1]:
-            Hn, hn = polytope.normalize_rows(H, h)
-            if float(np.max(V @ Hn.T - hn)) > SHRINK_TOL:
-                return True
+        Hn, hn = polytope.normalize_rows(H, h)
+        if float(np.max(V @ Hn.T - hn)) > SHRINK_TOL:
+            return True
     return False
 
 
