@@ -99,7 +99,7 @@ class DrakeTubeMPC:
         Acl0 = d.A0 + d.B0 @ K
         Acl_i = d.A + d.B @ K  # (p, n, n)
         self.basis = MultiplierBasis.of(H_theta)
-        keep = self._kept_vertices(Acl0, Acl_i)
+        keep, self._theta0_h = self._kept_vertices(Acl0, Acl_i)
         lay = self.layout = _Layout(n, m, N, nv, u, q - p, N * int(keep.sum()))
 
         prog = self.prog = MathematicalProgram()
@@ -243,21 +243,20 @@ class DrakeTubeMPC:
         prog.AddLinearConstraint(AB, np.full(rows * p, -np.inf), np.zeros(rows * p), y
                                  ).evaluator().set_description("Lambda >= 0")
 
-    def _kept_vertices(self, Acl0: np.ndarray, Acl_i: np.ndarray) -> np.ndarray:
-        """Mask (u, v) of the rows (l, j, i) kept (:mod:`.dominated_rows`): all rows unless ``prune``
-        is on, Θ0 is known (``TubeMPCData.h_theta0``) and the program is built for its shape."""
+    def _kept_vertices(self, Acl0: np.ndarray, Acl_i: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """(mask (u, v) of the rows (l, j, i) kept, h_θ0 the pruning was made for) (:mod:`.dominated_rows`):
+        all rows and None unless ``prune`` is on, Θ0 is known (``TubeMPCData.h_theta0``) and the
+        program is built for its shape."""
         d = self.data
         all_rows = np.ones((len(d.H_x), len(d.X0_vertices)), dtype=bool)
-        self._theta0_h = None
         h0 = getattr(d, "h_theta0", None)
         if not self._prune or h0 is None or not np.array_equal(self.H_theta, np.asarray(d.H_theta, float)):
-            return all_rows
+            return all_rows, None
         try:
             theta0_vertices = theta_vertices(self.H_theta, np.asarray(h0, float))
         except VertexEnumerationError:
-            return all_rows
-        self._theta0_h = np.asarray(h0, float)
-        return kept_vertices(d.H_x, Acl0, Acl_i, d.X0_vertices, theta0_vertices)
+            return all_rows, None
+        return kept_vertices(d.H_x, Acl0, Acl_i, d.X0_vertices, theta0_vertices), np.asarray(h0, float)
 
     def _row_coefficients(self, l_of, j_of, i_of, Acl0, Acl_i) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(cols (r, E), C (r, E), G (r, E, p)) of the rows (l_of, j_of, i_of) (see _build_tube_rows)."""
