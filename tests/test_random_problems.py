@@ -76,6 +76,32 @@ def test_random_problems_meet_assumption_1(seed):
         assert problem.p <= problem.n
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_scaled_states_is_the_same_system_in_the_units_x_tilde_equal_T_x(seed):
+    """The scaled problem of a seed is the unscaled problem of the same seed in x̃ = T x: its steps,
+    W, Z and stage cost agree point by point with the unscaled ones mapped by T (checked through
+    Problem.step and plain products, on random points), and T = diag(10^e), e from the documented
+    exponents, not all 0."""
+    shape = ProblemShape(n=3, m=2, p=2, theta_cuts=True, w_cuts=True, mixed_row=True, coupled_Q=True)
+    plain, _ = _problem(seed, **shape.__dict__)
+    scaled, labels = _problem(seed, **dict(shape.__dict__, scaled_states=True))
+    exponents = [float(e.removeprefix("1e")) for e in labels["state scaling"].split(", ")]
+    assert len(exponents) == 3 and any(exponents) and set(exponents) <= {-2, -1, 0, 1, 2}
+    T = np.diag(10.0 ** np.array(exponents))
+    rng = np.random.default_rng(seed)
+    for _ in range(5):
+        x, u, theta, w = rng.normal(size=3), rng.normal(size=2), rng.normal(size=2), rng.normal(size=3)
+        np.testing.assert_allclose(scaled.step(T @ x, u, theta, T @ w), T @ plain.step(x, u, theta, w), rtol=1e-12,
+                                   atol=1e-12 * np.abs(T @ x).max())
+        np.testing.assert_allclose(scaled.H_w @ (T @ w), plain.H_w @ w, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(scaled.F @ (T @ x) + scaled.G @ u, plain.F @ x + plain.G @ u, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose((T @ x) @ scaled.Q @ (T @ x), x @ plain.Q @ x, rtol=1e-12)
+    for name in ("H_theta", "h_theta", "theta_hat0", "R", "G"):
+        np.testing.assert_array_equal(getattr(scaled, name), getattr(plain, name))
+    assert not np.allclose(scaled.A0, plain.A0) or not np.allclose(scaled.B0, plain.B0)
+    assert labels["state scaling"] != _problem(seed, **shape.__dict__)[1]["state scaling"] == "1"
+
+
 def test_bad_shape_is_a_typed_error_naming_the_field():
     with pytest.raises(ProblemError, match="shape.n"):
         ProblemShape(n=0)

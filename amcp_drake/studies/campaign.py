@@ -43,7 +43,9 @@ TASK_RETRIES = 2
 #: store made with another generator is never resumed. Change it whenever problem ``idx`` of a seed
 #: would come out different (another generator, or a change of random_problems' draws).
 #: Version 2 (session 6): the online options draw the exact update (7) too (the problems are those of 1).
-GENERATOR_VERSION = "amcp_drake.studies.random_problems.random_case/2"
+#: Version 3 (session 7): 1/4 of the problems are written in badly scaled state units
+#: (``ProblemShape.scaled_states``); every later draw of a seed moves.
+GENERATOR_VERSION = "amcp_drake.studies.random_problems.random_case/3"
 #: The offline design of every campaign problem is computed on this backend; every online backend
 #: then runs on that design (as the property suite does), and the replay command names it.
 DESIGN_BACKEND = "drake"

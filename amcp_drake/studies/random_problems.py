@@ -148,6 +148,9 @@ class ProblemShape:
     * ``input_uncertainty``: B_i drawn like A_i; False: B_i = 0, so D(x, u) = D(x) (needed for pinning).
     * ``zero_centre``: the tube centre dynamics A_z of spec §5.1 is 0 instead of A_cl(θ̂0).
     * ``delta_range``: range of δ = p·‖[A_i B_i]‖₂ (the size of the parametric uncertainty).
+    * ``scaled_states``: the problem is written in the state coordinates x̃ = T x, T = diag(10^s_i),
+      s_i drawn from :data:`STATE_SCALE_EXPONENTS` (not all 0): the same system in badly scaled
+      units (:func:`scale_states`).
     """
 
     n: int = 2
@@ -165,6 +168,7 @@ class ProblemShape:
     input_uncertainty: bool = True
     zero_centre: bool = False
     delta_range: tuple[float, float] = (0.01, 0.12)
+    scaled_states: bool = False
 
     def __post_init__(self) -> None:
         for name in ("n", "m", "p", "N"):
@@ -196,7 +200,7 @@ def random_shape(rng: np.random.Generator, max_n: int = 3, max_m: int = 2, max_p
     return ProblemShape(n=n, m=m, p=p, N=N, expansive=expansive, unstable_mode=expansive and coin(),
                         theta_cuts=coin(), w_cuts=coin(), mixed_row=coin(), tight_state_box=coin() and coin(),
                         coupled_Q=coin(), theta_hat0_off_centre=coin(), input_uncertainty=input_uncertainty,
-                        zero_centre=coin())
+                        zero_centre=coin(), scaled_states=coin() and coin())
 
 
 def random_problem(rng: np.random.Generator, shape: ProblemShape) -> tuple[ProblemSpec, dict[str, str]]:
@@ -208,6 +212,9 @@ def random_problem(rng: np.random.Generator, shape: ProblemShape) -> tuple[Probl
     * Θ: a box lo < 0 < hi (half-widths 0.2-1.5), cut or not; W: a box with half-widths
       0.005-0.06 (asymmetric), cut or not, as {H_w w <= 1}.
     * Z: a state box within 1-4 (0.5-1.5 when tight) and an input box within 0.3-2.
+    * ``shape.scaled_states``: all of the above in unit-sized coordinates, then rewritten in
+      x̃ = T x (:func:`scale_states`); the exponents are drawn last, so the unscaled numbers are those
+      of the same seed without the flag.
     """
     n, m, p = shape.n, shape.m, shape.p
     labels = {"n": str(n), "m": str(m), "p": str(p), "N": str(shape.N)}
@@ -276,7 +283,32 @@ def random_problem(rng: np.random.Generator, shape: ProblemShape) -> tuple[Probl
     options = DesignOptions(x0_template="mrpi", x0_facets=int(facets[rng.integers(len(facets))]),
                             centre_dynamics="zero" if shape.zero_centre else "nominal",
                             mu_fraction=grid(rng, 0.5, 0.99, 0.01))
+    labels["state scaling"] = "1"
+    if shape.scaled_states:
+        exponents = rng.choice(STATE_SCALE_EXPONENTS, size=n)
+        if not np.any(exponents):
+            exponents[0] = STATE_SCALE_EXPONENTS[-1]
+        problem = scale_states(problem, 10.0 ** exponents)
+        labels["state scaling"] = ", ".join(f"1e{int(e)}" for e in exponents)
     return ProblemSpec(problem, options), labels
+
+
+#: Exponents e of the state scales 10^e of ``ProblemShape.scaled_states`` (units from 1/100 to 100 of
+#: the drawn ones: a position in m next to a velocity in cm/s is a factor 100).
+STATE_SCALE_EXPONENTS = (-2, -1, 0, 1, 2)
+
+
+def scale_states(problem: Problem, scales: np.ndarray) -> Problem:
+    """``problem`` in the coordinates x̃ = T x, T = diag(scales): x̃⁺ = T A(θ) T⁻¹ x̃ + T B(θ) u + w̃,
+    w̃ = T w ∈ T W = {H_w T⁻¹ w̃ <= 1}, Z = {F T⁻¹ x̃ + G u <= 1}, stage cost x̃ᵀ T⁻ᵀ Q T⁻¹ x̃. Θ, θ*,
+    the inputs and every claim of the paper are unchanged; an initial state x0 becomes T x0."""
+    from dataclasses import replace
+
+    T = np.diag(np.asarray(scales, float))
+    T_inv = np.diag(1.0 / np.asarray(scales, float))
+    return replace(problem, A0=T @ problem.A0 @ T_inv, B0=T @ problem.B0,
+                   A=np.array([T @ A_i @ T_inv for A_i in problem.A]), B=np.array([T @ B_i for B_i in problem.B]),
+                   H_w=problem.H_w @ T_inv, F=problem.F @ T_inv, Q=T_inv @ problem.Q @ T_inv)
 
 
 # -- scenario pieces -------------------------------------------------------------------------------

@@ -144,7 +144,7 @@ def problem_shapes(draw, max_n: int = 3, max_m: int = 2, max_p: int = 3, min_N: 
                    delta_range: tuple[float, float] = (0.01, 0.12), min_p: int = 1):
     """The structure of a random problem (:class:`amcp_drake.studies.random_problems.ProblemShape`):
     dimensions, then the flags, each behind ``draw(booleans())`` (two booleans for the rarer ones:
-    expansive A0, tight state box). Without input uncertainty (B_i = 0, which the shrinker moves
+    expansive A0, tight state box, badly scaled state units). Without input uncertainty (B_i = 0, which the shrinker moves
     towards) p <= n, so that the first regressor D(x_0) can pin Θ_1 (:func:`closed_loop_cases`).
     The probabilities are those of :func:`amcp_drake.studies.random_problems.random_shape`."""
     n = draw(st.integers(1, max_n))
@@ -158,7 +158,8 @@ def problem_shapes(draw, max_n: int = 3, max_m: int = 2, max_p: int = 3, min_N: 
                         theta_cuts=draw(st.booleans()), w_cuts=draw(st.booleans()), mixed_row=draw(st.booleans()),
                         tight_state_box=draw(st.booleans()) and draw(st.booleans()), coupled_Q=draw(st.booleans()),
                         theta_hat0_off_centre=draw(st.booleans()), input_uncertainty=input_uncertainty,
-                        zero_centre=draw(st.booleans()), delta_range=delta_range)
+                        zero_centre=draw(st.booleans()), delta_range=delta_range,
+                        scaled_states=draw(st.booleans()) and draw(st.booleans()))
 
 
 @st.composite
