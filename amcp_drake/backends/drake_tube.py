@@ -36,6 +36,7 @@ from amcp_drake.backends.clarabel_retry import NO_REFINEMENT, solve_with_retries
 from amcp_drake.backends.condensed_cost import CondensedCost
 from amcp_drake.backends.dominated_rows import kept_vertices
 from amcp_drake.backends.drake_solver import infeasible_constraint_names
+from amcp_drake.backends.minmax_cost import minmax_plan_cost
 from amcp_drake.backends.multiplier_basis import (
     FeasibleBases,
     MultiplierBasis,
@@ -166,7 +167,7 @@ class DrakeTubeMPC:
         the retries of :mod:`.clarabel_retry`)."""
         d, lay = self.data, self.layout
         n, m, N = lay.n, lay.m, lay.N
-        s = self._s = prog.NewContinuousVariables(N + 1, "s")
+        s = prog.NewContinuousVariables(N + 1, "s")
         base = y[:lay.L0]  # [z | α | v]
         nb = lay.L0
         Qh, Rh, Ph = (_sqrtm(np.asarray(M, float)) for M in (d.Q, d.R, d.P))
@@ -422,8 +423,8 @@ class DrakeTubeMPC:
             return self._with_every_row(x, h_theta, theta_hat, H_theta, u0_bounds, refine,
                                         "no optimal multipliers found for the rows left out of (15c)")
         vf = v.reshape(-1)
-        if self._minmax:
-            cost = float(np.sum(result.GetSolution(self._s) ** 2))
+        if self._minmax:  # (19) of the plan, not the solver's Σ s_l² (see .minmax_cost)
+            cost = minmax_plan_cost(self.data, z, alpha, v)
         else:
             cost = float(vf @ Hv @ vf + 2 * g @ vf + const)
         return MPCSolution(status, v, z, alpha, Lam, cost, solver_time, update_time, detail=detail)

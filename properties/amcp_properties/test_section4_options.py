@@ -129,6 +129,8 @@ def test_minmax_cost_closed_loop(case, backend, coverage):
     alpha_pos = any(r.alpha is not None and np.max(r.alpha) > 1e-3 for r in traj.records)
     _observe(case, traj, "test_minmax_cost_closed_loop", backend, coverage, "minmax",
              {"Z_active": section4.z_margin(traj) > 1.0 - section4.ACTIVE_MARGIN, "alpha_positive": alpha_pos})
+    # record.cost is (19) of the recorded plan (amcp_drake.backends.minmax_cost); that the plan minimises
+    # (19) is the certificate's KKT claim (tests/test_certify_optimality.py), not checked here
     _common(traj, "section4_minmax", backend, case, [section4.minmax_cost_matches(traj)])
 
 

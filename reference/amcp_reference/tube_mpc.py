@@ -27,6 +27,7 @@ import numpy as np
 
 from amcp_drake.backends.base import MPCSolution, TubeMPCData
 from amcp_drake.backends.clarabel_retry import NO_REFINEMENT, solve_with_retries
+from amcp_drake.backends.minmax_cost import minmax_plan_cost
 from amcp_drake.model.status import SolveStatus
 
 from .nominal_cost import certainty_equivalence_cost, nominal_cost
@@ -169,7 +170,6 @@ def formulate(data: TubeMPCData, q: int, elastic: bool = False, u0_bounds: bool 
         # vectorised over the vertex columns of X_l = z_l 1ᵀ + α_l [x^1 … x^v]
         Qh, Rh, Ph = (sqrtm_psd(np.asarray(M, float)) for M in (data.Q, data.R, data.P))
         s_epi = cp.Variable(N + 1, name="s")
-        params["_s"] = s_epi  # not a parameter: kept to read the cost back
         for l in range(N + 1):
             X_l = cp.reshape(z[:, l], (n, 1), order="F") @ ones_v + alpha[l] * Xv.T
             if l < N:
@@ -287,8 +287,8 @@ class CvxpyTubeMPC:
         z = np.asarray(f.z.value, float).T.copy()           # (N+1, n)
         alpha = np.asarray(f.alpha.value, float).copy()     # (N+1,)
         Lam = np.stack([np.asarray(L.value, float).reshape(nv, u, self.q) for L in f.Lambda])  # (N, nv, u, q)
-        if "_s" in f.params:  # min-max cost (19): Σ s_l² at the optimal epigraph variables
-            cost = float(np.sum(np.asarray(f.params["_s"].value, float) ** 2))
+        if getattr(self.data, "cost", "certainty_equivalence") == "minmax":  # (19) of the plan, not Σ s_l² (backends.minmax_cost)
+            cost = minmax_plan_cost(self.data, z, alpha, v)
         else:
             cost = nominal_cost(self.data, x, theta_hat, v)
         return MPCSolution(status, v, z, alpha, Lam, cost, solver_time, update_time, detail=detail)
