@@ -77,14 +77,19 @@ def test_resolves_are_counted_from_the_messages_the_code_writes(example_spec, ex
     Clarabel retry note, a real step of the reduced plain form outside Θ0 (every row), and the
     controller's fallback note; a clean step counts nowhere."""
     from amcp_drake.backends.clarabel_retry import describe
+    from amcp_drake.model.options import OnlineOptions
     from amcp_drake.online.controller import AdaptiveMPC
 
     ctrl = AdaptiveMPC(example_spec.problem, example_design, backend="drake")
     outside = ctrl.mpc.solve(np.array([1.0, 0.5]), 1.2 * np.asarray(example_design.h_theta0), np.zeros(3))
+    # a min-max step whose tight first try stalls (Example 1 at x = [2, 3]; clarabel_retry.MINMAX_TIGHT)
+    minmax = AdaptiveMPC(example_spec.problem, example_design, backend="drake", options=OnlineOptions(cost="minmax"))
+    tight_failed = minmax.mpc.solve(np.array([2.0, 3.0]), np.asarray(example_design.h_theta0), np.zeros(3))
     details = [describe(0), outside.detail, "", "tube QP (20): tube (15c) 2e-06 > 1e-06; fallback: vertex form of (20) (checked)",
-               "plain form (15) fallback: Qhull failed"]  # the vertex form's note (drake_vertex._solve_plain)
-    assert count_resolves(details) == {"clarabel_retry": 1, "refined_resolve": 0, "every_row": 1, "plain_fallback": 1,
-                                       "answer_check_fallback": 1}
+               "plain form (15) fallback: Qhull failed",  # the vertex form's note (drake_vertex._solve_plain)
+               tight_failed.detail]
+    assert count_resolves(details) == {"clarabel_retry": 1, "refined_resolve": 0, "minmax_default_tolerances": 1,
+                                       "every_row": 1, "plain_fallback": 1, "answer_check_fallback": 1}
 
 
 def stats_cpu_parts_fit(times_ms) -> bool:

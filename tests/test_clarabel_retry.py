@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from amcp_drake.backends.clarabel_retry import CLARABEL_RETRY_LADDER, NO_REFINEMENT
+from amcp_drake.backends.clarabel_retry import CLARABEL_RETRY_LADDER, MINMAX_TIGHT, NO_REFINEMENT
+from amcp_drake.model.options import OnlineOptions
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.online.controller import AdaptiveMPC
 
@@ -59,6 +60,19 @@ def test_drake_retries_in_order_and_names_the_rung(monkeypatch, drake_mpc):
     assert sol.status is SolveStatus.OPTIMAL and "retry 2" in sol.detail
     assert "re-solved with iterative refinement" in sol.detail
     np.testing.assert_allclose(sol.v, reference.v, atol=1e-6)
+
+
+def test_minmax_tries_tight_tolerances_first_then_the_defaults_then_the_ladder(monkeypatch, example_spec, example_design):
+    """Min–max cost (19): the first try is at MINMAX_TIGHT (1e-10), a failed one is solved again with
+    the backend's own options (named in the detail), then the ladder; never without refinement."""
+    mpc = AdaptiveMPC(example_spec.problem, example_design, backend="drake", options=OnlineOptions(cost="minmax")).mpc
+    reference = mpc.solve(*_args(mpc))
+    assert reference.status is SolveStatus.OPTIMAL  # (its tight first try stalls at this x_k: detail names it)
+    calls = _drake_with_failures(monkeypatch, mpc, failures=2)
+    sol = mpc.solve(*_args(mpc))
+    assert calls == [MINMAX_TIGHT, None, CLARABEL_RETRY_LADDER[0]]
+    assert sol.status is SolveStatus.OPTIMAL and "re-solved at the default tolerances" in sol.detail
+    assert "retry 1" in sol.detail and "iterative refinement" not in sol.detail
 
 
 def test_drake_never_promotes_an_inaccurate_answer(monkeypatch, drake_mpc):

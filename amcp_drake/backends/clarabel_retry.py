@@ -34,6 +34,17 @@ RETRIED = frozenset({SolveStatus.INACCURATE, SolveStatus.ERROR})
 #: 1.91 -> 1.37 ms (issue 8), v unchanged to 1e-11. A first try whose status is in RETRIED is solved
 #: again with the backend's own options (refinement on), then the ladder below.
 NO_REFINEMENT = {"iterative_refinement_enable": False}
+#: Clarabel tolerances tried first for the min–max cost (19) in both backends (the user's options
+#: override them). Its epigraph cones meet at a nonsmooth point (several tube vertices attain the max),
+#: where an interior-point answer at the default 1e-8 fixes the plan only to about √tol: on 30 generated
+#: min–max runs (numpy seeds 5000–5029 of random_case, N <= 6, 12 steps, Drake) the certificate's KKT
+#: claim ``qp_optimality`` failed 2 honest runs (stationarity 1.3e-5, 2.2e-5 > 1e-5; the two backends'
+#: costs 2e-6 apart) and passed all 30 at 1e-10. At 1e-10 alone 9 of the 30 runs stopped on
+#: "InsufficientProgress", so a first try that ends in RETRIED is solved again at the backend's own
+#: options (then the ladder), exactly as after a first try without refinement.
+MINMAX_TIGHT = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10}
+#: The note of a step whose MINMAX_TIGHT first try gave no answer (studies.resolves counts it).
+MINMAX_TIGHT_NOTE = "re-solved at the default tolerances"
 
 #: Option sets of the retries (Clarabel setting names, the same in Drake and cvxpy).
 CLARABEL_RETRY_LADDER: tuple[dict, ...] = (
@@ -51,8 +62,10 @@ CLARABEL_RETRY_LADDER: tuple[dict, ...] = (
 
 
 def solve_with_retries(solve: Callable[[dict | None], tuple[Any, SolveStatus, float]],
-                       first: dict | None = None) -> tuple[Any, SolveStatus, float, str]:
-    """``solve(extra_options)`` once with ``first`` (when given, e.g. :data:`NO_REFINEMENT`), then
+                       first: dict | None = None,
+                       first_note: str = "re-solved with iterative refinement") -> tuple[Any, SolveStatus, float, str]:
+    """``solve(extra_options)`` once with ``first`` (when given, e.g. :data:`NO_REFINEMENT` or
+    :data:`MINMAX_TIGHT`; ``first_note`` says what the solve after a failed first try is), then
     with None (the backend's own options), then, while its status is in RETRIED, once per rung of
     the ladder. Returns the last (result, status), the summed solver time and a note for
     ``MPCSolution.detail``: the rung that ended the retries, "after N Clarabel retries" when none
@@ -63,7 +76,7 @@ def solve_with_retries(solve: Callable[[dict | None], tuple[Any, SolveStatus, fl
         result, status, spent_first = solve(first)
         if status not in RETRIED:
             return result, status, spent_first, ""
-        note = "re-solved with iterative refinement; "
+        note = f"{first_note}; "
     result, status, elapsed = solve(None)
     elapsed += spent_first
     if status not in RETRIED:

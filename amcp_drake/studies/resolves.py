@@ -14,6 +14,7 @@ from __future__ import annotations
 RESOLVE_MARKS = {
     "clarabel_retry": "Clarabel retr",                      # the retry ladder (clarabel_retry)
     "refined_resolve": "re-solved with iterative refinement",  # first try without refinement failed
+    "minmax_default_tolerances": "re-solved at the default tolerances",  # min-max: the tight first try failed
     "every_row": "every row of (15c)",                      # reduced plain form -> every row
     "plain_fallback": "plain form (15) fallback",            # vertex form without Θ_k's vertices
     # an answer failed its check, another method answered (the controller's notes end "...; fallback: ...";

@@ -26,7 +26,7 @@ import cvxpy as cp
 import numpy as np
 
 from amcp_drake.backends.base import MPCSolution, TubeMPCData
-from amcp_drake.backends.clarabel_retry import NO_REFINEMENT, solve_with_retries
+from amcp_drake.backends.clarabel_retry import MINMAX_TIGHT, MINMAX_TIGHT_NOTE, NO_REFINEMENT, solve_with_retries
 from amcp_drake.backends.minmax_cost import minmax_plan_cost
 from amcp_drake.model.status import SolveStatus
 
@@ -303,10 +303,16 @@ class CvxpyTubeMPC:
 
         if self._call.name != "CLARABEL":
             return self._call.solve(problem)
-        # certainty-equivalence cost: no iterative refinement first, as in the Drake backend
-        minmax = getattr(self.data, "cost", "certainty_equivalence") == "minmax"
-        first = None if (minmax or refine) else {k: v for k, v in NO_REFINEMENT.items() if k not in self._call.options}
-        detail, status, elapsed, note = solve_with_retries(once, first)
+        # as in the Drake backend: certainty-equivalence cost without iterative refinement first, min-max
+        # cost (19) at tight tolerances first (MINMAX_TIGHT); ``refine``: the backend's own options first
+        if refine:
+            detail, status, elapsed, note = solve_with_retries(once, None)
+        elif getattr(self.data, "cost", "certainty_equivalence") == "minmax":
+            first = {k: v for k, v in MINMAX_TIGHT.items() if k not in self._call.options}
+            detail, status, elapsed, note = solve_with_retries(once, first, MINMAX_TIGHT_NOTE)
+        else:
+            first = {k: v for k, v in NO_REFINEMENT.items() if k not in self._call.options}
+            detail, status, elapsed, note = solve_with_retries(once, first)
         return status, elapsed, f"{detail} ({note})" if note else detail
 
     def _u0_form(self) -> _Formulation:
