@@ -90,12 +90,12 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
     tr = terminalreporter
     tr.section(f"amcp property coverage (profile {PROFILE})")
     tr.write_line(f"{'test':70s} {'examples':>8s}  {'Z act':>6s} {'Θ shr':>6s} {'θ*∂':>6s} {'θ*≈∂':>6s} {'done':>6s}"
-                  f" {'Θk↓d':>6s} {'θ*vx':>6s} {'θ*fc':>6s}")
+                  f" {'Θk↓d':>6s} {'θ*vx':>6s} {'θ*fc':>6s} {'scaled':>6s}")
     for test, data in sorted(summary.items()):
         fr = data["fractions"]
         cells = " ".join(f"{fr[k]:6.2f}" if k in fr else f"{'-':>6s}" for k in
                          ("constraints_active", "theta_shrank", "theta_star_on_boundary", "theta_star_near_boundary",
-                          "completed", "theta_k_lower_dim", "theta_star_vertex", "theta_star_facet"))
+                          "completed", "theta_k_lower_dim", "theta_star_vertex", "theta_star_facet", "scaled_units"))
         tr.write_line(f"{test[-70:]:70s} {data['examples']:8d}  {cells}")
     stats = GENERATOR_STATS
     rate = stats.rejection_rate()
@@ -104,7 +104,7 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
                   f"({stats.attempts} draws, {rate:.1%} rejected); by reason: "
                   + ", ".join(f"{k[10:]}={v}" for k, v in sorted(stats.counts.items()) if k.startswith("rejected:")))
     tr.write_line("Θk↓d = some Θ_k lower-dimensional (Chebyshev radius <= 1e-5); θ*vx / θ*fc = θ* at a vertex / "
-                  "elsewhere on ∂Θ (fractions of the runs)")
+                  "elsewhere on ∂Θ; scaled = in badly scaled state units (fractions of the runs)")
     run_cache = config.stash[_RUNNER]
     tr.write_line(f"closed-loop runs: {run_cache.misses} simulated, {run_cache.hits} reused from the cache")
     path = os.environ.get(COVERAGE_FILE_ENV)

@@ -48,6 +48,7 @@ FEATURES = {
     "theta_k_lower_dim": f"some Θ_k lower-dimensional (Chebyshev radius <= {LOWER_DIM_TOL:g})",
     "theta_star_vertex": "θ* at a vertex of Θ",
     "theta_star_facet": "θ* on ∂Θ, not at a vertex",
+    "scaled_units": "the problem in badly scaled state units (generator flag scaled_states, by construction)",
 }
 
 
@@ -74,6 +75,8 @@ class RunFeatures:
                "completed": self.completed}
         if not np.isnan(self.theta_k_radius):
             out["theta_k_lower_dim"] = bool(self.theta_k_radius <= LOWER_DIM_TOL)
+        if "state scaling" in self.labels:  # the scaling is what was built, so its label is exact
+            out["scaled_units"] = self.labels["state scaling"] != "1"
         if self.theta_star_face in ("vertex", "facet", "interior"):
             out["theta_star_vertex"] = self.theta_star_face == "vertex"
             out["theta_star_facet"] = self.theta_star_face == "facet"
