@@ -199,7 +199,9 @@ def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure
             cert = certify(traj, spec)
             result["claims"][backend] = {c.name: {"status": c.status, "margin": c.margin} for c in cert.claims}
             result["verdicts"][backend] = cert.verdict
-            result["coverage"][backend] = {**_coverage(traj), **_resolve_counts(traj, backend)}
+            result["coverage"][backend] = {**_coverage(traj), **_resolve_counts(traj, backend),
+                                           # built, not reached: the generator's label is exact
+                                           "scaled_units": float(result["labels"].get("state scaling", "1") != "1")}
         failed = any(c["status"] != "pass" for claims in result["claims"].values() for c in claims.values())
         result["status"] = "fail" if failed else "pass"
         if failed:
