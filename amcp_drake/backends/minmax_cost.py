@@ -8,6 +8,10 @@ of size 350, Q of size 1e-4) Σ s_l² undershot (19) of the returned plan by 1.3
 backends (found by the property suite, session 7). The cost of the plan is the number a user can act
 on; that the plan minimises (19) is the optimality claim's job (:mod:`amcp_drake.certificate.optimality`,
 KKT residuals of the epigraph problem with t_l = max_j q_lj, recomputed from the plan).
+
+The certificate evaluates (19) with its own code (:func:`amcp_drake.certificate.section4.minmax_cost`):
+the two look alike on purpose, since a certificate never reuses the code whose output it checks
+(and the layers forbid a backend to import the certificate).
 """
 
 from __future__ import annotations
