@@ -40,6 +40,7 @@ from amcp_drake.model import polytope
 from amcp_drake.model.errors import DesignError, ProblemError
 from amcp_drake.model.options import OnlineOptions
 from amcp_drake.model.problem import DesignOptions, Problem, ProblemSpec, Scenario
+from amcp_drake.model.state_units import scale_states
 from amcp_drake.offline.design import OfflineDesign, design
 from amcp_drake.online.controller import DELTA_MARGIN
 from amcp_drake.online.simulate import disturbance_sequence
@@ -296,19 +297,6 @@ def random_problem(rng: np.random.Generator, shape: ProblemShape) -> tuple[Probl
 #: Exponents e of the state scales 10^e of ``ProblemShape.scaled_states`` (units from 1/100 to 100 of
 #: the drawn ones: a position in m next to a velocity in cm/s is a factor 100).
 STATE_SCALE_EXPONENTS = (-2, -1, 0, 1, 2)
-
-
-def scale_states(problem: Problem, scales: np.ndarray) -> Problem:
-    """``problem`` in the coordinates x̃ = T x, T = diag(scales): x̃⁺ = T A(θ) T⁻¹ x̃ + T B(θ) u + w̃,
-    w̃ = T w ∈ T W = {H_w T⁻¹ w̃ <= 1}, Z = {F T⁻¹ x̃ + G u <= 1}, stage cost x̃ᵀ T⁻ᵀ Q T⁻¹ x̃. Θ, θ*,
-    the inputs and every claim of the paper are unchanged; an initial state x0 becomes T x0."""
-    from dataclasses import replace
-
-    T = np.diag(np.asarray(scales, float))
-    T_inv = np.diag(1.0 / np.asarray(scales, float))
-    return replace(problem, A0=T @ problem.A0 @ T_inv, B0=T @ problem.B0,
-                   A=np.array([T @ A_i @ T_inv for A_i in problem.A]), B=np.array([T @ B_i for B_i in problem.B]),
-                   H_w=problem.H_w @ T_inv, F=problem.F @ T_inv, Q=T_inv @ problem.Q @ T_inv)
 
 
 # -- scenario pieces -------------------------------------------------------------------------------
