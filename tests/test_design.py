@@ -121,3 +121,76 @@ def test_x_f_invariance_fails_for_a_tampered_gain(example_spec, example_design, 
     assert checks["X_f invariant"].status == "fail"
     assert checks["X_f invariant"].margin == pytest.approx(margin, abs=1e-4)
     assert checks["X_f in Z"].status == "pass"
+
+
+# -- the automatic design in normalised units (offline/units.py, session 7) ---------------------------
+MIXED_UNITS = np.array([100.0, 0.01, 0.01])  # x~ = diag(...) x: one state in units 100 x smaller, two 100 x larger
+
+
+@pytest.fixture(scope="module")
+def massera_in_mixed_units():
+    from amcp_drake.model.examples import get_example
+    from amcp_drake.model.state_units import scale_states
+
+    spec = get_example("massera2017")
+    return spec, scale_states(spec.problem, MIXED_UNITS)
+
+
+def test_a_system_in_mixed_units_designs_in_normalised_units_and_passes_every_check_in_its_own(
+        massera_in_mixed_units):
+    """massera2017 (3 states) in x~ = diag(100, 0.01, 0.01) x: every candidate of the automatic design
+    failed in these units (templates diverged or empty, support LPs failed), so design() raised. Now the
+    candidates are tried again in units normalised by W's extents and the design, mapped back, passes
+    every independent check of verify_design in the user's units; the closed loop certifies."""
+    from amcp_drake.certificate.certify import certify
+    from amcp_drake.online.replay import run_scenario
+
+    spec, problem = massera_in_mixed_units
+    d = design(problem, spec.design, backend="drake")
+    assert d.info["x0_template"].startswith("in units scaled by W's extents: ")
+    assert d.info["state_units"]["xi_equals_diag_times_x"] == pytest.approx(1.0 / (0.05 * MIXED_UNITS))
+    failed = [c.name for c in verify_design(problem, d, spec.design.mu_state_bound) if not c.passed]
+    assert failed == []
+    # the attempts in the user's units come first, every one of them failed
+    user_units = [a for a in d.info["attempts"] if not a["label"].startswith("in units")]
+    assert len(user_units) >= 10 and all(a["outcome"] != "pass" for a in user_units)
+    mixed = replace(spec, problem=problem, scenario=replace(spec.scenario, x0=MIXED_UNITS * spec.scenario.x0, steps=6))
+    traj = run_scenario(mixed, "drake", offline=d)
+    assert traj.stop_reason == "completed"
+    assert certify(traj, mixed).verdict == "pass"
+
+
+def test_the_mapped_design_is_the_normalised_one_in_the_users_units(massera_in_mixed_units):
+    """Each mapped field, checked against the normalised problem's design by its definition: the same
+    input u = K x = K_ξ ξ, the same cost x'Px = ξ'P_ξ ξ, the same X0 (H_x x = H_ξ ξ, vertices x^j = S^-1 ξ^j),
+    and mu recomputed from sup ||D(x,u)||^2 in the user's units."""
+    from amcp_drake.offline import units
+    from amcp_drake.offline.result import regressor_bound
+
+    spec, problem = massera_in_mixed_units
+    normalised, options, s = units.to_normalised(problem, spec.design)
+    d_xi = design(normalised, options, backend="drake")
+    d = units.from_normalised(d_xi, s, problem, spec.design)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        x = rng.normal(size=3)
+        xi = s * x
+        np.testing.assert_allclose(d.K @ x, d_xi.K @ xi, rtol=1e-12, atol=1e-14)
+        assert x @ d.P @ x == pytest.approx(xi @ d_xi.P @ xi, rel=1e-12)
+        np.testing.assert_allclose(d.H_x @ x, d_xi.H_x @ xi, rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(d.H_T @ x, d_xi.H_T @ xi, rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(s * (d.A_z @ x), d_xi.A_z @ xi, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(d.X0_vertices * s, d_xi.X0_vertices, rtol=1e-12)
+    assert d.mu == pytest.approx(spec.design.mu_fraction / regressor_bound(problem, spec.design.mu_state_bound)[0])
+    assert d.mu != pytest.approx(d_xi.mu)
+
+
+def test_a_system_in_uniform_units_is_not_designed_again():
+    """W with equal extents: the normalised problem would only be a common rescale, so an automatic
+    design that fails raises at once (the attempts are those of the user's units only)."""
+    from amcp_drake.model.examples import get_example
+    from amcp_drake.offline import units
+
+    assert not units.needs_units(get_example("lorenzen2019").problem)
+    assert units.needs_units(replace(get_example("lorenzen2019").problem,
+                                     H_w=get_example("lorenzen2019").problem.H_w @ np.diag([1.0, 10.0])))

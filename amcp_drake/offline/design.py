@@ -7,6 +7,9 @@ on :class:`~amcp_drake.model.problem.DesignOptions` and in docs/decisions.md.
 
 from __future__ import annotations
 
+import time
+from dataclasses import replace
+
 import numpy as np
 
 from amcp_drake.backends import get_backend
@@ -15,7 +18,8 @@ from amcp_drake.model.errors import DesignError, ProblemError, TerminalSetError
 from amcp_drake.model.problem import DEFAULT_X0_LAMBDA, DesignOptions, Problem
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.offline import templates as x0_templates
-from amcp_drake.offline.auto import design_auto, template_label
+from amcp_drake.offline import units
+from amcp_drake.offline.auto import Attempt, AutoDesignError, design_auto, template_label
 from amcp_drake.offline.checks import verify_design
 from amcp_drake.offline.result import OfflineDesign, closed_loop_vertices, regressor_bound
 from amcp_drake.offline.support import bounded_vertices, row_maxima
@@ -45,9 +49,37 @@ def design(problem: Problem, options: DesignOptions | None = None, backend="drak
     """
     options = (options or DesignOptions()).validate_for(problem)
     if options.x0_template == "auto":
-        return design_auto(problem, options, backend=backend, design_fixed=design_fixed, robust_gain=robust_gain,
-                           verify=verify_design)
+        try:
+            return design_auto(problem, options, backend=backend, design_fixed=design_fixed, robust_gain=robust_gain,
+                               verify=verify_design)
+        except AutoDesignError as exc:
+            if not units.needs_units(problem):
+                raise
+            return _design_in_normalised_units(problem, options, backend, exc.attempts)
     return design_fixed(problem, options, backend=backend)
+
+
+def _design_in_normalised_units(problem: Problem, options: DesignOptions, backend, attempts: list) -> OfflineDesign:
+    """The automatic design of ``problem`` in the units of :mod:`amcp_drake.offline.units`, mapped back
+    and checked in the user's units; AutoDesignError with every attempt (both units) when it fails."""
+    normalised, normalised_options, s = units.to_normalised(problem, options)
+    prefix = "in units scaled by W's extents: "
+    start = time.perf_counter()
+    try:
+        found = design_auto(normalised, normalised_options, backend=backend, design_fixed=design_fixed,
+                            robust_gain=robust_gain, verify=verify_design)
+    except AutoDesignError as exc:
+        raise AutoDesignError(attempts + [replace(a, label=prefix + a.label) for a in exc.attempts]) from None
+    mapped = units.from_normalised(found, s, problem, options)
+    failed = [c for c in verify_design(problem, mapped, options.mu_state_bound) if not c.passed]
+    if failed:
+        reason = "mapped back to the user's units: " + "; ".join(f"{c.name}: {c.status}" for c in failed)
+        raise AutoDesignError(attempts + [Attempt(prefix + found.info.get("x0_template", "design"), "check failed",
+                                                  reason, time.perf_counter() - start)])
+    earlier = [a.to_dict() for a in attempts]
+    info = dict(mapped.info, attempts=earlier + [dict(d, label=prefix + d["label"]) for d in found.info.get("attempts", [])])
+    info["x0_template"] = prefix + str(found.info.get("x0_template", ""))
+    return replace(mapped, info=info)
 
 
 def robust_gain(problem: Problem, options: DesignOptions, be) -> tuple[np.ndarray, np.ndarray, str]:
