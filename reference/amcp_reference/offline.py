@@ -9,6 +9,7 @@ import cvxpy as cp
 import numpy as np
 
 from amcp_drake.backends.base import GainResult
+from amcp_drake.backends.gain_scaling import gain_scaling
 from amcp_drake.model.status import SolveStatus
 
 
@@ -28,7 +29,10 @@ def robust_gain(call, A_vertices, B_vertices, Q, R, margin: float) -> GainResult
                [Q^½ S,        0,               I,     0     ],
                [R^½ Y,        0,               0,     I     ]]  ⪰ margin·I,   S ⪰ margin·I,
 
-    maximise trace(S). Then K = Y S⁻¹ and P = S⁻¹. By Schur complements M_i ⪰ 0 is
+    maximise trace(S). Then K = Y S⁻¹ and P = S⁻¹. Solved in the coordinates of
+    :mod:`amcp_drake.backends.gain_scaling` (x = T x̃, u = U ũ with TᵀP_refT = I; the same as the
+    Drake backend), so the margin is relative to the cost-to-go; the objective is trace(S) of the
+    original coordinates, ⟨TᵀT, S̃⟩. By Schur complements M_i ⪰ 0 is
     S − (A_i S + B_i Y)ᵀ S⁻¹ (A_i S + B_i Y) − S Q S − Yᵀ R Y ⪰ 0, i.e. (multiplying by P on both
     sides) A_cl,iᵀ P A_cl,i − P + Q + Kᵀ R K ⪯ 0: eq. (16) at vertex i, hence on Θ by convexity.
 
@@ -41,6 +45,8 @@ def robust_gain(call, A_vertices, B_vertices, Q, R, margin: float) -> GainResult
     if not all(np.all(np.isfinite(a)) for a in (A_vertices, B_vertices, Q, R)) or not np.isfinite(margin):
         return GainResult(SolveStatus.ERROR, None, None)
     n, m = A_vertices.shape[1], B_vertices.shape[2]
+    scaling = gain_scaling(A_vertices, B_vertices, Q, R)
+    A_vertices, B_vertices, Q, R = scaling.scaled(A_vertices, B_vertices, Q, R)
     Qh, Rh = sqrtm_psd(Q), sqrtm_psd(R)
     S = cp.Variable((n, n), symmetric=True, name="S")
     Y = cp.Variable((m, n), name="Y")
@@ -56,7 +62,7 @@ def robust_gain(call, A_vertices, B_vertices, Q, R, margin: float) -> GainResult
         ])
         # M is symmetric by construction (S symmetric); symmetrise so cvxpy sees it too.
         constraints.append(0.5 * (M + M.T) >> margin * np.eye(2 * n + n + m))
-    problem = cp.Problem(cp.Maximize(cp.trace(S)), constraints)
+    problem = cp.Problem(cp.Maximize(cp.sum(cp.multiply(scaling.objective_weight, S))), constraints)
     status, _, _ = call.solve(problem)
     if status is not SolveStatus.OPTIMAL:
         return GainResult(status, None, None)
@@ -66,8 +72,10 @@ def robust_gain(call, A_vertices, B_vertices, Q, R, margin: float) -> GainResult
     K = np.asarray(Y.value @ P, float)
     if gain_residual(A_vertices, B_vertices, Q, R, K, P) > GAIN_CHECK_TOL * max(1.0, np.linalg.norm(P, 2)):
         # the solver accepted an S of the order of its tolerance (e.g. an unstabilisable vertex):
-        # the LMI holds to solver accuracy but (16) does not hold for P = S⁻¹
+        # the LMI holds to solver accuracy but (16) does not hold for P = S⁻¹ (checked in the scaled
+        # coordinates, where P̃ is of order one, so the test is relative to the cost-to-go)
         return GainResult(SolveStatus.INACCURATE, None, None)
+    K, P = scaling.unscaled(K, P)
     return GainResult(status, K, P)
 
 

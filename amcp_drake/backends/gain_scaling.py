@@ -1,0 +1,105 @@
+"""Scaling of the gain LMI (Assumption 8, eq. (16)) so that its margin and the solver's tolerances
+are relative to the problem, not to the units of x and u (docs/decisions.md, "Gain LMI (16) on
+badly scaled systems").
+
+The LMI in S = P⁻¹, Y = K S is solved with an absolute margin ε (S ⪰ εI and every block ⪰ εI)
+and an interior-point solver whose tolerances are absolute too. Both mean something different
+for every choice of units: with x in units a thousand times larger, S is a million times smaller
+and ε = 1e-6 makes Example 1 infeasible. So both backends solve it in the coordinates
+
+    x = T x̃,  u = U ũ,  with Tᵀ P_ref T = I and U = R^{-1/2},
+
+P_ref = the mean over the vertices of Θ of the Riccati solutions P_v of (A_v, B_v, Q, R). Every
+robust P of (16) satisfies P ⪰ P_v at every vertex (P bounds the cost-to-go of K at vertex v,
+which is at least the optimal one), so P̃ = Tᵀ P T ⪰ I-ish and S̃ = P̃⁻¹ is of order one: the
+margin is then relative to the cost-to-go. The data are transformed by congruence,
+
+    Ã_v = T⁻¹ A_v T,  B̃_v = T⁻¹ B_v U,  Q̃ = Tᵀ Q T,  R̃ = Uᵀ R U = I,
+
+and the objective stays that of the original problem: trace(S) = trace(T S̃ Tᵀ) = ⟨TᵀT, S̃⟩ (normalised
+to trace(TᵀT) = 1), so
+the optimiser is the same up to the margin and the solver's accuracy. Back: K = U K̃ T⁻¹,
+P = T⁻ᵀ P̃ T⁻¹. Any T with Tᵀ P_ref T = I gives the same scaled problem up to an orthogonal
+congruence, so the result does not depend on the units of x or u (a state change x' = D x maps
+P_ref to D⁻ᵀ P_ref D⁻¹).
+
+When a vertex has no stabilising Riccati solution (not stabilisable: (16) is then infeasible
+anyway), T = I and the solver reports the infeasibility.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as sla
+
+
+@dataclass(frozen=True, eq=False)
+class GainScaling:
+    """x = T x̃, u = U ũ for the gain LMI; ``reference`` says where T came from."""
+
+    T: np.ndarray
+    U: np.ndarray
+    reference: str
+
+    @property
+    def objective_weight(self) -> np.ndarray:
+        """W ∝ TᵀT, so that trace(S) = c ⟨W, S̃⟩ for S = T S̃ Tᵀ (c > 0). Normalised to trace 1: the
+        maximiser is the same, and the objective's size no longer depends on the units (with x in
+        units 1e3 smaller, TᵀT is 1e-6 and the solver stopped on its absolute gap far from the
+        optimum: K off by 34 % in its first entry on Example 1)."""
+        W = self.T.T @ self.T
+        return W / np.trace(W)
+
+    def scaled(self, A_vertices, B_vertices, Q, R):
+        """(Ã_v, B̃_v, Q̃, R̃) of the module docstring."""
+        T_inv = np.linalg.inv(self.T)
+        A_t = np.array([T_inv @ A @ self.T for A in A_vertices])
+        B_t = np.array([T_inv @ B @ self.U for B in B_vertices])
+        Q_t = self.T.T @ Q @ self.T
+        R_t = self.U.T @ R @ self.U
+        return A_t, B_t, _sym(Q_t), _sym(R_t)
+
+    def unscaled(self, K_t: np.ndarray, P_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """K = U K̃ T⁻¹, P = T⁻ᵀ P̃ T⁻¹."""
+        T_inv = np.linalg.inv(self.T)
+        return self.U @ K_t @ T_inv, _sym(T_inv.T @ P_t @ T_inv)
+
+
+def gain_scaling(A_vertices, B_vertices, Q, R) -> GainScaling:
+    """T from the mean Riccati solution over the vertices, U = R^{-1/2} (module docstring)."""
+    A_vertices = np.asarray(A_vertices, float)
+    B_vertices = np.asarray(B_vertices, float)
+    n, m = A_vertices.shape[1], B_vertices.shape[2]
+    R = np.asarray(R, float)
+    if np.min(np.linalg.eigvalsh(_sym(R))) <= 0.0:  # R ≻ 0 is validated by Problem; no scaling without it
+        return GainScaling(np.eye(n), np.eye(m), "identity (R is not positive definite)")
+    U = _inv_sqrt(R)
+    P_ref = _mean_riccati(A_vertices, B_vertices, np.asarray(Q, float), R)
+    if P_ref is None:
+        return GainScaling(np.eye(n), U, "identity (a vertex has no stabilising Riccati solution)")
+    return GainScaling(_inv_sqrt(P_ref), U, "mean vertex Riccati solution")
+
+
+def _mean_riccati(A_vertices, B_vertices, Q, R) -> np.ndarray | None:
+    solutions = []
+    for A, B in zip(A_vertices, B_vertices):
+        try:
+            with np.errstate(all="ignore"):
+                P = sla.solve_discrete_are(A, B, Q, R)
+        except (ValueError, np.linalg.LinAlgError):
+            return None
+        if not np.all(np.isfinite(P)) or np.min(np.linalg.eigvalsh(_sym(P))) <= 0.0:
+            return None
+        solutions.append(_sym(P))
+    return _sym(np.mean(solutions, axis=0))
+
+
+def _inv_sqrt(M: np.ndarray) -> np.ndarray:
+    vals, vecs = np.linalg.eigh(_sym(M))
+    return (vecs / np.sqrt(vals)) @ vecs.T
+
+
+def _sym(M: np.ndarray) -> np.ndarray:
+    return 0.5 * (M + M.T)
