@@ -19,7 +19,6 @@ import scipy.sparse as sp
 from pydrake.solvers import MathematicalProgram
 
 from amcp_drake.backends.base import (
-    GainResult,
     ProjectionResult,
     SetUpdateResult,
     TubeMPCData,
@@ -28,7 +27,7 @@ from amcp_drake.backends.drake_set_update import DrakeSetUpdateLP
 from amcp_drake.backends.drake_solver import SOLVERS, STATUS_MAP, DrakeSolver  # noqa: F401 - SOLVERS, STATUS_MAP re-exported
 from amcp_drake.backends.drake_solver import DrakeSolver as _Solver  # noqa: F401 - old name, used by amcp_properties.mutants
 from amcp_drake.backends.drake_solver import finite_or_raise as _finite
-from amcp_drake.backends.gain_scaling import gain_scaling
+from amcp_drake.backends.gain_scaling import solve_scaled
 from amcp_drake.backends.projection_form import projection_form
 from amcp_drake.backends.set_update_vertices import VertexSetUpdate
 from amcp_drake.model.status import SolveStatus
@@ -97,15 +96,20 @@ class DrakeBackend:
 
         By Schur complements this is A_cl(θ^i)ᵀ P A_cl(θ^i) − P + Q + KᵀRK ⪯ 0, eq. (16).
         Solved in the coordinates of :mod:`.gain_scaling` (x = T x̃, u = U ũ with TᵀP_refT = I), so the
-        margin is relative to the cost-to-go, with the objective trace(S) of the original coordinates.
+        margin is relative to the cost-to-go, with the objective trace(S) of the original coordinates;
+        an inaccurate answer is solved once more in its own coordinates (:func:`.gain_scaling.solve_scaled`).
         Built symbolically: it is solved once per design, never per step.
         """
         A_vertices = np.asarray(A_vertices, float)
         B_vertices = np.asarray(B_vertices, float)
         _finite("robust_gain", A_vertices, B_vertices, Q, R)
+        return solve_scaled(lambda A_t, B_t, Q_t, R_t, W: self._gain_lmi(A_t, B_t, Q_t, R_t, W, margin),
+                            A_vertices, B_vertices, np.asarray(Q, float), np.asarray(R, float))
+
+    def _gain_lmi(self, A_vertices, B_vertices, Q, R, weight, margin):
+        """One solve of the LMI of :meth:`robust_gain` (scaled data), maximising ⟨weight, S⟩:
+        (status, K, P), K and P also for an inaccurate answer."""
         n, m = A_vertices.shape[1], B_vertices.shape[2]
-        scaling = gain_scaling(A_vertices, B_vertices, Q, R)
-        A_vertices, B_vertices, Q, R = scaling.scaled(A_vertices, B_vertices, Q, R)
         Qh = _sqrtm_psd(Q)
         Rh = _sqrtm_psd(R)
         prog = MathematicalProgram()
@@ -117,17 +121,18 @@ class DrakeBackend:
         for i, (Ai, Bi) in enumerate(zip(A_vertices, B_vertices)):
             self._add_vertex_lmi(prog, i, Ai, Bi, S, Y, Qh, Rh, margin)
         with np.errstate(invalid="ignore"):  # numpy warns on object (symbolic) arrays; values are exact
-            prog.AddLinearCost(-np.sum(scaling.objective_weight * S))  # trace(S) in the original coordinates
+            prog.AddLinearCost(-np.sum(weight * S))  # trace(S) in the original coordinates
         result, _ = self._sdp.solve(prog)
         status = self._sdp.status(result)
-        if status is not SolveStatus.OPTIMAL:
-            return GainResult(status, None, None)
+        if status not in (SolveStatus.OPTIMAL, SolveStatus.INACCURATE):
+            return status, None, None
         S_val = np.asarray(result.GetSolution(S), float).reshape(n, n)
         Y_val = np.asarray(result.GetSolution(Y), float).reshape(m, n)
         S_val = 0.5 * (S_val + S_val.T)
+        if not np.all(np.isfinite(S_val)) or np.min(np.linalg.eigvalsh(S_val)) <= 0.0:
+            return status, None, None
         P = np.linalg.inv(S_val)
-        K, P = scaling.unscaled(Y_val @ P, 0.5 * (P + P.T))
-        return GainResult(status, K, P)
+        return status, Y_val @ P, 0.5 * (P + P.T)
 
     @staticmethod
     def _add_vertex_lmi(prog, i, Ai, Bi, S, Y, Qh, Rh, margin) -> None:

@@ -25,14 +25,29 @@ P_ref to D⁻ᵀ P_ref D⁻¹).
 
 When a vertex has no stabilising Riccati solution (not stabilisable: (16) is then infeasible
 anyway), T = I and the solver reports the infeasibility.
+
+The robust P can be far from P_ref (a common Lyapunov function for very different vertices:
+on the two-mass spring of Kothare et al. 1996, P reaches 6.6e4 where the vertex Riccati
+solutions stay below 2.3e3). When the solver then ends "inaccurate" with an answer,
+:func:`solve_scaled` solves once more in the coordinates of that answer (P_ref = its P), where S̃
+is of order one by construction; only an "optimal" answer is ever returned.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg as sla
+
+from amcp_drake.backends.base import GainResult
+from amcp_drake.model.status import SolveStatus
+
+#: One solve of the gain LMI in scaled data: (Ã_v, B̃_v, Q̃, R̃, objective weight W) ->
+#: (status, K̃, P̃), K̃ and P̃ given for OPTIMAL and, when the solver has them, for INACCURATE.
+ScaledSolve = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+                       tuple[SolveStatus, "np.ndarray | None", "np.ndarray | None"]]
 
 
 @dataclass(frozen=True, eq=False)
@@ -67,6 +82,48 @@ class GainScaling:
         return self.U @ K_t @ T_inv, _sym(T_inv.T @ P_t @ T_inv)
 
 
+def solve_scaled(solve: ScaledSolve, A_vertices, B_vertices, Q, R) -> GainResult:
+    """The gain LMI by ``solve`` in the coordinates of :func:`gain_scaling`; once more in the
+    coordinates of an "inaccurate" answer's P (module docstring). K, P in the original coordinates."""
+    scaling = gain_scaling(A_vertices, B_vertices, Q, R)
+    for attempt in (1, 2):
+        status, K_t, P_t = solve(*scaling.scaled(A_vertices, B_vertices, Q, R), scaling.objective_weight)
+        usable = K_t is not None and P_t is not None and _positive_definite(P_t)
+        if status is SolveStatus.OPTIMAL and usable and gain_residual(
+                *scaling.scaled(A_vertices, B_vertices, Q, R), K_t, P_t) > GAIN_CHECK_TOL * max(1.0, np.linalg.norm(P_t, 2)):
+            # the solver accepted an S of the order of its tolerance (e.g. an unstabilisable vertex):
+            # the LMI holds to solver accuracy but (16) does not hold for P = S⁻¹ (checked in the
+            # scaled coordinates, where P̃ is of order one, so the test is relative to the cost-to-go)
+            status, usable = SolveStatus.INACCURATE, False
+        if status is SolveStatus.OPTIMAL and usable:
+            return GainResult(status, *scaling.unscaled(K_t, P_t))
+        if status is SolveStatus.OPTIMAL:  # an "optimal" S that is not positive definite: not an answer
+            status = SolveStatus.INACCURATE
+        if status is not SolveStatus.INACCURATE or not usable or attempt == 2:
+            return GainResult(status, None, None)
+        _, P = scaling.unscaled(K_t, P_t)
+        scaling = GainScaling(_inv_sqrt(P), scaling.U, "the previous answer's P")
+    raise AssertionError("unreachable")
+
+
+#: Acceptance of (16) after inversion, relative to ‖P̃‖ (scaled coordinates): an LMI error ε in S̃
+#: appears as about ε‖P̃‖² in (16), i.e. ε‖P̃‖ relatively; with Clarabel's ε = 1e-8 a genuine
+#: solution stays below 1e-4 while ‖P̃‖ <= 1e4. A degenerate S of the order of ε (e.g. an
+#: unstabilisable vertex, accepted by the solver within its tolerance) violates (16) by about ‖P̃‖
+#: itself, i.e. O(1). (Was the cvxpy backend's own check; now both backends make it.)
+GAIN_CHECK_TOL = 1e-4
+
+
+def gain_residual(A_vertices, B_vertices, Q, R, K, P) -> float:
+    """max over vertices of λ_max(A_clᵀ P A_cl − P + Q + Kᵀ R K), which (16) requires to be <= 0."""
+    worst = -np.inf
+    for Ai, Bi in zip(A_vertices, B_vertices):
+        Acl = Ai + Bi @ K
+        M = Acl.T @ P @ Acl - P + Q + K.T @ R @ K
+        worst = max(worst, float(np.max(np.linalg.eigvalsh(_sym(M)))))
+    return worst
+
+
 def gain_scaling(A_vertices, B_vertices, Q, R) -> GainScaling:
     """T from the mean Riccati solution over the vertices, U = R^{-1/2} (module docstring)."""
     A_vertices = np.asarray(A_vertices, float)
@@ -94,6 +151,10 @@ def _mean_riccati(A_vertices, B_vertices, Q, R) -> np.ndarray | None:
             return None
         solutions.append(_sym(P))
     return _sym(np.mean(solutions, axis=0))
+
+
+def _positive_definite(M: np.ndarray) -> bool:
+    return bool(np.all(np.isfinite(M)) and np.min(np.linalg.eigvalsh(_sym(M))) > 0.0)
 
 
 def _inv_sqrt(M: np.ndarray) -> np.ndarray:

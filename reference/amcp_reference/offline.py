@@ -9,7 +9,7 @@ import cvxpy as cp
 import numpy as np
 
 from amcp_drake.backends.base import GainResult
-from amcp_drake.backends.gain_scaling import gain_scaling
+from amcp_drake.backends.gain_scaling import solve_scaled
 from amcp_drake.model.status import SolveStatus
 
 
@@ -32,7 +32,8 @@ def robust_gain(call, A_vertices, B_vertices, Q, R, margin: float) -> GainResult
     maximise trace(S). Then K = Y S⁻¹ and P = S⁻¹. Solved in the coordinates of
     :mod:`amcp_drake.backends.gain_scaling` (x = T x̃, u = U ũ with TᵀP_refT = I; the same as the
     Drake backend), so the margin is relative to the cost-to-go; the objective is trace(S) of the
-    original coordinates, ⟨TᵀT, S̃⟩. By Schur complements M_i ⪰ 0 is
+    original coordinates, ⟨TᵀT, S̃⟩; (16) is re-checked on the answer and an inaccurate answer is
+    solved once more in its own coordinates (:func:`~amcp_drake.backends.gain_scaling.solve_scaled`). By Schur complements M_i ⪰ 0 is
     S − (A_i S + B_i Y)ᵀ S⁻¹ (A_i S + B_i Y) − S Q S − Yᵀ R Y ⪰ 0, i.e. (multiplying by P on both
     sides) A_cl,iᵀ P A_cl,i − P + Q + Kᵀ R K ⪯ 0: eq. (16) at vertex i, hence on Θ by convexity.
 
@@ -44,9 +45,14 @@ def robust_gain(call, A_vertices, B_vertices, Q, R, margin: float) -> GainResult
     R = np.asarray(R, float)
     if not all(np.all(np.isfinite(a)) for a in (A_vertices, B_vertices, Q, R)) or not np.isfinite(margin):
         return GainResult(SolveStatus.ERROR, None, None)
+    return solve_scaled(lambda A_t, B_t, Q_t, R_t, W: _gain_lmi(call, A_t, B_t, Q_t, R_t, W, margin),
+                        A_vertices, B_vertices, Q, R)
+
+
+def _gain_lmi(call, A_vertices, B_vertices, Q, R, weight, margin):
+    """One solve of the LMI of :func:`robust_gain` (scaled data), maximising ⟨weight, S⟩:
+    (status, K, P), K and P also for an inaccurate answer."""
     n, m = A_vertices.shape[1], B_vertices.shape[2]
-    scaling = gain_scaling(A_vertices, B_vertices, Q, R)
-    A_vertices, B_vertices, Q, R = scaling.scaled(A_vertices, B_vertices, Q, R)
     Qh, Rh = sqrtm_psd(Q), sqrtm_psd(R)
     S = cp.Variable((n, n), symmetric=True, name="S")
     Y = cp.Variable((m, n), name="Y")
@@ -62,38 +68,15 @@ def robust_gain(call, A_vertices, B_vertices, Q, R, margin: float) -> GainResult
         ])
         # M is symmetric by construction (S symmetric); symmetrise so cvxpy sees it too.
         constraints.append(0.5 * (M + M.T) >> margin * np.eye(2 * n + n + m))
-    problem = cp.Problem(cp.Maximize(cp.sum(cp.multiply(scaling.objective_weight, S))), constraints)
+    problem = cp.Problem(cp.Maximize(cp.sum(cp.multiply(weight, S))), constraints)
     status, _, _ = call.solve(problem)
-    if status is not SolveStatus.OPTIMAL:
-        return GainResult(status, None, None)
+    if status not in (SolveStatus.OPTIMAL, SolveStatus.INACCURATE) or S.value is None or Y.value is None:
+        return status, None, None
     S_val = 0.5 * (S.value + S.value.T)
+    if not np.all(np.isfinite(S_val)) or np.min(np.linalg.eigvalsh(S_val)) <= 0.0:
+        return status, None, None
     P = np.linalg.inv(S_val)
-    P = 0.5 * (P + P.T)
-    K = np.asarray(Y.value @ P, float)
-    if gain_residual(A_vertices, B_vertices, Q, R, K, P) > GAIN_CHECK_TOL * max(1.0, np.linalg.norm(P, 2)):
-        # the solver accepted an S of the order of its tolerance (e.g. an unstabilisable vertex):
-        # the LMI holds to solver accuracy but (16) does not hold for P = S⁻¹ (checked in the scaled
-        # coordinates, where P̃ is of order one, so the test is relative to the cost-to-go)
-        return GainResult(SolveStatus.INACCURATE, None, None)
-    K, P = scaling.unscaled(K, P)
-    return GainResult(status, K, P)
-
-
-#: Acceptance of (16) after inversion, relative to ‖P‖: an LMI error ε in S appears as about
-#: ε‖P‖² in (16), i.e. ε‖P‖ relatively; with Clarabel's ε = 1e-8 a genuine solution stays below
-#: 1e-4 while ‖P‖ <= 1e4. A degenerate S of the order of ε (e.g. an unstabilisable vertex,
-#: accepted by the solver within its tolerance) violates (16) by about ‖P‖ itself, i.e. O(1).
-GAIN_CHECK_TOL = 1e-4
-
-
-def gain_residual(A_vertices, B_vertices, Q, R, K, P) -> float:
-    """max over vertices of λ_max(A_clᵀ P A_cl − P + Q + Kᵀ R K), which (16) requires to be <= 0."""
-    worst = -np.inf
-    for Ai, Bi in zip(A_vertices, B_vertices):
-        Acl = Ai + Bi @ K
-        M = Acl.T @ P @ Acl - P + Q + K.T @ R @ K
-        worst = max(worst, float(np.max(np.linalg.eigvalsh(0.5 * (M + M.T)))))
-    return worst
+    return status, np.asarray(Y.value @ P, float), 0.5 * (P + P.T)
 
 
 class SupportLP:
