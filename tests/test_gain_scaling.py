@@ -114,3 +114,21 @@ def test_two_mass_spring_gain_lmi_is_optimal_and_satisfies_16(backend, r_scale):
     assert gain.status is SolveStatus.OPTIMAL
     assert _worst_16(A_v, B_v, problem.Q, R, gain.K, gain.P) < 0.0
     assert max(np.max(np.abs(np.linalg.eigvals(A + B @ gain.K)))for A, B in zip(A_v, B_v)) < 1.0
+
+
+def test_design_check_of_16_is_relative_to_the_size_of_p(example_spec):
+    # Example 1 in x units 1e3 larger: ‖P‖ = 1.8e-6. A P lowered by 0.05 % violates (16) by about
+    # 5e-10, i.e. 3e-4 of ‖P‖: the former absolute round-off allowance 1e-9 let it pass
+    from amcp_drake.offline.checks import verify_design
+
+    c = 1e3
+    problem = _rescaled(example_spec.problem, c * np.eye(example_spec.problem.n))
+    options = replace(example_spec.design, mu_state_bound=example_spec.design.mu_state_bound * c)
+    d = design(problem, options, backend="drake")
+    tampered = replace(d, P=d.P * (1.0 - 5e-4))
+    A_v, B_v = _vertex_data(problem)
+    violation = _worst_16(A_v, B_v, problem.Q, problem.R, tampered.K, tampered.P) * np.linalg.norm(tampered.P, 2)
+    assert 0.0 < violation < 1e-9 and violation / np.linalg.norm(d.P, 2) > 1e-5
+    by_name = {c.name: c for c in verify_design(problem, tampered, options.mu_state_bound)}
+    assert not by_name["terminal cost (16)"].passed
+    assert {c.name: c for c in verify_design(problem, d, options.mu_state_bound)}["terminal cost (16)"].passed
