@@ -327,7 +327,9 @@ class DesignOptions:
       n-D: ±e_i, then ±(e_i ± e_j)/√2, ...). X0 is the template outer approximation of the minimal
       robust positively invariant set of x⁺ = A_cl(θ)x + w, θ ∈ Θ (spec §5, "Choice of X0").
     * ``K``, ``P``: user-given gain and terminal weight, verified instead of designed.
-    * ``lmi_margin``: ε of the LMI S ⪰ εI and the strictness of (16).
+    * ``lmi_margin``: ε of the LMI S ⪰ εI and the strictness of (16), in the scaled coordinates of
+      ``backends/gain_scaling.py`` (where the mean vertex Riccati solution is I), so relative to the
+      cost-to-go and independent of the units of x and u.
     * ``mu_state_bound``: when Z is unbounded in x, the box |x_i| <= bound used to evaluate
       sup ‖D(x,u)‖² in (11); required then. ``mu_fraction``: μ = fraction / sup ‖D‖² (< 1: strict).
     * ``centre_dynamics``: A_z of spec §5.1 step 2: ``"nominal"`` = A_cl(θ̂0), ``"zero"`` = 0.
