@@ -132,3 +132,66 @@ def test_design_check_of_16_is_relative_to_the_size_of_p(example_spec):
     by_name = {c.name: c for c in verify_design(problem, tampered, options.mu_state_bound)}
     assert not by_name["terminal cost (16)"].passed
     assert {c.name: c for c in verify_design(problem, d, options.mu_state_bound)}["terminal cost (16)"].passed
+
+
+# -- the shared driver gain_scaling.solve_scaled, with a stub solver (scalar system, P by Riccati) -----
+
+def _scalar_lqr():
+    import scipy.linalg as sla
+
+    A, B, Q, R = np.array([[[0.5]]]), np.array([[[1.0]]]), np.eye(1), np.eye(1)
+    P = sla.solve_discrete_are(A[0], B[0], Q, R)
+    K = -np.linalg.solve(R + B[0].T @ P @ B[0], B[0].T @ P @ A[0])
+    return A, B, Q, R, K, P
+
+
+def test_an_inaccurate_answer_is_solved_again_in_its_own_coordinates():
+    from amcp_drake.backends.gain_scaling import solve_scaled
+
+    A, B, Q, R, K, P = _scalar_lqr()
+    P_inaccurate = 3.0 * P
+    scales = []
+
+    def stub(A_t, B_t, Q_t, R_t, weight):
+        T = np.sqrt(Q_t)  # Q = 1, so Q̃ = TᵀQT = T²; U = R^{-1/2} = 1, so K̃ = K T and P̃ = T P T
+        scales.append(float(T[0, 0]))
+        answer = P_inaccurate if len(scales) == 1 else P
+        return (SolveStatus.INACCURATE if len(scales) == 1 else SolveStatus.OPTIMAL), K @ T, T @ answer @ T
+
+    gain = solve_scaled(stub, A, B, Q, R)
+    assert gain.status is SolveStatus.OPTIMAL
+    np.testing.assert_allclose(gain.K, K, rtol=1e-12)
+    np.testing.assert_allclose(gain.P, P, rtol=1e-12)
+    assert len(scales) == 2
+    assert scales[0] ** 2 * P[0, 0] == pytest.approx(1.0)              # first: the Riccati solution is I
+    assert scales[1] ** 2 * P_inaccurate[0, 0] == pytest.approx(1.0)   # then: the inaccurate answer's P is I
+
+
+def test_an_optimal_answer_that_violates_16_is_not_returned():
+    from amcp_drake.backends.gain_scaling import solve_scaled
+
+    A, B, Q, R, K, P = _scalar_lqr()
+    calls = []
+
+    def stub(A_t, B_t, Q_t, R_t, weight):
+        calls.append(1)
+        T = np.sqrt(Q_t)
+        return SolveStatus.OPTIMAL, K @ T, T @ (0.5 * P) @ T  # half the cost-to-go: (16) fails by O(‖P‖)
+
+    gain = solve_scaled(stub, A, B, Q, R)
+    assert gain.status is SolveStatus.INACCURATE and gain.K is None and gain.P is None
+    assert len(calls) == 2
+
+
+def test_an_infeasible_lmi_is_reported_without_a_second_solve():
+    from amcp_drake.backends.gain_scaling import solve_scaled
+
+    A, B, Q, R, _, _ = _scalar_lqr()
+    calls = []
+
+    def stub(*args):
+        calls.append(1)
+        return SolveStatus.INFEASIBLE, None, None
+
+    assert solve_scaled(stub, A, B, Q, R).status is SolveStatus.INFEASIBLE
+    assert len(calls) == 1

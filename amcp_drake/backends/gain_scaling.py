@@ -16,21 +16,23 @@ margin is then relative to the cost-to-go. The data are transformed by congruenc
 
     Ã_v = T⁻¹ A_v T,  B̃_v = T⁻¹ B_v U,  Q̃ = Tᵀ Q T,  R̃ = Uᵀ R U = I,
 
-and the objective stays that of the original problem: trace(S) = trace(T S̃ Tᵀ) = ⟨TᵀT, S̃⟩ (normalised
-to trace(TᵀT) = 1), so
-the optimiser is the same up to the margin and the solver's accuracy. Back: K = U K̃ T⁻¹,
-P = T⁻ᵀ P̃ T⁻¹. Any T with Tᵀ P_ref T = I gives the same scaled problem up to an orthogonal
-congruence, so the result does not depend on the units of x or u (a state change x' = D x maps
-P_ref to D⁻ᵀ P_ref D⁻¹).
+and the objective stays that of the original problem: trace(S) = trace(T S̃ Tᵀ) = ⟨TᵀT, S̃⟩
+(normalised to trace(TᵀT) = 1), so the optimiser is the same up to the margin and the solver's
+accuracy. Back: K = U K̃ T⁻¹, P = T⁻ᵀ P̃ T⁻¹. Any T with Tᵀ P_ref T = I gives the same scaled
+constraints up to an orthogonal congruence (a state change x' = D x maps P_ref to D⁻ᵀ P_ref D⁻¹),
+so the margin and the solver see the same problem in any units; the answer is the same for
+x' = c x and any change of units of u. For a non-uniform D the paper's objective trace(P⁻¹) is
+itself another objective (trace(D S Dᵀ)), so K moves, but (16) is solved as accurately.
 
 When a vertex has no stabilising Riccati solution (not stabilisable: (16) is then infeasible
 anyway), T = I and the solver reports the infeasibility.
 
 The robust P can be far from P_ref (a common Lyapunov function for very different vertices:
 on the two-mass spring of Kothare et al. 1996, P reaches 6.6e4 where the vertex Riccati
-solutions stay below 2.3e3). When the solver then ends "inaccurate" with an answer,
-:func:`solve_scaled` solves once more in the coordinates of that answer (P_ref = its P), where S̃
-is of order one by construction; only an "optimal" answer is ever returned.
+solutions stay below 2.3e3). When the solver then ends "inaccurate" with an answer, or its
+"optimal" answer violates (16) after inversion, :func:`solve_scaled` solves once more in the
+coordinates of that answer (P_ref = its P), where S̃ is of order one by construction; only an
+"optimal" answer that satisfies (16) is ever returned.
 """
 
 from __future__ import annotations
@@ -87,22 +89,21 @@ def solve_scaled(solve: ScaledSolve, A_vertices, B_vertices, Q, R) -> GainResult
     coordinates of an "inaccurate" answer's P (module docstring). K, P in the original coordinates."""
     scaling = gain_scaling(A_vertices, B_vertices, Q, R)
     for attempt in (1, 2):
-        status, K_t, P_t = solve(*scaling.scaled(A_vertices, B_vertices, Q, R), scaling.objective_weight)
-        usable = K_t is not None and P_t is not None and _positive_definite(P_t)
-        if status is SolveStatus.OPTIMAL and usable and gain_residual(
-                *scaling.scaled(A_vertices, B_vertices, Q, R), K_t, P_t) > GAIN_CHECK_TOL * max(1.0, np.linalg.norm(P_t, 2)):
-            # the solver accepted an S of the order of its tolerance (e.g. an unstabilisable vertex):
-            # the LMI holds to solver accuracy but (16) does not hold for P = S⁻¹ (checked in the
-            # scaled coordinates, where P̃ is of order one, so the test is relative to the cost-to-go)
-            status, usable = SolveStatus.INACCURATE, False
-        if status is SolveStatus.OPTIMAL and usable:
-            return GainResult(status, *scaling.unscaled(K_t, P_t))
-        if status is SolveStatus.OPTIMAL:  # an "optimal" S that is not positive definite: not an answer
+        data = scaling.scaled(A_vertices, B_vertices, Q, R)
+        status, K_t, P_t = solve(*data, scaling.objective_weight)
+        answer = K_t is not None and P_t is not None and _positive_definite(P_t)
+        if status is SolveStatus.OPTIMAL and not (
+                answer and gain_residual(*data, K_t, P_t) <= GAIN_CHECK_TOL * max(1.0, np.linalg.norm(P_t, 2))):
+            # no positive definite P, or the solver accepted an S of the order of its tolerance (e.g. an
+            # unstabilisable vertex): the LMI holds to solver accuracy but (16) does not hold for
+            # P = S⁻¹ (checked in the scaled coordinates, where P̃ is of order one, so relative to the
+            # cost-to-go); an error in S̃ is amplified by ‖P̃‖², so the answer's own coordinates are next
             status = SolveStatus.INACCURATE
-        if status is not SolveStatus.INACCURATE or not usable or attempt == 2:
+        if status is SolveStatus.OPTIMAL:
+            return GainResult(status, *scaling.unscaled(K_t, P_t))
+        if status is not SolveStatus.INACCURATE or not answer or attempt == 2:
             return GainResult(status, None, None)
-        _, P = scaling.unscaled(K_t, P_t)
-        scaling = GainScaling(_inv_sqrt(P), scaling.U, "the previous answer's P")
+        scaling = GainScaling(_inv_sqrt(scaling.unscaled(K_t, P_t)[1]), scaling.U, "the previous answer's P")
     raise AssertionError("unreachable")
 
 
