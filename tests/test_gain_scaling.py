@@ -180,7 +180,7 @@ def test_an_optimal_answer_that_violates_16_is_not_returned():
 
     gain = solve_scaled(stub, A, B, Q, R)
     assert gain.status is SolveStatus.INACCURATE and gain.K is None and gain.P is None
-    assert len(calls) == 2
+    assert len(calls) == 3  # scaled, in the answer's coordinates, as written
 
 
 def test_an_infeasible_lmi_is_reported_without_a_second_solve():
@@ -195,3 +195,36 @@ def test_an_infeasible_lmi_is_reported_without_a_second_solve():
 
     assert solve_scaled(stub, A, B, Q, R).status is SolveStatus.INFEASIBLE
     assert len(calls) == 1
+
+
+def test_the_lmi_as_written_is_the_last_resort():
+    from amcp_drake.backends.gain_scaling import solve_scaled
+
+    A, B, Q, R, K, P = _scalar_lqr()
+    seen = []
+
+    def stub(A_t, B_t, Q_t, R_t, weight):
+        seen.append(float(Q_t[0, 0]))
+        if not np.allclose(Q_t, Q):  # any scaled formulation: the solver gives up without an answer
+            return SolveStatus.ERROR, None, None
+        return SolveStatus.OPTIMAL, K, P
+
+    gain = solve_scaled(stub, A, B, Q, R)
+    assert gain.status is SolveStatus.OPTIMAL
+    np.testing.assert_allclose(gain.K, K, rtol=1e-12)
+    assert len(seen) == 2 and seen[-1] == 1.0
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_generated_problem_the_scaled_lmi_leaves_almost_solved_is_solved(backend):
+    # tests/data/gain-lmi-almost-solved.json: Clarabel (cvxpy) ended AlmostSolved on both scaled
+    # formulations with P̃ ≈ I; before the last-resort formulation the design rejected this problem
+    import json
+    from pathlib import Path
+
+    data = json.loads((Path(__file__).parent / "data" / "gain-lmi-almost-solved.json").read_text())
+    A_v, B_v = np.array(data["A_vertices"]), np.array(data["B_vertices"])
+    Q, R = np.array(data["Q"]), np.array(data["R"])
+    gain = get_backend(backend).robust_gain(A_v, B_v, Q, R, 1e-6)
+    assert gain.status is SolveStatus.OPTIMAL
+    assert _worst_16(A_v, B_v, Q, R, gain.K, gain.P) < 0.0

@@ -31,8 +31,9 @@ The robust P can be far from P_ref (a common Lyapunov function for very differen
 on the two-mass spring of Kothare et al. 1996, P reaches 6.6e4 where the vertex Riccati
 solutions stay below 2.3e3). When the solver then ends "inaccurate" with an answer, or its
 "optimal" answer violates (16) after inversion, :func:`solve_scaled` solves once more in the
-coordinates of that answer (P_ref = its P), where S̃ is of order one by construction; only an
-"optimal" answer that satisfies (16) is ever returned.
+coordinates of that answer (P_ref = its P), where S̃ is of order one by construction, and, that
+failing too, in the original coordinates (the LMI as written); only an "optimal" answer that
+satisfies (16) is ever returned.
 """
 
 from __future__ import annotations
@@ -85,26 +86,48 @@ class GainScaling:
 
 
 def solve_scaled(solve: ScaledSolve, A_vertices, B_vertices, Q, R) -> GainResult:
-    """The gain LMI by ``solve`` in the coordinates of :func:`gain_scaling`; once more in the
-    coordinates of an "inaccurate" answer's P (module docstring). K, P in the original coordinates."""
-    scaling = gain_scaling(A_vertices, B_vertices, Q, R)
-    for attempt in (1, 2):
-        data = scaling.scaled(A_vertices, B_vertices, Q, R)
-        status, K_t, P_t = solve(*data, scaling.objective_weight)
-        answer = K_t is not None and P_t is not None and _positive_definite(P_t)
-        if status is SolveStatus.OPTIMAL and not (
-                answer and gain_residual(*data, K_t, P_t) <= GAIN_CHECK_TOL * max(1.0, np.linalg.norm(P_t, 2))):
-            # no positive definite P, or the solver accepted an S of the order of its tolerance (e.g. an
-            # unstabilisable vertex): the LMI holds to solver accuracy but (16) does not hold for
-            # P = S⁻¹ (checked in the scaled coordinates, where P̃ is of order one, so relative to the
-            # cost-to-go); an error in S̃ is amplified by ‖P̃‖², so the answer's own coordinates are next
-            status = SolveStatus.INACCURATE
-        if status is SolveStatus.OPTIMAL:
-            return GainResult(status, *scaling.unscaled(K_t, P_t))
-        if status is not SolveStatus.INACCURATE or not answer or attempt == 2:
-            return GainResult(status, None, None)
-        scaling = GainScaling(_inv_sqrt(scaling.unscaled(K_t, P_t)[1]), scaling.U, "the previous answer's P")
-    raise AssertionError("unreachable")
+    """The gain LMI by ``solve``, K and P in the original coordinates (module docstring). Scalings
+    tried in order, each only while no answer is decided ("infeasible" and "unbounded" are answers):
+
+    1. :func:`gain_scaling` (mean vertex Riccati solution);
+    2. the coordinates of the answer of 1 when it was "inaccurate", or "optimal" but violating (16);
+    3. the identity: the LMI as written, the only formulation before session 7, so that no problem
+       solved by it is lost (found on a generated 3-state problem, seed 22 of the random problems,
+       where Clarabel ended "AlmostSolved" in the cvxpy backend on 1 and 2 with P̃ ≈ I).
+    """
+    n, m = np.shape(A_vertices)[1], np.shape(B_vertices)[2]
+    first = gain_scaling(A_vertices, B_vertices, Q, R)
+    result, answer_P = _attempt(solve, first, A_vertices, B_vertices, Q, R)
+    if result.status is not SolveStatus.INACCURATE and result.status is not SolveStatus.ERROR:
+        return result
+    if answer_P is not None:
+        second = GainScaling(_inv_sqrt(answer_P), first.U, "the previous answer's P")
+        result, _ = _attempt(solve, second, A_vertices, B_vertices, Q, R)
+        if result.status is not SolveStatus.INACCURATE and result.status is not SolveStatus.ERROR:
+            return result
+    identity = GainScaling(np.eye(n), np.eye(m), "identity (the LMI as written)")
+    if np.array_equal(first.T, identity.T) and np.array_equal(first.U, identity.U):
+        return result
+    return _attempt(solve, identity, A_vertices, B_vertices, Q, R)[0]
+
+
+def _attempt(solve: ScaledSolve, scaling: GainScaling, A_vertices, B_vertices, Q, R):
+    """One solve in the coordinates of ``scaling``: (GainResult in original coordinates, the P of a
+    positive definite answer that was not accepted, else None)."""
+    data = scaling.scaled(A_vertices, B_vertices, Q, R)
+    status, K_t, P_t = solve(*data, scaling.objective_weight)
+    answer = K_t is not None and P_t is not None and _positive_definite(P_t)
+    if status is SolveStatus.OPTIMAL and not (
+            answer and gain_residual(*data, K_t, P_t) <= GAIN_CHECK_TOL * max(1.0, np.linalg.norm(P_t, 2))):
+        # no positive definite P, or the solver accepted an S of the order of its tolerance (e.g. an
+        # unstabilisable vertex): the LMI holds to solver accuracy but (16) does not hold for
+        # P = S⁻¹ (checked in the scaled coordinates, where P̃ is of order one, so relative to the
+        # cost-to-go); an error in S̃ is amplified by ‖P̃‖², so the answer's own coordinates are next
+        status = SolveStatus.INACCURATE
+    if status is SolveStatus.OPTIMAL:
+        return GainResult(status, *scaling.unscaled(K_t, P_t)), None
+    usable = status is SolveStatus.INACCURATE and answer
+    return GainResult(status, None, None), (scaling.unscaled(K_t, P_t)[1] if usable else None)
 
 
 #: Acceptance of (16) after inversion, relative to ‖P̃‖ (scaled coordinates): an LMI error ε in S̃
