@@ -97,7 +97,8 @@ class DrakeBackend:
         By Schur complements this is A_cl(θ^i)ᵀ P A_cl(θ^i) − P + Q + KᵀRK ⪯ 0, eq. (16).
         Solved in the coordinates of :mod:`.gain_scaling` (x = T x̃, u = U ũ with TᵀP_refT = I), so the
         margin is relative to the cost-to-go, with the objective trace(S) of the original coordinates;
-        an inaccurate answer is solved once more in its own coordinates (:func:`.gain_scaling.solve_scaled`).
+        an inaccurate answer is solved once more in its own coordinates, then as written
+        (:func:`.gain_scaling.solve_scaled`, which also re-checks (16) on the answer).
         Built symbolically: it is solved once per design, never per step.
         """
         A_vertices = np.asarray(A_vertices, float)

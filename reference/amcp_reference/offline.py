@@ -32,8 +32,9 @@ def robust_gain(call, A_vertices, B_vertices, Q, R, margin: float) -> GainResult
     maximise trace(S). Then K = Y S⁻¹ and P = S⁻¹. Solved in the coordinates of
     :mod:`amcp_drake.backends.gain_scaling` (x = T x̃, u = U ũ with TᵀP_refT = I; the same as the
     Drake backend), so the margin is relative to the cost-to-go; the objective is trace(S) of the
-    original coordinates, ⟨TᵀT, S̃⟩; (16) is re-checked on the answer and an inaccurate answer is
-    solved once more in its own coordinates (:func:`~amcp_drake.backends.gain_scaling.solve_scaled`). By Schur complements M_i ⪰ 0 is
+    original coordinates, ⟨TᵀT, S̃⟩; (16) is re-checked on the answer, and an inaccurate answer is
+    solved once more in its own coordinates, then as written
+    (:func:`~amcp_drake.backends.gain_scaling.solve_scaled`). By Schur complements M_i ⪰ 0 is
     S − (A_i S + B_i Y)ᵀ S⁻¹ (A_i S + B_i Y) − S Q S − Yᵀ R Y ⪰ 0, i.e. (multiplying by P on both
     sides) A_cl,iᵀ P A_cl,i − P + Q + Kᵀ R K ⪯ 0: eq. (16) at vertex i, hence on Θ by convexity.
 
