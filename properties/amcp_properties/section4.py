@@ -51,7 +51,8 @@ class Section4Sizes:
     max_N: int      # horizon bound of the generated problems (the min-max form is an SOCP)
 
 
-SIZES = {"ci": Section4Sizes(examples=24, steps=12, pe_steps=18, max_N=6),
+#: ci: 40 examples per option (24 until session 7; why: the docstring of test_section4_options.py)
+SIZES = {"ci": Section4Sizes(examples=40, steps=12, pe_steps=18, max_N=6),
          "thorough": Section4Sizes(examples=60, steps=24, pe_steps=36, max_N=8)}
 
 
