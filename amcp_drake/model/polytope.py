@@ -36,8 +36,8 @@ class LPResult:
     status: str  # "optimal" | "unbounded" | "infeasible" | "error"
 
 
-def _linprog_max(direction: np.ndarray, H: np.ndarray, h: np.ndarray) -> LPResult:
-    res = linprog(-direction, A_ub=H, b_ub=h, bounds=[(None, None)] * H.shape[1], method="highs")
+def _linprog_max(direction: np.ndarray, H: np.ndarray, h: np.ndarray, options: dict | None = None) -> LPResult:
+    res = linprog(-direction, A_ub=H, b_ub=h, bounds=[(None, None)] * H.shape[1], method="highs", options=options)
     if res.status == 0:
         return LPResult(float(-res.fun), np.asarray(res.x, dtype=float), "optimal")
     if res.status == 3:
@@ -47,9 +47,11 @@ def _linprog_max(direction: np.ndarray, H: np.ndarray, h: np.ndarray) -> LPResul
     return LPResult(float("nan"), None, "error")
 
 
-def support(H: np.ndarray, h: np.ndarray, direction: np.ndarray) -> LPResult:
-    """Support function max{direction·x | H x <= h} by LP (HiGHS)."""
-    return _linprog_max(np.asarray(direction, float), np.asarray(H, float), np.asarray(h, float))
+def support(H: np.ndarray, h: np.ndarray, direction: np.ndarray, *, certified: bool = False) -> LPResult:
+    """Support function max{direction·x | H x <= h} by LP (HiGHS); ``certified``: at
+    :data:`HIGHS_CERTIFIED_OPTIONS` (exact to ~1e-12 where the defaults can be 1e-7 off)."""
+    options = HIGHS_CERTIFIED_OPTIONS if certified else None
+    return _linprog_max(np.asarray(direction, float), np.asarray(H, float), np.asarray(h, float), options)
 
 
 def normalize_rows(H: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -43,6 +43,12 @@ DELTA_MARGIN = 1e-6
 #: the plain form stalled "AlmostSolved" at a relative gap of 1.15e-7 under every rung of the ladder
 #: while the vertex form solved the same QP; the run used to stop there.
 QP_NO_ANSWER = RETRIED
+#: The exact update (7) removes a row when the backend's support LP over the other rows exceeds the row's
+#: bound by at most this (unit rows, θ units), i.e. removing it enlarges Θ_k by at most this much. The
+#: removed rows are then re-checked (removed_row_excess) at answer_checks.SET_NESTED_TOL = 1e-8; the
+#: backends' support LPs were within 6e-10 (Drake) and 2.6e-9 (cvxpy) of rational arithmetic on the thin
+#: Θ_k of campaign seed 13 #6, so a row they remove passes that re-check.
+REDUNDANT_ROW_TOL = polytope.REDUNDANCY_TOL
 
 # ufunc reductions called directly: ``ndarray.all``/``sum`` and ``np.all`` reach these same reductions
 # through Python wrappers (~1-2 µs per call in the online loop, issue 16)
@@ -57,6 +63,19 @@ _ONE = scalar_operand(1.0)
 _DELTA_ROW_MIN_NORM = scalar_operand(DELTA_ROW_MIN_NORM)
 _DELTA_MARGIN = scalar_operand(DELTA_MARGIN)
 
+
+
+def removed_row_excess(H_kept: np.ndarray, h_kept: np.ndarray, row: np.ndarray, bound: float) -> float:
+    """How far the kept rows of (7) allow exceeding a removed row: (max{row·θ | H_kept θ <= h_kept} −
+    bound)/‖row‖, +inf when that LP has no optimum. HiGHS at polytope.HIGHS_CERTIFIED_OPTIONS: at its
+    default tolerances (1e-7) the support of the thin Θ_k of campaign seed 13 #6 (~1e-6 wide, rows cutting
+    it by 1e-10..1e-7) came out up to 9.7e-8 too large against rational arithmetic, and rows the backend
+    rightly removed were put back at 7 of 15 steps; at 1e-10 it was exact to 1e-16
+    (tests/test_exact_update.py)."""
+    res = polytope.support(H_kept, h_kept, row, certified=True)
+    if res.status != "optimal":
+        return float("inf")
+    return (res.value - float(bound)) / max(float(np.linalg.norm(row)), 1e-300)
 
 
 @dataclass
@@ -269,8 +288,7 @@ class AdaptiveMPC:
         t0 = time.process_time()
         not_implied = {}
         for i in np.flatnonzero(~keep):  # in order; a row put back counts for the rows checked after it
-            res = polytope.support(H[keep], h[keep], H[i])
-            excess = (res.value - h[i]) / max(float(np.linalg.norm(H[i])), 1e-300) if res.status == "optimal" else np.inf
+            excess = removed_row_excess(H[keep], h[keep], H[i], h[i])
             if excess > answer_checks.SET_NESTED_TOL:
                 not_implied[int(i)] = excess
                 keep[i] = True
@@ -317,7 +335,7 @@ class AdaptiveMPC:
         for i in range(len(h)):
             keep[i] = False
             value = self.backend.support(H[keep], h[keep], H[i:i + 1])[0]
-            if not (value <= h[i] + 1e-9):
+            if not (value <= h[i] + REDUNDANT_ROW_TOL):
                 keep[i] = True
         return keep
 

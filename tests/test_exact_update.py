@@ -1,0 +1,108 @@
+"""The exact update (7) on a thin Θ_k: redundant rows are removed, and only rows that are truly not
+implied are put back (session 7).
+
+Campaign seed 13 #6 (generator 2, vertex-type disturbances, p = 2): Θ_k is ~1e-6 wide around θ* and
+many of its rows cut it by 1e-10..1e-7 only. The re-check of the removed rows used HiGHS at its default
+tolerances (primal feasibility 1e-7), whose support values there were up to 9.7e-8 too large (measured
+against rational arithmetic), so rows the backend rightly removed were put back (7 of 15 steps).
+
+Expected values come from rational arithmetic written here (:func:`exact_support_2d`), never from the
+code under test.
+"""
+
+from __future__ import annotations
+
+import json
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from amcp_drake.model.status import SolveStatus
+
+DATA = Path(__file__).parent / "data"
+BACKENDS = ("drake", "cvxpy")
+#: The set tolerance of the update (answer_checks.SET_NESTED_TOL): a removed row may be exceeded by at
+#: most this much on the kept rows (unit rows, θ units).
+SET_TOL = 1e-8
+
+
+def exact_support_2d(H: np.ndarray, h: np.ndarray, d: np.ndarray) -> Fraction:
+    """max{d·θ | H θ <= h} in rational arithmetic for a bounded polygon (p = 2): the largest value at a
+    feasible intersection of two rows (every float is a rational, so this is exact)."""
+    Hq = [[Fraction(float(x)) for x in row] for row in H]
+    hq = [Fraction(float(x)) for x in h]
+    dq = [Fraction(float(x)) for x in d]
+    best = None
+    for a in range(len(hq)):
+        for b in range(a + 1, len(hq)):
+            det = Hq[a][0] * Hq[b][1] - Hq[a][1] * Hq[b][0]
+            if det == 0:
+                continue
+            x = (hq[a] * Hq[b][1] - Hq[a][1] * hq[b]) / det
+            y = (Hq[a][0] * hq[b] - hq[a] * Hq[b][0]) / det
+            value = dq[0] * x + dq[1] * y
+            if (best is None or value > best) and all(r[0] * x + r[1] * y <= c for r, c in zip(Hq, hq)):
+                best = value
+    assert best is not None, "no vertex: the test data are not a bounded polygon"
+    return best
+
+
+@pytest.fixture(scope="module")
+def thin_step():
+    """(spec, design, Θ_8 rows, Δ_9 rows) of campaign seed 13 #6 at step 9 (recorded from a Drake run)."""
+    from amcp_drake.model.problem_io import load_spec
+    from amcp_drake.offline.design import design
+
+    spec = load_spec(DATA / "campaign-13-6-problem.json")
+    step = json.loads((DATA / "campaign-13-6-exact-step9.json").read_text())
+    arrays = {k: np.asarray(v, float) for k, v in step.items() if k != "comment"}
+    return spec, design(spec.problem, spec.design, backend="drake"), arrays
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_exact_update_on_a_thin_set_puts_no_implied_row_back(thin_step, backend):
+    """Step 9 of campaign 13 #6: the backend's LPs remove the redundant rows and the re-check puts none
+    back (it put back a row 3.5e-10 above its bound by rational arithmetic, 4.0e-8 by HiGHS at its
+    defaults). Θ_9 is Θ_8 ∩ Δ_9 within SET_TOL (rational arithmetic) and holds θ*."""
+    from amcp_drake.online.controller import AdaptiveMPC, StepRecord
+
+    spec, offline, a = thin_step
+    ctrl = AdaptiveMPC(spec.problem, offline, backend=backend, options=spec.online)
+    ctrl.k, ctrl.H_theta, ctrl.h_theta = 9, a["H_prev"].copy(), a["h_prev"].copy()
+    record = StepRecord(k=9, x=np.zeros(spec.problem.n), u=None, status=SolveStatus.NOT_RUN,
+                        H_theta=ctrl.H_theta, h_theta=ctrl.h_theta, theta_hat=ctrl.theta_hat)
+    assert ctrl._update_exact(a["H_delta"], a["h_delta"], record)
+    assert "not implied" not in record.detail
+    assert record.set_status is SolveStatus.OPTIMAL
+    H_all = np.vstack([a["H_prev"], a["H_delta"]])
+    h_all = np.concatenate([a["h_prev"], a["h_delta"]])
+    H_k, h_k = ctrl.H_theta, ctrl.h_theta
+    assert len(h_k) < len(h_all)
+    assert all(any(np.array_equal(row, b) for b in H_all) for row in H_k)  # rows of (7) only
+    # Θ_k ⊆ Θ_(k−1) ∩ Δ_k: every row of the intersection holds on Θ_k (the kept rows are some of those
+    # rows, so Θ_k ⊇ Θ_(k−1) ∩ Δ_k too)
+    for row, bound in zip(H_all, h_all):
+        assert exact_support_2d(H_k, h_k, row) - Fraction(float(bound)) <= Fraction(SET_TOL)
+    theta_star = np.asarray(spec.scenario.theta_star, float)
+    assert np.all(H_k @ theta_star <= h_k)
+
+
+def test_highs_re_check_of_a_removed_row_is_exact_on_the_thin_set(thin_step):
+    """The re-check's support LP (HiGHS at polytope.HIGHS_CERTIFIED_OPTIONS) against rational arithmetic
+    on every row of Θ_8 ∩ Δ_9 with that row left out: exact to 1e-12 (at HiGHS' defaults: 9.7e-8 off)."""
+    from amcp_drake.online.controller import removed_row_excess
+
+    _, _, a = thin_step
+    H_all = np.vstack([a["H_prev"], a["H_delta"]])
+    h_all = np.concatenate([a["h_prev"], a["h_delta"]])
+    checked = 0
+    for i in range(len(h_all)):
+        others = np.arange(len(h_all)) != i
+        exact = exact_support_2d(H_all[others], h_all[others], H_all[i]) - Fraction(float(h_all[i]))
+        if exact < -1e-6:
+            continue  # far from the set: not where the tolerances matter
+        checked += 1
+        assert abs(removed_row_excess(H_all[others], h_all[others], H_all[i], h_all[i]) - float(exact)) <= 1e-12
+    assert checked >= 10
