@@ -35,6 +35,12 @@ SET_UPDATE_METHODS = ("auto", "lp")
 #: scaled form (backends.projection_form) the answer is as accurate as at 1e-11 (measured on collapsed
 #: Θ_k: same point to 1e-12), while 1e-11 ended "AlmostSolved" on sets of zero width.
 CLARABEL_PROJECTION_OPTIONS = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10}
+#: Clarabel tolerances of the support LPs (offline design and the redundancy removal of the exact update
+#: (7)), as Drake's CLARABEL_LP_OPTIONS (written here: the reference may not import the Drake backend). At
+#: the defaults (1e-8) the support of the thin Θ_k of campaign seed 13 #6 (~1e-6 wide) was up to 2.6e-9
+#: off rational arithmetic, more than the 1e-9 by which (7) decides that a row is redundant; at 1e-10,
+#: 6.2e-10 (as Drake's).
+CLARABEL_LP_OPTIONS = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10}
 #: Number of parametrised problems kept per kind (support LP, LP (9), projection QP); shapes
 #: change rarely (redundancy removal, moving window), so a small LRU cache suffices.
 CACHE_SIZE = 32
@@ -94,6 +100,10 @@ class CvxpyBackend:
         # the LP (9) has its own call object (same solver and options) so that profilers can tell
         # its solver time from the tube QP's (amcp_drake.studies.bench_cpu)
         self._call_lp = SolverCall(solver, solver_options)
+        # the support LPs at CLARABEL_LP_OPTIONS (the user's options on top), as Drake's
+        support_options = dict(CLARABEL_LP_OPTIONS) if solver.upper() == "CLARABEL" else {}
+        support_options.update(solver_options or {})
+        self._call_support = SolverCall(solver, support_options)
         # The projection QP of (12) at Clarabel's default tolerances was off by up to 4e-5 when θ̃ is
         # just outside the set (measured by the property suite's lockstep test, before the scaled
         # form); as for Drake's LPs, tighten it (a 2-3 variable QP, so the cost is nil).
@@ -122,7 +132,7 @@ class CvxpyBackend:
             return np.full(len(directions), np.nan)
         if not all_finite(H, h, directions) or H.shape != (len(h), directions.shape[1]):
             return np.full(len(directions), np.nan)
-        return self._support.get(H.shape).solve(self._call, H, h, directions)
+        return self._support.get(H.shape).solve(self._call_support, H, h, directions)
 
     # -- online ------------------------------------------------------------------------------
     def set_update(self, H_theta, h_prev, H_data, h_data):
