@@ -618,3 +618,48 @@ def test_a_kept_clarabel_solver_that_gave_no_answer_is_built_anew_for_the_next_s
     assert rebuilt is not first                                            # no answer: built anew
     assert call.solve(problem)[0] is SolveStatus.OPTIMAL
     assert problem._solver_cache["CLARABEL"] is rebuilt                    # and kept again
+
+
+def test_offset_split_is_the_least_squares_point_and_its_residual():
+    """h = H_θ κ + s with s orthogonal to the columns of H_θ; for the slab [−1, −1 + w] (H_θ = [1; −1])
+    κ is the mid-plane −1 + w/2 and s = (w/2, w/2) (by hand), per stage row."""
+    from amcp_reference.tube_mpc import offset_split
+
+    w = 1e-6
+    H = np.array([[1.0], [-1.0]])
+    h = np.array([[-1.0 + w, 1.0], [0.5, 0.5]])
+    kappa, s = offset_split(H, h)
+    np.testing.assert_allclose(kappa, [[-1.0 + w / 2], [0.0]], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(s, [[w / 2, w / 2], [0.5, 0.5]], rtol=0, atol=1e-15)
+    rng = np.random.default_rng(3)
+    H, h = rng.normal(size=(7, 3)), rng.normal(size=(4, 7))
+    kappa, s = offset_split(H, h)
+    np.testing.assert_allclose(kappa @ H.T + s, h, atol=1e-12)
+    np.testing.assert_allclose(s @ H, 0.0, atol=1e-12)
+
+
+def test_massera2017_plain_form_on_a_theta_k_1e_6_wide_is_solved_without_fallback():
+    """massera2017, θ* = −1, vertex disturbances, seed 0, step 29: Θ_29 = [−1, −1 + 1e-6]. With (15c)
+    written as Λ h_θk, its multiplier coefficients (−1 + 1e-6, 1) nearly equal −1 times those of
+    (15d), (1, −1), and Clarabel ended "AlmostSolved" under the whole retry ladder (gap 1.06e-8), so the
+    step was answered by the vertex-form fallback. Written as c κ + Λ s (tube_mpc.offset_split), the
+    plain form solves it; the cost is the Drake vertex form's (another program, another backend)."""
+    from amcp_drake.model.examples import get_example
+    from amcp_drake.offline.design import design
+    from amcp_drake.online.controller import AdaptiveMPC
+
+    spec = get_example("massera2017")
+    offline = design(spec.problem, spec.design, backend="cvxpy")
+    ctrl = AdaptiveMPC(spec.problem, offline, backend="cvxpy", formulation="plain")
+    x = np.array([-0.12650828268736575, -0.18886064526204505, 0.1110671923489094])
+    h_theta = np.array([-0.9999989999999997, 0.9999999999994115])
+    theta_hat = np.array([-0.23044651516937886])
+    sol = ctrl.mpc.solve(x, h_theta, theta_hat)
+    assert sol.status is SolveStatus.OPTIMAL, sol.detail
+    fresh = get_backend("drake", formulation="vertex").tube_mpc(ctrl.data).solve(x, h_theta, theta_hat)
+    assert fresh.status is SolveStatus.OPTIMAL
+    assert abs(sol.cost - fresh.cost) <= 1e-6 and np.max(np.abs(sol.v - fresh.v)) <= 1e-5
+    # and the controller's answer checks ((15c) with Λ h_θk itself, (15d), Λ >= 0, (5b)) pass on it
+    from amcp_drake.online import answer_checks
+
+    assert not answer_checks.failures(ctrl._tube_checks(sol, x, h_theta, None))

@@ -270,14 +270,17 @@ class AdaptiveMPC:
         return True
 
     def _update_exact(self, H_delta, h_delta, record: StepRecord) -> bool:
-        """(7) with redundant rows removed by backend LPs; every removed row is re-checked with HiGHS
-        (it must be implied by the kept rows, else Θ_k ⊄ Θ_{k−1}), and the rows that are not are kept.
+        """(7) with redundant rows removed by backend LPs (a row goes when the others allow exceeding it
+        by at most REDUNDANT_ROW_TOL); every removed row is re-checked with HiGHS at its certified
+        tolerances (:func:`removed_row_excess`: it must be implied by the kept rows to SET_NESTED_TOL,
+        else Θ_k ⊄ Θ_{k−1}), and the rows that are not are kept.
 
         The removed rows are checked in order and a row that is not implied is put back at once, so the
         rows checked after it are checked against it too. Sound: adding rows to the kept set can only
         shrink it, so a removed row implied by the smaller set stays implied. (Until session 6 one
-        failed row kept every row: on campaign seed 13 #6 (generator 2) a Drake LP 4e-8 off made that
-        fallback fire at most steps, and Θ_k grew by ~7 rows a step, 66 rows at step 15.)"""
+        failed row kept every row, and Θ_k grew by ~7 rows a step on campaign seed 13 #6, generator 2;
+        until session 7 the re-check ran HiGHS at its default tolerances, which was the LP 4e-8 off
+        there, not the backend's: rows were put back at 7 of 15 steps, now at none.)"""
         H = np.vstack([self.H_theta, H_delta])
         h = np.concatenate([self.h_theta, h_delta])
         _, radius = polytope.chebyshev_center(H, h)

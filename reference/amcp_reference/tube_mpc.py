@@ -77,6 +77,25 @@ def relaxed_groups(call, elastic: Callable[[], Any], groups: tuple[str, ...]) ->
     return tuple(g for g in groups if float(form.slacks[g].value) > ELASTIC_SLACK_TOL)
 
 
+def offset_split(H_theta: np.ndarray, h_stages: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(κ, s) with h_l = H_θ κ_l + s_l per stage row l of ``h_stages`` (N, q): κ_l the least-squares
+    point of H_θ κ ≈ h_l, s_l = h_l − H_θ κ_l its residual (orthogonal to the columns of H_θ).
+
+    Why (15c) is written with c κ_l + Λ s_l instead of Λ h_θk: on the feasible set of (15d),
+    Λ h_θk = Λ H_θ κ_l + Λ s_l = c κ_l + Λ s_l for any κ_l, so the program is the same. But on a thin
+    Θ_k, h_θk is nearly in the range of H_θ (all of s_l is of the order of Θ_k's width), so the
+    multiplier coefficients of a (15c) row, h_θk, nearly equal a combination of those of the (15d) rows,
+    H_θ: on massera2017 with θ* = −1 (Θ_k = [−1, −1 + 1e-6], H_θ = [1; −1]) the row (−1 + 1e-6, 1)
+    against (1, −1), and Clarabel stalled "AlmostSolved" (gap 1.06e-8) at steps the Drake plain form,
+    which eliminates (15d) (multiplier_basis: the same κ, s for a basis point), solved. With the
+    residual s_l the nearly dependent part is gone. For a slab of width w, κ is its mid-plane and
+    s = (w/2, w/2)."""
+    H = np.asarray(H_theta, float)
+    h = np.asarray(h_stages, float)
+    kappa = np.linalg.lstsq(H, h.T, rcond=None)[0].T    # (N, p)
+    return kappa, h - kappa @ H.T
+
+
 def _row(vec: np.ndarray) -> np.ndarray:
     return np.asarray(vec, float).reshape(1, -1)
 
@@ -108,6 +127,9 @@ def formulate(data: TubeMPCData, q: int, elastic: bool = False, u0_bounds: bool 
         "x_k": cp.Parameter(n, name="x_k"),
         "h_theta": cp.Parameter((N, q), name="h_theta"),
         "H_theta": cp.Parameter((q, p), name="H_theta"),
+        # h_θ split as H_θ κ_l + s_l (offset_split): (15c) is written with c κ_l + Λ s_l (see below)
+        "kappa": cp.Parameter((N, p), name="kappa"),
+        "s_theta": cp.Parameter((N, q), name="s_theta"),
     }
     z = cp.Variable((n, N + 1), name="z")          # column l: tube centre z_l|k
     alpha = cp.Variable(N + 1, nonneg=True, name="alpha")  # α_l|k >= 0
@@ -136,20 +158,26 @@ def formulate(data: TubeMPCData, q: int, elastic: bool = False, u0_bounds: bool 
         U_l = K @ X_l + cp.reshape(v[:, l], (m, 1), order="F") @ ones_v              # (m, nv)
         # d^j_l = A0 x^j_l + B0 u^j_l − z_{l+1}
         d_l = A0 @ X_l + B0 @ U_l - cp.reshape(z[:, l + 1], (n, 1), order="F") @ ones_v
-        # column j of this (u, nv) matrix is Λ^j_l h_θk
-        lam_h = cp.reshape(Lam[l] @ params["h_theta"][l], (u, nv), order="F")
+        # (15d): H_x D^j_l = Λ^j_l H_θk; column i' of D^j_l is A_i' x^j_l + B_i' u^j_l
+        lam_H = Lam[l] @ params["H_theta"]  # (nv·u, p)
+        c_l = [H_x @ (A[ip] @ X_l + B[ip] @ U_l) for ip in range(p)]     # c_l[i'] (u, nv): entry (i, j)
+        for ip in range(p):
+            rhs = cp.reshape(lam_H[:, ip], (u, nv), order="F")               # (u, nv): Λ^j_l[i] H_θ[:, i']
+            if elastic:
+                groups[GROUP_15D].append(cp.abs(c_l[ip] - rhs) <= s(GROUP_15D))
+            else:
+                groups[GROUP_15D].append(c_l[ip] == rhs)
+        # column j of this (u, nv) matrix is Λ^j_l h_θk. Without the elastic slacks it is written as
+        # c κ_l + Λ^j_l s_l (h_θk = H_θ κ_l + s_l, (15d): Λ H_θ = c), the same value on the feasible set;
+        # Λ h_θk itself made the (15c) and (15d) rows nearly dependent on a thin Θ_k (see offset_split)
+        if elastic:
+            lam_h = cp.reshape(Lam[l] @ params["h_theta"][l], (u, nv), order="F")
+        else:
+            lam_h = (cp.reshape(Lam[l] @ params["s_theta"][l], (u, nv), order="F")
+                     + sum(params["kappa"][l, ip] * c_l[ip] for ip in range(p)))
         # (15c): Λ^j_l h_θk + H_x d^j_l − α_{l+1} 1 <= −w̄, for all j (columns)
         groups[GROUP_15C].append(lam_h + H_x @ d_l - np.ones((u, 1)) @ cp.reshape(alpha[l + 1], (1, 1), order="F")
                                  <= -_col(w_bar) @ ones_v + s(GROUP_15C))
-        # (15d): H_x D^j_l = Λ^j_l H_θk; column i' of D^j_l is A_i' x^j_l + B_i' u^j_l
-        lam_H = Lam[l] @ params["H_theta"]  # (nv·u, p)
-        for ip in range(p):
-            lhs = H_x @ (A[ip] @ X_l + B[ip] @ U_l)                          # (u, nv): entry (i, j)
-            rhs = cp.reshape(lam_H[:, ip], (u, nv), order="F")               # (u, nv): Λ^j_l[i] H_θ[:, i']
-            if elastic:
-                groups[GROUP_15D].append(cp.abs(lhs - rhs) <= s(GROUP_15D))
-            else:
-                groups[GROUP_15D].append(lhs == rhs)
 
     # terminal set X_f: H_T z_N + h_T α_N <= 1 (α_N >= 0 is the variable's domain)
     groups[GROUP_TERMINAL].append(H_T @ z[:, N] + alpha[N] * h_T <= 1.0 + s(GROUP_TERMINAL))
@@ -217,8 +245,10 @@ class CvxpyTubeMPC:
         d = self.data
         form.params["x_k"].value = x
         h_theta = np.asarray(h_theta, float)
-        form.params["h_theta"].value = h_theta if h_theta.ndim == 2 else np.tile(h_theta, (int(d.N), 1))
+        h_stages = h_theta if h_theta.ndim == 2 else np.tile(h_theta, (int(d.N), 1))
+        form.params["h_theta"].value = h_stages
         form.params["H_theta"].value = self.H_theta
+        form.params["kappa"].value, form.params["s_theta"].value = offset_split(self.H_theta, h_stages)
         if "A_cl_hat" in form.params and isinstance(form.params["A_cl_hat"], cp.Parameter):
             A_hat = d.A0 + np.tensordot(theta_hat, d.A, axes=1)
             B_hat = d.B0 + np.tensordot(theta_hat, d.B, axes=1)
