@@ -453,6 +453,40 @@ def test_h_theta_of_same_rows_updates_and_more_rows_rebuilds(be):
     check_tube_solution(data, more, x, np.array([0.5, 0.2, 3.0]), H_theta=H3)
 
 
+
+def test_a_rebuilt_problem_holds_more_rows_and_pads_fewer(be):
+    """A new number of rows of H_θ (the exact update (7)) builds a problem holding the next multiple of
+    ROW_CAPACITY_STEP rows; fewer rows are padded with 0·θ <= 1 and answered by the same problem, with
+    the optimum of the unpadded program and Λ of the true q columns (checked by check_tube_solution);
+    more rows than it holds build a new one. (Each new q used to build a new problem: 0.35-0.57 s of
+    canonicalisation on campaign seed 13 #6, at most steps of (7).)"""
+    from amcp_reference.tube_mpc import ROW_CAPACITY_STEP
+
+    data = scalar_tube_data(u_max=0.5)
+    x, theta_hat = np.array([2.0]), np.array([0.0])
+    mpc = be.tube_mpc(data)
+    base = mpc.solve(x, np.array([0.5, 0.2]), theta_hat)   # Θ_k = [-0.2, 0.5], the design's two rows
+    wider = mpc.solve(x, np.array([1.0, 0.4]), theta_hat)
+    assert np.max(np.abs(wider.v - base.v)) > 1e-2  # so the comparisons below can fail
+    H3, h3 = np.array([[1.0], [-1.0], [1.0]]), np.array([0.5, 0.2, 3.0])
+    mpc.solve(x, h3, theta_hat, H_theta=H3)          # 3 rows: a new problem, holding ROW_CAPACITY_STEP
+    problem = mpc.problem
+    for q in (2, 3, 5, ROW_CAPACITY_STEP):
+        H = np.vstack([[[1.0], [-1.0]], np.ones((q - 2, 1))])
+        h = np.concatenate([[0.5, 0.2], 3.0 + np.arange(q - 2)])  # redundant rows θ <= 3, 4, ...
+        sol = mpc.solve(x, h, theta_hat, H_theta=H)
+        assert mpc.problem is problem, q
+        assert sol.status is SolveStatus.OPTIMAL and sol.Lambda.shape == (data.N, 2, 2, q)
+        np.testing.assert_allclose(sol.v, base.v, atol=1e-7)
+        check_tube_solution(data, sol, x, h, H_theta=H)
+    H = np.vstack([[[1.0], [-1.0]], np.ones((ROW_CAPACITY_STEP - 1, 1))])
+    h = np.concatenate([[0.5, 0.2], 3.0 + np.arange(ROW_CAPACITY_STEP - 1)])
+    sol = mpc.solve(x, h, theta_hat, H_theta=H)        # one row more than it holds: a new problem
+    assert mpc.problem is not problem and mpc.problem.is_dpp()
+    np.testing.assert_allclose(sol.v, base.v, atol=1e-7)
+    check_tube_solution(data, sol, x, h, H_theta=H)
+
+
 # -- Example 1 and the Drake cross-check -----------------------------------------------------
 
 def example_tube_data(problem, d):

@@ -46,6 +46,16 @@ GROUPS = (GROUP_15A, GROUP_15B, GROUP_15C, GROUP_15D, GROUP_TERMINAL)
 ELASTIC_SLACK_TOL = 1e-6
 #: Stand-in for an infinite side of ``u0_bounds`` (cvxpy parameters must be finite).
 U0_INF = 1e6
+#: A new number of rows of H_θk (the exact update (7) changes it at most steps) needs a new problem
+#: (formulate + canonicalisation: 0.35-0.57 s on campaign seed 13 #6 against ~25 ms per solve). The
+#: problem built for a new number q holds the next multiple of this many rows; fewer rows are padded
+#: (CvxpyTubeMPC._padded), and it is built again only for more rows than it holds or at least twice
+#: this many fewer. The first problem holds exactly the design's rows (the updates (9) and the window
+#: never change H_θ, so they are not affected).
+ROW_CAPACITY_STEP = 8
+#: Offset of a padded row 0·θ <= PAD_OFFSET: any positive value leaves the program the same; 1 is the
+#: scale of the unit rows.
+PAD_OFFSET = 1.0
 
 
 @dataclass
@@ -222,13 +232,16 @@ class CvxpyTubeMPC:
         self._elastic: _Formulation | None = None
         self._build(np.asarray(data.H_theta, float))
 
-    def _build(self, H_theta: np.ndarray) -> None:
-        """Formulate (20) for this number of rows of H_θ and canonicalise it now (DPP), so the
-        one-off cost of cvxpy's compilation is paid here and not inside the first solve."""
+    def _build(self, H_theta: np.ndarray, capacity: int | None = None) -> None:
+        """Formulate (20) for ``capacity`` rows of H_θ (default: its own number) and canonicalise it
+        now (DPP), so the one-off cost of cvxpy's compilation is paid here and not inside the first
+        solve. A H_θ with fewer rows than the capacity is padded (:meth:`_padded`)."""
         self.q = H_theta.shape[0]
+        self.capacity = self.q if capacity is None else max(int(capacity), self.q)
         self.H_theta = H_theta
-        self.form = formulate(self.data, self.q)
+        self.form = formulate(self.data, self.capacity)
         self._elastic = None
+        self._u0 = None
         n, p = self.data.B0.shape[0], self.data.A.shape[0]
         self._set_parameters(self.form, np.zeros(n), np.ones(self.q), np.zeros(p))
         try:
@@ -241,14 +254,25 @@ class CvxpyTubeMPC:
         """The cvxpy problem (20) currently in use (DPP)."""
         return self.form.problem
 
+    def _padded(self, h_stages: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(H_θ, h) with capacity − q rows 0·θ <= 1 appended (PAD_OFFSET). The program is the same in
+        (z, α, v): a padded multiplier enters (15d) with coefficient 0 and (15c) with +1 (its s is 1),
+        so Λ with the padded columns dropped satisfies (15c)-(15d) whenever the padded Λ does, and
+        Λ_pad = 0 extends any feasible point; :meth:`solve` returns Λ without them."""
+        pad = self.capacity - self.q
+        if pad == 0:
+            return self.H_theta, h_stages
+        H = np.vstack([self.H_theta, np.zeros((pad, self.H_theta.shape[1]))])
+        return H, np.hstack([h_stages, np.full((h_stages.shape[0], pad), PAD_OFFSET)])
+
     def _set_parameters(self, form: _Formulation, x, h_theta, theta_hat) -> None:
         d = self.data
         form.params["x_k"].value = x
         h_theta = np.asarray(h_theta, float)
-        h_stages = h_theta if h_theta.ndim == 2 else np.tile(h_theta, (int(d.N), 1))
+        H, h_stages = self._padded(h_theta if h_theta.ndim == 2 else np.tile(h_theta, (int(d.N), 1)))
         form.params["h_theta"].value = h_stages
-        form.params["H_theta"].value = self.H_theta
-        form.params["kappa"].value, form.params["s_theta"].value = offset_split(self.H_theta, h_stages)
+        form.params["H_theta"].value = H
+        form.params["kappa"].value, form.params["s_theta"].value = offset_split(H, h_stages)
         if "A_cl_hat" in form.params and isinstance(form.params["A_cl_hat"], cp.Parameter):
             A_hat = d.A0 + np.tensordot(theta_hat, d.A, axes=1)
             B_hat = d.B0 + np.tensordot(theta_hat, d.B, axes=1)
@@ -292,10 +316,11 @@ class CvxpyTubeMPC:
                 return MPCSolution(SolveStatus.ERROR, None, None, None, None, None,
                                    detail=f"{name} has shape {arrays[name].shape}, expected {shape}")
         if H_theta is not None:
-            if q != self.q:
-                self._build(arrays["H_theta"])  # new number of rows: new problem
+            if q > self.capacity or self.capacity - q >= 2 * ROW_CAPACITY_STEP:
+                # more rows than the problem holds, or far fewer: a new problem, with room to grow
+                self._build(arrays["H_theta"], ROW_CAPACITY_STEP * -(-q // ROW_CAPACITY_STEP))
             else:
-                self.H_theta = arrays["H_theta"]  # same shape: parameter update only
+                self.q, self.H_theta = q, arrays["H_theta"]  # parameter update only (padded rows)
         form = self.form
         if u0_bounds is not None:
             form = self._u0_form()
@@ -316,7 +341,8 @@ class CvxpyTubeMPC:
         v = np.asarray(f.v.value, float).T.copy()           # (N, m)
         z = np.asarray(f.z.value, float).T.copy()           # (N+1, n)
         alpha = np.asarray(f.alpha.value, float).copy()     # (N+1,)
-        Lam = np.stack([np.asarray(L.value, float).reshape(nv, u, self.q) for L in f.Lambda])  # (N, nv, u, q)
+        Lam = np.stack([np.asarray(L.value, float).reshape(nv, u, self.capacity)[..., :self.q]
+                        for L in f.Lambda])  # (N, nv, u, q): padded columns dropped (_padded)
         if getattr(self.data, "cost", "certainty_equivalence") == "minmax":  # (19) of the plan, not Σ s_l² (backends.minmax_cost)
             cost = minmax_plan_cost(self.data, z, alpha, v)
         else:
@@ -347,15 +373,15 @@ class CvxpyTubeMPC:
 
     def _u0_form(self) -> _Formulation:
         """The variant of (20) with the first-input bounds, built on first use for this q."""
-        if getattr(self, "_u0", None) is None or self._u0[0] != self.q:
-            self._u0 = (self.q, formulate(self.data, self.q, u0_bounds=True))
+        if getattr(self, "_u0", None) is None or self._u0[0] != self.capacity:
+            self._u0 = (self.capacity, formulate(self.data, self.capacity, u0_bounds=True))
         return self._u0[1]
 
     def _diagnose(self, x, h_theta, theta_hat) -> tuple[str, ...]:
         """Groups relaxed by the elastic problem (minimum total slack); empty if it fails."""
         def elastic() -> _Formulation:
             if self._elastic is None:
-                self._elastic = formulate(self.data, self.q, elastic=True)
+                self._elastic = formulate(self.data, self.capacity, elastic=True)
             self._set_parameters(self._elastic, x, h_theta, theta_hat)
             return self._elastic
 
