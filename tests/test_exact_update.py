@@ -129,3 +129,51 @@ def test_backend_support_lps_are_more_accurate_than_the_redundancy_threshold(thi
             continue
         worst = max(worst, abs(solver.support(H_all[others], h_all[others], H_all[i:i + 1])[0] - float(exact)))
     assert worst <= REDUNDANT_ROW_TOL
+
+
+@pytest.mark.parametrize("capacity_step", [1, 8])
+def test_drake_plain_form_writes_a_new_theta_k_of_fitting_size_into_its_program(thin_step, monkeypatch,
+                                                                               capacity_step):
+    """The exact update changes H_θk at most steps. The Drake plain form writes a H_θk that fits the
+    program it has (as many rows, or fewer within ROW_CAPACITY_STEP: padded with 0·θ <= 1) into that
+    program instead of building a new one, and answers as a program built for that H_θk: same v and
+    cost (1e-6), Λ with the true number of columns, every answer check passed. (It used to build a new
+    program for every new H_θk.) ``capacity_step`` 8 exercises padding by several rows."""
+    import amcp_drake.backends.drake_tube as drake_tube
+    from amcp_drake.backends.drake_tube import DrakeTubeMPC
+    from amcp_drake.online import answer_checks
+    from amcp_drake.online.controller import AdaptiveMPC, StepRecord
+
+    monkeypatch.setattr(drake_tube, "ROW_CAPACITY_STEP", capacity_step)
+    spec, offline, a = thin_step
+    ctrl = AdaptiveMPC(spec.problem, offline, backend="drake", options=spec.online)
+    ctrl.k, ctrl.H_theta, ctrl.h_theta = 9, a["H_prev"].copy(), a["h_prev"].copy()
+    record = StepRecord(k=9, x=np.zeros(spec.problem.n), u=None, status=SolveStatus.NOT_RUN,
+                        H_theta=ctrl.H_theta, h_theta=ctrl.h_theta, theta_hat=ctrl.theta_hat)
+    ctrl._update_exact(a["H_delta"], a["h_delta"], record)
+    H9, h9 = ctrl.H_theta, ctrl.h_theta
+    x = np.asarray(spec.scenario.x0, float)
+    theta_hat = np.asarray(spec.problem.theta_hat0, float)
+    mpc = ctrl.mpc
+    # Θ_9 with one redundant row more (the box row θ_1 <= 1e3): a program built for q + 1 rows
+    H_more, h_more = np.vstack([H9, [[1.0, 0.0]]]), np.concatenate([h9, [1e3]])
+    assert mpc.solve(x, h_more, theta_hat, H_theta=H_more).status is SolveStatus.OPTIMAL
+    program = mpc.prog
+    # then Θ_9 itself (one row fewer), and Θ_9 with its first row scaled by 2 (another H_θ, same set)
+    H_scaled, h_scaled = H9.copy(), h9.copy()
+    H_scaled[0] *= 2.0
+    h_scaled[0] *= 2.0
+    for H, h in ((H9, h9), (H_scaled, h_scaled)):
+        sol = mpc.solve(x, h, theta_hat, H_theta=H)
+        assert mpc.prog is program
+        assert sol.status is SolveStatus.OPTIMAL and sol.Lambda.shape[-1] == len(h)
+        fresh = DrakeTubeMPC(replace_theta(ctrl.data, H), mpc._solver).solve(x, h, theta_hat, H_theta=H)
+        assert abs(sol.cost - fresh.cost) <= 1e-6 and np.max(np.abs(sol.v - fresh.v)) <= 1e-6
+        assert not answer_checks.failures(ctrl._tube_checks(sol, x, h, H))
+
+
+def replace_theta(data, H):
+    """``data`` with H_θ = H and no Θ0 (a program for this H_θ alone)."""
+    import dataclasses
+
+    return dataclasses.replace(data, H_theta=H, h_theta0=None)

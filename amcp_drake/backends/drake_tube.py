@@ -46,6 +46,22 @@ from amcp_drake.backends.multiplier_basis import (
 from amcp_drake.backends.vertex_form import VertexEnumerationError, theta_vertices
 from amcp_drake.model.status import SolveStatus
 
+#: A new H_θk (the exact update (7) changes it at most steps) meant a new program (~20-30 ms on campaign
+#: seed 13 #6, about half a solve). A program built for a new H_θ holds the next multiple of this many
+#: rows; a H_θ with fewer rows is padded with rows 0·θ <= PAD_OFFSET and written into the same program
+#: (its multiplier basis and the rows Λ_B >= 0, :meth:`DrakeTubeMPC._set_theta_shape`); it is built
+#: again only for more rows than it holds or at least twice this many fewer. The first program holds
+#: exactly the design's rows (the updates (9) and the window never change H_θ: not affected). 1: a H_θ
+#: with the same number of rows, or one fewer, is written in place. Padding more costs the solver about
+#: what it saves: CPU per step on campaign 13 #6 / #139 (median of 5, interleaved, loaded machine) with
+#: 1: 59.3 / 31.8 ms, 2: 53.3 / 33.6, 4: 50.5 / 35.1, 8: 54.9 / 41.5. (The cvxpy backend, whose
+#: rebuild is a canonicalisation of 0.35-0.6 s, pads to multiples of 8: amcp_reference.tube_mpc.)
+ROW_CAPACITY_STEP = 1
+#: Offset of a padded row: a padded multiplier λ >= 0 enters (15d) with coefficient 0 and (15c) with
+#: PAD_OFFSET > 0, so Λ without the padded columns satisfies (15c)-(15d) whenever the padded Λ does (the
+#: program is the same in (z, α, v)); 1 is the scale of the unit rows.
+PAD_OFFSET = 1.0
+
 
 def _sqrtm(M: np.ndarray) -> np.ndarray:
     vals, vecs = np.linalg.eigh(0.5 * (M + M.T))
@@ -86,7 +102,9 @@ class DrakeTubeMPC:
         self._build(np.asarray(data.H_theta, float))
 
     # -- construction ------------------------------------------------------------------------
-    def _build(self, H_theta: np.ndarray) -> None:
+    def _build(self, H_theta: np.ndarray, capacity: int | None = None) -> None:
+        """The program for H_θ; ``capacity``: the number of rows it holds (H_θ padded, see
+        ROW_CAPACITY_STEP; then every row of (15c) is kept), default exactly H_θ's."""
         d = self.data
         n, m = d.B0.shape
         N = d.N
@@ -95,11 +113,13 @@ class DrakeTubeMPC:
         nv, u = Xv.shape[0], H_x.shape[0]
         q, p = H_theta.shape
         self.H_theta = H_theta
+        self._capacity = None if capacity is None else max(int(capacity), q)
+        q = q if capacity is None else self._capacity
         K = d.K
         FGK = d.F + d.G @ K
         Acl0 = d.A0 + d.B0 @ K
         Acl_i = d.A + d.B @ K  # (p, n, n)
-        self.basis = MultiplierBasis.of(H_theta)
+        self.basis = MultiplierBasis.of(self._padded(H_theta, q))
         keep, self._theta0_h = self._kept_vertices(Acl0, Acl_i)
         lay = self.layout = _Layout(n, m, N, nv, u, q - p, N * int(keep.sum()))
 
@@ -229,20 +249,58 @@ class DrakeTubeMPC:
         self._c15c = prog.AddLinearConstraint(self._matrix_15c(np.zeros(basis.q)), self._lb15c, self._ub15c, y
                                               ).evaluator()
         self._c15c.set_description("(15c) tube propagation with multipliers")
-        # Λ_B >= 0 as −c_ρ M + Λ_N H_N M <= 0, rows (ρ, b): fixed coefficients
+        # Λ_B >= 0 as −c_ρ M + Λ_N H_N M <= 0, rows (ρ, b): coefficients fixed for a basis (written
+        # again in place by _set_theta_shape); CSC order of the values via _perm_b, as for (15c)
         p = len(basis.basic)
-        GM = -(self._G_vals[:, :self._E_c] @ basis.M)          # (rows, E_c, p)
+        E_c = self._E_c
         rb = np.arange(rows * p).reshape(rows, p)
-        r_b = np.concatenate([np.broadcast_to(rb[:, None, :], GM.shape).ravel(),
+        r_b = np.concatenate([np.broadcast_to(rb[:, None, :], (rows, E_c, p)).ravel(),
                               np.broadcast_to(rb[:, None, :], (rows, qn, p)).ravel()])
-        c_b = np.concatenate([np.broadcast_to(self._cols[:, :self._E_c, None], GM.shape).ravel(),
+        c_b = np.concatenate([np.broadcast_to(self._cols[:, :E_c, None], (rows, E_c, p)).ravel(),
                               np.broadcast_to(lam_cols[:, :, None], (rows, qn, p)).ravel()])
-        v_b = np.concatenate([GM.ravel(), np.broadcast_to(basis.HNM[None], (rows, qn, p)).ravel()])
-        AB = sp.csc_matrix((v_b, (r_b, c_b)), shape=(rows * p, lay.size))
+        AB = sp.csc_matrix((np.arange(1.0, len(r_b) + 1.0), (r_b, c_b)), shape=(rows * p, lay.size))
+        AB.sort_indices()
+        self._perm_b = AB.data.astype(np.int64) - 1
+        self._AB = AB
+        self._bounds_b = (np.full(rows * p, -np.inf), np.zeros(rows * p))
         # the same description as Λ_N >= 0: together they are Λ >= 0 of (15c)-(15d) ((15d) holds by
         # construction), and the property suite's mutant "tube_lambda_nonneg_dropped" drops both
-        prog.AddLinearConstraint(AB, np.full(rows * p, -np.inf), np.zeros(rows * p), y
-                                 ).evaluator().set_description("Lambda >= 0")
+        self._c_basis = prog.AddLinearConstraint(self._matrix_basis_rows(), *self._bounds_b, y).evaluator()
+        self._c_basis.set_description("Lambda >= 0")
+
+    def _matrix_basis_rows(self) -> sp.csc_matrix:
+        """The matrix of the rows Λ_B = c M − Λ_N H_N M >= 0 for the current basis (−G M on [z | α | v],
+        H_N M on Λ_N), written into the preallocated matrix; returns that matrix."""
+        rows, qn, basis = self._rows15c, self.layout.q, self.basis
+        GM = -(self._G_vals[:, :self._E_c] @ basis.M)          # (rows, E_c, p)
+        HNM = np.broadcast_to(basis.HNM[None], (rows, qn, basis.HNM.shape[1]))
+        self._AB.data[:] = np.concatenate([GM.ravel(), HNM.ravel()])[self._perm_b]
+        return self._AB
+
+    @staticmethod
+    def _padded(H_theta: np.ndarray, rows: int) -> np.ndarray:
+        """H_θ with rows of zeros appended up to ``rows`` (ROW_CAPACITY_STEP)."""
+        pad = rows - H_theta.shape[0]
+        return H_theta if pad == 0 else np.vstack([H_theta, np.zeros((pad, H_theta.shape[1]))])
+
+    def _padded_offsets(self, h_theta: np.ndarray) -> np.ndarray:
+        """h_θ (q,) or (N, q) with PAD_OFFSET appended for the padded rows."""
+        pad = self.basis.q - self.H_theta.shape[0]
+        if pad == 0:
+            return h_theta
+        return np.concatenate([h_theta, np.full(np.shape(h_theta)[:-1] + (pad,), PAD_OFFSET)], axis=-1)
+
+    def _set_theta_shape(self, H_theta: np.ndarray) -> None:
+        """Solve with another H_θ from now on: written into the program when it holds a capacity of
+        rows (ROW_CAPACITY_STEP) and H_θ fits, else a program built for it (with room to grow)."""
+        q = H_theta.shape[0]
+        cap = self._capacity
+        if cap is not None and H_theta.shape[1] == self.H_theta.shape[1] and cap - 2 * ROW_CAPACITY_STEP < q <= cap:
+            basis = MultiplierBasis.of(self._padded(H_theta, cap))
+            self.H_theta, self.basis = H_theta, basis
+            self._c_basis.UpdateCoefficients(self._matrix_basis_rows(), *self._bounds_b)
+            return
+        self._build(H_theta, ROW_CAPACITY_STEP * -(-q // ROW_CAPACITY_STEP))
 
     def _kept_vertices(self, Acl0: np.ndarray, Acl_i: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """(mask (u, v) of the rows (l, j, i) kept, h_θ0 the pruning was made for) (:mod:`.dominated_rows`):
@@ -251,7 +309,8 @@ class DrakeTubeMPC:
         d = self.data
         all_rows = np.ones((len(d.H_x), len(d.X0_vertices)), dtype=bool)
         h0 = getattr(d, "h_theta0", None)
-        if not self._prune or h0 is None or not np.array_equal(self.H_theta, np.asarray(d.H_theta, float)):
+        if (not self._prune or h0 is None or self._capacity is not None
+                or not np.array_equal(self.H_theta, np.asarray(d.H_theta, float))):
             return all_rows, None
         try:
             theta0_vertices = theta_vertices(self.H_theta, np.asarray(h0, float))
@@ -286,7 +345,7 @@ class DrakeTubeMPC:
         h_{θ l|k} (N, q) of the predicted sets (26) (row ρ of stage l uses row l): coefficients
         C + G κ on [z | α | v] and s on Λ_N, (κ, s) = ``basis.offsets(h)``. Written into the
         preallocated matrix; returns that matrix."""
-        kappa, slack = self.basis.offsets(h_theta)
+        kappa, slack = self.basis.offsets(self._padded_offsets(h_theta))
         if np.ndim(h_theta) == 2:
             kappa, slack = kappa[self._stage_of_row], slack[self._stage_of_row]
             base = self._C_vals + np.einsum("rep,rp->re", self._G_vals, kappa)
@@ -309,6 +368,7 @@ class DrakeTubeMPC:
         lam_n = yv[lay.L0:lay.size].reshape(self._rows15c, lay.q)
         lam = np.empty((lay.N * lay.nv * lay.u, q))
         lam[self._kept_rows] = self.basis.full(c, lam_n)
+        lam = lam[:, :self.H_theta.shape[0]]  # without the padded columns (PAD_OFFSET)
         if len(self._left_out):
             c_out = np.einsum("re,rep->rp", yv[self._cols_left_out], self._G_left_out)
             stages = [slice(None)] if np.ndim(h_theta) == 1 else range(lay.N)
@@ -319,7 +379,7 @@ class DrakeTubeMPC:
                 if found is None:
                     return None
                 lam[self._left_out[rows]] = found
-        return lam.reshape(lay.N, lay.nv, lay.u, q)
+        return lam.reshape(lay.N, lay.nv, lay.u, self.H_theta.shape[0])
 
     def _bases_of(self, h: np.ndarray) -> FeasibleBases | None:
         """:func:`.multiplier_basis.feasible_bases` of (H_θ, h), reused while h is the same to the bit
@@ -392,7 +452,7 @@ class DrakeTubeMPC:
             return MPCSolution(SolveStatus.ERROR, None, None, None, None, None,
                                detail=f"h_theta has shape {h_theta.shape}, expected (q,) or (N, q)")
         if H_theta is not None and (np.shape(H_theta) != self.H_theta.shape or not np.array_equal(H_theta, self.H_theta)):
-            self._build(np.asarray(H_theta, float))
+            self._set_theta_shape(np.asarray(H_theta, float))
         if len(self._left_out) and not self._inside_theta0(h_theta):
             return self._with_every_row(x, h_theta, theta_hat, H_theta, u0_bounds, refine,
                                         "Theta_k not inside Theta_0, the rows left out of (15c) may be needed")
