@@ -177,3 +177,49 @@ def replace_theta(data, H):
     import dataclasses
 
     return dataclasses.replace(data, H_theta=H, h_theta0=None)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_a_data_set_that_cuts_nothing_costs_one_support_lp_per_data_row(thin_step, backend):
+    """After a step of (7) every row of Θ_(k−1) is irredundant; a row of Δ_k whose maximum over Θ_(k−1)
+    is below its bound is implied by Θ_(k−1), so it is dropped after that one LP, and when no row cuts,
+    Θ_k = Θ_(k−1) with no further LP (it used to cost one LP per row of Θ_(k−1) ∩ Δ_k: Example 1 with
+    (7), 50 steps, 679 → 247 support LPs). With a row that cuts, the rows of Θ_(k−1) ∩ Δ_k are decided
+    as before, and Θ_k ⊆ Θ_(k−1) ∩ Δ_k holds by rational arithmetic."""
+    from amcp_drake.online.controller import AdaptiveMPC, StepRecord
+
+    spec, offline, a = thin_step
+    ctrl = AdaptiveMPC(spec.problem, offline, backend=backend, options=spec.online)
+    ctrl.k, ctrl.H_theta, ctrl.h_theta = 9, a["H_prev"].copy(), a["h_prev"].copy()
+
+    def record():
+        return StepRecord(k=ctrl.k, x=np.zeros(spec.problem.n), u=None, status=SolveStatus.NOT_RUN,
+                          H_theta=ctrl.H_theta, h_theta=ctrl.h_theta, theta_hat=ctrl.theta_hat)
+
+    assert ctrl._update_exact(a["H_delta"], a["h_delta"], record())
+    H9, h9 = ctrl.H_theta.copy(), ctrl.h_theta.copy()
+    directions = []
+    real_support = ctrl.backend.support
+
+    def counting_support(H, h, d):
+        directions.append(len(np.atleast_2d(d)))
+        return real_support(H, h, d)
+
+    ctrl.backend.support = counting_support
+    loose = a["h_delta"] + 1e-3                      # every data row 1e-3 outside Θ_9: cuts nothing
+    r = record()
+    assert ctrl._update_exact(a["H_delta"], loose, r)
+    assert sum(directions) == len(loose)
+    assert np.array_equal(ctrl.H_theta, H9) and np.array_equal(ctrl.h_theta, h9) and not r.detail
+    # one row cutting Θ_9 (data row 1 moved to 1e-6 inside Θ_9's extent along it): decided row by row
+    from amcp_drake.model import polytope
+
+    directions.clear()
+    cut = loose.copy()
+    cut[1] = polytope.support(H9, h9, a["H_delta"][1], certified=True).value - 1e-6
+    assert ctrl._update_exact(a["H_delta"], cut, record())
+    assert sum(directions) > len(loose)
+    H_all, h_all = np.vstack([H9, a["H_delta"]]), np.concatenate([h9, cut])
+    for row, bound in zip(H_all, h_all):
+        assert exact_support_2d(ctrl.H_theta, ctrl.h_theta, row) - Fraction(float(bound)) <= Fraction(SET_TOL)
+    assert any(np.array_equal(row, a["H_delta"][1]) for row in ctrl.H_theta)

@@ -180,6 +180,9 @@ class AdaptiveMPC:
         #: while Θ_k is unchanged to the bit, which is most steps once Θ_k has settled)
         self._checked_vertices: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
         self._regression_cache: tuple | None = None
+        #: True once Θ_k is the result of (7) (every row irredundant, or put back as not implied): then a
+        #: row of Δ_k that does not cut Θ_{k−1} is dropped without a redundancy LP of its own
+        self._exact_rows_irredundant = False
 
     # -- (ii) set-membership update ------------------------------------------------------------
     def _delta(self, x_prev, u_prev, x) -> tuple[np.ndarray, np.ndarray]:
@@ -286,7 +289,18 @@ class AdaptiveMPC:
         _, radius = polytope.chebyshev_center(H, h)
         if radius == float("-inf"):
             raise InconsistentDataError(self.k, "exact intersection (7) is infeasible")
-        keep = self._irredundant_rows(H, h)
+        q = len(self.h_theta)
+        dropped = np.zeros(len(h), dtype=bool)
+        if self._exact_rows_irredundant:
+            # a row of Δ_k with sup over Θ_{k−1} <= its bound is implied by Θ_{k−1} ⊇ Θ_{k−1} ∩ Δ_k, so by
+            # whatever rows describe the intersection: dropped at once (re-checked below like any
+            # removed row). When none cuts, Θ_k = Θ_{k−1}, whose rows are irredundant: no other LP.
+            dropped[q:] = self.backend.support(self.H_theta, self.h_theta, H_delta) <= h_delta + REDUNDANT_ROW_TOL
+        if dropped[q:].all():
+            keep = ~dropped
+        else:
+            keep = self._irredundant_rows(H, h, dropped)
+        self._exact_rows_irredundant = True
         record.set_status = SolveStatus.OPTIMAL
         t0 = time.process_time()
         not_implied = {}
@@ -332,10 +346,11 @@ class AdaptiveMPC:
         """(N, q) offsets of the predicted sets (26): row l is h_{θ l|k} = min(h_θk + l d_θ n, h_θ0)."""
         return np.stack([self._dilate(h, l) for l in range(self.problem.N)])
 
-    def _irredundant_rows(self, H: np.ndarray, h: np.ndarray) -> np.ndarray:
-        """Rows of {H θ <= h} not implied by the others (support LPs of the backend)."""
-        keep = np.ones(len(h), dtype=bool)
-        for i in range(len(h)):
+    def _irredundant_rows(self, H: np.ndarray, h: np.ndarray, dropped: np.ndarray | None = None) -> np.ndarray:
+        """Rows of {H θ <= h} not implied by the others (support LPs of the backend), in order; rows
+        ``dropped`` (known to be implied) are left out from the start."""
+        keep = np.ones(len(h), dtype=bool) if dropped is None else ~dropped
+        for i in np.flatnonzero(keep):
             keep[i] = False
             value = self.backend.support(H[keep], h[keep], H[i:i + 1])[0]
             if not (value <= h[i] + REDUNDANT_ROW_TOL):
