@@ -672,28 +672,45 @@ def test_offset_split_is_the_least_squares_point_and_its_residual():
     np.testing.assert_allclose(s @ H, 0.0, atol=1e-12)
 
 
-def test_massera2017_plain_form_on_a_theta_k_1e_6_wide_is_solved_without_fallback():
-    """massera2017, θ* = −1, vertex disturbances, seed 0, step 29: Θ_29 = [−1, −1 + 1e-6]. With (15c)
-    written as Λ h_θk, its multiplier coefficients (−1 + 1e-6, 1) nearly equal −1 times those of
-    (15d), (1, −1), and Clarabel ended "AlmostSolved" under the whole retry ladder (gap 1.06e-8), so the
-    step was answered by the vertex-form fallback. Written as c κ + Λ s (tube_mpc.offset_split), the
-    plain form solves it; the cost is the Drake vertex form's (another program, another backend)."""
+@pytest.fixture(scope="module")
+def massera2017_cvxpy():
+    """massera2017 (the built-in example) and its design on the cvxpy backend."""
     from amcp_drake.model.examples import get_example
     from amcp_drake.offline.design import design
-    from amcp_drake.online.controller import AdaptiveMPC
 
     spec = get_example("massera2017")
-    offline = design(spec.problem, spec.design, backend="cvxpy")
+    return spec, design(spec.problem, spec.design, backend="cvxpy")
+
+
+#: (x_k, θ̂_k) at steps of massera2017 with θ* = −1 and vertex disturbances (seed 0 steps 24 and 29,
+#: seed 2 steps 28 and 36) where Θ_k = [−1, −1 + 1e-6]; recorded with the design of session 7.
+MASSERA_THIN_STEPS = [
+    ([0.18585618017650496, 0.2936495867467874, -0.03536531471134703], [-0.19919544911107998]),
+    ([-0.12651280990886932, -0.18886391313985462, 0.1110682270409442], [-0.23045744732494922]),
+    ([0.11186461464968366, 0.2591430236598355, -0.11847232688511873], [-0.2690583459858816]),
+    ([0.19694985530700815, 0.38784374406530514, 0.020248258963603438], [-0.3212010174320591]),
+]
+
+
+@pytest.mark.parametrize("x, theta_hat", MASSERA_THIN_STEPS)
+def test_massera2017_plain_form_on_a_theta_k_1e_6_wide_is_solved_without_fallback(massera2017_cvxpy, x, theta_hat):
+    """massera2017, θ* = −1, vertex disturbances: Θ_k = [−1, −1 + 1e-6]. With (15c) written as Λ h_θk,
+    its multiplier coefficients (−1 + 1e-6, 1) nearly equal −1 times those of (15d), (1, −1), and
+    Clarabel ended "AlmostSolved" under the whole retry ladder at each of these steps (gap 1.06e-8 at
+    the first one measured), so the step was answered by the vertex-form fallback. Written as
+    c κ + Λ s (tube_mpc.offset_split), the plain form solves them; the cost is the Drake vertex
+    form's (another program, another backend)."""
+    from amcp_drake.online import answer_checks
+    from amcp_drake.online.controller import AdaptiveMPC
+
+    spec, offline = massera2017_cvxpy
     ctrl = AdaptiveMPC(spec.problem, offline, backend="cvxpy", formulation="plain")
-    x = np.array([-0.12650828268736575, -0.18886064526204505, 0.1110671923489094])
-    h_theta = np.array([-0.9999989999999997, 0.9999999999994115])
-    theta_hat = np.array([-0.23044651516937886])
+    x, theta_hat = np.array(x), np.array(theta_hat)
+    h_theta = np.array([-0.9999990000000002, 0.9999999999994115])
     sol = ctrl.mpc.solve(x, h_theta, theta_hat)
     assert sol.status is SolveStatus.OPTIMAL, sol.detail
     fresh = get_backend("drake", formulation="vertex").tube_mpc(ctrl.data).solve(x, h_theta, theta_hat)
     assert fresh.status is SolveStatus.OPTIMAL
     assert abs(sol.cost - fresh.cost) <= 1e-6 and np.max(np.abs(sol.v - fresh.v)) <= 1e-5
     # and the controller's answer checks ((15c) with Λ h_θk itself, (15d), Λ >= 0, (5b)) pass on it
-    from amcp_drake.online import answer_checks
-
     assert not answer_checks.failures(ctrl._tube_checks(sol, x, h_theta, None))
