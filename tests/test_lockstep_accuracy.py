@@ -45,6 +45,33 @@ def test_a_flat_optimum_agrees_in_lockstep_at_accurate_tolerances():
         assert len(traj.records) == spec.scenario.steps + 1 and np.isfinite(result.margin)
 
 
+
+def test_the_exact_update_is_compared_as_sets_when_the_backends_keep_different_rows():
+    """Found by the thorough profile (session 7; n = 1, p = 2, update (7), cvxpy leading, 40 steps):
+    the two backends' redundancy LPs kept different rows of the same Θ_k, and the comparison of the h_θ
+    arrays of different lengths crashed (ZeroDivisionError on a tolerance of 0). Θ_k is now compared by
+    the support functions of both sets in both row sets' directions: they agree to 1e-9, at steps
+    where the row counts differ."""
+    from amcp_properties.lockstep import accurate_controller
+
+    spec, runs = lockstep_both_ways("lockstep-exact-rows-problem.json")
+    assert spec.online.update == "exact"
+    for traj, result in runs.values():
+        assert result.passed and result.margin > 0.9, result.detail
+    traj, _ = runs["cvxpy"]
+    case = SimpleNamespace(problem=spec.problem, design=traj.design, options=spec.online)
+    follower = accurate_controller(case, "drake")  # Drake fed cvxpy's Θ_{k-1}, θ̂_{k-1} and data, as in follow()
+    ctrl_rows = []
+    for k in range(1, len(traj.records)):
+        prev, lead = traj.records[k - 1], traj.records[k]
+        follower.reset()
+        follower.k, follower.H_theta, follower.h_theta = k, np.array(prev.H_theta), np.array(prev.h_theta)
+        follower.theta_hat, follower._prev = np.array(prev.theta_hat), (np.array(traj.x[k - 1]), np.array(traj.u[k - 1]))
+        _, rec = follower.step(np.array(traj.x[k]))
+        ctrl_rows.append(len(rec.h_theta) != len(lead.h_theta))
+    assert any(ctrl_rows)  # the set comparison was needed, not only the row comparison
+
+
 def test_a_loose_window_lp_answer_is_caught_and_replaced():
     """Saved by the thorough profile (n = 1, p = 3, moving window of 5, data offsets up to 2e3): at
     step 11 Drake's LP (9) (Clarabel at 1e-10, "solved") gave one h_i 0.21 above the support: a valid
@@ -56,3 +83,17 @@ def test_a_loose_window_lp_answer_is_caught_and_replaced():
     for traj, result in runs.values():
         assert result.passed, result.detail
     assert any("set update maximisers feasible and tight" in r.detail for r in runs["drake"][0].records)
+
+
+def test_the_set_comparison_sees_a_set_that_differs_and_accepts_another_description_of_the_same():
+    """Θ = the unit box in R^2. The same box with a redundant row added agrees (difference 0); the box
+    with one facet moved in by 1e-4 (and the redundant row) does not (difference 1e-4 > 1.5e-6)."""
+    from amcp_properties.lockstep import _theta_k_diff
+
+    box_H, box_h = np.vstack([np.eye(2), -np.eye(2)]), np.ones(4)
+    lead = SimpleNamespace(H_theta=box_H, h_theta=box_h)
+    same = SimpleNamespace(H_theta=np.vstack([box_H, [[1.0, 1.0]]]), h_theta=np.append(box_h, 3.0))
+    smaller = SimpleNamespace(H_theta=same.H_theta, h_theta=np.array([1.0 - 1e-4, 1, 1, 1, 3.0]))
+    assert _theta_k_diff(0, lead, same).agree and _theta_k_diff(0, lead, same).difference < 1e-12
+    differs = _theta_k_diff(0, lead, smaller)
+    assert not differs.agree and differs.difference == pytest.approx(1e-4, rel=1e-6)

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from amcp_drake.comparison.compare import ACCURATE_CLARABEL
+from amcp_drake.model import polytope
 from amcp_drake.model.check_result import CheckResult, judge
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.online.controller import AdaptiveMPC
@@ -61,6 +62,22 @@ def _diff(step: int, quantity: str, a, b) -> Difference:
     return Difference(step, quantity, float(np.max(np.abs(a - b))) if a.size else 0.0, abs_tol + rel_tol * scale)
 
 
+def _theta_k_diff(step: int, lead, rec) -> Difference:
+    """Θ_k of the two backends compared. Same rows H_θ (update (9), the window): the offsets h_θ.
+    Other rows (the exact update (7) keeps the rows its redundancy LPs leave, and two backends may keep
+    different rows of the same set): the sets, by their support functions in the unit directions of
+    both row sets (HiGHS at certified tolerances; equal sets have equal supports in every direction,
+    and a set larger in some direction shows it in the other set's facet normal)."""
+    H_a, H_b = np.asarray(lead.H_theta, float), np.asarray(rec.H_theta, float)
+    if H_a.shape == H_b.shape and np.array_equal(H_a, H_b):
+        return _diff(step, "h_theta", lead.h_theta, rec.h_theta)
+    D = np.vstack([H_a, H_b])
+    D = D / np.linalg.norm(D, axis=1)[:, None]
+    supports = [[polytope.support(H, h, d, certified=True).value for d in D]
+                for H, h in ((H_a, np.asarray(lead.h_theta, float)), (H_b, np.asarray(rec.h_theta, float)))]
+    return _diff(step, "h_theta", supports[0], supports[1])
+
+
 def accurate_controller(case, backend: str) -> AdaptiveMPC:
     """The controller of ``case`` on ``backend`` with Clarabel at :data:`ACCURATE` tolerances."""
     return AdaptiveMPC(case.problem, case.design, backend=backend, options=case.options, solver_options=ACCURATE)
@@ -94,7 +111,7 @@ def follow(traj, case, follower: str) -> tuple[list[Difference], list[tuple[int,
         if rec.status is not lead.status:
             statuses.append((k, lead.status.value, rec.status.value))
             continue
-        diffs.append(_diff(k, "h_theta", lead.h_theta, rec.h_theta))
+        diffs.append(_theta_k_diff(k, lead, rec))
         diffs.append(_diff(k, "theta_hat", lead.theta_hat, rec.theta_hat))
         if lead.status is SolveStatus.OPTIMAL:
             diffs.append(_diff(k, "v", lead.v, rec.v))
@@ -112,7 +129,8 @@ def backends_agree(traj, case, follower: str) -> CheckResult:
     if not diffs:
         return judge("lockstep", claim, None, 0.0, "no step to compare")
     worst = max(diffs, key=lambda d: d.difference / max(d.tolerance, 1e-300))
-    margin = 1.0 - worst.difference / worst.tolerance
+    # a tolerance of 0 marks quantities of different shapes (_diff): they disagree outright
+    margin = 1.0 - worst.difference / worst.tolerance if worst.tolerance > 0 else -np.inf
     by_quantity = {}
     for d in diffs:
         by_quantity[d.quantity] = max(by_quantity.get(d.quantity, 0.0), d.difference)
