@@ -7,6 +7,7 @@ kind only, so the file named another run)."""
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -35,3 +36,21 @@ def test_a_saved_failure_holds_the_online_options_and_the_disturbance_array(tmp_
     np.testing.assert_array_equal(np.asarray(spec.scenario.disturbance), w)
     np.testing.assert_array_equal(spec.scenario.x0, case.x0)
     np.testing.assert_array_equal(spec.scenario.theta_star, case.theta_star)
+
+
+def test_corollary16_floor_follows_the_input_gain_on_a_problem_in_small_state_units():
+    """Saved by the thorough profile (session 7): a generated problem in state units 100 times smaller
+    (‖B(θ)‖ ≈ 50) whose disturbance stops at k1 = 7 settled at ‖x_T‖ = 2.5e-8, above the absolute floor
+    1e-8 of the convergence check (the QPs fix v to ~1e-10, which B multiplies). The floor is now
+    1e-8·max(1, max ‖B(θ)‖): the replayed run passes, with the state still 4e5 times below its peak."""
+    pytest.importorskip("amcp_properties")
+    from amcp_properties import claims
+    from amcp_properties.failures import replay
+
+    traj = replay(Path(__file__).parent / "data" / "corollary16-scaled", "drake")
+    zero_from = 7  # the saved case's k1 (its disturbances are all zero: the "zero" kind)
+    assert np.all(traj.w[zero_from:] == 0.0) and traj.stop_reason == "completed"
+    result = claims.convergence_after_disturbance(traj, zero_from)
+    assert result.passed, result.detail
+    norms = claims.state_norms(traj)
+    assert norms[-1] < 1e-4 * np.max(norms[zero_from:]) and norms[-1] > 1e-8  # above the old floor
