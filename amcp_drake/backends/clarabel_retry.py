@@ -61,6 +61,18 @@ CLARABEL_RETRY_LADDER: tuple[dict, ...] = (
 )
 
 
+def first_try(minmax: bool, refine: bool, user_options) -> tuple[dict | None, str]:
+    """(``first``, ``first_note``) of :func:`solve_with_retries` for the tube QP (20), the same in both
+    backends: ``refine`` (the controller's re-solve of an answer that failed its checks): no first try;
+    min–max cost (19): :data:`MINMAX_TIGHT`; certainty-equivalence cost: :data:`NO_REFINEMENT`. The
+    user's options (names in ``user_options``) override the first try's."""
+    if refine:
+        return None, ""
+    if minmax:
+        return {k: v for k, v in MINMAX_TIGHT.items() if k not in user_options}, MINMAX_TIGHT_NOTE
+    return {k: v for k, v in NO_REFINEMENT.items() if k not in user_options}, "re-solved with iterative refinement"
+
+
 def solve_with_retries(solve: Callable[[dict | None], tuple[Any, SolveStatus, float]],
                        first: dict | None = None,
                        first_note: str = "re-solved with iterative refinement") -> tuple[Any, SolveStatus, float, str]:

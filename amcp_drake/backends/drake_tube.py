@@ -32,7 +32,7 @@ import scipy.sparse as sp
 from pydrake.solvers import MathematicalProgram
 
 from amcp_drake.backends.base import MPCSolution, TubeMPCData
-from amcp_drake.backends.clarabel_retry import MINMAX_TIGHT, MINMAX_TIGHT_NOTE, NO_REFINEMENT, solve_with_retries
+from amcp_drake.backends.clarabel_retry import first_try, solve_with_retries
 from amcp_drake.backends.condensed_cost import CondensedCost
 from amcp_drake.backends.dominated_rows import kept_vertices
 from amcp_drake.backends.drake_solver import infeasible_constraint_names
@@ -421,14 +421,8 @@ class DrakeTubeMPC:
 
         if self._solver.name != "clarabel":
             return (*once(None), "")
-        # certainty-equivalence cost: no iterative refinement first (NO_REFINEMENT); the min-max
-        # cone program (19): tight tolerances first (MINMAX_TIGHT), then Clarabel's defaults and the ladder
-        if refine:
-            return solve_with_retries(once, None)
-        if self._minmax:
-            first = {k: v for k, v in MINMAX_TIGHT.items() if k not in self._solver.option_values}
-            return solve_with_retries(once, first, MINMAX_TIGHT_NOTE)
-        return solve_with_retries(once, {k: v for k, v in NO_REFINEMENT.items() if k not in self._solver.option_values})
+        # the first try of both backends (clarabel_retry.first_try), then Clarabel's defaults and the ladder
+        return solve_with_retries(once, *first_try(self._minmax, refine, self._solver.option_values))
 
     #: ``solve(..., refine=True)`` is supported (the controller's first fallback for an answer that
     #: fails its checks, amcp_drake.online.controller).

@@ -26,7 +26,7 @@ import cvxpy as cp
 import numpy as np
 
 from amcp_drake.backends.base import MPCSolution, TubeMPCData
-from amcp_drake.backends.clarabel_retry import MINMAX_TIGHT, MINMAX_TIGHT_NOTE, NO_REFINEMENT, solve_with_retries
+from amcp_drake.backends.clarabel_retry import first_try, solve_with_retries
 from amcp_drake.backends.minmax_cost import minmax_plan_cost
 from amcp_drake.model.status import SolveStatus
 
@@ -359,16 +359,9 @@ class CvxpyTubeMPC:
 
         if self._call.name != "CLARABEL":
             return self._call.solve(problem)
-        # as in the Drake backend: certainty-equivalence cost without iterative refinement first, min-max
-        # cost (19) at tight tolerances first (MINMAX_TIGHT); ``refine``: the backend's own options first
-        if refine:
-            detail, status, elapsed, note = solve_with_retries(once, None)
-        elif getattr(self.data, "cost", "certainty_equivalence") == "minmax":
-            first = {k: v for k, v in MINMAX_TIGHT.items() if k not in self._call.options}
-            detail, status, elapsed, note = solve_with_retries(once, first, MINMAX_TIGHT_NOTE)
-        else:
-            first = {k: v for k, v in NO_REFINEMENT.items() if k not in self._call.options}
-            detail, status, elapsed, note = solve_with_retries(once, first)
+        # the first try of both backends (clarabel_retry.first_try), then the user's options and the ladder
+        minmax = getattr(self.data, "cost", "certainty_equivalence") == "minmax"
+        detail, status, elapsed, note = solve_with_retries(once, *first_try(minmax, refine, self._call.options))
         return status, elapsed, f"{detail} ({note})" if note else detail
 
     def _u0_form(self) -> _Formulation:
