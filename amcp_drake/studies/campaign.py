@@ -184,6 +184,7 @@ def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure
     from amcp_drake.certificate.certify import certify
     from amcp_drake.offline.design import design
     from amcp_drake.online.replay import run_scenario
+    from amcp_drake.studies.random_problems import built_scaled
 
     start = time.perf_counter()
     result: dict[str, Any] = {"campaign_seed": campaign_seed, "idx": idx, "claims": {}, "coverage": {},
@@ -204,7 +205,7 @@ def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure
             result["verdicts"][backend] = cert.verdict
             result["coverage"][backend] = {**_coverage(traj), **_resolve_counts(traj, backend),
                                            # built, not reached: the generator's label is exact
-                                           "scaled_units": float(result["labels"].get("state scaling", "1") != "1")}
+                                           "scaled_units": float(bool(built_scaled(result["labels"])))}
         failed = any(c["status"] != "pass" for claims in result["claims"].values() for c in claims.values())
         result["status"] = "fail" if failed else "pass"
         if failed:

@@ -284,7 +284,7 @@ def random_problem(rng: np.random.Generator, shape: ProblemShape) -> tuple[Probl
     options = DesignOptions(x0_template="mrpi", x0_facets=int(facets[rng.integers(len(facets))]),
                             centre_dynamics="zero" if shape.zero_centre else "nominal",
                             mu_fraction=grid(rng, 0.5, 0.99, 0.01))
-    labels["state scaling"] = "1"
+    labels["state scaling"] = UNSCALED
     if shape.scaled_states:
         exponents = rng.choice(STATE_SCALE_EXPONENTS, size=n)
         if not np.any(exponents):
@@ -297,6 +297,14 @@ def random_problem(rng: np.random.Generator, shape: ProblemShape) -> tuple[Probl
 #: Exponents e of the state scales 10^e of ``ProblemShape.scaled_states`` (units from 1/100 to 100 of
 #: the drawn ones: a position in m next to a velocity in cm/s is a factor 100).
 STATE_SCALE_EXPONENTS = (-2, -1, 0, 1, 2)
+#: The "state scaling" label of a problem in the units it was drawn in.
+UNSCALED = "1"
+
+
+def built_scaled(labels: dict) -> bool | None:
+    """Whether a generated problem was built in badly scaled state units (its "state scaling" label;
+    exact, since the scaling is what was built); None for labels without it (not a generated problem)."""
+    return None if "state scaling" not in labels else labels["state scaling"] != UNSCALED
 
 
 # -- scenario pieces -------------------------------------------------------------------------------

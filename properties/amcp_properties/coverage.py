@@ -27,6 +27,7 @@ from hypothesis import event
 from amcp_drake.studies.random_problems import (
     LOWER_DIM_TOL,
     SHRINK_TOL,
+    built_scaled,
     last_theta_k_radius,
     theta_shrank,
     theta_star_face,
@@ -75,8 +76,8 @@ class RunFeatures:
                "completed": self.completed}
         if not np.isnan(self.theta_k_radius):
             out["theta_k_lower_dim"] = bool(self.theta_k_radius <= LOWER_DIM_TOL)
-        if "state scaling" in self.labels:  # the scaling is what was built, so its label is exact
-            out["scaled_units"] = self.labels["state scaling"] != "1"
+        if built_scaled(self.labels) is not None:
+            out["scaled_units"] = built_scaled(self.labels)
         if self.theta_star_face in ("vertex", "facet", "interior"):
             out["theta_star_vertex"] = self.theta_star_face == "vertex"
             out["theta_star_facet"] = self.theta_star_face == "facet"
