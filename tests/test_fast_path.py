@@ -86,3 +86,56 @@ def test_fast_path_needs_the_vertex_form():
         DrakeBackend(formulation="plain", qp_solver="daqp")
     with pytest.raises(ValueError, match="qp_solver 'osqp' unknown"):
         DrakeBackend(formulation="vertex", qp_solver="osqp")
+
+
+def test_the_checks_reject_a_non_finite_answer(fast_run):
+    """DAQP 0.11 reported "optimal" with NaN in w and its multipliers (Example 1, 4-facet X0, step 0, in
+    the proximal step; session 8); NaN compares False everywhere, so the checks passed it."""
+    ctrl, _ = fast_run
+    model = next(iter(ctrl.mpc._fast.models.values()))
+    w, lam = model.last_w.copy(), model.last_lam.copy()
+    assert model.check(w, lam) == ""
+    for bad in (np.nan, np.inf):
+        for which in ("w", "lam"):
+            w2, lam2 = w.copy(), lam.copy()
+            (w2 if which == "w" else lam2)[0] = bad
+            assert model.check(w2, lam2).startswith("non-finite"), (bad, which)
+
+
+def test_a_nan_answer_of_daqp_is_solved_by_clarabel(example_spec):
+    """The recorded case: on Example 1 with a 4-facet X0, the fast path's first step got NaN from DAQP;
+    the step must be Clarabel's vertex-form answer (counted as a fallback), not the controller's
+    fallback to the plain form after its own checks failed."""
+    from dataclasses import replace
+
+    from amcp_drake.offline.design import design
+
+    d = design(example_spec.problem, replace(example_spec.design, x0_facets=4), backend="drake")
+    ctrl = AdaptiveMPC(example_spec.problem, d, backend="drake", formulation="vertex", qp_solver="daqp")
+    x = np.asarray(example_spec.scenario.x0, float)
+    u, rec = ctrl.step(x)
+    ref = DrakeBackend(formulation="vertex", solver_options=TIGHT).tube_mpc(ctrl.data).solve(
+        x, rec.h_theta, rec.theta_hat)
+    assert rec.status is SolveStatus.OPTIMAL, rec.detail
+    assert u is not None and np.all(np.isfinite(rec.v))
+    np.testing.assert_allclose(rec.v, ref.v, rtol=0, atol=V_TOL)
+    assert sum(ctrl.mpc.fast_path_counts.values()) == 1
+
+
+def test_a_fast_path_answer_failing_the_controllers_checks_falls_back_to_the_plain_form(example_spec, example_design,
+                                                                                        monkeypatch):
+    """The controller's last resort, the other formulation, is the plain form, which has no fast path:
+    it used to be built with qp_solver="daqp" and raised ValueError instead of solving the step."""
+    import dataclasses
+
+    ctrl = AdaptiveMPC(example_spec.problem, example_design, backend="drake", formulation="vertex", qp_solver="daqp")
+    solve = ctrl.mpc.solve
+
+    def off_by_a_lot(*args, **kwargs):  # an "optimal" answer outside the tube rows
+        sol = solve(*args, **kwargs)
+        return dataclasses.replace(sol, v=sol.v + 10.0)
+
+    monkeypatch.setattr(ctrl.mpc, "solve", off_by_a_lot)
+    u, rec = ctrl.step(np.asarray(example_spec.scenario.x0, float))
+    assert u is not None and rec.status is SolveStatus.INACCURATE
+    assert "fallback: plain form of (20) (checked)" in rec.detail

@@ -148,6 +148,11 @@ class DaqpVertexQP:
 
     def check(self, w: np.ndarray, lam: np.ndarray) -> str:
         """'' when w is a KKT point of the unregularised QP to the tolerances, else the reason."""
+        if not (np.all(np.isfinite(w)) and np.all(np.isfinite(lam))):
+            # DAQP 0.11 can report "optimal" with NaN: measured on Example 1, 4-facet X0, step 0, in the
+            # proximal step after update(f=...) (the same QP solved afresh is finite); every comparison
+            # below is False for NaN, so without this line the answer passed every check (session 8)
+            return "non-finite answer (NaN or inf in w or the multipliers)"
         na = self.n_alpha
         slack = self.b - self.A @ w
         if np.any(slack < -PRIMAL_TOL * np.maximum(1.0, np.abs(self.b))) or np.any(w[:na] < -PRIMAL_TOL):

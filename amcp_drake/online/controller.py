@@ -522,7 +522,12 @@ class AdaptiveMPC:
             return None
         if self._other_mpc is None:
             other = "vertex" if getattr(self.backend, "formulation", "plain") == "plain" else "plain"
-            self._other_mpc = get_backend(name, **{**backend_options, "formulation": other}).tube_mpc(self.data)
+            options = {**backend_options, "formulation": other}
+            # the fast path (qp_solver="daqp") is the vertex form's only: the plain form of a fast-path
+            # controller is solved by the backend's solver (found by `amcp bench --quick`, session 8:
+            # the fallback raised ValueError instead of solving)
+            options.pop("qp_solver", None)
+            self._other_mpc = get_backend(name, **options).tube_mpc(self.data)
         return self._other_mpc
 
     def _checked_or_refined(self, sol, x, h_arg, H_arg, u0_bounds, record: StepRecord, what: str):
