@@ -72,7 +72,7 @@ def test_example_runs_cover_both_backends_formulations_and_x0_sizes(quick_result
     assert all(q[key] > 0 for q in data["example"]["ratios"] for key in ("total", "solver", "total_cpu", "solver_cpu"))
 
 
-def test_resolves_are_counted_from_the_messages_the_code_writes(example_spec, example_design):
+def test_resolves_are_counted_from_the_messages_the_code_writes(example_spec, example_design, monkeypatch):
     """The marks of RESOLVE_MARKS match the texts the solvers and the controller write: a real
     Clarabel retry note, a real step of the reduced plain form outside Θ0 (every row), and the
     controller's fallback note; a clean step counts nowhere."""
@@ -82,7 +82,10 @@ def test_resolves_are_counted_from_the_messages_the_code_writes(example_spec, ex
 
     ctrl = AdaptiveMPC(example_spec.problem, example_design, backend="drake")
     outside = ctrl.mpc.solve(np.array([1.0, 0.5]), 1.2 * np.asarray(example_design.h_theta0), np.zeros(3))
-    # a min-max step whose tight first try stalls (Example 1 at x = [2, 3]; clarabel_retry.MINMAX_TIGHT)
+    # a min-max step whose tight first try stalls (clarabel_retry.MINMAX_TIGHT): made to stall by a
+    # first try of one iteration, since whether a real one stalls moves with the design's K at 1e-5
+    monkeypatch.setattr("amcp_drake.backends.clarabel_retry.MINMAX_TIGHT",
+                        {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10, "max_iter": 1})
     minmax = AdaptiveMPC(example_spec.problem, example_design, backend="drake", options=OnlineOptions(cost="minmax"))
     tight_failed = minmax.mpc.solve(np.array([2.0, 3.0]), np.asarray(example_design.h_theta0), np.zeros(3))
     details = [describe(0), outside.detail, "", "tube QP (20): tube (15c) 2e-06 > 1e-06; fallback: vertex form of (20) (checked)",

@@ -152,7 +152,7 @@ def test_an_inaccurate_answer_is_solved_again_in_its_own_coordinates():
     P_inaccurate = 3.0 * P
     scales = []
 
-    def stub(A_t, B_t, Q_t, R_t, weight):
+    def stub(A_t, B_t, Q_t, R_t, weight, options):
         T = np.sqrt(Q_t)  # Q = 1, so Q̃ = TᵀQT = T²; U = R^{-1/2} = 1, so K̃ = K T and P̃ = T P T
         scales.append(float(T[0, 0]))
         answer = P_inaccurate if len(scales) == 1 else P
@@ -173,7 +173,7 @@ def test_an_optimal_answer_that_violates_16_is_not_returned():
     A, B, Q, R, K, P = _scalar_lqr()
     calls = []
 
-    def stub(A_t, B_t, Q_t, R_t, weight):
+    def stub(A_t, B_t, Q_t, R_t, weight, options):
         calls.append(1)
         T = np.sqrt(Q_t)
         return SolveStatus.OPTIMAL, K @ T, T @ (0.5 * P) @ T  # half the cost-to-go: (16) fails by O(‖P‖)
@@ -203,7 +203,7 @@ def test_the_lmi_as_written_is_the_last_resort():
     A, B, Q, R, K, P = _scalar_lqr()
     seen = []
 
-    def stub(A_t, B_t, Q_t, R_t, weight):
+    def stub(A_t, B_t, Q_t, R_t, weight, options):
         seen.append(float(Q_t[0, 0]))
         if not np.allclose(Q_t, Q):  # any scaled formulation: the solver gives up without an answer
             return SolveStatus.ERROR, None, None
@@ -228,3 +228,88 @@ def test_generated_problem_the_scaled_lmi_leaves_almost_solved_is_solved(backend
     gain = get_backend(backend).robust_gain(A_v, B_v, Q, R, 1e-6)
     assert gain.status is SolveStatus.OPTIMAL
     assert _worst_16(A_v, B_v, Q, R, gain.K, gain.P) < 0.0
+
+
+# -- the first try at tight tolerances (gain_scaling.GAIN_TIGHT) ----------------------------------------
+
+def test_every_gain_solve_is_tried_at_the_first_options_then_at_the_backends():
+    from amcp_drake.backends.gain_scaling import GAIN_TIGHT, solve_scaled
+
+    A, B, Q, R, K, P = _scalar_lqr()
+    seen = []
+
+    def stub(A_t, B_t, Q_t, R_t, weight, options):
+        seen.append((float(Q_t[0, 0]), options))
+        T = np.sqrt(Q_t)
+        if options:  # the tight first try stalls without an answer
+            return SolveStatus.INACCURATE, None, None
+        return SolveStatus.OPTIMAL, K @ T, T @ P @ T
+
+    gain = solve_scaled(stub, A, B, Q, R, first=GAIN_TIGHT)
+    assert gain.status is SolveStatus.OPTIMAL
+    np.testing.assert_allclose(gain.K, K, rtol=1e-12)
+    assert [o for _, o in seen] == [GAIN_TIGHT, None]
+    assert seen[0][0] == seen[1][0]  # the same scaling: the re-solve is at other tolerances, not in other units
+
+
+def test_an_accepted_first_try_is_the_answer():
+    from amcp_drake.backends.gain_scaling import GAIN_TIGHT, solve_scaled
+
+    A, B, Q, R, K, P = _scalar_lqr()
+    seen = []
+
+    def stub(A_t, B_t, Q_t, R_t, weight, options):
+        seen.append(options)
+        T = np.sqrt(Q_t)
+        return SolveStatus.OPTIMAL, K @ T, T @ (P if options else 0.5 * P) @ T  # the default answer violates (16)
+
+    gain = solve_scaled(stub, A, B, Q, R, first=GAIN_TIGHT)
+    assert gain.status is SolveStatus.OPTIMAL and seen == [GAIN_TIGHT]
+    np.testing.assert_allclose(gain.P, P, rtol=1e-12)
+
+
+def test_an_infeasible_first_try_is_decided_at_the_backends_options():
+    from amcp_drake.backends.gain_scaling import GAIN_TIGHT, solve_scaled
+
+    A, B, Q, R, K, P = _scalar_lqr()
+    seen = []
+
+    def stub(A_t, B_t, Q_t, R_t, weight, options):
+        seen.append(options)
+        T = np.sqrt(Q_t)
+        if options:
+            return SolveStatus.INFEASIBLE, None, None
+        return SolveStatus.OPTIMAL, K @ T, T @ P @ T
+
+    assert solve_scaled(stub, A, B, Q, R, first=GAIN_TIGHT).status is SolveStatus.OPTIMAL
+    assert seen == [GAIN_TIGHT, None]
+
+
+def test_the_users_solver_options_override_the_tight_first_try():
+    from amcp_drake.backends.gain_scaling import GAIN_TIGHT, tight_first
+
+    assert tight_first(True, {}) == GAIN_TIGHT
+    assert tight_first(True, {"tol_gap_rel": 1e-6}) == {"tol_gap_abs": 1e-10, "tol_feas": 1e-10}
+    assert tight_first(True, dict.fromkeys(GAIN_TIGHT, 1e-7)) is None
+    assert tight_first(False, {}) is None  # the settings are Clarabel's
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_both_backends_try_the_gain_lmi_at_tight_tolerances_first(backend, monkeypatch):
+    import amcp_drake.backends.gain_scaling as gs
+
+    firsts = []
+    original = gs.solve_scaled
+
+    def spy(solve, *args, first=None):
+        firsts.append(first)
+        return original(solve, *args, first=first)
+
+    monkeypatch.setattr(gs, "solve_scaled", spy)
+    if backend == "drake":
+        monkeypatch.setattr("amcp_drake.backends.drake_.solve_scaled", spy)
+    else:
+        monkeypatch.setattr("amcp_reference.offline.solve_scaled", spy)
+    A, B, Q, R, _, _ = _scalar_lqr()
+    assert get_backend(backend).robust_gain(A, B, Q, R, 1e-6).status is SolveStatus.OPTIMAL
+    assert firsts == [gs.GAIN_TIGHT]

@@ -27,7 +27,7 @@ from amcp_drake.backends.drake_set_update import DrakeSetUpdateLP
 from amcp_drake.backends.drake_solver import SOLVERS, STATUS_MAP, DrakeSolver  # noqa: F401 - SOLVERS, STATUS_MAP re-exported
 from amcp_drake.backends.drake_solver import DrakeSolver as _Solver  # noqa: F401 - old name, used by amcp_properties.mutants
 from amcp_drake.backends.drake_solver import finite_or_raise as _finite
-from amcp_drake.backends.gain_scaling import solve_scaled
+from amcp_drake.backends.gain_scaling import solve_scaled, tight_first
 from amcp_drake.backends.projection_form import projection_form
 from amcp_drake.backends.set_update_vertices import VertexSetUpdate
 from amcp_drake.model.status import SolveStatus
@@ -97,19 +97,22 @@ class DrakeBackend:
         By Schur complements this is A_cl(θ^i)ᵀ P A_cl(θ^i) − P + Q + KᵀRK ⪯ 0, eq. (16).
         Solved in the coordinates of :mod:`.gain_scaling` (x = T x̃, u = U ũ with TᵀP_refT = I), so the
         margin is relative to the cost-to-go, with the objective trace(S) of the original coordinates;
-        an inaccurate answer is solved once more in its own coordinates, then as written
-        (:func:`.gain_scaling.solve_scaled`, which also re-checks (16) on the answer).
+        each solve is tried at Clarabel 1e-10 first (:data:`.gain_scaling.GAIN_TIGHT`); an inaccurate answer
+        is solved once more in its own coordinates, then as written (:func:`.gain_scaling.solve_scaled`,
+        which also re-checks (16) on the answer).
         Built symbolically: it is solved once per design, never per step.
         """
         A_vertices = np.asarray(A_vertices, float)
         B_vertices = np.asarray(B_vertices, float)
         _finite("robust_gain", A_vertices, B_vertices, Q, R)
-        return solve_scaled(lambda A_t, B_t, Q_t, R_t, W: self._gain_lmi(A_t, B_t, Q_t, R_t, W, margin),
-                            A_vertices, B_vertices, np.asarray(Q, float), np.asarray(R, float))
+        return solve_scaled(
+            lambda A_t, B_t, Q_t, R_t, W, options: self._gain_lmi(A_t, B_t, Q_t, R_t, W, margin, options),
+            A_vertices, B_vertices, np.asarray(Q, float), np.asarray(R, float),
+            first=tight_first(self._sdp.name == "clarabel", self._sdp.option_values))
 
-    def _gain_lmi(self, A_vertices, B_vertices, Q, R, weight, margin):
-        """One solve of the LMI of :meth:`robust_gain` (scaled data), maximising ⟨weight, S⟩:
-        (status, K, P), K and P also for an inaccurate answer."""
+    def _gain_lmi(self, A_vertices, B_vertices, Q, R, weight, margin, options=None):
+        """One solve of the LMI of :meth:`robust_gain` (scaled data), maximising ⟨weight, S⟩, with
+        ``options`` on top of the SDP solver's: (status, K, P), K and P also for an inaccurate answer."""
         n, m = A_vertices.shape[1], B_vertices.shape[2]
         Qh = _sqrtm_psd(Q)
         Rh = _sqrtm_psd(R)
@@ -123,7 +126,7 @@ class DrakeBackend:
             self._add_vertex_lmi(prog, i, Ai, Bi, S, Y, Qh, Rh, margin)
         with np.errstate(invalid="ignore"):  # numpy warns on object (symbolic) arrays; values are exact
             prog.AddLinearCost(-np.sum(weight * S))  # trace(S) in the original coordinates
-        result, _ = self._sdp.solve(prog)
+        result, _ = self._sdp.solve(prog, options)
         status = self._sdp.status(result)
         if status not in (SolveStatus.OPTIMAL, SolveStatus.INACCURATE):
             return status, None, None

@@ -49,8 +49,28 @@ from amcp_drake.model.status import SolveStatus
 
 #: One solve of the gain LMI in scaled data: (Ã_v, B̃_v, Q̃, R̃, objective weight W) ->
 #: (status, K̃, P̃), K̃ and P̃ given for OPTIMAL and, when the solver has them, for INACCURATE.
-ScaledSolve = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+ScaledSolve = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, "dict | None"],
                        tuple[SolveStatus, "np.ndarray | None", "np.ndarray | None"]]
+#: (the last argument: solver options for this solve only, on top of the backend's; None: the backend's)
+
+#: Clarabel tolerances tried first for every solve of the gain LMI (16), in both backends (the user's
+#: options override them; :func:`tight_first`). The optimum of trace(S) is flat in Y: K is fixed only to
+#: about √(relative gap). Measured on ``sls_mpc_2d_eps0.05`` (scaled data, solves at 1e-12): K_1 moves by
+#: ±3.3e-5, ±3.5e-4, ±3.5e-3 within a relative objective gap of 1e-10, 1e-8, 1e-6. At the defaults (1e-8)
+#: the two backends' K differed by 2.7e-4 there (``amcp compare`` failed on a shipped example: tolerance
+#: 1.95e-4) and by 1.2e-4 relatively on massera2017; at 1e-10 by at most 1.7e-5 relatively over the
+#: ten files of examples/ (docs/decisions.md, "Gain LMI at tight tolerances"). A tight solve that ends
+#: without an accepted answer (e.g. "inaccurate": cvxpy on massera2017) is solved again at the backend's
+#: own options, so no problem that designed before is lost.
+GAIN_TIGHT = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10}
+
+
+def tight_first(solver_is_clarabel: bool, user_options) -> dict | None:
+    """The first try's options of every gain-LMI solve: :data:`GAIN_TIGHT` for Clarabel without the
+    settings the user chose (names in ``user_options``), else None (no first try)."""
+    if not solver_is_clarabel:
+        return None
+    return {k: v for k, v in GAIN_TIGHT.items() if k not in user_options} or None
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,9 +105,11 @@ class GainScaling:
         return self.U @ K_t @ T_inv, _sym(T_inv.T @ P_t @ T_inv)
 
 
-def solve_scaled(solve: ScaledSolve, A_vertices, B_vertices, Q, R) -> GainResult:
-    """The gain LMI by ``solve``, K and P in the original coordinates (module docstring). Scalings
-    tried in order, each only while no answer is decided ("infeasible" and "unbounded" are answers):
+def solve_scaled(solve: ScaledSolve, A_vertices, B_vertices, Q, R, first: dict | None = None) -> GainResult:
+    """The gain LMI by ``solve``, K and P in the original coordinates (module docstring). In every
+    scaling, ``first`` (e.g. :func:`tight_first`) is tried first, then the backend's own options when it
+    gave no accepted answer. Scalings tried in order, each only while no answer is decided
+    ("infeasible" and "unbounded" are answers):
 
     1. :func:`gain_scaling` (mean vertex Riccati solution);
     2. the coordinates of the answer of 1 when it was "inaccurate", or "optimal" but violating (16);
@@ -96,26 +118,37 @@ def solve_scaled(solve: ScaledSolve, A_vertices, B_vertices, Q, R) -> GainResult
        where Clarabel ended "AlmostSolved" in the cvxpy backend on 1 and 2 with P̃ ≈ I).
     """
     n, m = np.shape(A_vertices)[1], np.shape(B_vertices)[2]
-    first = gain_scaling(A_vertices, B_vertices, Q, R)
-    result, answer_P = _attempt(solve, first, A_vertices, B_vertices, Q, R)
+    scaling = gain_scaling(A_vertices, B_vertices, Q, R)
+    result, answer_P = _attempt(solve, scaling, A_vertices, B_vertices, Q, R, first)
     if result.status is not SolveStatus.INACCURATE and result.status is not SolveStatus.ERROR:
         return result
     if answer_P is not None:
-        second = GainScaling(_inv_sqrt(answer_P), first.U, "the previous answer's P")
-        result, _ = _attempt(solve, second, A_vertices, B_vertices, Q, R)
+        second = GainScaling(_inv_sqrt(answer_P), scaling.U, "the previous answer's P")
+        result, _ = _attempt(solve, second, A_vertices, B_vertices, Q, R, first)
         if result.status is not SolveStatus.INACCURATE and result.status is not SolveStatus.ERROR:
             return result
     identity = GainScaling(np.eye(n), np.eye(m), "identity (the LMI as written)")
-    if np.array_equal(first.T, identity.T) and np.array_equal(first.U, identity.U):
+    if np.array_equal(scaling.T, identity.T) and np.array_equal(scaling.U, identity.U):
         return result
-    return _attempt(solve, identity, A_vertices, B_vertices, Q, R)[0]
+    return _attempt(solve, identity, A_vertices, B_vertices, Q, R, first)[0]
 
 
-def _attempt(solve: ScaledSolve, scaling: GainScaling, A_vertices, B_vertices, Q, R):
-    """One solve in the coordinates of ``scaling``: (GainResult in original coordinates, the P of a
-    positive definite answer that was not accepted, else None)."""
+def _attempt(solve: ScaledSolve, scaling: GainScaling, A_vertices, B_vertices, Q, R, first: dict | None):
+    """One scaling: the solve with ``first``, then (no accepted answer) with the backend's options.
+    Returns (GainResult in original coordinates, the P of a positive definite answer that was not
+    accepted, else None)."""
     data = scaling.scaled(A_vertices, B_vertices, Q, R)
-    status, K_t, P_t = solve(*data, scaling.objective_weight)
+    if first:
+        result, answer_P = _one_solve(solve, scaling, data, first)
+        if result.status is SolveStatus.OPTIMAL:
+            return result, None
+    return _one_solve(solve, scaling, data, None)
+
+
+def _one_solve(solve: ScaledSolve, scaling: GainScaling, data, options: dict | None):
+    """One solve in the coordinates of ``scaling`` (``data``: the scaled Ã_v, B̃_v, Q̃, R̃); returns as
+    :func:`_attempt`."""
+    status, K_t, P_t = solve(*data, scaling.objective_weight, options)
     answer = K_t is not None and P_t is not None and _positive_definite(P_t)
     if status is SolveStatus.OPTIMAL and not (
             answer and gain_residual(*data, K_t, P_t) <= GAIN_CHECK_TOL * max(1.0, np.linalg.norm(P_t, 2))):

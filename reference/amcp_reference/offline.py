@@ -9,7 +9,7 @@ import cvxpy as cp
 import numpy as np
 
 from amcp_drake.backends.base import GainResult
-from amcp_drake.backends.gain_scaling import solve_scaled
+from amcp_drake.backends.gain_scaling import solve_scaled, tight_first
 from amcp_drake.model.status import SolveStatus
 
 
@@ -32,8 +32,9 @@ def robust_gain(call, A_vertices, B_vertices, Q, R, margin: float) -> GainResult
     maximise trace(S). Then K = Y S⁻¹ and P = S⁻¹. Solved in the coordinates of
     :mod:`amcp_drake.backends.gain_scaling` (x = T x̃, u = U ũ with TᵀP_refT = I; the same as the
     Drake backend), so the margin is relative to the cost-to-go; the objective is trace(S) of the
-    original coordinates, ⟨TᵀT, S̃⟩; (16) is re-checked on the answer, and an inaccurate answer is
-    solved once more in its own coordinates, then as written
+    original coordinates, ⟨TᵀT, S̃⟩; every solve is tried at Clarabel 1e-10 first
+    (:data:`~amcp_drake.backends.gain_scaling.GAIN_TIGHT`); (16) is re-checked on the answer, and an
+    inaccurate answer is solved once more in its own coordinates, then as written
     (:func:`~amcp_drake.backends.gain_scaling.solve_scaled`). By Schur complements M_i ⪰ 0 is
     S − (A_i S + B_i Y)ᵀ S⁻¹ (A_i S + B_i Y) − S Q S − Yᵀ R Y ⪰ 0, i.e. (multiplying by P on both
     sides) A_cl,iᵀ P A_cl,i − P + Q + Kᵀ R K ⪯ 0: eq. (16) at vertex i, hence on Θ by convexity.
@@ -46,13 +47,13 @@ def robust_gain(call, A_vertices, B_vertices, Q, R, margin: float) -> GainResult
     R = np.asarray(R, float)
     if not all(np.all(np.isfinite(a)) for a in (A_vertices, B_vertices, Q, R)) or not np.isfinite(margin):
         return GainResult(SolveStatus.ERROR, None, None)
-    return solve_scaled(lambda A_t, B_t, Q_t, R_t, W: _gain_lmi(call, A_t, B_t, Q_t, R_t, W, margin),
-                        A_vertices, B_vertices, Q, R)
+    return solve_scaled(lambda A_t, B_t, Q_t, R_t, W, options: _gain_lmi(call, A_t, B_t, Q_t, R_t, W, margin, options),
+                        A_vertices, B_vertices, Q, R, first=tight_first(call.name == "CLARABEL", call.options))
 
 
-def _gain_lmi(call, A_vertices, B_vertices, Q, R, weight, margin):
-    """One solve of the LMI of :func:`robust_gain` (scaled data), maximising ⟨weight, S⟩:
-    (status, K, P), K and P also for an inaccurate answer."""
+def _gain_lmi(call, A_vertices, B_vertices, Q, R, weight, margin, options=None):
+    """One solve of the LMI of :func:`robust_gain` (scaled data), maximising ⟨weight, S⟩, with
+    ``options`` on top of the call's: (status, K, P), K and P also for an inaccurate answer."""
     n, m = A_vertices.shape[1], B_vertices.shape[2]
     Qh, Rh = sqrtm_psd(Q), sqrtm_psd(R)
     S = cp.Variable((n, n), symmetric=True, name="S")
@@ -70,7 +71,7 @@ def _gain_lmi(call, A_vertices, B_vertices, Q, R, weight, margin):
         # M is symmetric by construction (S symmetric); symmetrise so cvxpy sees it too.
         constraints.append(0.5 * (M + M.T) >> margin * np.eye(2 * n + n + m))
     problem = cp.Problem(cp.Maximize(cp.sum(cp.multiply(weight, S))), constraints)
-    status, _, _ = call.solve(problem)
+    status, _, _ = call.solve(problem, options)
     if status not in (SolveStatus.OPTIMAL, SolveStatus.INACCURATE) or S.value is None or Y.value is None:
         return status, None, None
     S_val = 0.5 * (S.value + S.value.T)
