@@ -1,0 +1,128 @@
+"""The cvxpy plain form's tube QPs (20) on massera2017 with θ* = −1 and vertex disturbances (session 8).
+
+Rebuilds the session-7 measurement (docs/decisions.md, "The cvxpy plain form writes (15c) as
+c κ_l + Λ s_l"): 40-step closed loops (cvxpy backend, plain form, x_0 of the example's scenario) on
+seeds 0-3 give 4 × 41 states (x_k, θ̂_k, Θ_k); at each state the QP is solved with six Θ_k:
+Θ = [−1, 1], [−1, −1 + w] for w = 1e-2, 1e-4, 1e-6, 0, and the recorded Θ_k (984 QPs). Each QP is
+one fresh Clarabel solve (a new solver, no warm start) with the backend's retry ladder
+(clarabel_retry: first try without refinement, then the defaults, then the rungs). Counted per
+formulation: QPs left without an answer, and first tries that needed a retry.
+
+    python benchmarks/massera_plain_qps.py --out DIR [--steps 40] [--seeds 0 1 2 3] [--drake]
+
+The trajectories are saved in DIR (``seed<k>.json.gz``) and reused on the next run (``--rerun``
+runs the closed loops again), so a change to the tube QP is measured on the same states. Writes
+``DIR/qps.json`` (one entry per QP) and prints the counts and the QPs without an answer.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import time
+from pathlib import Path
+
+import numpy as np
+
+from amcp_drake.model.examples import get_example
+from amcp_drake.model.status import SolveStatus
+from amcp_drake.online import answer_checks
+from amcp_drake.online.controller import AdaptiveMPC
+from amcp_drake.online.simulate import Trajectory, simulate
+
+THETA_STAR = np.array([-1.0])
+WIDTHS = ("Theta", 1e-2, 1e-4, 1e-6, 0.0, "recorded")
+#: The notes clarabel_retry.solve_with_retries writes into the detail when the first try gave no answer.
+RETRY_NOTE = re.compile(r"re-solved|Clarabel retr")
+
+
+def trajectories(out: Path, steps: int, seeds, rerun: bool) -> dict[int, Trajectory]:
+    """The closed loops (cvxpy plain form), saved in ``out`` and loaded from there when present."""
+    spec = get_example("massera2017")
+    runs, design_ = {}, None
+    for seed in seeds:
+        path = out / f"seed{seed}.json.gz"
+        if path.exists() and not rerun:
+            runs[seed] = Trajectory.load(path)
+            continue
+        if design_ is None:
+            from amcp_drake.offline.design import design
+
+            design_ = design(spec.problem, spec.design, backend="cvxpy")
+        ctrl = AdaptiveMPC(spec.problem, design_, backend="cvxpy", options=spec.online, formulation="plain")
+        traj = simulate(ctrl, spec.scenario.x0, THETA_STAR, steps, disturbance="vertices", seed=seed)
+        traj.save(path)
+        runs[seed] = traj
+    return runs
+
+
+def theta_k(width, recorded_h: np.ndarray) -> np.ndarray:
+    """h_θk of Θ_k = {[1; −1] θ <= h}: Θ itself, [−1, −1 + w], or the recorded one."""
+    if width == "Theta":
+        return np.array([1.0, 1.0])
+    if width == "recorded":
+        return np.asarray(recorded_h, float)
+    return np.array([-1.0 + float(width), 1.0])
+
+
+def fresh_mpc(backend: str, data):
+    """The tube QP of ``backend`` (plain form) with a solver built anew for every solve."""
+    if backend == "cvxpy":
+        from amcp_reference.solver_call import SolverCall
+        from amcp_reference.tube_mpc import CvxpyTubeMPC
+
+        return CvxpyTubeMPC(data, SolverCall("CLARABEL", {}, keep_solver=False))
+    from amcp_drake.backends import get_backend
+
+    return get_backend("drake", formulation="plain").tube_mpc(data)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--steps", type=int, default=40)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3])
+    ap.add_argument("--drake", action="store_true", help="also the Drake plain form")
+    ap.add_argument("--rerun", action="store_true", help="run the closed loops again")
+    args = ap.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    runs = trajectories(args.out, args.steps, args.seeds, args.rerun)
+    backends = ["cvxpy"] + (["drake"] if args.drake else [])
+    spec = get_example("massera2017")
+    entries = []
+    for seed, traj in runs.items():
+        ctrl = AdaptiveMPC(spec.problem, traj.design, backend="cvxpy", options=spec.online, formulation="plain")
+        mpcs = {b: fresh_mpc(b, ctrl.data) for b in backends}
+        for rec in traj.records:
+            for width in WIDTHS:
+                h = theta_k(width, rec.h_theta)
+                for b, mpc in mpcs.items():
+                    cpu, wall = time.thread_time(), time.perf_counter()
+                    sol = mpc.solve(rec.x, h, rec.theta_hat)
+                    cpu, wall = time.thread_time() - cpu, time.perf_counter() - wall
+                    failed = ([c.describe() for c in answer_checks.failures(ctrl._tube_checks(sol, rec.x, h, None))]
+                              if sol.status is SolveStatus.OPTIMAL else [])
+                    entries.append({"seed": seed, "k": rec.k, "width": str(width), "backend": b,
+                                    "x": rec.x.tolist(), "theta_hat": rec.theta_hat.tolist(), "h_theta": h.tolist(),
+                                    "status": sol.status.value, "detail": sol.detail, "failed_checks": failed,
+                                    "retried": bool(RETRY_NOTE.search(sol.detail)),
+                                    "cost": sol.cost, "cpu": cpu, "wall": wall})
+    (args.out / "qps.json").write_text(json.dumps(entries, indent=0))
+    for b in backends:
+        mine = [e for e in entries if e["backend"] == b]
+        unanswered = [e for e in mine if e["status"] != SolveStatus.OPTIMAL.value
+                      and e["status"] != SolveStatus.INFEASIBLE.value]
+        infeasible = [e for e in mine if e["status"] == SolveStatus.INFEASIBLE.value]
+        retried = [e for e in mine if e["retried"]]
+        failed = [e for e in mine if e["failed_checks"]]
+        print(f"{b}: {len(mine)} QPs, without an answer {len(unanswered)}, infeasible {len(infeasible)}, "
+              f"first try needed a retry {len(retried)}, answers failing the answer checks {len(failed)}, CPU median {1e3 * np.median([e['cpu'] for e in mine]):.1f} ms "
+              f"(wall {1e3 * np.median([e['wall'] for e in mine]):.1f} ms)")
+        for e in unanswered + failed:
+            print(f"  seed {e['seed']} k {e['k']} width {e['width']}: {e['status']} {e['detail']} {e['failed_checks']}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
