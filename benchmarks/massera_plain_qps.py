@@ -9,6 +9,16 @@ one fresh Clarabel solve (a new solver, no warm start) with the backend's retry 
 formulation: QPs left without an answer, and first tries that needed a retry.
 
     python benchmarks/massera_plain_qps.py --out DIR [--steps 40] [--seeds 0 1 2 3] [--drake]
+        [--clarabel '{"direct_solve_method": "qdldl"}']
+    python benchmarks/massera_plain_qps.py --loops [--example massera2017|lorenzen2019] [--steps 40]
+
+``--clarabel``: Clarabel options of the cvxpy plain form (the user's options, over the backend's
+``tube_mpc.PLAIN_FORM_CLARABEL_OPTIONS``): ``direct_solve_method: qdldl`` gives the QP as before
+session 8. ``--loops``: 40-step closed loops of the cvxpy plain form (the controller as a user runs
+it, solver kept between steps) with QDLDL and with faer in lockstep (step k of each, the order
+alternating), per seed: steps whose notes show a retry or a fallback (studies.resolves), and the
+medians of CPU (thread time) and wall time per step; Example 1 (lorenzen2019, its scenario) with
+``--example lorenzen2019``.
 
 The trajectories are saved in DIR (``seed<k>.json.gz``) and reused on the next run (``--rerun``
 runs the closed loops again), so a change to the tube QP is measured on the same states. Writes
@@ -66,13 +76,13 @@ def theta_k(width, recorded_h: np.ndarray) -> np.ndarray:
     return np.array([-1.0 + float(width), 1.0])
 
 
-def fresh_mpc(backend: str, data):
+def fresh_mpc(backend: str, data, clarabel: dict):
     """The tube QP of ``backend`` (plain form) with a solver built anew for every solve."""
     if backend == "cvxpy":
         from amcp_reference.solver_call import SolverCall
         from amcp_reference.tube_mpc import CvxpyTubeMPC
 
-        return CvxpyTubeMPC(data, SolverCall("CLARABEL", {}, keep_solver=False))
+        return CvxpyTubeMPC(data, SolverCall("CLARABEL", clarabel, keep_solver=False))
     from amcp_drake.backends import get_backend
 
     return get_backend("drake", formulation="plain").tube_mpc(data)
@@ -80,12 +90,19 @@ def fresh_mpc(backend: str, data):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--out", type=Path)
+    ap.add_argument("--clarabel", type=json.loads, default={}, help="Clarabel options of the cvxpy plain form (JSON)")
+    ap.add_argument("--loops", action="store_true", help="closed loops, QDLDL against faer")
+    ap.add_argument("--example", default="massera2017", choices=("massera2017", "lorenzen2019"))
     ap.add_argument("--steps", type=int, default=40)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3])
     ap.add_argument("--drake", action="store_true", help="also the Drake plain form")
     ap.add_argument("--rerun", action="store_true", help="run the closed loops again")
     args = ap.parse_args(argv)
+    if args.loops:
+        return closed_loops(args.example, args.steps, args.seeds)
+    if args.out is None:
+        ap.error("--out is required without --loops")
     args.out.mkdir(parents=True, exist_ok=True)
     runs = trajectories(args.out, args.steps, args.seeds, args.rerun)
     backends = ["cvxpy"] + (["drake"] if args.drake else [])
@@ -93,7 +110,7 @@ def main(argv=None) -> int:
     entries = []
     for seed, traj in runs.items():
         ctrl = AdaptiveMPC(spec.problem, traj.design, backend="cvxpy", options=spec.online, formulation="plain")
-        mpcs = {b: fresh_mpc(b, ctrl.data) for b in backends}
+        mpcs = {b: fresh_mpc(b, ctrl.data, args.clarabel) for b in backends}
         for rec in traj.records:
             for width in WIDTHS:
                 h = theta_k(width, rec.h_theta)
@@ -121,6 +138,54 @@ def main(argv=None) -> int:
               f"(wall {1e3 * np.median([e['wall'] for e in mine]):.1f} ms)")
         for e in unanswered + failed:
             print(f"  seed {e['seed']} k {e['k']} width {e['width']}: {e['status']} {e['detail']} {e['failed_checks']}")
+    return 0
+
+
+def closed_loops(example: str, steps: int, seeds) -> int:
+    """Closed loops of the cvxpy plain form with Clarabel's QDLDL and faer, in lockstep (see the module)."""
+    import gc
+
+    from amcp_drake.offline.design import design
+    from amcp_drake.online.simulate import disturbance_sequence
+    from amcp_drake.studies.resolves import count_resolves, step_notes
+
+    spec = get_example(example)
+    problem = spec.problem
+    massera = example == "massera2017"
+    theta_star = THETA_STAR if massera else np.asarray(spec.scenario.theta_star, float)
+    offline = design(problem, spec.design, backend="cvxpy")
+    # before: QDLDL for the plain form as before session 8 (the user's option overrides the backend's);
+    # after: the backend as it is (faer for the plain form's QP, every other problem unchanged)
+    solvers = {"qdldl (before)": {"direct_solve_method": "qdldl"}, "faer (after)": {}}
+    for seed in seeds:
+        w = disturbance_sequence(problem, "vertices" if massera else spec.scenario.disturbance, steps, seed)
+        runs = []
+        for name, options in solvers.items():
+            ctrl = AdaptiveMPC(problem, offline, backend="cvxpy", options=spec.online, formulation="plain",
+                               solver_options=options)
+            runs.append({"name": name, "ctrl": ctrl, "x": np.asarray(spec.scenario.x0, float), "cpu": [], "wall": [],
+                         "notes": [], "stop": ""})
+        gc.collect()
+        gc.disable()
+        for k in range(steps):
+            for run in (runs if k % 2 == 0 else runs[::-1]):
+                if run["stop"]:
+                    continue
+                cpu, wall = time.thread_time(), time.perf_counter()
+                u, rec = run["ctrl"].step(run["x"])
+                run["cpu"].append(time.thread_time() - cpu)
+                run["wall"].append(time.perf_counter() - wall)
+                run["notes"].append(step_notes(rec))
+                if u is None:
+                    run["stop"] = f"step {k}: {rec.status.value}"
+                    continue
+                run["x"] = problem.step(run["x"], u, theta_star, w[k])
+        gc.enable()
+        for run in runs:
+            counts = {kind: c for kind, c in count_resolves(run["notes"]).items() if c}
+            print(f"{example} seed {seed} {run['name']:14s}: {len(run['cpu'])} steps {run['stop'] or 'completed'}; "
+                  f"CPU per step median {1e3 * np.median(run['cpu']):.1f} ms (wall {1e3 * np.median(run['wall']):.1f} ms); "
+                  f"{counts or 'no retry, no fallback'}", flush=True)
     return 0
 
 

@@ -714,3 +714,35 @@ def test_massera2017_plain_form_on_a_theta_k_1e_6_wide_is_solved_without_fallbac
     assert abs(sol.cost - fresh.cost) <= 1e-6 and np.max(np.abs(sol.v - fresh.v)) <= 1e-5
     # and the controller's answer checks ((15c) with Λ h_θk itself, (15d), Λ >= 0, (5b)) pass on it
     assert not answer_checks.failures(ctrl._tube_checks(sol, x, h_theta, None))
+
+
+def _recorded_tube_step(name: str):
+    """(TubeMPCData, x_k, θ̂_k, h_θk) of a tube QP recorded in tests/data (the design's data included, so
+    the step does not move when the offline design does)."""
+    import json
+    from pathlib import Path
+
+    step = json.loads((Path(__file__).parent / "data" / name).read_text())
+    fields = {k: (v if k in ("N", "cost") else np.asarray(v, float)) for k, v in step["tube_data"].items()}
+    return (TubeMPCData(**fields), np.asarray(step["x"], float), np.asarray(step["theta_hat"], float),
+            np.asarray(step["h_theta"], float))
+
+
+def test_massera2017_plain_form_on_a_theta_k_1e_4_wide_is_answered_and_verified():
+    """massera2017, θ* = −1, vertex disturbances, seed 2 step 4 with Θ_k = [−1, −0.9999]
+    (benchmarks/massera_plain_qps.py): with Clarabel's QDLDL factorisation the plain form ended
+    "AlmostSolved" under the whole retry ladder (gap stalled at 4.1e-8, μ 1.6e-10, the step length
+    collapsing to 0: iterative refinement could not repair the KKT solves). With faer's LDLᵀ
+    (tube_mpc.PLAIN_FORM_CLARABEL_OPTIONS) it is "Solved"; the answer passes the controller's answer
+    checks ((15a)-(15d), Λ >= 0, (5b) at Θ_k's two vertices) and its plan is the Drake vertex form's
+    (another program, another backend)."""
+    from amcp_drake.online.answer_checks import TubeCheck, failures
+
+    data, x, theta_hat, h_theta = _recorded_tube_step("massera2017-plain-stall-step.json")
+    sol = get_backend("cvxpy", formulation="plain").tube_mpc(data).solve(x, h_theta, theta_hat)
+    assert sol.status is SolveStatus.OPTIMAL, sol.detail
+    vertices = np.array([[-1.0], [-0.9999]])                 # Θ_k = [−1, −0.9999], by hand
+    assert not failures(TubeCheck(data).check(sol, x, vertices, h_theta, None))
+    other = get_backend("drake", formulation="vertex").tube_mpc(data).solve(x, h_theta, theta_hat)
+    assert other.status is SolveStatus.OPTIMAL
+    assert abs(sol.cost - other.cost) <= 1e-6 and np.max(np.abs(sol.v - other.v)) <= 1e-5

@@ -53,6 +53,17 @@ U0_INF = 1e6
 #: this many fewer. The first problem holds exactly the design's rows (the updates (9) and the window
 #: never change H_θ, so they are not affected).
 ROW_CAPACITY_STEP = 8
+#: Clarabel settings of the plain form (the user's options override them): its KKT systems factorised
+#: by faer's supernodal LDLᵀ instead of QDLDL, on one thread (faer's default uses every core; the
+#: machine is shared and CPU time is measured per thread). The program is the same. Why: this program
+#: keeps every row of (15c) with its own multipliers and (15d) as equalities (10 219 cone pairs and 3 446
+#: equality rows on massera2017, where rows of different vertices are nearly parallel and on a thin Θ_k
+#: their multipliers are coupled to the rest only by the width); late in the iterations (μ ~ 1e-10)
+#: QDLDL's solves were too inaccurate for iterative refinement, the step length fell to 0 and Clarabel
+#: ended "AlmostSolved" (gap 4.1e-8). massera2017, θ* = −1, 984 QPs (benchmarks/massera_plain_qps.py):
+#: unanswered 1 -> 0, first tries needing a retry 50 -> 6; CPU per closed-loop step +3-5 % (Example 1)
+#: to +6-15 % (massera2017). docs/decisions.md, "The cvxpy plain form's unanswered QPs on massera2017".
+PLAIN_FORM_CLARABEL_OPTIONS = {"direct_solve_method": "faer", "max_threads": 1}
 #: Offset of a padded row 0·θ <= PAD_OFFSET: any positive value leaves the program the same; 1 is the
 #: scale of the unit rows.
 PAD_OFFSET = 1.0
@@ -227,7 +238,13 @@ class CvxpyTubeMPC:
     """QP (20) built once; :meth:`solve` sets x_k, Θ_k, θ̂_k and re-solves the same problem."""
 
     def __init__(self, data: TubeMPCData, call) -> None:
+        """``call``: the backend's ``SolverCall``; with Clarabel, a copy with
+        :data:`PLAIN_FORM_CLARABEL_OPTIONS` under the user's options is used."""
+        from .solver_call import SolverCall
+
         self.data = data
+        if call.name == "CLARABEL":
+            call = SolverCall(call.name, {**PLAIN_FORM_CLARABEL_OPTIONS, **call.options}, keep_solver=call.keep_solver)
         self._call = call
         self._elastic: _Formulation | None = None
         self._build(np.asarray(data.H_theta, float))
