@@ -47,7 +47,7 @@ WIDTHS = ("Theta", 1e-2, 1e-4, 1e-6, 0.0, "recorded")
 RETRY_NOTE = re.compile(r"re-solved|Clarabel retr")
 
 
-def trajectories(out: Path, steps: int, seeds, rerun: bool) -> dict[int, Trajectory]:
+def trajectories(out: Path, steps: int, seeds, rerun: bool, design_backend: str = "cvxpy") -> dict[int, Trajectory]:
     """The closed loops (cvxpy plain form), saved in ``out`` and loaded from there when present."""
     spec = get_example("massera2017")
     runs, design_ = {}, None
@@ -59,7 +59,7 @@ def trajectories(out: Path, steps: int, seeds, rerun: bool) -> dict[int, Traject
         if design_ is None:
             from amcp_drake.offline.design import design
 
-            design_ = design(spec.problem, spec.design, backend="cvxpy")
+            design_ = design(spec.problem, spec.design, backend=design_backend)
         ctrl = AdaptiveMPC(spec.problem, design_, backend="cvxpy", options=spec.online, formulation="plain")
         traj = simulate(ctrl, spec.scenario.x0, THETA_STAR, steps, disturbance="vertices", seed=seed)
         traj.save(path)
@@ -98,13 +98,15 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3])
     ap.add_argument("--drake", action="store_true", help="also the Drake plain form")
     ap.add_argument("--rerun", action="store_true", help="run the closed loops again")
+    ap.add_argument("--design", default="cvxpy", choices=("cvxpy", "drake"),
+                    help="backend of the offline design of new closed loops (default: cvxpy)")
     args = ap.parse_args(argv)
     if args.loops:
         return closed_loops(args.example, args.steps, args.seeds)
     if args.out is None:
         ap.error("--out is required without --loops")
     args.out.mkdir(parents=True, exist_ok=True)
-    runs = trajectories(args.out, args.steps, args.seeds, args.rerun)
+    runs = trajectories(args.out, args.steps, args.seeds, args.rerun, args.design)
     backends = ["cvxpy"] + (["drake"] if args.drake else [])
     spec = get_example("massera2017")
     entries = []
