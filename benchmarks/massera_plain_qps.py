@@ -17,8 +17,8 @@ formulation: QPs left without an answer, and first tries that needed a retry.
 session 8. ``--loops``: 40-step closed loops of the cvxpy plain form (the controller as a user runs
 it, solver kept between steps) with QDLDL and with faer in lockstep (step k of each, the order
 alternating), per seed: steps whose notes show a retry or a fallback (studies.resolves), and the
-medians of CPU (thread time) and wall time per step; Example 1 (lorenzen2019, its scenario) with
-``--example lorenzen2019``.
+medians of CPU (thread time) and wall time per step; any other built-in example with its own scenario
+(θ*, disturbance kind), e.g. ``--example lorenzen2019`` (Example 1).
 
 The trajectories are saved in DIR (``seed<k>.json.gz``) and reused on the next run (``--rerun``
 runs the closed loops again), so a change to the tube QP is measured on the same states. Writes
@@ -93,7 +93,9 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path)
     ap.add_argument("--clarabel", type=json.loads, default={}, help="Clarabel options of the cvxpy plain form (JSON)")
     ap.add_argument("--loops", action="store_true", help="closed loops, QDLDL against faer")
-    ap.add_argument("--example", default="massera2017", choices=("massera2017", "lorenzen2019"))
+    ap.add_argument("--example", default="massera2017",
+                    help="built-in example of --loops: massera2017 with θ* = −1 and vertex disturbances, any other "
+                         "with its scenario (θ*, disturbance kind)")
     ap.add_argument("--steps", type=int, default=40)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3])
     ap.add_argument("--drake", action="store_true", help="also the Drake plain form")

@@ -7,8 +7,9 @@ Reads the recorded step ``tests/data/massera2017-plain-stall-step.json`` (masser
 ``TubeMPCData``), sets Θ_k = [−1, −1 + width] (width 2: Θ itself), takes cvxpy's Clarabel data of the
 plain form and solves it with Clarabel directly (options: Clarabel's defaults, then ``--option``s). Prints
 the sizes, the rows grouped by the variables they touch, the status, μ = sᵀz / (inequality rows), per group
-sᵀz, the interior pairs (s > 1e-3, z < 1e-6) and the extreme slacks and duals, and the largest |cos| between
-the rows of (15c) and (15d) (rows normalised; pairs of (15c) rows above 0.999 and 1 − 1e-6).
+sᵀz, the interior pairs (s > 1e-3, z < 1e-6) and the extreme slacks and duals, the singular values of the
+rows of (15c) and (15d) of stage 0, and the largest |cos| between the rows of (15c) and (15d) (rows
+normalised; pairs of (15c) rows above 0.999 and 1 − 1e-6).
 """
 
 from __future__ import annotations
@@ -91,6 +92,15 @@ def main(argv=None) -> int:
         interior = int(np.sum((s[rows] > 1e-3) & (z[rows] < 1e-6)))
         print(f"  {group:28s} {len(rows):5d} rows, s'z {pairs.sum():.3g} (s z / mu {pairs.min() / mu:.3g}..{pairs.max() / mu:.3g}), "
               f"interior {interior}, s {s[rows].min():.3g}..{s[rows].max():.3g}, z {z[rows].min():.3g}..{z[rows].max():.3g}")
+    # conditioning of (15c)-(15d) of stage 0 (cvxpy adds the constraints stage by stage, so a group's
+    # first v·u rows are stage 0's): each multiplier row couples its q multipliers to both rows
+    per_stage = len(np.flatnonzero(groups == EQUALITY)) // int(json.loads(STEP.read_text())["tube_data"]["N"])
+    stage = np.concatenate([np.flatnonzero(groups == g)[:per_stage] for g in (EQUALITY, TUBE)])
+    block = sp.csr_matrix(A)[stage]
+    dense = block[:, np.unique(block.nonzero()[1])].toarray()
+    sv = np.linalg.svd(dense, compute_uv=False)
+    print(f"  stage 0, rows of (15c) and (15d) {dense.shape}: singular values {sv.min():.3g}..{sv.max():.3g}, "
+          f"{int(np.sum(sv < 1e-2))} below 1e-2, condition {sv.max() / sv.min():.3g}")
     norms = sp.linalg.norm(A, axis=1)
     unit = sp.diags(1.0 / np.maximum(norms, 1e-300)) @ A.tocsr()
     gram = (unit @ unit.T).tocoo()
