@@ -183,7 +183,8 @@ def closed_loops(example: str, steps: int, seeds) -> int:
                 if u is None:
                     run["stop"] = f"step {k}: {rec.status.value}"
                     continue
-                run["x"] = problem.step(run["x"], u, theta_star, w[k])
+                theta_k = theta_star if theta_star.ndim == 1 else theta_star[min(k, len(theta_star) - 1)]  # θ*_k (Section 4.1)
+                run["x"] = problem.step(run["x"], u, theta_k, w[k])
         gc.enable()
         for run in runs:
             counts = {kind: c for kind, c in count_resolves(run["notes"]).items() if c}

@@ -32,6 +32,7 @@ from amcp_drake.model.status import SolveStatus
 
 from .nominal_cost import certainty_equivalence_cost, nominal_cost
 from .offline import sqrtm_psd
+from .solver_call import SolverCall
 
 #: Constraint groups, named as in the Drake backend so that reports read the same.
 GROUP_15A = "(15a) state and input constraints"
@@ -54,15 +55,16 @@ U0_INF = 1e6
 #: never change H_θ, so they are not affected).
 ROW_CAPACITY_STEP = 8
 #: Clarabel settings of the plain form (the user's options override them): its KKT systems factorised
-#: by faer's supernodal LDLᵀ instead of QDLDL, on one thread (faer's default uses every core; the
-#: machine is shared and CPU time is measured per thread). The program is the same. Why: this program
-#: keeps every row of (15c) with its own multipliers and (15d) as equalities (10 219 cone pairs and 3 446
-#: equality rows on massera2017, where rows of different vertices are nearly parallel and on a thin Θ_k
-#: their multipliers are coupled to the rest only by the width); late in the iterations (μ ~ 1e-10)
-#: QDLDL's solves were too inaccurate for iterative refinement, the step length fell to 0 and Clarabel
-#: ended "AlmostSolved" (gap 4.1e-8). massera2017, θ* = −1, 984 QPs (benchmarks/massera_plain_qps.py):
-#: unanswered 1 -> 0, first tries needing a retry 50 -> 6; CPU per closed-loop step +3-5 % (Example 1)
-#: to +6-15 % (massera2017). docs/decisions.md, "The cvxpy plain form's unanswered QPs on massera2017".
+#: by faer's supernodal LDLᵀ instead of QDLDL, on one thread (faer's default takes every core; the
+#: machine is shared and CPU time is measured per thread). The program and the tolerances are the same.
+#: Why: on a thin Θ_k the rows (15c) and (15d) of one multiplier row are nearly dependent (for a slab of
+#: width w they share the two multipliers through [[1, −1], [w/2, w/2]], smaller singular value w/√2),
+#: and this form keeps all 3 360 of them on massera2017 (every row of (15c), every multiplier, (15d) as
+#: equalities); late in the iterations (μ ~ 1e-10) QDLDL's solves were too inaccurate for iterative
+#: refinement, the step length fell to 0 and Clarabel ended "AlmostSolved" (gap 4.1e-8) under the whole
+#: retry ladder. massera2017, θ* = −1, 984 QPs (benchmarks/massera_plain_qps.py): unanswered 1 -> 0,
+#: first tries needing a retry 50 -> 6; CPU per closed-loop step +3-5 % (Example 1) to +6-15 %
+#: (massera2017). docs/decisions.md, "The cvxpy plain form's unanswered QPs on massera2017".
 PLAIN_FORM_CLARABEL_OPTIONS = {"direct_solve_method": "faer", "max_threads": 1}
 #: Offset of a padded row 0·θ <= PAD_OFFSET: any positive value leaves the program the same; 1 is the
 #: scale of the unit rows.
@@ -240,8 +242,6 @@ class CvxpyTubeMPC:
     def __init__(self, data: TubeMPCData, call) -> None:
         """``call``: the backend's ``SolverCall``; with Clarabel, a copy with
         :data:`PLAIN_FORM_CLARABEL_OPTIONS` under the user's options is used."""
-        from .solver_call import SolverCall
-
         self.data = data
         if call.name == "CLARABEL":
             call = SolverCall(call.name, {**PLAIN_FORM_CLARABEL_OPTIONS, **call.options}, keep_solver=call.keep_solver)
