@@ -7,9 +7,6 @@ on :class:`~amcp_drake.model.problem.DesignOptions` and in docs/decisions.md.
 
 from __future__ import annotations
 
-import time
-from dataclasses import replace
-
 import numpy as np
 
 from amcp_drake.backends import get_backend
@@ -19,7 +16,7 @@ from amcp_drake.model.problem import DEFAULT_X0_LAMBDA, DesignOptions, Problem
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.offline import templates as x0_templates
 from amcp_drake.offline import units
-from amcp_drake.offline.auto import Attempt, AutoDesignError, design_auto, template_label
+from amcp_drake.offline.auto import design_auto, template_label
 from amcp_drake.offline.checks import verify_design
 from amcp_drake.offline.result import OfflineDesign, closed_loop_vertices, regressor_bound
 from amcp_drake.offline.support import bounded_vertices, row_maxima
@@ -41,45 +38,30 @@ def design(problem: Problem, options: DesignOptions | None = None, backend="drak
 
     With ``options.x0_template == "auto"`` (the default) the templates of
     :mod:`amcp_drake.offline.auto` are tried in their documented order and the first design that
-    passes every check of :func:`~amcp_drake.offline.checks.verify_design` is returned (the
-    attempts are in ``design.info["attempts"]``). Otherwise the named template is used.
+    passes every check of :func:`~amcp_drake.offline.checks.verify_design` in the user's units is
+    returned (the attempts are in ``design.info["attempts"]``). Otherwise the named template is used
+    (:func:`design_fixed`). Either way the design is computed in the state units normalised by W
+    and mapped back (:mod:`amcp_drake.offline.units`), so the same system in other diagonal state
+    units gets the same design; with W's extents equal these units are the user's, bit for bit.
 
     Raises DesignError (or TerminalSetError, TemplateError) naming the step and the condition that
     failed; in auto mode a :class:`~amcp_drake.offline.auto.AutoDesignError` listing every attempt.
     """
     options = (options or DesignOptions()).validate_for(problem)
-    if options.x0_template == "auto":
-        try:
-            return design_auto(problem, options, backend=backend, design_fixed=design_fixed, robust_gain=robust_gain,
-                               verify=verify_design)
-        except AutoDesignError as exc:
-            if not units.needs_units(problem):
-                raise
-            return _design_in_normalised_units(problem, options, backend, exc.attempts)
-    return design_fixed(problem, options, backend=backend)
+    if options.x0_template != "auto":
+        return design_fixed(problem, options, backend=backend)
+    s = units.normalising_scales(problem)
+    if units.is_identity(s):
+        return design_auto(problem, options, backend=backend, design_fixed=_design_as_written, robust_gain=robust_gain,
+                           verify=verify_design)
+    normalised, normalised_options = units.to_normalised(problem, options, s)
 
+    def verify_in_users_units(_normalised: Problem, found: OfflineDesign, _bound) -> list:
+        return verify_design(problem, units.from_normalised(found, s, problem, options), options.mu_state_bound)
 
-def _design_in_normalised_units(problem: Problem, options: DesignOptions, backend, attempts: list) -> OfflineDesign:
-    """The automatic design of ``problem`` in the units of :mod:`amcp_drake.offline.units`, mapped back
-    and checked in the user's units; AutoDesignError with every attempt (both units) when it fails."""
-    normalised, normalised_options, s = units.to_normalised(problem, options)
-    prefix = "in units scaled by W's extents: "
-    start = time.perf_counter()
-    try:
-        found = design_auto(normalised, normalised_options, backend=backend, design_fixed=design_fixed,
-                            robust_gain=robust_gain, verify=verify_design)
-    except AutoDesignError as exc:
-        raise AutoDesignError(attempts + [replace(a, label=prefix + a.label) for a in exc.attempts]) from None
-    mapped = units.from_normalised(found, s, problem, options)
-    failed = [c for c in verify_design(problem, mapped, options.mu_state_bound) if not c.passed]
-    if failed:
-        reason = "mapped back to the user's units: " + "; ".join(f"{c.name}: {c.status}" for c in failed)
-        raise AutoDesignError(attempts + [Attempt(prefix + found.info.get("x0_template", "design"), "check failed",
-                                                  reason, time.perf_counter() - start)])
-    earlier = [a.to_dict() for a in attempts]
-    info = dict(mapped.info, attempts=earlier + [dict(d, label=prefix + d["label"]) for d in found.info.get("attempts", [])])
-    info["x0_template"] = prefix + str(found.info.get("x0_template", ""))
-    return replace(mapped, info=info)
+    found = design_auto(normalised, normalised_options, backend=backend, design_fixed=_design_as_written,
+                        robust_gain=robust_gain, verify=verify_in_users_units)
+    return units.from_normalised(found, s, problem, options)
 
 
 def robust_gain(problem: Problem, options: DesignOptions, be) -> tuple[np.ndarray, np.ndarray, str]:
@@ -104,11 +86,34 @@ def robust_gain(problem: Problem, options: DesignOptions, be) -> tuple[np.ndarra
 
 
 def design_fixed(problem: Problem, options: DesignOptions, backend="drake", gain=None) -> OfflineDesign:
-    """The offline design with the template named by ``options.x0_template`` (not "auto").
+    """The offline design with the template named by ``options.x0_template`` (not "auto"), computed
+    in the state units normalised by W and mapped back (:mod:`amcp_drake.offline.units`; with W's
+    extents equal, the design as written, bit for bit).
 
-    ``gain``: an already computed (K, P, source) of :func:`robust_gain` for these options (the
-    automatic mode reuses it across templates); None computes it.
+    ``gain``: an already computed (K, P, source) of :func:`robust_gain` for these options, in the
+    user's units; None computes it. The design is not checked here (the certificate does), except
+    that a check passing in the normalised units must pass on the mapped design in the user's units:
+    :class:`~amcp_drake.offline.units.UnitsMappingError` otherwise.
     """
+    options = options.validate_for(problem)
+    s = units.normalising_scales(problem)
+    if units.is_identity(s):
+        return _design_as_written(problem, options, backend=backend, gain=gain)
+    normalised, normalised_options = units.to_normalised(problem, options, s)
+    found = _design_as_written(normalised, normalised_options, backend=backend, gain=units.gain_to_normalised(gain, s))
+    mapped = units.from_normalised(found, s, problem, options, gain)
+    failed = [c.name for c in verify_design(problem, mapped, options.mu_state_bound) if not c.passed]
+    if failed:
+        passed_in_xi = {c.name for c in verify_design(normalised, found, normalised_options.mu_state_bound) if c.passed}
+        lost = [name for name in failed if name in passed_in_xi]
+        if lost:
+            raise units.UnitsMappingError(lost)
+    return mapped
+
+
+def _design_as_written(problem: Problem, options: DesignOptions, backend="drake", gain=None) -> OfflineDesign:
+    """The design of :func:`design_fixed` in the units ``problem`` is written in (no normalisation):
+    the template design of spec §4-§6; the automatic mode runs it on the normalised problem."""
     options = options.validate_for(problem)
     be = get_backend(backend)
     # μ, eq. (11), first: it needs no solver and fails fast on a missing state box

@@ -1,22 +1,49 @@
-"""The automatic design's fallback in normalised state units (session 7).
+"""The offline design in state units normalised by W (session 8; replaces session 7's fallback).
 
-The design is not invariant under a change of state units x̃ = T x, T = diag(t_i), although every claim
-of the paper is: the template directions of X0 are fixed unit vectors, the LMI objective and the
-solvers' tolerances see the numbers as written. A system whose states are in very different units
-(a position in m next to a velocity in mm/s) can then fail every candidate that the same system in
-comparable units passes (measured: ``massera2017`` with x̃ = diag(100, 0.01, 0.01) x failed all 15).
+Every claim of the paper is invariant under a change of state units x̃ = T x, T = diag(t_i) > 0, but
+the design as written is not: the X0 template directions are fixed unit vectors in x
+(:func:`~amcp_drake.offline.templates.template_directions`) and the objective trace(P⁻¹) of the gain
+LMI (16) is another objective after a non-uniform T. Measured on session 7's main: Example 1 in units
+diag(100, 0.01) designed at its first candidate with K·T⁻¹ = [−0.051, −0.478] instead of
+[0.018, −0.415]; ``massera2017`` in diag(100, 0.01, 0.01) failed all 15 candidates.
 
-When every candidate of the automatic design fails, it is run once more on the problem in the units
-ξ = S x, S = diag(1/e_i), e_i = max_{w ∈ W} |w_i| (W's extent in state i: W transforms with the units,
-so ξ is the same for the system in any diagonal units), and the design is mapped back to x:
+So every design (automatic and fixed template, :func:`~amcp_drake.offline.design.design` and
+:func:`~amcp_drake.offline.design.design_fixed`) is computed in the units
+
+    ξ = S x,  S = diag(s_i),  s_i = max_j e_j / e_i,  e_i = max_{w ∈ W} |w_i| (W's extent in state i),
+
+and mapped back to x:
 
     K = K_ξ S,  P = S P_ξ S,  H_x = H_ξ S,  x^j = S⁻¹ ξ^j,  A_z = S⁻¹ A_z,ξ S,  H_T = H_T,ξ S,
 
 while w̄, f̄, h̄, λ̄, h_T, Θ0 and the terminal iterations are unit-free (each is a support of a set in
 rows that are mapped with it). μ of (11) is recomputed in x, since the LMS step (12) runs in the
-user's units. The mapped design must then pass every check of
-:func:`~amcp_drake.offline.checks.verify_design` in x, independently of how it was found; it is the
-user's problem that is certified, never the normalised one.
+user's units. A user-given K, P are returned as given (not K S⁻¹ S, which differs in the last bit).
+
+Why this S:
+
+* W transforms with the units (T W) and is bounded with 0 inside (Assumption 1), so e_i > 0 always
+  and, for the same system in units T, S̃ T = c S with c = max_j(t_j e_j) / max_j e_j: the normalised
+  problems of all diagonal units differ by the common factor c only, for which the design is
+  unit-free (the gain LMI since session 7, ``backends/gain_scaling.py``; the templates, X_f and every
+  check work on rows with right-hand side 1). Z is not used: it may leave states unbounded.
+* s_i = max e / e_i (not 1 / e_i): S = I exactly when W's extents are equal, and then the design is
+  the one as written, bit for bit (every file in ``examples/`` has equal extents). Extents equal up
+  to :data:`EXTENT_RTOL` count as equal (vertex enumeration's round-off must not move a design).
+
+Acceptance in the user's units. The automatic mode judges every candidate by
+:func:`~amcp_drake.offline.checks.verify_design` on the design *mapped back to x*, so the design it
+returns passes every check in the user's units by construction; when none does,
+:class:`~amcp_drake.offline.auto.AutoDesignError` lists every attempt as before. A fixed template
+is not checked by the design (as in the user's units, the certificate judges it), except for what
+the change of units could break: a check that passes in ξ and fails on the mapped design in x raises
+:class:`UnitsMappingError` naming it; a check failing in both is the template's own result and is
+returned as a design with a balanced W would be.
+
+This replaces session 7's fallback (redo the automatic design in ξ = diag(1/e) x only when every
+candidate failed in x and W's extents differed by 1.5× or more): that left the design of a problem
+that passed in x depending on its units. There is no fallback to the units as written: a design
+found in x but not in ξ would make the outcome depend on the units again.
 """
 
 from __future__ import annotations
@@ -25,49 +52,88 @@ from dataclasses import replace
 
 import numpy as np
 
+from amcp_drake.model.errors import DesignError
 from amcp_drake.model.problem import DesignOptions, Problem
 from amcp_drake.model.state_units import scale_states
 from amcp_drake.offline.result import OfflineDesign, regressor_bound
 
-#: Units are left as they are when W's extents differ by less than this factor (the normalised
-#: problem would be the same up to a common scale, for which the design is already unit-free).
-UNIFORM_RATIO = 1.5
+#: W's extents whose ratio to the largest is within this of 1 count as equal (s_i = 1 exactly): the
+#: extents come from Qhull's vertices of W, accurate to ~1e-12 relative; rescaling by less than 1e-9
+#: would only move the design in its last digits, breaking the bit-for-bit promise for balanced W.
+EXTENT_RTOL = 1e-9
+
+
+class UnitsMappingError(DesignError):
+    """A fixed-template design made in normalised units failed, mapped back to the user's units, a
+    design check it passed in the normalised units (``checks`` names them)."""
+
+    def __init__(self, checks: list[str]) -> None:
+        self.checks = checks
+        super().__init__(
+            "design in state units normalised by W (offline/units.py): mapped back to the user's units the "
+            f"design fails {', '.join(checks)}, which it passes in the normalised units (a check at the edge "
+            "of its round-off allowance). Next: give the problem in units where W's extents are equal, or "
+            "another template (design.x0_template, design.x0_facets).")
 
 
 def w_extents(problem: Problem) -> np.ndarray:
-    """e_i = max_{w ∈ W} |w_i| from the vertices of W (exact; W is bounded with 0 inside, so e_i > 0)."""
+    """e_i = max_{w ∈ W} |w_i| from the vertices of W (W is bounded with 0 inside, so e_i > 0)."""
     return np.max(np.abs(problem.w_vertices()), axis=0)
 
 
-def needs_units(problem: Problem) -> bool:
-    """True when W's extents over the states differ by at least :data:`UNIFORM_RATIO`."""
+def normalising_scales(problem: Problem) -> np.ndarray:
+    """s with ξ = diag(s) x: s_i = max_j e_j / e_i, and exactly 1 where that is within
+    :data:`EXTENT_RTOL` of 1 (so s = 1 exactly for a W with equal extents)."""
     e = w_extents(problem)
-    return bool(np.max(e) >= UNIFORM_RATIO * np.min(e))
+    s = np.max(e) / e
+    s[np.abs(s - 1.0) <= EXTENT_RTOL] = 1.0
+    return s
 
 
-def to_normalised(problem: Problem, options: DesignOptions) -> tuple[Problem, DesignOptions, np.ndarray]:
-    """(the problem in ξ = S x, the options with a given K, P, X0 mapped into ξ, S as a vector)."""
-    s = 1.0 / w_extents(problem)
-    S_inv = np.diag(1.0 / s)
+def is_identity(s: np.ndarray) -> bool:
+    """True when ξ = x (every s_i == 1): the design is then made as written."""
+    return bool(np.all(s == 1.0))
+
+
+def to_normalised(problem: Problem, options: DesignOptions, s: np.ndarray) -> tuple[Problem, DesignOptions]:
+    """(the problem in ξ = diag(s) x, the options with a given K, P, X0 mapped into ξ).
+
+    ``mu_state_bound`` is left as it is: it only enters μ, which :func:`from_normalised` recomputes in x."""
     changes = {}
     if options.K is not None:
-        changes["K"] = np.asarray(options.K, float) @ S_inv
+        changes["K"] = np.asarray(options.K, float) / s[None, :]
     if options.P is not None:
-        changes["P"] = S_inv @ np.asarray(options.P, float) @ S_inv
+        changes["P"] = np.asarray(options.P, float) / np.outer(s, s)
     if options.x0_H is not None:
-        changes["x0_H"] = np.asarray(options.x0_H, float) @ S_inv
-    return scale_states(problem, s), replace(options, **changes), s
+        changes["x0_H"] = np.asarray(options.x0_H, float) / s[None, :]
+    return scale_states(problem, s), replace(options, **changes)
 
 
-def from_normalised(design: OfflineDesign, s: np.ndarray, problem: Problem, options: DesignOptions) -> OfflineDesign:
+def gain_to_normalised(gain: tuple | None, s: np.ndarray) -> tuple | None:
+    """A (K, P, source) of ``robust_gain`` in x mapped into ξ = diag(s) x (None stays None)."""
+    if gain is None:
+        return None
+    K, P, source = gain
+    return np.asarray(K, float) / s[None, :], np.asarray(P, float) / np.outer(s, s), source
+
+
+def from_normalised(design: OfflineDesign, s: np.ndarray, problem: Problem, options: DesignOptions,
+                    gain: tuple | None = None) -> OfflineDesign:
     """The design of the problem in ξ = diag(s) x mapped back to x (module docstring); μ recomputed
-    on ``problem`` (the user's units)."""
+    on ``problem`` (the user's units); a user-given K, P (``options`` or ``gain`` with source
+    "given") returned exactly as given."""
     S, S_inv = np.diag(s), np.diag(1.0 / s)
+    K, P = design.K @ S, S @ design.P @ S
+    if options.K is not None and options.P is not None:
+        K, P = np.asarray(options.K, float), np.asarray(options.P, float)
+    elif gain is not None and gain[2] == "given":
+        K, P = np.asarray(gain[0], float), np.asarray(gain[1], float)
     mu_sup, region = regressor_bound(problem, options.mu_state_bound)
     info = dict(design.info, state_units={"normalised_by": "W extents", "xi_equals_diag_times_x": s.tolist()})
-    return replace(design, K=design.K @ S, P=S @ design.P @ S, H_x=design.H_x @ S,
-                   X0_vertices=design.X0_vertices @ S_inv, A_z=S_inv @ design.A_z @ S, H_T=design.H_T @ S,
+    return replace(design, K=K, P=P, H_x=design.H_x @ S, X0_vertices=design.X0_vertices @ S_inv,
+                   A_z=S_inv @ design.A_z @ S, H_T=design.H_T @ S,
                    mu=float(options.mu_fraction / mu_sup), mu_sup=float(mu_sup), mu_region=region, info=info)
 
 
-__all__ = ["UNIFORM_RATIO", "from_normalised", "needs_units", "to_normalised", "w_extents"]
+__all__ = ["EXTENT_RTOL", "UnitsMappingError", "from_normalised", "gain_to_normalised", "is_identity",
+           "normalising_scales", "to_normalised", "w_extents"]
