@@ -172,3 +172,17 @@ def test_a_check_lost_by_the_mapping_is_an_error_not_a_silent_design(monkeypatch
     monkeypatch.setattr(units, "from_normalised", losing_P)
     with pytest.raises(units.UnitsMappingError, match="terminal cost"):
         design(scale_states(spec.problem, EXAMPLE_1_UNITS[0]), options, backend="drake")
+
+
+def test_as_written_designs_in_the_files_units_and_a_bad_value_names_the_field():
+    """design.state_units = "as written" is the design in the units of the file (no "state_units" record;
+    Example 1 in diag(100, 0.01) then gets the other K of session 7: K̃T = [−0.051, −0.478], not [0.018, −0.415])."""
+    from amcp_drake.model.errors import ProblemError
+
+    spec = get_example("lorenzen2019")
+    problem = scale_states(spec.problem, EXAMPLE_1_UNITS[0])
+    d = design(problem, replace(spec.design, state_units="as written"), backend="drake")
+    assert "state_units" not in d.info
+    assert np.max(np.abs(d.K * EXAMPLE_1_UNITS[0][None, :] - [[0.018, -0.415]])) > 0.05
+    with pytest.raises(ProblemError, match="design.state_units"):
+        design(problem, replace(spec.design, state_units="metres"))

@@ -315,6 +315,8 @@ def check_theta_rate(theta_star: np.ndarray, d_theta: float, field: str = "theta
 
 DISTURBANCE_KINDS = frozenset({"uniform", "vertices", "zero"})
 
+#: Values of ``DesignOptions.state_units`` (offline/units.py).
+STATE_UNITS = ("normalised", "as written")
 #: λ of the contractive template when x0_template = "contractive" and x0_lambda is not given.
 DEFAULT_X0_LAMBDA = 0.9
 
@@ -344,6 +346,10 @@ class DesignOptions:
     * ``x0_H`` (u, n): the user's X0 for ``"given"``.
     * ``gain_R_scale`` (>= 1): the gain LMI (16) is solved with R multiplied by this (a lower-gain K,
       whose P still satisfies (16) with the true R); 1 = the LMI of the paper.
+    * ``state_units``: ``"normalised"`` (default): the design is computed in the state units where
+      W's extents are equal and mapped back, so the same system in other diagonal units gets the same
+      design (offline/units.py; no change where W's extents are already equal); ``"as written"``: in
+      the units of the file (the design before session 8; kept by the recorded regression problems).
     """
 
     x0_facets: int = 8
@@ -360,6 +366,7 @@ class DesignOptions:
     x0_lambda: float | None = None
     x0_H: np.ndarray | None = None
     gain_R_scale: float = 1.0
+    state_units: str = "normalised"
 
     def validate_for(self, problem: Problem) -> DesignOptions:
         """Check values and shapes against ``problem``; return self."""
@@ -379,6 +386,8 @@ class DesignOptions:
             raise ProblemError("design.mu_state_bound", "a positive finite number", repr(self.mu_state_bound))
         if not (isinstance(self.mu_fraction, (int, float)) and 0 < self.mu_fraction < 1):
             raise ProblemError("design.mu_fraction", "a number in (0, 1) (1/μ > sup‖D‖² is strict)", repr(self.mu_fraction))
+        if self.state_units not in STATE_UNITS:
+            raise ProblemError("design.state_units", f"one of {list(STATE_UNITS)}", repr(self.state_units))
         if self.centre_dynamics not in ("nominal", "zero"):
             raise ProblemError("design.centre_dynamics", "'nominal' or 'zero'", repr(self.centre_dynamics))
         as_positive_int("design.terminal_max_iter", self.terminal_max_iter, 1)

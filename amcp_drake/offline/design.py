@@ -50,7 +50,7 @@ def design(problem: Problem, options: DesignOptions | None = None, backend="drak
     options = (options or DesignOptions()).validate_for(problem)
     if options.x0_template != "auto":
         return design_fixed(problem, options, backend=backend)
-    s = units.normalising_scales(problem)
+    s = units.normalising_scales(problem, options)
     if units.is_identity(s):
         return design_auto(problem, options, backend=backend, design_fixed=_design_as_written, robust_gain=robust_gain,
                            verify=verify_design)
@@ -96,7 +96,7 @@ def design_fixed(problem: Problem, options: DesignOptions, backend="drake", gain
     :class:`~amcp_drake.offline.units.UnitsMappingError` otherwise.
     """
     options = options.validate_for(problem)
-    s = units.normalising_scales(problem)
+    s = units.normalising_scales(problem, options)
     if units.is_identity(s):
         return _design_as_written(problem, options, backend=backend, gain=gain)
     normalised, normalised_options = units.to_normalised(problem, options, s)

@@ -40,6 +40,10 @@ the change of units could break: a check that passes in ξ and fails on the mapp
 :class:`UnitsMappingError` naming it; a check failing in both is the template's own result and is
 returned as a design with a balanced W would be.
 
+Opting out: ``design.state_units = "as written"`` designs in the units of the file (the design of
+sessions 1-7). The recorded regression problems of tests/data that pin an online defect on the design
+they were found with carry it; a user may want it to reproduce a design made in given units.
+
 This replaces session 7's fallback (redo the automatic design in ξ = diag(1/e) x only when every
 candidate failed in x and W's extents differed by 1.5× or more): that left the design of a problem
 that passed in x depending on its units. There is no fallback to the units as written: a design
@@ -81,9 +85,12 @@ def w_extents(problem: Problem) -> np.ndarray:
     return np.max(np.abs(problem.w_vertices()), axis=0)
 
 
-def normalising_scales(problem: Problem) -> np.ndarray:
+def normalising_scales(problem: Problem, options: DesignOptions | None = None) -> np.ndarray:
     """s with ξ = diag(s) x: s_i = max_j e_j / e_i, and exactly 1 where that is within
-    :data:`EXTENT_RTOL` of 1 (so s = 1 exactly for a W with equal extents)."""
+    :data:`EXTENT_RTOL` of 1 (so s = 1 exactly for a W with equal extents); all ones when
+    ``options.state_units`` is "as written"."""
+    if options is not None and options.state_units == "as written":
+        return np.ones(problem.n)
     e = w_extents(problem)
     s = np.max(e) / e
     s[np.abs(s - 1.0) <= EXTENT_RTOL] = 1.0
