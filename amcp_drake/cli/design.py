@@ -52,6 +52,10 @@ def design_cmd(problem_file, example, x0_template, backend, as_json, max_memory)
             reason = f" ({attempt['reason']})" if attempt["reason"] else ""
             click.echo(f"design attempt {i + 1}: {attempt['label']}: {attempt['outcome']}{reason} [{attempt['seconds']:.1f} s]")
         click.echo(f"X0 template: {(d.info or {}).get('x0_template', 'n/a')}")
+        state_units = (d.info or {}).get("state_units")
+        if state_units:  # offline/units.py: W's extents were unequal
+            click.echo(f"designed in the state units xi = diag({_fmt(np.asarray(state_units['xi_equals_diag_times_x']))}) x "
+                       "(W's extents equalised), mapped back and checked in the file's units")
         click.echo(f"X0: {len(d.H_x)} facets, {len(d.X0_vertices)} vertices, lambda_bar = {d.lambda_bar:.5f}")
         click.echo(f"w_bar = {_fmt(d.w_bar)}")
         click.echo(f"f_bar = {_fmt(d.f_bar)}")
