@@ -45,7 +45,9 @@ TASK_RETRIES = 2
 #: Version 2 (session 6): the online options draw the exact update (7) too (the problems are those of 1).
 #: Version 3 (session 7): 1/4 of the problems are written in badly scaled state units
 #: (``ProblemShape.scaled_states``); every later draw of a seed moves.
-GENERATOR_VERSION = "amcp_drake.studies.random_problems.random_case/3"
+#: Version 4 (session 8): the same draws, but the design is made in state units normalised by W
+#: (offline/units.py), so which draws design, their X0 and the initial states drawn from it move.
+GENERATOR_VERSION = "amcp_drake.studies.random_problems.random_case/4"
 #: The offline design of every campaign problem is computed on this backend; every online backend
 #: then runs on that design (as the property suite does), and the replay command names it.
 DESIGN_BACKEND = "drake"
