@@ -28,10 +28,10 @@ from amcp_drake.offline.design import design, design_fixed
 #: to the size of each quantity. Both designs are made on normalised problems that differ only by a
 #: common factor c (S̃T = cS, offline/units.py) and by round-off (~1e-16); the gain LMI is solved in
 #: coordinates that remove c (backends/gain_scaling.py) by an interior-point method that stops at
-#: relative gap and residuals ~1e-8 (Clarabel's defaults), and the support LPs likewise. Measured:
-#: K within 1e-11 (Example 1) … 1e-8 (massera2017); 1e-6 leaves a factor 100 above the solvers'
-#: accuracy and is still 260 times below the smallest difference the design as written showed
-#: (massera2017 in diag(0.01, 100, 100): 2.6e-4).
+#: relative gap and residuals ~1e-8 (Clarabel's defaults), and the support LPs likewise. Measured
+#: (Drake and cvxpy): K within 1e-11 (Example 1) … 9e-9 (massera2017), w̄ within 1e-8, λ̄ within 1e-11;
+#: 1e-6 leaves a factor 100 above the solvers' accuracy and is still 260 times below the smallest
+#: difference the design as written showed (massera2017 in diag(0.01, 100, 100): 2.6e-4).
 COVARIANCE_RTOL = 1e-6
 
 EXAMPLE_1_UNITS = [np.array([100.0, 0.01]), np.array([0.01, 100.0])]

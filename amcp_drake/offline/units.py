@@ -42,7 +42,7 @@ returned as a design with a balanced W would be.
 
 Measured (session 8; tests/test_units.py, benchmarks/units_twins.py, docs/decisions.md): every file in
 ``examples/`` designs bit for bit as before on both backends; Example 1 in diag(100, 0.01) gets
-K̃T = K to 4e-12, massera2017 in diag(0.01, 100, 100) to 2e-9; of 400 generated draws (Drake) in units
+K̃T = K to 1e-11 (relative), massera2017 in diag(0.01, 100, 100) to 2e-9; of 400 generated draws (Drake) in units
 10^e the design rejected 17 where their unscaled twins rejected 3, now 3 and 3, every draw with its
 twin's outcome and K̃T = K to 3.5e-7; of 150 on cvxpy 9 where the twins rejected 2, now 2 and 2, every
 draw with its twin's outcome (K̃T = K to 3.5e-4: the cvxpy gain LMI is less accurate under a common
