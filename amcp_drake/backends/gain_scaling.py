@@ -139,7 +139,7 @@ def _attempt(solve: ScaledSolve, scaling: GainScaling, A_vertices, B_vertices, Q
     accepted, else None)."""
     data = scaling.scaled(A_vertices, B_vertices, Q, R)
     if first:
-        result, answer_P = _one_solve(solve, scaling, data, first)
+        result, _ = _one_solve(solve, scaling, data, first)
         if result.status is SolveStatus.OPTIMAL:
             return result, None
     return _one_solve(solve, scaling, data, None)

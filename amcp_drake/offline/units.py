@@ -116,11 +116,11 @@ def to_normalised(problem: Problem, options: DesignOptions, s: np.ndarray) -> tu
     ``mu_state_bound`` is left as it is: it only enters μ, which :func:`from_normalised` recomputes in x."""
     changes = {}
     if options.K is not None:
-        changes["K"] = np.asarray(options.K, float) / s[None, :]
+        changes["K"] = _rows_into(options.K, s)
     if options.P is not None:
-        changes["P"] = np.asarray(options.P, float) / np.outer(s, s)
+        changes["P"] = _form_into(options.P, s)
     if options.x0_H is not None:
-        changes["x0_H"] = np.asarray(options.x0_H, float) / s[None, :]
+        changes["x0_H"] = _rows_into(options.x0_H, s)
     return scale_states(problem, s), replace(options, **changes)
 
 
@@ -129,7 +129,17 @@ def gain_to_normalised(gain: tuple | None, s: np.ndarray) -> tuple | None:
     if gain is None:
         return None
     K, P, source = gain
-    return np.asarray(K, float) / s[None, :], np.asarray(P, float) / np.outer(s, s), source
+    return _rows_into(K, s), _form_into(P, s), source
+
+
+def _rows_into(M, s: np.ndarray) -> np.ndarray:
+    """Rows of linear functions of x (K, H_x) written in ξ = diag(s) x: M x = (M diag(s)⁻¹) ξ."""
+    return np.asarray(M, float) / s[None, :]
+
+
+def _form_into(P, s: np.ndarray) -> np.ndarray:
+    """A quadratic form of x written in ξ = diag(s) x: xᵀPx = ξᵀ(diag(s)⁻¹ P diag(s)⁻¹)ξ."""
+    return np.asarray(P, float) / np.outer(s, s)
 
 
 def from_normalised(design: OfflineDesign, s: np.ndarray, problem: Problem, options: DesignOptions,
