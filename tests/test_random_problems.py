@@ -11,11 +11,9 @@ import pytest
 from scipy.optimize import linprog
 
 from amcp_drake.model.errors import ProblemError
+from amcp_drake.studies.pinning import apply_pin, can_pin_at, pin_first_disturbance, pinning_disturbance
 from amcp_drake.studies.random_problems import (
     ProblemShape,
-    apply_pin,
-    can_pin_at,
-    pinning_disturbance,
     random_case,
     random_problem,
     random_shape,
@@ -167,8 +165,9 @@ def test_pinning_needs_theta_star_on_the_boundary_and_a_regressor_of_full_rank()
     with pytest.raises(ProblemError, match="regressor"):
         pinning_disturbance(problem, np.zeros((2, 2)), vertex)
     with_b, _ = _problem(4, n=2, m=1, p=2, input_uncertainty=True)
-    with pytest.raises(ProblemError, match="pin"):
+    with pytest.raises(ProblemError, match="u0"):  # input uncertainty: D(x_0, u_0) needs the first input
         apply_pin(with_b, np.ones(2), with_b.theta_vertices()[0], np.zeros((3, 2)), "point")
+    assert not can_pin_at(with_b, np.ones(2), with_b.theta_vertices()[0])
 
 
 def test_can_pin_at_refuses_an_x0_where_the_regressor_loses_rank():
@@ -254,3 +253,48 @@ def test_the_radius_of_the_last_set_is_measured_when_the_update_changed_its_rows
     cut = (np.vstack([BOX[0], [[2.0, 0.0]]]), np.r_[BOX[1], 1.0])
     assert last_theta_k_radius(_run_of_sets(BOX, cut)) == pytest.approx(0.75, abs=1e-9)
     assert np.isnan(last_theta_k_radius(_run_of_sets(BOX)))
+
+
+def _theta_1_recorded(problem, x0, u0, x1):
+    """Θ ∩ Δ_1 from recorded data (x_0, u_0, x_1), written from spec §3 with input uncertainty:
+    Δ_1 = {θ | H_w (x_1 − A0 x0 − B0 u0 − D(x0, u0) θ) <= 1}, D = [A_i x0 + B_i u0]_i."""
+    D = np.stack([A_i @ x0 + B_i @ u0 for A_i, B_i in zip(problem.A, problem.B)], axis=1)
+    H = np.vstack([problem.H_theta, -problem.H_w @ D])
+    h = np.concatenate([problem.h_theta, 1.0 - problem.H_w @ (x1 - problem.A0 @ x0 - problem.B0 @ u0)])
+    return H, h
+
+
+@pytest.mark.parametrize("backend", ["drake", "cvxpy"])
+@pytest.mark.parametrize(("kind", "mode"), [("vertex", "point"), ("facet", "point"), ("vertex", "thin")])
+def test_pinning_with_input_uncertainty_collapses_theta_1_on_the_closed_loop(backend, kind, mode):
+    """Generator version 5: with B_i != 0, w_0 is chosen for the controller's first input u_0
+    (computed on Drake), so the closed loop of either backend has a Θ_1 of zero volume (radius of
+    the controller's 1e-6 widening of Δ_1 at most), which contains θ*. Θ_1 is recomputed here from
+    the recorded x_0, u_0, x_1 with scipy's LP. Negative control: w_0 chosen as if u_0 = 0 (the
+    regressor without the input) picks another vertex of W on this draw and leaves Θ_1
+    full-dimensional (radius 0.24 at the vertex, 0.11 on the facet)."""
+    from amcp_drake.offline.design import design
+    from amcp_drake.online.controller import DELTA_MARGIN, AdaptiveMPC
+    from amcp_drake.online.simulate import simulate
+
+    spec, _ = random_problem(np.random.default_rng(8), ProblemShape(n=2, m=1, p=2, N=3, input_uncertainty=True))
+    problem = spec.problem
+    assert np.any(problem.B)
+    offline = design(problem, spec.design)
+    theta_star = random_theta_star(np.random.default_rng(2), problem, kind)
+    assert theta_star_face(problem, theta_star) == kind
+    x0 = np.array([0.3, -0.2])
+    w, pin = pin_first_disturbance(problem, offline, x0, theta_star, np.zeros((2, 2)), mode)
+    assert pin == mode and np.any(w[0])
+    traj = simulate(AdaptiveMPC(problem, offline, backend=backend), x0, theta_star, 2, w)
+    H, h = _theta_1_recorded(problem, traj.x[0], traj.u[0], traj.x[1])
+    assert np.all(H @ theta_star <= h + 1e-9)
+    assert _chebyshev_radius(H, h) <= 1e-6
+    # the backend's own Θ_1 (recorded at step 1, Δ_1 widened by DELTA_MARGIN) is as thin: the pin reached it
+    rec = traj.records[1]
+    assert _chebyshev_radius(np.asarray(rec.H_theta), np.asarray(rec.h_theta)) <= 5 * DELTA_MARGIN
+    # negative control: w_0 pinning for u_0 = 0 instead of the controller's u_0
+    w_wrong = np.zeros((2, 2))
+    w_wrong[0] = pinning_disturbance(problem, problem.regressor(x0, np.zeros(problem.m)), theta_star)
+    wrong = simulate(AdaptiveMPC(problem, offline, backend=backend), x0, theta_star, 2, w_wrong)
+    assert _chebyshev_radius(*_theta_1_recorded(problem, wrong.x[0], wrong.u[0], wrong.x[1])) > 1e-2

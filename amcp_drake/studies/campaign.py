@@ -47,7 +47,9 @@ TASK_RETRIES = 2
 #: (``ProblemShape.scaled_states``); every later draw of a seed moves.
 #: Version 4 (session 8): the same draws, but the design is made in state units normalised by W
 #: (offline/units.py), so which draws design, their X0 and the initial states drawn from it move.
-GENERATOR_VERSION = "amcp_drake.studies.random_problems.random_case/4"
+#: Version 5 (session 9): problems with input uncertainty and p <= n are pinned too (w_0 chosen for the
+#: controller's first input u_0, studies/pinning.py); the pin draw then moves every later draw of a seed.
+GENERATOR_VERSION = "amcp_drake.studies.random_problems.random_case/5"
 #: The offline design of every campaign problem is computed on this backend; every online backend
 #: then runs on that design (as the property suite does), and the replay command names it.
 DESIGN_BACKEND = "drake"

@@ -16,14 +16,11 @@ The hard cases of issue 13 are *built*, behind explicit parameters, never filter
 
 * θ* at a vertex of Θ, on a facet (the ray from 0 to ∂Θ), or inside (:func:`random_theta_star`);
 * disturbances at the vertices of W (``"vertices"``), uniform on W, or zero;
-* **pinning** (:func:`pinning_disturbance`): the first disturbance w_0 is the vertex of W that,
-  with θ* on ∂Θ, makes Θ_1 = Θ ∩ Δ_1 collapse: to the single point {θ*} when θ* is a vertex,
-  into the hyperplane of the facet when θ* is on a facet (a Θ_k of zero volume, as campaign
-  problem 0-19 of seed 0 reached by chance). ``"thin"`` moves w_0 by :data:`THIN_FRACTION`
-  towards 0, so Θ_1 keeps an interior thinner than the solvers' tolerances (a near-empty
-  intersection). Pinning needs the first regressor D(x_0, u_0) before the controller has chosen
-  u_0: problems with ``input_uncertainty=False`` (B_i = 0, so D(x, u) = D(x)) and p <= n, where
-  D(x_0) has full column rank;
+* **pinning** (:mod:`amcp_drake.studies.pinning`): the first disturbance w_0 is the vertex of W
+  that, with θ* on ∂Θ, makes Θ_1 = Θ ∩ Δ_1 collapse to {θ*} (θ* a vertex) or into the facet's
+  hyperplane, or (``"thin"``) leaves it thinner than the solvers' tolerances; for p <= n, where
+  the first regressor D(x_0, u_0) has full column rank. With input uncertainty u_0 is the
+  controller's first input (generator version 5; before, only problems with B_i = 0 were pinned);
 * very active constraints: x_0 on the boundary of the feasible set of (20) (an LP along a random
   ray, :mod:`amcp_drake.studies.tube_feasibility`), and ``tight_state_box`` (state bounds of 0.5-1.5
   instead of 1-4, so state rows of Z bind together with the input rows).
@@ -44,6 +41,7 @@ from amcp_drake.model.state_units import scale_states
 from amcp_drake.offline.design import OfflineDesign, design
 from amcp_drake.online.controller import DELTA_MARGIN
 from amcp_drake.online.simulate import disturbance_sequence
+from amcp_drake.studies.pinning import active_theta_rows, pin_first_disturbance
 from amcp_drake.studies.tube_feasibility import TubeGeometry, max_ray_length
 
 #: Initial states "on" the boundary of the feasible set of (20) are placed at this fraction of
@@ -52,16 +50,6 @@ from amcp_drake.studies.tube_feasibility import TubeGeometry, max_ray_length
 #: lengths of order 1-10) keeps the point inside for the backends' QPs (Clarabel, 1e-8) while it
 #: is still on the boundary for every practical purpose.
 BOUNDARY_BACKOFF = 1e-5
-#: "thin" pinning moves the pinning vertex of W towards 0 by this fraction: Θ_1 then keeps an
-#: interior of width ~1e-7·‖w‖/‖D‖ (about 1e-8-1e-7 here), the order of the LP/QP solvers'
-#: feasibility tolerances (1e-7 to 1e-9): θ* is then strictly inside Δ_1 but the intersection is
-#: as thin as with exact pinning once the controller's 1e-6 widening of Δ_k is added.
-THIN_FRACTION = 1e-7
-#: A row of Θ is active at θ* when its normalised slack is below this (θ* built on ∂Θ has slack
-#: ~1e-16; 1e-9 separates that from every deliberately interior point, which is >= 5 % inside).
-ACTIVE_ROW_TOL = 1e-9
-#: D(x_0)ᵀ c = g must be solved to this relative residual for pinning (full column rank of D(x_0)).
-PIN_RESIDUAL_TOL = 1e-9
 #: A campaign draws at most this many problems per index before giving up (the offline design
 #: rejects about 1 in 10 generated problems; 20 failures in a row mean a broken generator).
 MAX_DESIGN_ATTEMPTS = 20
@@ -72,7 +60,6 @@ DESIGN_BACKEND = "drake"
 THETA_STAR_KINDS = ("vertex", "facet", "interior")
 INITIAL_STATE_KINDS = ("boundary", "near boundary", "interior")
 DISTURBANCE_KINDS = ("vertices", "uniform", "zero")
-PIN_MODES = ("none", "point", "thin")
 
 
 # -- numbers on grids ------------------------------------------------------------------------------
@@ -146,7 +133,7 @@ class ProblemShape:
     * ``tight_state_box``: state bounds 0.5-1.5 instead of 1-4 (state and input rows bind together).
     * ``coupled_Q``: Q = diag + L Lᵀ instead of diagonal.
     * ``theta_hat0_off_centre``: θ̂0 on a ray towards ∂Θ instead of 0.
-    * ``input_uncertainty``: B_i drawn like A_i; False: B_i = 0, so D(x, u) = D(x) (needed for pinning).
+    * ``input_uncertainty``: B_i drawn like A_i; False: B_i = 0, so D(x, u) = D(x).
     * ``zero_centre``: the tube centre dynamics A_z of spec §5.1 is 0 instead of A_cl(θ̂0).
     * ``delta_range``: range of δ = p·‖[A_i B_i]‖₂ (the size of the parametric uncertainty).
     * ``scaled_states``: the problem is written in the state coordinates x̃ = T x, T = diag(10^s_i),
@@ -182,8 +169,9 @@ class ProblemShape:
 
     @property
     def can_pin(self) -> bool:
-        """Pinning needs D(x, u) = D(x) (no input uncertainty) with full column rank (p <= n)."""
-        return not self.input_uncertainty and self.p <= self.n
+        """Pinning needs the first regressor D(x_0, u_0) (n, p) of full column rank: p <= n
+        (with input uncertainty u_0 is the controller's first input, :mod:`~amcp_drake.studies.pinning`)."""
+        return self.p <= self.n
 
 
 def random_shape(rng: np.random.Generator, max_n: int = 3, max_m: int = 2, max_p: int = 3, min_N: int = 2,
@@ -360,65 +348,6 @@ def random_disturbances(rng: np.random.Generator, problem: Problem, steps: int, 
     return w, seed
 
 
-def active_theta_rows(problem: Problem, theta: np.ndarray) -> np.ndarray:
-    """Indices of the rows of H_θ θ <= h_θ active at θ (normalised slack <= :data:`ACTIVE_ROW_TOL`)."""
-    norms = np.linalg.norm(problem.H_theta, axis=1)
-    slack = (problem.h_theta - problem.H_theta @ theta) / norms
-    return np.flatnonzero(slack <= ACTIVE_ROW_TOL)
-
-
-def pinning_disturbance(problem: Problem, regressor: np.ndarray, theta_star: np.ndarray,
-                        thin: bool = False) -> np.ndarray:
-    """The vertex w of W that makes Θ ∩ Δ collapse at θ* ∈ ∂Θ, for data x⁺ = A(θ*)x + B(θ*)u + w
-    with regressor D = D(x, u) (n, p) of full column rank.
-
-    Δ = {θ | D(θ* − θ) + w ∈ W} (spec §3), so near θ* the intersection Θ ∩ Δ is θ* plus the cone
-    {δ | g_i·δ <= 0 (rows of Θ active at θ*), a_j·(−D δ) <= 0 (rows of W active at w)}. With
-    g = Σ g_i/‖g_i‖, D^T c = g and w maximising c·w over W (so c is in the normal cone of W at
-    w, c = Σ ν_j a_j, ν >= 0), every δ of the cone has g·δ <= 0 and g·δ = (D^T c)·δ >= 0: the cone
-    lies in the hyperplane g·δ = 0. At a vertex θ* (active rows spanning R^p, g in the interior
-    of their cone) it is {0}: Θ_1 = {θ*}; on a facet Θ_1 lies in the facet's hyperplane; either
-    way Θ_1 has zero volume. ``thin``: w is moved towards 0 by :data:`THIN_FRACTION`, leaving an
-    interior of that relative size (a near-empty intersection).
-
-    Raises ProblemError when θ* is inside Θ or D lacks full column rank (D^T c = g unsolvable).
-    """
-    theta_star = np.asarray(theta_star, float)
-    D = np.asarray(regressor, float)
-    active = active_theta_rows(problem, theta_star)
-    if not len(active):
-        raise ProblemError("theta_star", "a point on the boundary of Theta (pinning)", "an interior point")
-    c, residual = _pinning_direction(problem, D, active)
-    if residual > PIN_RESIDUAL_TOL or not np.any(c):
-        raise ProblemError("regressor", "D(x0, u0) of full column rank (D^T c = g solvable) for pinning",
-                           f"relative residual {residual:.2g} (shape {D.shape}, rank {np.linalg.matrix_rank(D)})")
-    verts = problem.w_vertices()
-    w = verts[int(np.argmax(verts @ c))]
-    return (1.0 - THIN_FRACTION) * w if thin else w
-
-
-def _pinning_direction(problem: Problem, D: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, float]:
-    """(c, relative residual of D^T c = g), g = Σ of the unit rows of Θ active at θ* (least squares)."""
-    rows = problem.H_theta[active]
-    g = np.sum(rows / np.linalg.norm(rows, axis=1)[:, None], axis=0)
-    c, *_ = np.linalg.lstsq(D.T, g, rcond=None)
-    return c, float(np.linalg.norm(D.T @ c - g) / max(np.linalg.norm(g), 1e-300))
-
-
-def can_pin_at(problem: Problem, x0: np.ndarray, theta_star: np.ndarray) -> bool:
-    """Whether :func:`pinning_disturbance` applies at this x0 and θ*: no input uncertainty, θ* on ∂Θ
-    and D^T c = g solvable for D = D(x_0). p <= n is not enough: D(x_0) = [A_1 x_0 … A_p x_0] can
-    lose rank at particular x_0 (found by the thorough property profile: n = p = 2, the columns of
-    D(x_0) proportional), and such a draw is then not pinned ("none") rather than an error."""
-    if np.any(problem.B):
-        return False
-    active = active_theta_rows(problem, np.asarray(theta_star, float))
-    if not len(active):
-        return False
-    c, residual = _pinning_direction(problem, problem.regressor(x0, np.zeros(problem.m)), active)
-    return residual <= PIN_RESIDUAL_TOL and bool(np.any(c))
-
-
 #: The set updates drawn, equally likely: (9) and the moving window twice each, the exact update (7)
 #: once (1/5 of the runs). (7) since session 6; its steps cost ~10x those of (9) (the redundancy LPs
 #: and, in the plain form, a program with every row of its own H_θk): with 1/3 of the runs the ci
@@ -503,22 +432,6 @@ def complete_spec(case, theta_star=None) -> ProblemSpec:
     return ProblemSpec(case.spec.problem, case.spec.design, scenario, online=case.options)
 
 
-def apply_pin(problem: Problem, x0: np.ndarray, theta_star: np.ndarray, w: np.ndarray, mode: str) -> np.ndarray:
-    """``w`` with w_0 replaced by :func:`pinning_disturbance` for D(x_0) (``mode`` "point" or
-    "thin"; "none" returns ``w``). Needs a problem without input uncertainty (B_i = 0)."""
-    if mode not in PIN_MODES:
-        raise ProblemError("pin", f"one of {PIN_MODES}", repr(mode))
-    if mode == "none" or not len(w):
-        return w
-    if np.any(problem.B):
-        raise ProblemError("pin", "a problem with B_i = 0 (D(x0, u0) known before u0 is chosen)",
-                           "a problem with input uncertainty")
-    out = np.array(w, float, copy=True)
-    out[0] = pinning_disturbance(problem, problem.regressor(x0, np.zeros(problem.m)), theta_star,
-                                 thin=mode == "thin")
-    return out
-
-
 def random_case(rng: np.random.Generator, steps: int, max_N: int = 10) -> RandomCase:
     """A designed problem and a scenario, everything drawn from ``rng`` with the probabilities of
     ``amcp_properties.strategies.closed_loop_cases`` (θ* on a facet (then p >= 2) / at a vertex 3/8
@@ -544,9 +457,8 @@ def random_case(rng: np.random.Generator, steps: int, max_N: int = 10) -> Random
         pin = "none"
         if shape.can_pin and theta_kind != "interior":
             pin = "none" if coin() and coin() else ("point", "thin")[int(rng.integers(2))]
-            if pin != "none" and not can_pin_at(problem, x0, theta_star):
-                pin = "none"  # D(x_0) lost rank at this x_0 (the draws of every other case are unchanged)
-        w = apply_pin(problem, x0, theta_star, w, pin)
+        # "none" when D(x_0, u_0) lost rank at this x_0 (the draws of every other case are unchanged)
+        w, pin = pin_first_disturbance(problem, offline, x0, theta_star, w, pin)
         options = random_online_options(rng)
         labels = dict(labels, theta_star=theta_kind, x0=x0_kind, disturbance=w_kind, pin=pin,
                       update=options.update, projection=options.projection, **{"design attempts": str(attempt)})
@@ -567,7 +479,7 @@ LOWER_DIM_TOL = 10 * DELTA_MARGIN
 
 def theta_star_face(problem: Problem, theta_star: np.ndarray) -> str:
     """Where θ* lies in Θ: "vertex" (the rows of H_θ active at θ* span R^p), "facet" (on ∂Θ, not
-    at a vertex), or "interior"; active = normalised slack <= :data:`ACTIVE_ROW_TOL`."""
+    at a vertex), or "interior"; active = normalised slack <= :data:`~amcp_drake.studies.pinning.ACTIVE_ROW_TOL`."""
     theta_star = np.asarray(theta_star, float)
     if theta_star.ndim != 1:
         return "time-varying"

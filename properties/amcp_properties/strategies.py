@@ -16,8 +16,8 @@ relative to Z).
 
 Hard cases (issue 13), built: θ* on a facet (of a problem with p >= 2) / at a vertex of Θ (3/8 each); w_0 at the vertex of W
 that pins Θ_1 to {θ*} or into a facet's hyperplane (``pin="point"``), or leaves it thinner than
-the solvers' tolerances (``pin="thin"``), in 3/4 of the runs whose problem allows it (B_i = 0,
-p <= n, θ* on ∂Θ); x0 on the boundary of the feasible set of (20); tight state boxes.
+the solvers' tolerances (``pin="thin"``), in 3/4 of the runs whose problem allows it (p <= n, θ* on ∂Θ;
+with input uncertainty w_0 is chosen for the controller's first input u_0, :mod:`amcp_drake.studies.pinning`); x0 on the boundary of the feasible set of (20); tight state boxes.
 
 Layers:
 
@@ -44,6 +44,7 @@ from amcp_drake.model.options import OnlineOptions
 from amcp_drake.model.problem import Problem, ProblemSpec
 from amcp_drake.model.problem_io import spec_to_dict
 from amcp_drake.offline.design import OfflineDesign, design
+from amcp_drake.studies.pinning import pin_first_disturbance
 from amcp_drake.studies.random_problems import (
     BOUNDARY_BACKOFF,
     DESIGN_BACKEND,
@@ -53,8 +54,6 @@ from amcp_drake.studies.random_problems import (
     UPDATE_DRAWS,
     GenerationError,
     ProblemShape,
-    apply_pin,
-    can_pin_at,
     random_disturbances,
     random_initial_state,
     random_problem,
@@ -281,7 +280,7 @@ def disturbances(draw, problem: Problem, steps: int, kinds: st.SearchStrategy[st
 def pins(draw, shape: ProblemShape | None, theta_kind: str):
     """Whether w_0 pins Θ_1 (:func:`amcp_drake.studies.random_problems.pinning_disturbance`): "point"
     (zero volume) or "thin" (thinner than the solvers' tolerances), 3/8 each, or (two booleans) "none", when the
-    problem allows it (B_i = 0, p <= n) and θ* is on ∂Θ; "none" otherwise (nothing drawn)."""
+    problem allows it (p <= n) and θ* is on ∂Θ; "none" otherwise (nothing drawn)."""
     if shape is None or not shape.can_pin or theta_kind == "interior":
         return "none"
     if draw(st.booleans()) and draw(st.booleans()):
@@ -320,9 +319,8 @@ def closed_loop_cases(draw, steps: int, kinds: st.SearchStrategy[str] | None = N
     pin = draw(pins(gen.shape, theta_kind))
     if zero_from == 0:  # w = 0 from the start: nothing to pin with
         pin = "none"
-    if pin != "none" and not can_pin_at(problem, x0, theta_star):  # D(x_0) lost rank at this x_0
-        pin = "none"
-    w = apply_pin(problem, x0, theta_star, w, pin)
+    # "none" when D(x_0, u_0) lost rank at this x_0
+    w, pin = pin_first_disturbance(problem, gen.design, x0, theta_star, w, pin)
     options = draw(online_options())
     labels = dict(gen.labels, theta_star=theta_kind, x0=x0_kind, disturbance=w_kind, pin=pin,
                   update=options.update, projection=options.projection)
