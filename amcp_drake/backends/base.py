@@ -100,6 +100,11 @@ class TubeMPCData:
     #: form leaves out the rows of (15c) implied by others on Θ0 (backends/dominated_rows.py)
     h_theta0: np.ndarray | None = None
 
+    @property
+    def minmax(self) -> bool:
+        """Whether the QP's cost is the min-max cost (19) (else (17)-(18) with θ̂_k)."""
+        return self.cost == "minmax"
+
 
 @dataclass(frozen=True, eq=False)
 class MPCSolution:

@@ -167,7 +167,7 @@ class DrakeTubeMPC:
         self._c_u0.set_description("PE bound on u_0|k")
 
         self._v_vars = y[lay.v0:lay.L0]
-        self._minmax = getattr(d, "cost", "certainty_equivalence") == "minmax"
+        self._minmax = d.minmax
         if self._minmax:
             self._add_minmax_cost(prog, y, Xv)
             return

@@ -214,7 +214,7 @@ def formulate(data: TubeMPCData, q: int, elastic: bool = False, u0_bounds: bool 
         constraints += [u0 >= params["u0_lo"], u0 <= params["u0_hi"]]
     if elastic:
         objective = cp.Minimize(cp.sum(cp.hstack(list(slacks.values()))))
-    elif getattr(data, "cost", "certainty_equivalence") == "minmax":
+    elif data.minmax:
         # min-max cost (19), epigraph form as in the Drake backend: s_l >= ‖(Q^½ x^j_l, R^½ u^j_l)‖ for
         # every vertex j (l < N), s_N >= ‖P^½ x^j_N‖, minimise Σ s_l² (second-order cones, not
         # t_l >= ‖·‖², whose rotated-cone form loses the slack to cancellation when the cost is small);
@@ -360,7 +360,7 @@ class CvxpyTubeMPC:
         alpha = np.asarray(f.alpha.value, float).copy()     # (N+1,)
         Lam = np.stack([np.asarray(L.value, float).reshape(nv, u, self.capacity)[..., :self.q]
                         for L in f.Lambda])  # (N, nv, u, q): padded columns dropped (_padded)
-        if getattr(self.data, "cost", "certainty_equivalence") == "minmax":  # (19) of the plan, not Σ s_l² (backends.minmax_cost)
+        if self.data.minmax:  # (19) of the plan, not Σ s_l² (backends.minmax_cost)
             cost = minmax_plan_cost(self.data, z, alpha, v)
         else:
             cost = nominal_cost(self.data, x, theta_hat, v)
@@ -377,7 +377,7 @@ class CvxpyTubeMPC:
         if self._call.name != "CLARABEL":
             return self._call.solve(problem)
         # the first try of both backends (clarabel_retry.first_try), then the user's options and the ladder
-        minmax = getattr(self.data, "cost", "certainty_equivalence") == "minmax"
+        minmax = self.data.minmax
         detail, status, elapsed, note = solve_with_retries(once, *first_try(minmax, refine, self._call.options))
         return status, elapsed, f"{detail} ({note})" if note else detail
 
