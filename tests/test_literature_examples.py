@@ -57,6 +57,8 @@ def test_parameters_fit_the_model_class():
         "massera2017": (np.array([[1.1, 0, 0], [0, 0, 1.2], [-1, 1, 0]])
                         + 0.5 * np.array([[0.7], [0.5], [-0.7]]) @ np.array([[0.4, 0.5, -0.6]]),
                         np.array([[0, 1], [1, 1], [-1, 0]]) + 0.5 * np.array([[0.7], [0.5], [-0.7]]) @ np.array([[0.4, -0.4]])),
+        # LMI-studies' Kothare1996A.m: A = [1 0.1; 0 1-0.1*alpha_k], alpha_k = 9, B = [0, 0.1*k]', k = 0.787
+        "kothare1996": (np.array([[1, 0.1], [0, 1 - 0.1 * 9]]), np.array([[0], [0.1 * 0.787]])),
     }
     for name in LITERATURE_EXAMPLES:
         spec = get_example(name)
@@ -78,6 +80,25 @@ def test_massera2017_is_the_papers_uncertain_system():
     assert sorted(theta_rows.ravel().tolist()) == [-1.0, 1.0]  # Θ = [-1, 1], |δ| <= 1
     state_rows = pr.F[np.all(pr.G == 0, axis=1)]
     assert sorted(map(tuple, state_rows.tolist())) == sorted(map(tuple, np.vstack([np.eye(3), -np.eye(3)]).tolist()))
+
+
+def test_kothare1996_is_the_papers_angular_positioning_system():
+    """At the ends α = 0.1 and 10 of Θ, A(θ) is the vertex pair A1 = [1 0.1; 0 0.99], A2 = [1 0.1; 0 0]
+    of the reproductions (ERMPC's angular_positioning_MPC_LMI.m, LMI-studies, MUP's benchmark_kothare.m),
+    B = [0; 0.1κ] with κ = 0.787 for every θ, Θ = [0.1, 10], Z holds |u| <= 2 and R = 2e-5 (the paper's
+    "Wu"); x0 = [0.05, 0] is the initial state of Kothare1996A.m and MUP's benchmark."""
+    spec = get_example("kothare1996")
+    pr = spec.problem
+    np.testing.assert_allclose(pr.A_of([0.1]), [[1, 0.1], [0, 0.99]], atol=1e-12)
+    np.testing.assert_allclose(pr.A_of([10.0]), [[1, 0.1], [0, 0]], atol=1e-12)
+    for theta in (0.1, 5.0, 10.0):
+        np.testing.assert_allclose(pr.B_of([theta]), [[0], [0.1 * 0.787]], atol=1e-12)
+    H, h = pr.H_theta.ravel(), pr.h_theta  # Θ = {θ | H θ <= h}, p = 1: an interval
+    assert (np.max(h[H < 0] / H[H < 0]), np.min(h[H > 0] / H[H > 0])) == pytest.approx((0.1, 10.0), abs=1e-12)
+    input_rows = pr.G[np.all(pr.F == 0, axis=1)]
+    assert sorted(input_rows.ravel().tolist()) == [-0.5, 0.5]  # |u| <= 2
+    np.testing.assert_array_equal(pr.R, [[2e-5]])
+    np.testing.assert_array_equal(spec.scenario.x0, [0.05, 0.0])
 
 
 def test_sls_family_is_registered_with_eps_a():

@@ -60,6 +60,18 @@ def massera2017_spec() -> ProblemSpec:
     return _data_spec("massera2017")
 
 
+def kothare1996_spec() -> ProblemSpec:
+    """Kothare, Balakrishnan & Morari, robust constrained MPC using LMIs (Automatica 1996), Example 1,
+    the angular positioning system: x⁺ = [1 0.1; 0 1 − 0.1α] x + [0; 0.1κ] u, κ = 0.787,
+    α ∈ [0.1, 10], |u| <= 2, R = 2e-5; read from the public reproductions juanmoreira20/LMI-studies
+    @ 5795e7b and gabrielfreitasm/ERMPC @ e097619 (the MUP toolbox's variant has another B). Here
+    θ = α, a constant unknown parameter: A(θ) = A0 + θ A1, A1 = [0 0; 0 −0.1], B fixed, p = 1,
+    n = 2, m = 1. Added (the paper has none of them for this setting): W = {|w_i| <= 0.001},
+    |x_i| <= 1, Q = I (MUP's Wx; the paper's C'C is only semidefinite), N = 10, θ̂0 = 5.05 (centre of
+    Θ), θ* = 9, x0 = [0.05, 0]. Default design. Choices: docs/decisions.md."""
+    return _data_spec("kothare1996")
+
+
 def lorenzen2019() -> Problem:
     """Example 1 of Lorenzen, Cannon & Allgöwer (2019), spec §9."""
     return lorenzen2019_spec().problem
@@ -91,9 +103,10 @@ def lorenzen2019_ex2_theta_star(steps: int = 100, amplitude: float = 0.3, period
 EXAMPLES = {"lorenzen2019": lorenzen2019_spec, "lorenzen2019_ex2": lorenzen2019_ex2_spec,
             "parsi2020_siso": parsi2020_siso_spec, "parsi2020_mimo": parsi2020_mimo_spec,
             "bujarbaruah2022": bujarbaruah2022_spec, "massera2017": massera2017_spec,
+            "kothare1996": kothare1996_spec,
             **{f"sls_mpc_2d_eps{e:g}": (lambda e=e: sls_mpc_2d_spec(e)) for e in SLS_EPS_A_SWEEP}}
 #: The built-in systems taken from other publications than Lorenzen et al. (2019) (issue 14).
-LITERATURE_EXAMPLES = ("parsi2020_siso", "parsi2020_mimo", "bujarbaruah2022", "massera2017")
+LITERATURE_EXAMPLES = ("parsi2020_siso", "parsi2020_mimo", "bujarbaruah2022", "massera2017", "kothare1996")
 #: The SLS-MPC 2-D family (Chen et al. 2024; constructor amcp_drake.model.sls_mpc_2d) at the ε_A of
 #: issue 14's sweep; any ε_A through ``sls_mpc_2d_spec(eps_A)``.
 SLSMPC2D_EXAMPLES = tuple(f"sls_mpc_2d_eps{e:g}" for e in SLS_EPS_A_SWEEP)
