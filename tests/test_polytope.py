@@ -119,3 +119,28 @@ def test_the_window_sliver_run_agrees_in_lockstep():
     case = SimpleNamespace(problem=traj.problem, design=traj.design, options=traj.options)
     result = lockstep.backends_agree(traj, case, "cvxpy")
     assert result.passed, result.detail
+
+
+def test_chebyshev_centre_when_highs_gives_no_answer_on_the_lp_as_written():
+    """Example 1's terminal set in states x̃ = 1e-4 x (rows of size 1e4 next to the α column of size
+    1): scipy's HiGHS ends the Chebyshev LP as written with status 4, and the design check raised a
+    raw ValueError (session 9). The centre returned must be that of the LP solved independently
+    (Clarabel through cvxpy), and its ball inside the set (numpy)."""
+    import json
+    from pathlib import Path
+
+    import cvxpy as cp
+    from scipy.optimize import linprog
+
+    data = json.loads((Path(__file__).parent / "data" / "chebyshev-highs-status4.json").read_text())
+    H, h = np.array(data["H"]), np.array(data["h"])
+    norms = np.linalg.norm(H, axis=1)
+    as_written = linprog(np.r_[np.zeros(3), -1.0], A_ub=np.hstack([H, norms[:, None]]), b_ub=h,
+                         bounds=[(None, None)] * 4, method="highs")
+    assert as_written.status == 4  # the case this test is about (else the recorded data lost it)
+    centre, radius = polytope.chebyshev_center(H, h)
+    x, r = cp.Variable(3), cp.Variable()
+    cp.Problem(cp.Maximize(r), [(H / norms[:, None]) @ x + r <= h / norms]).solve(solver=cp.CLARABEL)
+    assert radius == pytest.approx(float(r.value), rel=1e-6)
+    assert np.all(H @ centre + radius * norms <= h + 1e-9)
+    assert 1e-5 < radius < 1e-3

@@ -117,6 +117,33 @@ def test_the_automatic_design_in_other_state_units_is_the_mapped_design(name, T,
     assert_same_design_in_units(scaled_problem, scaled, _original(name, spec.design, backend, "auto"), T, spec.design)
 
 
+#: Example 1 written in x̃ = t x with a common factor far from 1 (states in micro- or mega-units).
+#: Before session 9 the design was not unit-free here: a 12-facet X0 instead of 8 (t = 1e-4, and a
+#: raw ValueError from the design check's Chebyshev LP, HiGHS status 4), a 20-facet X0 (t = 1e6), no
+#: candidate passing (t = 1e8). t = 3e-5 and below are refused by the input limits (Q̃ > 1e9).
+COMMON_FACTORS = [1e-4, 1e6, 1e8]
+
+
+@pytest.mark.parametrize("t", COMMON_FACTORS)
+def test_the_design_is_the_mapped_design_under_a_large_common_factor(t):
+    spec = get_example("lorenzen2019")
+    T = np.full(spec.problem.n, t)
+    scaled_problem = scale_states(spec.problem, T)
+    scaled = design(scaled_problem, spec.design, backend="drake")
+    assert_same_design_in_units(scaled_problem, scaled, _original("lorenzen2019", spec.design, "drake", "auto"), T,
+                                spec.design)
+
+
+@pytest.mark.parametrize(("extent", "factor"), [
+    (0.1, 1.0), (1e-4, 1.0), (1e3, 1.0),        # inside the band: the file's own scale
+    (5e4, 1e-6), (1e-5, 1e3), (2e3, 1e-5), (9.9e-5, 1e3),  # outside: 0.05, 0.01, 0.02, 0.099
+])
+def test_the_common_factor_brings_the_largest_extent_of_w_into_the_band(extent, factor):
+    assert units.common_factor(extent) == pytest.approx(factor, rel=1e-12)
+    if factor != 1.0:
+        assert 0.01 <= extent * factor < 0.1
+
+
 @pytest.mark.parametrize("name, T, changes", [
     ("lorenzen2019", EXAMPLE_1_UNITS[0], {"x0_template": "mrpi", "x0_facets": 12}),
     ("massera2017", MASSERA_UNITS[1], {"x0_template": "contractive", "x0_lambda": 0.95}),

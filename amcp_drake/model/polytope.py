@@ -92,16 +92,26 @@ def chebyshev_center(H: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, float]:
     c[-1] = -1.0
     A = np.hstack([H, norms[:, None]])
     res = linprog(c, A_ub=A, b_ub=h, bounds=[(None, None)] * n + [(None, None)], method="highs")
+    scale = 1.0
+    if res.status not in (0, 2, 3):
+        # HiGHS gave no answer (status 4, numerical difficulties: seen on sets of size 1e-5 written in
+        # rows of size 1e4-1e5 next to a column of size 1, session 9): the same LP with unit rows, in
+        # y = x / scale with scale the largest offset of the unit rows, has coefficients of order 1
+        nz = np.where(norms > 0, norms, 1.0)
+        scale = float(np.max(np.abs(h / nz))) or 1.0
+        res = linprog(c, A_ub=np.hstack([H / nz[:, None], (norms / nz)[:, None]]), b_ub=h / nz / scale,
+                      bounds=[(None, None)] * (n + 1), method="highs")
     if res.status == 2:
         return np.full(n, np.nan), float("-inf")
     if res.status == 3:
         return np.full(n, np.nan), float("inf")
     if res.status != 0:
         return np.full(n, np.nan), float("nan")
-    radius = float(res.x[-1])
+    res_x = np.asarray(res.x) * scale
+    radius = float(res_x[-1])
     if radius < -EMPTY_RADIUS_TOL:  # the radius is a free variable: negative means no point fits
         return np.full(n, np.nan), float("-inf")
-    return np.asarray(res.x[:n]), max(radius, 0.0)
+    return res_x[:n], max(radius, 0.0)
 
 
 def contains(H: np.ndarray, h: np.ndarray, x: np.ndarray, tol: float = MEMBERSHIP_TOL) -> bool:

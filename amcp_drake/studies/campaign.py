@@ -49,6 +49,8 @@ TASK_RETRIES = 2
 #: (offline/units.py), so which draws design, their X0 and the initial states drawn from it move.
 #: Version 5 (session 9): problems with input uncertainty and p <= n are pinned too (w_0 chosen for the
 #: controller's first input u_0, studies/pinning.py); the pin draw then moves every later draw of a seed.
+#: Same version: a W whose largest extent is outside offline/units.EXTENT_BAND is designed at another
+#: common scale (a scaled draw with every state in units 1e-2 and extents below 0.01).
 GENERATOR_VERSION = "amcp_drake.studies.random_problems.random_case/5"
 #: The offline design of every campaign problem is computed on this backend; every online backend
 #: then runs on that design (as the property suite does), and the replay command names it.
