@@ -270,6 +270,47 @@ def test_tube_no_longer_contains_state(recorded, spec):
     assert cert.claim("qp_optimality").data["worst_step"] == k
 
 
+def test_a_recorded_x0_vertex_off_the_vertex_fails_the_vertex_list(recorded, spec):
+    """The QP's vertex list x^1..x^v of (14) with x^1 moved outwards by 0.1 % (it is then no vertex
+    of X0 = {H_x x <= 1}): the vertex-list claim fails, and so do the claims that read x^j from the
+    record, i.e. (15c) and (15d) recomputed with the recorded Λ^j and the moved x^1, and the
+    optimality of the recorded decision (its rows are rebuilt from the same list). Every claim that
+    works on X0's vertices recomputed by Qhull still passes."""
+    data = json.loads(json.dumps(recorded))
+    data["design"]["X0_vertices"][0] = [1.001 * v for v in data["design"]["X0_vertices"][0]]
+    cert = certify(Trajectory.from_dict(data), spec)
+    assert_fails_exactly(cert, {"design.x0_vertices", "multipliers_15c", "multipliers_15d", "qp_optimality"})
+    assert cert.claim("design.x0_vertices").margin == pytest.approx(
+        -1e-3 * np.linalg.norm(recorded["design"]["X0_vertices"][0]), rel=1e-6)
+
+
+@pytest.mark.parametrize("t", [1e-4, 1e8])
+def test_a_run_in_micro_or_mega_units_passes_every_claim(t):
+    """Example 1 written in states x̃ = t x (x0, the disturbances and design.mu_state_bound with it):
+    the design in those units, an 8-step run and its certificate, which passes every claim. Before
+    session 9 the X0 vertex-list claim failed at t = 1e8 (its tolerance was 1e-8 absolute on vertices of
+    size 3e7) and the design was another one (t = 1e-4) or none (t = 1e8)."""
+    from dataclasses import replace
+
+    from amcp_drake.model.state_units import scale_states
+    from amcp_drake.offline.design import design
+    from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_drake.online.simulate import disturbance_sequence, simulate
+
+    spec = lorenzen2019_spec()
+    T = np.full(spec.problem.n, t)
+    problem = scale_states(spec.problem, T)
+    options = replace(spec.design, mu_state_bound=spec.design.mu_state_bound * t)
+    scaled = replace(spec, problem=problem, design=options)
+    w = disturbance_sequence(spec.problem, "uniform", STEPS, 0) * T
+    traj = simulate(AdaptiveMPC(problem, design(problem, options, backend="drake"), backend="drake"),
+                    T * np.asarray(spec.scenario.x0), spec.scenario.theta_star, STEPS, w,
+                    mu_state_bound=options.mu_state_bound)
+    cert = certify(traj, scaled)
+    assert cert.ids("fail") == [] and cert.ids("not_run") == []
+    assert cert.ids() == ALL_IDS and cert.passed
+
+
 def test_failed_qp_fails_recursive_feasibility(recorded, spec):
     """A run whose QP failed at step 5 (the loop stops there, as simulate does): exactly recursive
     feasibility fails; steps 0-4 are still checked and pass."""

@@ -27,7 +27,9 @@ from amcp_drake.model.check_result import CheckResult, judge
 #: scaling and is still far below any violation that matters (state bounds of order 0.1-1).
 #: A loose solver (SCS at its defaults: violations ~1e-4 on Example 1) is caught, as intended.
 QP_TOL = 1e-6
-#: Vertex enumeration by Qhull: vertices are accurate to ~1e-12; 1e-8 as in design_checks.
+#: Vertex enumeration by Qhull: vertices are accurate to ~1e-12 relative to their size; 1e-8 as in
+#: design_checks, times the size of X0 when X0 is larger than 1 (:func:`x0_vertex_list`: Example 1 in
+#: states x̃ = 1e8 x has vertices of size 3e7, recomputed to ~1e-8 absolute, and the claim failed).
 VERTEX_TOL = 1e-8
 
 GROUP_TUBE = "tube"
@@ -44,8 +46,9 @@ def x0_vertex_list(view: RunView) -> CheckResult:
     fresh = polytope.vertices(d.H_x, np.ones(len(d.H_x)))
     dist = np.linalg.norm(recorded[:, None, :] - fresh[None, :, :], axis=2)
     hausdorff = max(float(np.max(np.min(dist, axis=1))), float(np.max(np.min(dist, axis=0))))
+    tol = VERTEX_TOL * max(1.0, float(np.max(np.abs(fresh))))
     return tag(judge("X0 vertex list", "(14): the vertices x^j used by the QP are exactly the vertices of X0",
-                     0.0 - hausdorff, VERTEX_TOL, f"{len(recorded)} recorded, {len(fresh)} recomputed vertices; "
+                     0.0 - hausdorff, tol, f"{len(recorded)} recorded, {len(fresh)} recomputed vertices; "
                      "margin = −Hausdorff distance"), "design.x0_vertices", GROUP_DESIGN)
 
 
