@@ -245,6 +245,51 @@ def test_theta_hat_moved_breaks_lemma5(recorded, spec):
     assert cert.claim("lms_update").data["worst_step"] == STEPS
 
 
+def test_theta_hat_moved_outside_theta(recorded, spec):
+    """θ̂_T moved outside Θ (θ̂_1 = 1.05 > 1; closer to θ*_1 = 0.8 than the recorded 0.49, so Lemma 5
+    still holds): θ̂_k ∈ Θ fails; θ̂_T no longer follows (12) (lms_update); the cost of step T (17)
+    and the optimality of its recorded decision read θ̂_T and fail with it."""
+    tr = fresh(recorded)
+    moved = tr.records[-1].theta_hat.copy()
+    moved[0] = 1.05
+    tr.records[-1].theta_hat = moved
+    cert = certify(tr, spec)
+    assert_fails_exactly(cert, {"theta_hat_in_Theta", "lms_update", "cost_value", "qp_optimality"})
+    assert cert.claim("theta_hat_in_Theta").data["worst_step"] == STEPS
+    assert cert.claim("theta_hat_in_Theta").margin == pytest.approx(-0.05, abs=1e-12)
+
+
+def test_theta_star_moved_outside_theta(recorded, spec):
+    """θ* moved outside Θ (θ*_1 = 1.02 > 1), w_k recomputed so that the states still follow (1):
+    θ* ∈ Θ fails (Assumption 1), θ* ∈ Θ_k fails (Θ_k ⊆ Θ_0 = Θ), and w_k ∈ W fails (Θ_T ⊇
+    Θ ∩ Δ_1 ∩ … ∩ Δ_T, so a θ outside Θ_T lies outside some Δ_k: its implied w_(k−1) is outside W)."""
+    tr = fresh(recorded)
+    pr = tr.problem
+    moved = np.array(tr.theta_star, float)
+    moved[0] = 1.02
+    tr.theta_star = moved
+    tr.w = np.array([tr.x[k + 1] - pr.A_of(moved) @ tr.x[k] - pr.B_of(moved) @ tr.u[k] for k in range(STEPS)])
+    cert = certify(tr, spec)
+    assert_fails_exactly(cert, {"theta_star_in_Theta", "theta_star_in_Theta_k", "w_in_W"})
+    assert cert.claim("theta_star_in_Theta").margin == pytest.approx(-0.02, abs=1e-12)
+
+
+def test_theta_0_recorded_smaller_than_theta(recorded, spec):
+    """The recorded Θ_0 cut to θ_1 <= 0.95 (Θ = [−1, 1]³; θ*_1 = 0.8 stays inside): the premise of
+    Lemma 3, Θ ⊆ Θ_0, fails; Θ_1 (θ_1 <= 1) is no longer inside the recorded Θ_0 (nesting (10)); the
+    QP of step 0 rebuilt with the recorded Θ_0 is another program, for which the recorded decision
+    is not optimal. The tube claims still hold: (15c)-(15d) on a smaller Θ_0 are weaker."""
+    tr = fresh(recorded)
+    assert tr.records[0].H_theta[0].tolist() == [1.0, 0.0, 0.0]
+    h = tr.records[0].h_theta.copy()
+    h[0] = 0.95
+    tr.records[0].h_theta = h
+    cert = certify(tr, spec)
+    assert_fails_exactly(cert, {"Theta0_contains_Theta", "Theta_k_nested", "qp_optimality"})
+    assert cert.claim("Theta0_contains_Theta").margin == pytest.approx(-0.05, abs=1e-9)
+    assert cert.claim("qp_optimality").data["worst_step"] == 0
+
+
 def test_tube_no_longer_contains_state(recorded, spec):
     """X_0|3 = {z_0} ⊕ α_0 X0 shrunk towards its vertex farthest from x_3 (z_0 shifted, α_0 scaled by 0.3),
     with Λ_0|3 replaced by the same convex combinations of the recorded multipliers.

@@ -83,6 +83,35 @@ def test_tampered_designs_fail_the_right_check(example_spec, example_design):
     assert big_mu["mu condition (11)"].status == "fail"
 
 
+_ALL_DESIGN_CHECKS = {"terminal cost (16)", "Assumption 8", "X0 contractive", "X0 robustly invariant",
+                      "w_bar, f_bar recomputed", "X_f non-empty", "X_f invariant", "X_f in Z", "mu condition (11)"}
+
+
+@pytest.mark.parametrize("tamper, failing", [
+    # the recorded w̄ (or f̄) no longer the vertex recomputation; nothing else reads the recorded ones
+    (lambda d: replace(d, w_bar=d.w_bar + 0.01), {"w_bar, f_bar recomputed"}),
+    (lambda d: replace(d, f_bar=d.f_bar + 0.01), {"w_bar, f_bar recomputed"}),
+    # K = [0, 3]: A_cl(θ) has spectral radius 2.32. (16) with Q + KᵀRK > 0 and a contractive X0 each
+    # imply Schur stability, so both fail with Assumption 8; so do robust invariance (λ̄ >= 1), f̄ (it
+    # depends on K), the steady tube (no fixed point) and X_f (built for the old A_cl and F + GK)
+    (lambda d: replace(d, K=np.array([[0.0, 3.0]])), _ALL_DESIGN_CHECKS - {"mu condition (11)"}),
+    # K = [−2, 0]: Schur (radius 0.79) but X0 is not contractive for it (λ̄ = 2.1)
+    (lambda d: replace(d, K=np.array([[-2.0, 0.0]])), _ALL_DESIGN_CHECKS - {"mu condition (11)", "Assumption 8"}),
+    # X0 halved (H_x doubled): λ̄ is scale-free and stays, w̄ doubles and X0 is no longer robustly
+    # invariant; the recorded w̄ is the old one; the tube's steady state grows out of X_f
+    (lambda d: replace(d, H_x=2.0 * d.H_x), {"X0 robustly invariant", "w_bar, f_bar recomputed", "X_f non-empty",
+                                             "X_f invariant"}),
+    # X_f shrunk in α (h_T × 20): it no longer holds (0, α_∞), hence is not invariant either
+    (lambda d: replace(d, h_T=20.0 * d.h_T), {"X_f non-empty", "X_f invariant"}),
+], ids=["w_bar", "f_bar", "K unstable", "K not contractive", "X0 halved", "h_T x 20"])
+def test_each_tampered_design_fails_exactly_the_checks_that_depend_on_it(example_spec, example_design, tamper,
+                                                                         failing):
+    checks = verify_design(example_spec.problem, tamper(example_design), 3.0)
+    assert {c.name for c in checks} == _ALL_DESIGN_CHECKS
+    assert {c.name for c in checks if c.status == "fail"} == failing
+    assert all(c.status == "pass" for c in checks if c.name not in failing)
+
+
 def test_terminal_set_empty_is_a_clear_error(example_spec):
     # x2 >= -0.05 leaves no room for the disturbance-driven tube (alpha_inf f_bar >= 1, spec §5.1)
     pr = example_spec.problem.with_changes(F=[[0.0, -20.0], [0.0, 0.0], [0.0, 0.0]])

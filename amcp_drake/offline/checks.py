@@ -69,12 +69,14 @@ def _prestabilisation(A_cl: np.ndarray) -> CheckResult:
 def _terminal_set(problem, design, A_cl, X0_v, W_v, w_bar, h_bar) -> list[CheckResult]:
     claim_inv = "Assumption 11: A_cl(θ)({z} ⊕ αX0) ⊕ W ⊆ {z⁺} ⊕ α⁺X0 with (z⁺, α⁺) ∈ X_f, for all θ ∈ Θ"
     claim_con = "Assumption 11: (x, Kx) ∈ Z for all x ∈ {z} ⊕ αX0, (z, α) ∈ X_f"
+    non_empty = _steady_tube_in_terminal_set(design, w_bar, h_bar)
     H = np.vstack([np.column_stack([design.H_T, design.h_T]), np.r_[np.zeros(problem.n), -1.0]])
     h = np.r_[np.ones(len(design.H_T)), 0.0]
     try:
         verts = polytope.vertices(H, h)
     except ValueError as exc:
-        return [not_run("X_f invariant", claim_inv, f"X_f is unbounded or flat, vertices not enumerable: {exc}"),
+        return [non_empty,
+                not_run("X_f invariant", claim_inv, f"X_f is unbounded or flat, vertices not enumerable: {exc}"),
                 not_run("X_f in Z", claim_con, "X_f vertices not enumerable")]
     n = problem.n
     E = np.array([design.H_x @ (Ak - design.A_z) for Ak in A_cl])
@@ -98,10 +100,26 @@ def _terminal_set(problem, design, A_cl, X0_v, W_v, w_bar, h_bar) -> list[CheckR
     con_margin = min(1.0 - float(np.max(FGK @ (vert[:n] + vert[n] * xj))) for vert in verts for xj in X0_v)
     detail = f"{len(verts)} vertices of X_f, {len(design.H_T)} rows"
     return [
-        judge("X_f non-empty", "Assumption 11: X_f ≠ ∅", float(len(verts)), 0.0, detail),
+        non_empty,
         judge("X_f invariant", claim_inv, min(inclusion_margin, member_margin), VERTEX_TOL, detail),
         judge("X_f in Z", claim_con, con_margin, VERTEX_TOL, detail),
     ]
+
+
+def _steady_tube_in_terminal_set(design: OfflineDesign, w_bar: np.ndarray, h_bar: np.ndarray) -> CheckResult:
+    """X_f ≠ ∅ in the sense that matters (spec §5.1): X_f = {H_T z + h_T α <= 1, α >= 0} always holds
+    (0, 0), so emptiness as a set is never the question; a terminal set is of use only if it holds the
+    steady state of the tube dynamics at z = 0, (0, α_∞), where α_∞ = max_{k,i} w̄_i / (1 − h̄^k_i) is
+    the least fixed point of α ↦ φ(0, α) = max_{k,i} h̄^k_i α + w̄_i (finite when λ̄ < 1). Margin:
+    1 − max_i [h_T]_i α_∞ (−inf when λ̄ >= 1). Invariance of X_f implies it (φ iterated from (0, 0)
+    stays in X_f and tends to α_∞), so it fails together with "X_f invariant"; it says why."""
+    claim = "Assumption 11: X_f ≠ ∅, i.e. it holds the tube's steady state (0, α_∞), α_∞ = max w̄_i / (1 − h̄^k_i)"
+    if float(np.max(h_bar)) >= 1.0:
+        return judge("X_f non-empty", claim, float("-inf"), 0.0, "λ̄ >= 1: the tube has no steady state")
+    alpha_inf = float(np.max(w_bar[None, :] / (1.0 - h_bar)))
+    worst = float(np.max(design.h_T)) * alpha_inf if len(design.h_T) else 0.0
+    return judge("X_f non-empty", claim, 1.0 - worst, VERTEX_TOL,
+                 f"α_∞ = {alpha_inf:.6g}, max h_T α_∞ = {worst:.6g}")
 
 
 def _mu(problem: Problem, design: OfflineDesign, state_bound: float | None) -> CheckResult:
