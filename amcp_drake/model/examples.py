@@ -72,6 +72,19 @@ def kothare1996_spec() -> ProblemSpec:
     return _data_spec("kothare1996")
 
 
+def tranos2022_spec() -> ProblemSpec:
+    """Tranos, Russo & Proutiere, self-tuning tube-based MPC (STT-MPC), the paper's example in its public
+    code (rssalessio/SelfTuningTubeBasedMPC @ 172cc75, known_B/mpc_problem.py): x⁺ = A x + B u + w,
+    A = [0.6 0.2; −0.1 0.4] unknown in all four entries, B = [1; 0.5] known. Here θ = vec(A) (row-major,
+    the code's ``A.flatten()``): A0 = 0, A_i = the unit matrices E_11, E_12, E_21, E_22, B_i = 0, so
+    n = 2, m = 1, p = 4; Θ = the code's box of half side 0.07 around [0.57, 0.17, −0.12, 0.42]
+    (16 vertices), W = {|w_i| <= 3(1 + ‖B‖₂)·0.01}, x1 >= −0.15, x2 >= −1.1, u <= 1/2, Q = I, R = 1,
+    N = 6, x0 = [6, 3], θ* = vec(A) = [0.6, 0.2, −0.1, 0.4], 6 steps (the code's TOTAL_HORIZON).
+    Added: θ̂0 = the centre of Θ (the code's first estimate), |x_i| <= 7 for μ (Z bounds neither x
+    from above nor u from below). Default design. Choices: docs/decisions.md."""
+    return _data_spec("tranos2022")
+
+
 def lorenzen2019() -> Problem:
     """Example 1 of Lorenzen, Cannon & Allgöwer (2019), spec §9."""
     return lorenzen2019_spec().problem
@@ -103,10 +116,11 @@ def lorenzen2019_ex2_theta_star(steps: int = 100, amplitude: float = 0.3, period
 EXAMPLES = {"lorenzen2019": lorenzen2019_spec, "lorenzen2019_ex2": lorenzen2019_ex2_spec,
             "parsi2020_siso": parsi2020_siso_spec, "parsi2020_mimo": parsi2020_mimo_spec,
             "bujarbaruah2022": bujarbaruah2022_spec, "massera2017": massera2017_spec,
-            "kothare1996": kothare1996_spec,
+            "kothare1996": kothare1996_spec, "tranos2022": tranos2022_spec,
             **{f"sls_mpc_2d_eps{e:g}": (lambda e=e: sls_mpc_2d_spec(e)) for e in SLS_EPS_A_SWEEP}}
 #: The built-in systems taken from other publications than Lorenzen et al. (2019) (issue 14).
-LITERATURE_EXAMPLES = ("parsi2020_siso", "parsi2020_mimo", "bujarbaruah2022", "massera2017", "kothare1996")
+LITERATURE_EXAMPLES = ("parsi2020_siso", "parsi2020_mimo", "bujarbaruah2022", "massera2017", "kothare1996",
+                       "tranos2022")
 #: The SLS-MPC 2-D family (Chen et al. 2024; constructor amcp_drake.model.sls_mpc_2d) at the ε_A of
 #: issue 14's sweep; any ε_A through ``sls_mpc_2d_spec(eps_A)``.
 SLSMPC2D_EXAMPLES = tuple(f"sls_mpc_2d_eps{e:g}" for e in SLS_EPS_A_SWEEP)
