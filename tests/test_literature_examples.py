@@ -59,6 +59,8 @@ def test_parameters_fit_the_model_class():
                         np.array([[0, 1], [1, 1], [-1, 0]]) + 0.5 * np.array([[0.7], [0.5], [-0.7]]) @ np.array([[0.4, -0.4]])),
         # LMI-studies' Kothare1996A.m: A = [1 0.1; 0 1-0.1*alpha_k], alpha_k = 9, B = [0, 0.1*k]', k = 0.787
         "kothare1996": (np.array([[1, 0.1], [0, 1 - 0.1 * 9]]), np.array([[0], [0.1 * 0.787]])),
+        # SelfTuningTubeBasedMPC's known_B/mpc_problem.py: x[t+1] = A @ x[t] + B @ u[t] + w_t
+        "tranos2022": (np.array([[0.6, 0.2], [-0.1, 0.4]]), np.array([[1], [0.5]])),
     }
     for name in LITERATURE_EXAMPLES:
         spec = get_example(name)
@@ -99,6 +101,38 @@ def test_kothare1996_is_the_papers_angular_positioning_system():
     assert sorted(input_rows.ravel().tolist()) == [-0.5, 0.5]  # |u| <= 2
     np.testing.assert_array_equal(pr.R, [[2e-5]])
     np.testing.assert_array_equal(spec.scenario.x0, [0.05, 0.0])
+
+
+def test_tranos2022_is_the_papers_example():
+    """known_B/mpc_problem.py of SelfTuningTubeBasedMPC @ 172cc75: θ = A.flatten() (row-major), B = [1; 0.5]
+    known, Θ_0 = HyperRectangle.build_hypercube([0.57, 0.17, -0.12, 0.42], 7e-2) (centre ± half side),
+    W = build_hypercube(0, 3 (1 + ||B||) STD_W), STD_W = 1e-2, F = [0 1/X2_MIN; 1/X1_MIN 0; 0 0],
+    G = [0; 0; 1/U_MAX] with X2_MIN = -1.1, X1_MIN = -0.15, U_MAX = 1/2, Q = I, R = I,
+    MPC_HORIZON = 6, INITIAL_X0 = [6, 3], TOTAL_HORIZON = 6, the first estimate A_t = the centre."""
+    spec = get_example("tranos2022")
+    pr = spec.problem
+    rng = np.random.default_rng(7)
+    for theta in rng.uniform(-1, 1, size=(5, 4)):
+        np.testing.assert_allclose(pr.A_of(theta), theta.reshape(2, 2), atol=1e-12)
+        np.testing.assert_allclose(pr.B_of(theta), [[1], [0.5]], atol=1e-12)
+    centre, half_side = np.array([0.57, 0.17, -0.12, 0.42]), 7e-2
+    H, h = pr.H_theta, pr.h_theta  # Θ = {θ | H θ <= h}: each row bounds one coordinate
+    assert H.shape == (8, 4) and np.all(np.count_nonzero(H, axis=1) == 1)
+    for i in range(4):
+        upper = min(h[r] / H[r, i] for r in range(8) if H[r, i] > 0)
+        lower = max(h[r] / H[r, i] for r in range(8) if H[r, i] < 0)
+        assert (lower, upper) == pytest.approx((centre[i] - half_side, centre[i] + half_side), abs=1e-12)
+    w_half_side = 3 * (1 + np.linalg.norm([1, 0.5])) * 1e-2
+    np.testing.assert_allclose(np.sort(1 / np.abs(pr.H_w).max(axis=1)), [w_half_side] * 4, rtol=1e-12)
+    np.testing.assert_allclose(pr.F[:3], [[0, 1 / -1.1], [1 / -0.15, 0], [0, 0]], rtol=1e-12)
+    np.testing.assert_allclose(pr.G[:3], [[0], [0], [1 / 0.5]], rtol=1e-12)
+    np.testing.assert_array_equal(pr.F[3:], [[0, 0]])  # our addition: u >= -10 (Z must bound u for μ)
+    np.testing.assert_allclose(pr.G[3:], [[-0.1]], rtol=1e-12)
+    np.testing.assert_array_equal(pr.Q, np.eye(2))
+    np.testing.assert_array_equal(pr.R, [[1.0]])
+    assert pr.N == 6 and spec.scenario.steps == 6
+    np.testing.assert_array_equal(spec.scenario.x0, [6.0, 3.0])
+    np.testing.assert_allclose(pr.theta_hat0, centre, atol=1e-12)
 
 
 def test_sls_family_is_registered_with_eps_a():
