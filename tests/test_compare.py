@@ -169,7 +169,7 @@ def test_flat_optimum_steps_need_v_apart_and_the_cost_within_tolerance():
 #: Drake's at 2.9e-4 tolerance, session 8).
 _DESIGN_EXAMPLES = ("lorenzen2019", "lorenzen2019_ex2", "massera2017", "parsi2020_siso", "parsi2020_mimo",
                     "sls_mpc_2d_eps0.05", "sls_mpc_2d_eps0.15", "sls_mpc_2d_eps0.25", "sls_mpc_2d_eps0.35",
-                    "sls_mpc_2d_eps0.45", "kothare1996")
+                    "sls_mpc_2d_eps0.45", "kothare1996", "tranos2022")
 
 
 @pytest.mark.parametrize("name", _DESIGN_EXAMPLES)
