@@ -210,3 +210,43 @@ def test_the_mapped_design_is_the_normalised_one_in_the_users_units(massera_in_m
     np.testing.assert_allclose(d.X0_vertices * s, d_xi.X0_vertices, rtol=1e-12)
     assert d.mu == pytest.approx(spec.design.mu_fraction / regressor_bound(problem, spec.design.mu_state_bound)[0])
     assert d.mu != pytest.approx(d_xi.mu)
+
+
+def _known_b_problem(B_uncertain: bool = False):
+    """tranos2022 with the constraints of its source code: Z = {x1 >= -0.15, x2 >= -1.1, u <= 1/2}, bounded
+    in neither x from above nor u from below; A(θ) = θ reshaped (row-major), B = [1; 0.5] known
+    (with ``B_uncertain``, B_1 = [0.1; 0] makes D(x, u) depend on u)."""
+    from amcp_drake.model.examples import get_example
+
+    pr = get_example("tranos2022").problem
+    B = np.zeros_like(pr.B)
+    if B_uncertain:
+        B[0] = [[0.1], [0.0]]
+    return replace(pr, F=np.array([[0.0, 1 / -1.1], [1 / -0.15, 0.0], [0.0, 0.0]]), G=np.array([[0.0], [0.0], [2.0]]),
+                   B=B)
+
+
+def test_mu_of_11_needs_no_input_bound_when_b_is_known():
+    """D(x, u) = [[x1, x2, 0, 0], [0, 0, x1, x2]] does not depend on u and D Dᵀ = (x1² + x2²) I, so
+    sup ‖D‖₂² over x1 >= -0.15, x2 >= -1.1, |x_i| <= 7 is 7² + 7² = 98 (by hand); the design then
+    passes every independent check (it used to stop: "Z bounded in the input u (needed for (11))")."""
+    from amcp_drake.offline.result import regressor_bound
+
+    pr = _known_b_problem()
+    sup, region = regressor_bound(pr, 7.0)
+    assert sup == pytest.approx(98.0, rel=1e-12)
+    assert "D does not depend on u" in region
+    options = DesignOptions(mu_state_bound=7.0, x0_facets=12)
+    d = design(pr, options, backend="drake")
+    assert d.mu == pytest.approx(options.mu_fraction / 98.0, rel=1e-12)
+    checks = verify_design(pr, d, 7.0)
+    assert "mu condition (11)" in {c.name for c in checks}
+    assert all(c.status == "pass" for c in checks), [(c.name, c.status) for c in checks if c.status != "pass"]
+
+
+def test_mu_of_11_still_needs_an_input_bound_when_b_is_uncertain():
+    from amcp_drake.offline.result import regressor_bound
+
+    with pytest.raises(ProblemError, match="Z.G") as info:
+        regressor_bound(_known_b_problem(B_uncertain=True), 7.0)
+    assert "depends on u" in str(info.value)

@@ -101,9 +101,30 @@ def regressor_bound(problem: Problem, state_bound: float | None) -> tuple[float,
         h = np.concatenate([h, hb])
         region = f"Z ∩ {{|x_i| <= {state_bound:g}}}"
         if not polytope.is_bounded(H, h):
-            raise ProblemError("Z.G", "Z bounded in the input u (needed for (11))", "an input direction without bound")
+            if np.any(problem.B != 0):
+                raise ProblemError("Z.G", "Z bounded in the input u (needed for (11): D(x, u) depends on u through "
+                                   "the B_i)", "an input direction without bound")
+            return _state_regressor_bound(problem, Hb, hb, state_bound)
     verts = polytope.vertices(H, h)
     sup = max(float(np.linalg.norm(problem.regressor(vx[:n], vx[n:]), 2) ** 2) for vx in verts)
     if sup <= 0.0:
         raise ProblemError("system.A, system.B", "a regressor D(x,u) that is not identically zero on Z", "sup ‖D‖ = 0")
     return sup, region
+
+
+def _state_regressor_bound(problem: Problem, H_box: np.ndarray, h_box: np.ndarray, state_bound: float) -> tuple[float, str]:
+    """sup ‖D(x)‖₂² of (11) when every B_i = 0, so that D(x, u) = [A_1 x, ..., A_p x] does not depend on u
+    and Z need not bound u (a known B: only A is uncertain).
+
+    The supremum is taken over X_s = {x | the rows of Z without u} ∩ {|x_i| <= state_bound}, which
+    contains the projection of Z ∩ {|x_i| <= state_bound} onto x: an upper bound of the supremum over Z
+    (so μ of (11) is valid), equal to it when the rows of Z with u hold no x (input bounds) and admit
+    some u. ‖D(x)‖₂ is convex, so the supremum is attained at a vertex of X_s (enumerated exactly)."""
+    state_rows = np.all(problem.G == 0, axis=1)
+    H = np.vstack([problem.F[state_rows], H_box])
+    h = np.concatenate([np.ones(int(state_rows.sum())), h_box])
+    zero_u = np.zeros(problem.m)
+    sup = max(float(np.linalg.norm(problem.regressor(vx, zero_u), 2) ** 2) for vx in polytope.vertices(H, h))
+    if sup <= 0.0:
+        raise ProblemError("system.A", "a regressor D(x) that is not identically zero on Z", "sup ‖D‖ = 0")
+    return sup, f"{{x | the rows of Z without u, |x_i| <= {state_bound:g}}} (B known: D does not depend on u)"
