@@ -124,10 +124,8 @@ def test_tranos2022_is_the_papers_example():
         assert (lower, upper) == pytest.approx((centre[i] - half_side, centre[i] + half_side), abs=1e-12)
     w_half_side = 3 * (1 + np.linalg.norm([1, 0.5])) * 1e-2
     np.testing.assert_allclose(np.sort(1 / np.abs(pr.H_w).max(axis=1)), [w_half_side] * 4, rtol=1e-12)
-    np.testing.assert_allclose(pr.F[:3], [[0, 1 / -1.1], [1 / -0.15, 0], [0, 0]], rtol=1e-12)
-    np.testing.assert_allclose(pr.G[:3], [[0], [0], [1 / 0.5]], rtol=1e-12)
-    np.testing.assert_array_equal(pr.F[3:], [[0, 0]])  # our addition: u >= -10 (Z must bound u for μ)
-    np.testing.assert_allclose(pr.G[3:], [[-0.1]], rtol=1e-12)
+    np.testing.assert_allclose(pr.F, [[0, 1 / -1.1], [1 / -0.15, 0], [0, 0]], rtol=1e-12)
+    np.testing.assert_allclose(pr.G, [[0], [0], [1 / 0.5]], rtol=1e-12)  # u bounded above only, as in the code
     np.testing.assert_array_equal(pr.Q, np.eye(2))
     np.testing.assert_array_equal(pr.R, [[1.0]])
     assert pr.N == 6 and spec.scenario.steps == 6

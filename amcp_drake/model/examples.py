@@ -80,9 +80,9 @@ def tranos2022_spec() -> ProblemSpec:
     n = 2, m = 1, p = 4; Θ = the code's box of half side 0.07 around [0.57, 0.17, −0.12, 0.42]
     (16 vertices), W = {|w_i| <= 3(1 + ‖B‖₂)·0.01}, x1 >= −0.15, x2 >= −1.1, u <= 1/2, Q = I, R = 1,
     N = 6, x0 = [6, 3], θ* = vec(A) = [0.6, 0.2, −0.1, 0.4], θ̂0 = the centre of Θ (the code's first
-    estimate), 6 steps (the code's TOTAL_HORIZON). Added: u >= −10 (Z must bound u for μ of (11)),
-    |x_i| <= 7 for μ (Z bounds x only from below), w uniform on W, a 12-facet X0 (with 8 facets x0 is
-    outside the feasible set of (20)). Choices: docs/decisions.md."""
+    estimate), 6 steps (the code's TOTAL_HORIZON). Added: |x_i| <= 7 for μ (Z bounds x only from below;
+    u is bounded only above, which (11) allows since B is known), w uniform on W, a 12-facet X0 (with
+    8 facets x0 is outside the feasible set of (20)). Choices: docs/decisions.md."""
     return _data_spec("tranos2022")
 
 
