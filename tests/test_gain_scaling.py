@@ -299,3 +299,51 @@ def test_both_backends_try_the_gain_lmi_at_tight_tolerances_first(backend, monke
     A, B, Q, R, _, _ = _scalar_lqr()
     assert get_backend(backend).robust_gain(A, B, Q, R, 1e-6).status is SolveStatus.OPTIMAL
     assert firsts == [gs.GAIN_TIGHT]
+
+
+# -- generated problems the cvxpy form left inaccurate (tests/data/gain-lmi-generated-twins.json) -----------
+
+def _generated(name: str):
+    import json
+    from pathlib import Path
+
+    data = json.loads((Path(__file__).parent / "data" / "gain-lmi-generated-twins.json").read_text())
+    entry = data[name]
+    return (np.array(entry["A_vertices"]), np.array(entry["B_vertices"]), np.array(entry["Q"]), np.array(entry["R"]),
+            float(entry["margin"]))
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_generated_problem_whose_lmi_ended_inaccurate_on_every_rung_is_solved(backend):
+    """Draw 12 of seed 0 (normalised units): the cvxpy backend's LMI, posed with affine PSD cones that
+    Clarabel split by chordal decomposition, ended optimal_inaccurate on every rung, so the design
+    rejected a problem the Drake backend designs; posed as Drake poses it, it is solved."""
+    A_v, B_v, Q, R, margin = _generated("draw_12")
+    gain = get_backend(backend).robust_gain(A_v, B_v, Q, R, margin)
+    assert gain.status is SolveStatus.OPTIMAL
+    assert _worst_16(A_v, B_v, Q, R, gain.K, gain.P) < 0.0
+
+
+#: Relative agreement of the gains of two problems that differ by a common factor of the state (x' = c x).
+#: Posed alike, both are solved by the same Clarabel iterates up to rounding (measured 6e-10 cvxpy, 1.5e-9
+#: Drake); the optimum of trace(S) is flat in K, so answers taken on different iterations or rungs differ
+#: by ~√(relative gap): the cvxpy K's were 3.5e-4 apart on these twins (decisions, "The cvxpy gain LMI in
+#: Drake's form").
+TWIN_K_RTOL = 1e-6
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_generated_twins_differing_by_a_common_factor_get_the_same_gain(backend):
+    A_s, B_s, Q_s, R_s, margin = _generated("draw_76_scaled")
+    A_t, B_t, Q_t, R_t, _ = _generated("draw_76_twin")
+    c = 40.0 / 9.0  # the data are the same system in states ξ_scaled = c ξ_twin:
+    np.testing.assert_allclose(A_s, A_t, atol=1e-14)
+    np.testing.assert_allclose(B_s, c * B_t, rtol=1e-14)
+    np.testing.assert_allclose(Q_s, Q_t / c**2, rtol=1e-14)
+    np.testing.assert_array_equal(R_s, R_t)
+    be = get_backend(backend)
+    scaled = be.robust_gain(A_s, B_s, Q_s, R_s, margin)
+    twin = be.robust_gain(A_t, B_t, Q_t, R_t, margin)
+    assert scaled.status is SolveStatus.OPTIMAL and twin.status is SolveStatus.OPTIMAL
+    assert np.max(np.abs(c * scaled.K - twin.K)) <= TWIN_K_RTOL * np.max(np.abs(twin.K))
+    assert np.max(np.abs(scaled.P * c**2 - twin.P)) <= TWIN_K_RTOL * np.linalg.norm(twin.P, 2)

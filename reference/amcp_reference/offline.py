@@ -53,14 +53,21 @@ def robust_gain(call, A_vertices, B_vertices, Q, R, margin: float) -> GainResult
 
 def _gain_lmi(call, A_vertices, B_vertices, Q, R, weight, margin, options=None):
     """One solve of the LMI of :func:`robust_gain` (scaled data), maximising ⟨weight, S⟩, with
-    ``options`` on top of the call's: (status, K, P), K and P also for an inaccurate answer."""
+    ``options`` on top of the call's: (status, K, P), K and P also for an inaccurate answer.
+
+    Posed as the Drake backend poses it (:func:`psd_slack`): every matrix inequality M ⪰ margin·I as a
+    PSD variable X with X = M − margin·I on the upper triangle. The direct form ``M >> margin*I``
+    reached Clarabel as a cone on an affine expression with structural zeros, which Clarabel splits by
+    chordal decomposition; on generated problems that form stalled "AlmostSolved" (docs/decisions.md,
+    "The cvxpy gain LMI in Drake's form").
+    """
     n, m = A_vertices.shape[1], B_vertices.shape[2]
     Qh, Rh = sqrtm_psd(Q), sqrtm_psd(R)
     S = cp.Variable((n, n), symmetric=True, name="S")
     Y = cp.Variable((m, n), name="Y")
     Znn, Znm, Zmn = np.zeros((n, n)), np.zeros((n, m)), np.zeros((m, n))
-    constraints = [S >> margin * np.eye(n)]
-    for Ai, Bi in zip(A_vertices, B_vertices):
+    constraints = [psd_slack(S - margin * np.eye(n), "S >= margin I")]
+    for i, (Ai, Bi) in enumerate(zip(A_vertices, B_vertices)):
         AS = Ai @ S + Bi @ Y
         M = cp.bmat([
             [S, AS.T, S @ Qh, Y.T @ Rh],
@@ -68,8 +75,8 @@ def _gain_lmi(call, A_vertices, B_vertices, Q, R, weight, margin, options=None):
             [Qh @ S, Znn, np.eye(n), Znm],
             [Rh @ Y, Zmn, Zmn, np.eye(m)],
         ])
-        # M is symmetric by construction (S symmetric); symmetrise so cvxpy sees it too.
-        constraints.append(0.5 * (M + M.T) >> margin * np.eye(2 * n + n + m))
+        # M is symmetric by construction (S symmetric); only its upper triangle is used
+        constraints.append(psd_slack(M - margin * np.eye(2 * n + n + m), f"(16) at vertex {i}"))
     problem = cp.Problem(cp.Maximize(cp.sum(cp.multiply(weight, S))), constraints)
     status, _, _ = call.solve(problem, options)
     if status not in (SolveStatus.OPTIMAL, SolveStatus.INACCURATE) or S.value is None or Y.value is None:
@@ -79,6 +86,26 @@ def _gain_lmi(call, A_vertices, B_vertices, Q, R, weight, margin, options=None):
         return status, None, None
     P = np.linalg.inv(S_val)
     return status, np.asarray(Y.value @ P, float), 0.5 * (P + P.T)
+
+
+def psd_slack(expression, name: str) -> cp.Constraint:
+    """``expression`` ⪰ 0 for a symmetric affine (k, k) expression, in the standard form of Drake's
+    ``AddPositiveSemidefiniteConstraint`` on an expression: a PSD variable X (a cone on variables
+    alone) and one equality per upper-triangle entry, X_ij = expression_ij (i <= j).
+
+    Why not ``expression >> 0``: cvxpy passes that cone to Clarabel on the affine map itself, whose
+    structural zeros (the zero blocks of (16)) Clarabel uses to split the cone (chordal
+    decomposition, on by default); on generated problems this form ended "AlmostSolved" at the
+    default and the tight tolerances where the form here (the one the Drake backend hands the same
+    Clarabel) is "Solved" in the same iterations (seed 0, draws 12 and 76 of
+    ``benchmarks/units_twins.py``). Equalities on the upper triangle only: ``X == expression`` on the
+    full matrix gives every off-diagonal equality twice, linearly dependent rows on which Clarabel
+    stalled too. Returned as one constraint, X ⪰ 0 attached to the equality by the variable's
+    ``PSD`` attribute."""
+    size = expression.shape[0]
+    X = cp.Variable((size, size), PSD=True, name=f"slack of {name}")
+    rows, cols = np.triu_indices(size)
+    return (X - expression)[rows, cols] == 0
 
 
 class SupportLP:
