@@ -32,7 +32,9 @@ def robust_gain(call, A_vertices, B_vertices, Q, R, margin: float) -> GainResult
     maximise trace(S). Then K = Y S⁻¹ and P = S⁻¹. Solved in the coordinates of
     :mod:`amcp_drake.backends.gain_scaling` (x = T x̃, u = U ũ with TᵀP_refT = I; the same as the
     Drake backend), so the margin is relative to the cost-to-go; the objective is trace(S) of the
-    original coordinates, ⟨TᵀT, S̃⟩; every solve is tried at Clarabel 1e-10 first
+    original coordinates, ⟨TᵀT, S̃⟩; each M_i ⪰ margin·I is posed as Drake poses it (:func:`psd_slack`:
+    a PSD variable equal to M_i − margin·I on the upper triangle), so both backends hand Clarabel the
+    same problem; every solve is tried at Clarabel 1e-10 first
     (:data:`~amcp_drake.backends.gain_scaling.GAIN_TIGHT`); (16) is re-checked on the answer, and an
     inaccurate answer is solved once more in its own coordinates, then as written
     (:func:`~amcp_drake.backends.gain_scaling.solve_scaled`). By Schur complements M_i ⪰ 0 is
@@ -95,13 +97,13 @@ def psd_slack(expression, name: str) -> cp.Constraint:
 
     Why not ``expression >> 0``: cvxpy passes that cone to Clarabel on the affine map itself, whose
     structural zeros (the zero blocks of (16)) Clarabel uses to split the cone (chordal
-    decomposition, on by default); on generated problems this form ended "AlmostSolved" at the
-    default and the tight tolerances where the form here (the one the Drake backend hands the same
-    Clarabel) is "Solved" in the same iterations (seed 0, draws 12 and 76 of
-    ``benchmarks/units_twins.py``). Equalities on the upper triangle only: ``X == expression`` on the
-    full matrix gives every off-diagonal equality twice, linearly dependent rows on which Clarabel
-    stalled too. Returned as one constraint, X ⪰ 0 attached to the equality by the variable's
-    ``PSD`` attribute."""
+    decomposition, on by default) and equilibrates otherwise. On the 300 gain LMIs of
+    ``benchmarks/units_twins.py 0 0 150`` that form was accepted at the tight first try 220 times and
+    rejected on every rung twice (Clarabel "AlmostSolved"); without the chordal decomposition 229 and 0;
+    in this form 277 and 0, as the Drake backend, which hands the same Clarabel the same problem (the
+    same sizes; on draw 12 the same iterates to the printed digits). Equalities on the upper triangle only: ``X == expression`` on the full
+    matrix gives every off-diagonal equality twice, linearly dependent rows on which Clarabel stalled
+    too (draw 12). The cone X ⪰ 0 comes with the variable's ``PSD`` attribute; the equality is returned."""
     size = expression.shape[0]
     X = cp.Variable((size, size), PSD=True, name=f"slack of {name}")
     rows, cols = np.triu_indices(size)
