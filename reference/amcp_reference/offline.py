@@ -101,9 +101,10 @@ def psd_slack(expression, name: str) -> cp.Constraint:
     ``benchmarks/units_twins.py 0 0 150`` that form was accepted at the tight first try 220 times and
     rejected on every rung twice (Clarabel "AlmostSolved"); without the chordal decomposition 229 and 0;
     in this form 277 and 0, as the Drake backend, which hands the same Clarabel the same problem (the
-    same sizes; on draw 12 the same iterates to the printed digits). Equalities on the upper triangle only: ``X == expression`` on the full
-    matrix gives every off-diagonal equality twice, linearly dependent rows on which Clarabel stalled
-    too (draw 12). The cone X ⪰ 0 comes with the variable's ``PSD`` attribute; the equality is returned."""
+    same sizes; on draw 12 the same iterates to the printed digits). Equalities on the upper triangle only, as Drake: ``X == expression`` on the
+    full matrix states every off-diagonal equality twice (linearly dependent rows; 281 and 0 on the same
+    draws, no better, and no longer Drake's problem). The cone X ⪰ 0 comes with the variable's ``PSD``
+    attribute; the equality is returned."""
     size = expression.shape[0]
     X = cp.Variable((size, size), PSD=True, name=f"slack of {name}")
     rows, cols = np.triu_indices(size)
