@@ -58,10 +58,9 @@ def _gain_lmi(call, A_vertices, B_vertices, Q, R, weight, margin, options=None):
     ``options`` on top of the call's: (status, K, P), K and P also for an inaccurate answer.
 
     Posed as the Drake backend poses it (:func:`psd_slack`): every matrix inequality M ⪰ margin·I as a
-    PSD variable X with X = M − margin·I on the upper triangle. The direct form ``M >> margin*I``
-    reached Clarabel as a cone on an affine expression with structural zeros, which Clarabel splits by
-    chordal decomposition; on generated problems that form stalled "AlmostSolved" (docs/decisions.md,
-    "The cvxpy gain LMI in Drake's form").
+    PSD variable X with X = M − margin·I on the upper triangle. The direct form ``M >> margin*I``, a cone
+    on an affine expression, stalled "AlmostSolved" on generated problems the Drake backend solves
+    (docs/decisions.md, "The cvxpy gain LMI in Drake's form").
     """
     n, m = A_vertices.shape[1], B_vertices.shape[2]
     Qh, Rh = sqrtm_psd(Q), sqrtm_psd(R)
@@ -95,16 +94,16 @@ def psd_slack(expression, name: str) -> cp.Constraint:
     ``AddPositiveSemidefiniteConstraint`` on an expression: a PSD variable X (a cone on variables
     alone) and one equality per upper-triangle entry, X_ij = expression_ij (i <= j).
 
-    Why not ``expression >> 0``: cvxpy passes that cone to Clarabel on the affine map itself, whose
-    structural zeros (the zero blocks of (16)) Clarabel uses to split the cone (chordal
-    decomposition, on by default) and equilibrates otherwise. On the 300 gain LMIs of
-    ``benchmarks/units_twins.py 0 0 150`` that form was accepted at the tight first try 220 times and
-    rejected on every rung twice (Clarabel "AlmostSolved"); without the chordal decomposition 229 and 0;
-    in this form 277 and 0, as the Drake backend, which hands the same Clarabel the same problem (the
-    same sizes; on draw 12 the same iterates to the printed digits). Equalities on the upper triangle only, as Drake: ``X == expression`` on the
-    full matrix states every off-diagonal equality twice (linearly dependent rows; 281 and 0 on the same
-    draws, no better, and no longer Drake's problem). The cone X ⪰ 0 comes with the variable's ``PSD``
-    attribute; the equality is returned."""
+    Why not ``expression >> 0``: cvxpy passes that cone to Clarabel on the affine map itself, which
+    Clarabel equilibrates differently and splits along its structural zeros (the zero blocks of (16);
+    chordal decomposition, on by default). Of the 300 gain LMIs of ``benchmarks/gain_twins.py 0 0 150``
+    that form had 220 accepted at the tight first try and 2 rejected on every rung (Clarabel
+    "AlmostSolved"); without the chordal decomposition 229 and 0; in this form 277 and 0, as the Drake
+    backend, which hands the same Clarabel the same problem (the same sizes; on draw 12 the same
+    iterates to the printed digits). Equalities on the upper triangle only, as Drake: ``X == expression``
+    on the full matrix states every off-diagonal equality twice (linearly dependent rows; 281 and 0 on
+    the same draws, no better, and no longer Drake's problem). The cone X ⪰ 0 comes with the variable's
+    ``PSD`` attribute; the equality is returned."""
     size = expression.shape[0]
     X = cp.Variable((size, size), PSD=True, name=f"slack of {name}")
     rows, cols = np.triu_indices(size)
