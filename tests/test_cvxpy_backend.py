@@ -245,6 +245,32 @@ def test_solver_error_becomes_a_status_not_an_exception():
     assert res.K is None
 
 
+
+def test_a_solver_panic_becomes_a_status_not_an_exception(monkeypatch):
+    """Clarabel's Rust panics reach Python as pyo3_runtime.PanicException, a BaseException (the gain LMI
+    of the unstabilisable vertex above panicked in the slack form with "Eigval error: Eigen(1)"); the
+    class is not importable, so one of that module and name stands in for it. Other BaseExceptions
+    (KeyboardInterrupt) still propagate."""
+    import cvxpy as cp
+
+    from amcp_reference.solver_call import SolverCall
+
+    panic = type("PanicException", (BaseException,), {"__module__": "pyo3_runtime"})
+    x = cp.Variable()
+    problem = cp.Problem(cp.Minimize(x), [x >= 1])
+    call = SolverCall("CLARABEL", None)
+    for raised, expected in ((panic("Eigval error: Eigen(1)"), SolveStatus.ERROR), (KeyboardInterrupt(), None)):
+        def solve(*args, _raised=raised, **kwargs):
+            raise _raised
+
+        monkeypatch.setattr(problem, "solve", solve)
+        if expected is None:
+            with pytest.raises(KeyboardInterrupt):
+                call.solve(problem)
+        else:
+            status, _, detail = call.solve(problem)
+            assert status is expected and "Eigval error" in detail
+
 # -- tube MPC QP (20), scalar system ---------------------------------------------------------
 
 def scalar_tube_data(u_max=10.0, x_max=10.0, N=5, K=-0.5, P=1.5, Q=1.0, R=1.0, H_theta=((1.0,), (-1.0,))):

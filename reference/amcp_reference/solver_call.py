@@ -36,6 +36,16 @@ def map_status(status: str | None) -> SolveStatus:
     return STATUS_MAP.get(status, SolveStatus.ERROR) if status is not None else SolveStatus.ERROR
 
 
+def is_solver_panic(exc: BaseException) -> bool:
+    """True for a Rust panic raised inside a solver (Clarabel's Python wheel is Rust, bound by pyo3):
+    it reaches Python as ``pyo3_runtime.PanicException``, a ``BaseException`` that is not an
+    ``Exception`` and not cvxpy's ``SolverError``. Found on the gain LMI of an unstabilisable vertex
+    (x+ = 1.5 x + 0·u, margin 1e-9): Clarabel panicked with "Eigval error: Eigen(1)" in a PSD cone's
+    eigendecomposition; a solver failure is a status, never an exception (the class is matched by
+    name: ``pyo3_runtime`` is not an importable module)."""
+    return type(exc).__module__ == "pyo3_runtime" and type(exc).__name__ == "PanicException"
+
+
 def all_finite(*arrays: Any) -> bool:
     """True when every entry of every array is finite."""
     return all(np.all(np.isfinite(np.asarray(a, float))) for a in arrays)
@@ -61,7 +71,7 @@ def clarabel_defaults() -> dict[str, Any]:
 
 
 class SolverCall:
-    """A cvxpy solver name plus options; :meth:`solve` never raises ``SolverError``."""
+    """A cvxpy solver name plus options; :meth:`solve` never raises ``SolverError`` or a solver's panic."""
 
     def __init__(self, solver: str, options: dict | None, keep_solver: bool = False) -> None:
         """``keep_solver``: solve with cvxpy's ``warm_start=True``, which for Clarabel keeps the solver
@@ -84,7 +94,8 @@ class SolverCall:
         self._rebuild = False
 
     def solve(self, problem: cp.Problem, extra_options: dict | None = None) -> tuple[SolveStatus, float, str]:
-        """Solve ``problem``; return (canonical status, solver time in s, detail). ``extra_options``
+        """Solve ``problem``; return (canonical status, solver time in s, detail); cvxpy's SolverError
+        and a solver's panic (:func:`is_solver_panic`) are the status ERROR. ``extra_options``
         override this call's options for this solve only (e.g. a rung of the Clarabel retry ladder).
 
         The solver time is ``problem.solver_stats.solve_time`` when the solver reports it, else
@@ -101,6 +112,11 @@ class SolverCall:
         except cp.error.SolverError as exc:
             self._rebuild = self.keep_solver
             return SolveStatus.ERROR, time.perf_counter() - start, f"SolverError: {exc}"
+        except BaseException as exc:  # a solver's Rust panic is a BaseException, not an Exception
+            if not is_solver_panic(exc):
+                raise
+            self._rebuild = self.keep_solver
+            return SolveStatus.ERROR, time.perf_counter() - start, f"PanicException: {exc}"
         wall = time.perf_counter() - start
         stats = problem.solver_stats
         elapsed = stats.solve_time if stats is not None and stats.solve_time is not None else wall
@@ -112,4 +128,4 @@ class SolverCall:
         return status, float(elapsed), str(problem.status)
 
 
-__all__ = ["STATUS_MAP", "SolverCall", "all_finite", "clarabel_defaults", "map_status"]
+__all__ = ["STATUS_MAP", "SolverCall", "all_finite", "clarabel_defaults", "is_solver_panic", "map_status"]
