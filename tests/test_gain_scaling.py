@@ -347,3 +347,34 @@ def test_generated_twins_differing_by_a_common_factor_get_the_same_gain(backend)
     assert scaled.status is SolveStatus.OPTIMAL and twin.status is SolveStatus.OPTIMAL
     assert np.max(np.abs(c * scaled.K - twin.K)) <= TWIN_K_RTOL * np.max(np.abs(twin.K))
     assert np.max(np.abs(scaled.P * c**2 - twin.P)) <= TWIN_K_RTOL * np.linalg.norm(twin.P, 2)
+
+
+@pytest.mark.parametrize(("A", "B", "index"), [
+    ([[[1.5]]], [[[0.0]]], 0),                                            # x⁺ = 1.5 x, no input
+    ([[[1.0]]], [[[0.0]]], 0),                                            # an integrator without input
+    ([[[0.5]]], [[[0.0]]], None),                                         # stable: K = 0 will do
+    ([np.diag([1.5, 0.5])], [[[0.0], [1.0]]], 0),                         # the unstable mode unreachable
+    ([np.diag([0.5, 1.5])], [[[0.0], [1.0]]], None),                      # ... reachable
+    ([[[1.0, 1.0], [0.0, 1.0]]], [[[0.0], [1.0]]], None),                 # double integrator, controllable
+    ([[[0.5]], [[2.0]]], [[[1.0]], [[0.0]]], 1),                          # the second vertex
+])
+def test_unstabilisable_vertex_by_the_pbh_test(A, B, index):
+    from amcp_drake.backends.gain_scaling import unstabilisable_vertex
+
+    assert unstabilisable_vertex(np.asarray(A, float), np.asarray(B, float)) == index
+
+
+@pytest.mark.parametrize("margin", [1e-8, 1e-9])
+def test_drake_gain_lmi_of_an_unstabilisable_vertex_is_infeasible_not_an_aborted_process(margin):
+    """x⁺ = 1.5 x + 0·u at design.lmi_margin 1e-8 or 1e-9: Clarabel panicked inside Rust ("Eigval
+    error") and Drake, which cannot catch it, aborted the Python process (SIGABRT; session 9). Run in
+    a child so that a regression fails this test instead of killing the suite."""
+    import subprocess
+    import sys
+
+    code = ("import numpy as np; from amcp_drake.backends import get_backend; "
+            f"r = get_backend('drake').robust_gain(np.array([[[1.5]]]), np.zeros((1, 1, 1)), np.eye(1), np.eye(1), {margin}); "
+            "print(r.status.value, r.K is None, r.P is None)")
+    child = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert child.returncode == 0, child.stderr[-2000:]
+    assert child.stdout.split() == ["infeasible", "True", "True"]

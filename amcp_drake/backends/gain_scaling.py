@@ -24,8 +24,13 @@ so the margin and the solver see the same problem in any units; the answer is th
 x' = c x and any change of units of u. For a non-uniform D the paper's objective trace(P⁻¹) is
 itself another objective (trace(D S Dᵀ)), so K moves, but (16) is solved as accurately.
 
-When a vertex has no stabilising Riccati solution (not stabilisable: (16) is then infeasible
-anyway), T = I and the solver reports the infeasibility.
+When a vertex is not stabilisable ((16) is then infeasible: K must make every vertex's closed
+loop Schur), :func:`solve_scaled` answers "infeasible" without calling a solver
+(:func:`unstabilisable_vertex`, the PBH test). Before session 9 the solver was asked and had to
+report it: Clarabel did at the default margin, but at ``design.lmi_margin`` = 1e-8 or 1e-9 it
+panicked inside Rust on x⁺ = 1.5x + 0·u ("Eigval error"), which the Drake backend cannot catch:
+the Python process was aborted (SIGABRT). A vertex that is stabilisable but has no stabilising
+Riccati solution for other reasons keeps T = I and the solver decides.
 
 The robust P can be far from P_ref (a common Lyapunov function for very different vertices:
 on the two-mass spring of Kothare et al. 1996, P reaches 6.6e4 where the vertex Riccati
@@ -105,6 +110,30 @@ class GainScaling:
         return self.U @ K_t @ T_inv, _sym(T_inv.T @ P_t @ T_inv)
 
 
+#: PBH test of :func:`unstabilisable_vertex`: a mode counts as unstable when |λ| >= 1 − this (the
+#: LMI's strict decrease cannot hold at |λ| = 1 either), and as unreachable when the smallest singular
+#: value of [A − λI, B] is at most this times max(1, ‖[A, B]‖₂) (eigenvalues and singular values are
+#: accurate to ~1e-15 of that norm; 1e-9 leaves a factor 1e6 for round-off and still calls a mode
+#: reachable whose input direction is 1e-9 of the matrix's size, which no solver would design for).
+PBH_TOL = 1e-9
+
+
+def unstabilisable_vertex(A_vertices, B_vertices) -> int | None:
+    """The index of a vertex (A_i, B_i) that is not stabilisable (PBH: an eigenvalue λ of A_i with
+    |λ| >= 1 and rank [A_i − λI, B_i] < n), or None. Every K satisfying (16) makes every vertex's
+    closed loop Schur, so such a vertex makes the gain LMI infeasible."""
+    for i, (A, B) in enumerate(zip(np.asarray(A_vertices, float), np.asarray(B_vertices, float))):
+        n = A.shape[0]
+        size = max(1.0, float(np.linalg.norm(np.hstack([A, B]), 2)))
+        for lam in np.linalg.eigvals(A):
+            if abs(lam) < 1.0 - PBH_TOL:
+                continue
+            sigma = np.linalg.svd(np.hstack([A - lam * np.eye(n), B.astype(complex)]), compute_uv=False)
+            if sigma[-1] <= PBH_TOL * size:  # n singular values: rank < n
+                return i
+    return None
+
+
 def solve_scaled(solve: ScaledSolve, A_vertices, B_vertices, Q, R, first: dict | None = None) -> GainResult:
     """The gain LMI by ``solve``, K and P in the original coordinates (module docstring). In every
     scaling, ``first`` (e.g. :func:`tight_first`) is tried first, then the backend's own options when it
@@ -118,6 +147,8 @@ def solve_scaled(solve: ScaledSolve, A_vertices, B_vertices, Q, R, first: dict |
        where Clarabel ended "AlmostSolved" in the cvxpy backend on 1 and 2 with P̃ ≈ I).
     """
     n, m = np.shape(A_vertices)[1], np.shape(B_vertices)[2]
+    if unstabilisable_vertex(A_vertices, B_vertices) is not None:
+        return GainResult(SolveStatus.INFEASIBLE, None, None)
     scaling = gain_scaling(A_vertices, B_vertices, Q, R)
     result, answer_P = _attempt(solve, scaling, A_vertices, B_vertices, Q, R, first)
     if result.status is not SolveStatus.INACCURATE and result.status is not SolveStatus.ERROR:
