@@ -21,15 +21,13 @@ Seconds per draw, against ~1 s for a design (no templates, no terminal set). Ses
 
 from __future__ import annotations
 
-import copy
 import sys
-from dataclasses import replace
 
 import numpy as np
+from units_twins import twin_draw  # noqa: E402 - benchmarks/ is sys.path[0] when run as a script
 
 from amcp_drake.backends import get_backend
 from amcp_drake.offline import units
-from amcp_drake.studies.random_problems import random_problem, random_shape
 
 _LABELS = {"optimal": "ok", "optimal_inaccurate": "inacc"}
 
@@ -78,12 +76,7 @@ def _target(backend: str):
 def main(seed: int, start: int, count: int, backends: tuple[str, ...]) -> None:
     summary = {b: {"rejected": 0, "first": 0, "solves": 0, "differ": 0, "dK": []} for b in backends}
     for k in range(start, start + count):
-        rng = np.random.default_rng([seed, k])
-        shape = random_shape(rng)
-        twin_rng = copy.deepcopy(rng)
-        scaled, labels = random_problem(rng, replace(shape, scaled_states=True))
-        plain, _ = random_problem(twin_rng, replace(shape, scaled_states=False))
-        T = np.array([10.0 ** int(e[2:]) for e in labels["state scaling"].split(", ")])
+        scaled, plain, T, labels = twin_draw(seed, k)
         data = {"scaled": normalised_gain_data(scaled), "twin": normalised_gain_data(plain)}
         for b in backends:
             tally, K, logs = summary[b], {}, {}
@@ -102,7 +95,7 @@ def main(seed: int, start: int, count: int, backends: tuple[str, ...]) -> None:
                 dK = f"dK {rel:.1e}"
             elif len(K) == 1:
                 tally["differ"] += 1
-            print(k, b, f"n={shape.n}", labels["state scaling"], "| scaled:", " ".join(logs["scaled"]),
+            print(k, b, f"n={plain.problem.n}", labels["state scaling"], "| scaled:", " ".join(logs["scaled"]),
                   "| twin:", " ".join(logs["twin"]), dK, flush=True)
     for b in backends:
         t, dk = summary[b], np.array(summary[b]["dK"] or [np.nan])

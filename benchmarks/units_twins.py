@@ -39,15 +39,22 @@ def outcome(spec, backend: str):
         return f"{type(exc).__name__}" + (f" ({reason})" if reason else ""), None, time.process_time() - start
 
 
+def twin_draw(seed: int, k: int):
+    """Draw k of ``seed``: (the problem in badly scaled units, its unscaled twin, T, labels); the twins
+    come from the same generator state, so they are the same system in units x̃ = diag(T) x."""
+    rng = np.random.default_rng([seed, k])
+    shape = random_shape(rng)
+    twin_rng = copy.deepcopy(rng)
+    scaled, labels = random_problem(rng, replace(shape, scaled_states=True))
+    plain, _ = random_problem(twin_rng, replace(shape, scaled_states=False))
+    T = np.array([10.0 ** int(e[2:]) for e in labels["state scaling"].split(", ")])
+    return scaled, plain, T, labels
+
+
 def main(seed: int, start: int, count: int, backends: tuple[str, ...]) -> None:
     tally = {b: collections.Counter() for b in backends}
     for k in range(start, start + count):
-        rng = np.random.default_rng([seed, k])
-        shape = random_shape(rng)
-        twin_rng = copy.deepcopy(rng)
-        scaled, labels = random_problem(rng, replace(shape, scaled_states=True))
-        plain, _ = random_problem(twin_rng, replace(shape, scaled_states=False))
-        T = np.array([10.0 ** int(e[2:]) for e in labels["state scaling"].split(", ")])
+        scaled, plain, T, labels = twin_draw(seed, k)
         for b in backends:
             o_s, d_s, t_s = outcome(scaled, b)
             o_u, d_u, t_u = outcome(plain, b)
@@ -56,7 +63,7 @@ def main(seed: int, start: int, count: int, backends: tuple[str, ...]) -> None:
             dK = ""
             if d_s is not None and d_u is not None:
                 dK = f"dK {np.max(np.abs(d_s.K * T[None, :] - d_u.K)) / np.max(np.abs(d_u.K)):.1e}"
-            print(k, b, f"n={shape.n}", labels["state scaling"], "| scaled:", o_s, f"{t_s:.1f}s", "| twin:", o_u,
+            print(k, b, f"n={plain.problem.n}", labels["state scaling"], "| scaled:", o_s, f"{t_s:.1f}s", "| twin:", o_u,
                   f"{t_u:.1f}s", dK, flush=True)
     for b in backends:
         print(f"== {b}: {count} draws")
