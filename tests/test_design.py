@@ -250,3 +250,22 @@ def test_mu_of_11_still_needs_an_input_bound_when_b_is_uncertain():
     with pytest.raises(ProblemError, match="Z.G") as info:
         regressor_bound(_known_b_problem(B_uncertain=True), 7.0)
     assert "depends on u" in str(info.value)
+
+
+def test_x_f_non_empty_margin_is_that_of_the_tube_steady_state_reached_by_iteration(example_spec, example_design):
+    """The margin of "X_f non-empty" is 1 − max h_T α_∞ with α_∞ the steady state of the tube size at
+    z = 0, here reached by iterating α ↦ max_{k,i} h̄^k_i α + w̄_i from 0 (not the closed form the
+    check uses), with h̄, w̄ recomputed from the vertices of X0, W and A_cl(θ) at the vertices of Θ."""
+    from amcp_drake.model import polytope
+
+    pr, d = example_spec.problem, example_design
+    X0v = polytope.vertices(d.H_x, np.ones(len(d.H_x)))
+    w_bar = np.max(d.H_x @ pr.w_vertices().T, axis=1)
+    h_bar = np.array([np.max(d.H_x @ (pr.A_of(th) + pr.B_of(th) @ d.K) @ X0v.T, axis=1)
+                      for th in polytope.vertices(pr.H_theta, pr.h_theta)])
+    alpha = 0.0
+    for _ in range(5000):
+        alpha = float(np.max(h_bar * alpha + w_bar[None, :]))
+    check = {c.name: c for c in verify_design(pr, d, 3.0)}["X_f non-empty"]
+    assert check.status == "pass"
+    assert check.margin == pytest.approx(1.0 - float(np.max(d.h_T)) * alpha, abs=1e-9)
