@@ -167,8 +167,7 @@ class DrakeTubeMPC:
         self._c_u0.set_description("PE bound on u_0|k")
 
         self._v_vars = y[lay.v0:lay.L0]
-        self._minmax = d.minmax
-        if self._minmax:
+        if d.minmax:
             self._add_minmax_cost(prog, y, Xv)
             return
         # cost (17) in v only; coefficients set per step
@@ -422,7 +421,7 @@ class DrakeTubeMPC:
         if self._solver.name != "clarabel":
             return (*once(None), "")
         # the first try of both backends (clarabel_retry.first_try), then Clarabel's defaults and the ladder
-        return solve_with_retries(once, *first_try(self._minmax, refine, self._solver.option_values))
+        return solve_with_retries(once, *first_try(self.data.minmax, refine, self._solver.option_values))
 
     #: ``solve(..., refine=True)`` is supported (the controller's first fallback for an answer that
     #: fails its checks, amcp_drake.online.controller).
@@ -460,7 +459,7 @@ class DrakeTubeMPC:
         else:
             lo, hi = (np.broadcast_to(np.asarray(b, float), (lay.m,)) for b in u0_bounds)
             self._c_u0.set_bounds(lo - Kx, hi - Kx)
-        if not self._minmax:
+        if not self.data.minmax:
             Hv, g, const = self._cost_model.matrices(x, theta_hat)
             self._cost.UpdateCoefficients(2.0 * Hv, 2.0 * g, const, is_convex=True)
         update_time = time.perf_counter() - start
@@ -480,7 +479,7 @@ class DrakeTubeMPC:
             return self._with_every_row(x, h_theta, theta_hat, H_theta, u0_bounds, refine,
                                         "no optimal multipliers found for the rows left out of (15c)")
         vf = v.reshape(-1)
-        if self._minmax:  # (19) of the plan, not the solver's Σ s_l² (see .minmax_cost)
+        if self.data.minmax:  # (19) of the plan, not the solver's Σ s_l² (see .minmax_cost)
             cost = minmax_plan_cost(self.data, z, alpha, v)
         else:
             cost = float(vf @ Hv @ vf + 2 * g @ vf + const)

@@ -136,7 +136,7 @@ def common_factor(extent: float) -> float:
     lo, hi = EXTENT_BAND
     if lo <= extent <= hi:
         return 1.0
-    return 10.0 ** (np.floor(np.log10(EXTENT_TARGET[1])) - np.floor(np.log10(extent)) - 1)
+    return 10.0 ** (np.log10(EXTENT_TARGET[0]) - np.floor(np.log10(extent)))  # extent·c = 10^frac · EXTENT_TARGET[0]
 
 
 def is_identity(s: np.ndarray) -> bool:

@@ -145,9 +145,11 @@ def pin_first_disturbance(problem: Problem, design, x0: np.ndarray, theta_star: 
     for a problem with input uncertainty."""
     if mode == "none" or not len(w):
         return w, "none"
-    u0 = first_input(problem, design, x0) if np.any(problem.B) else None
-    if np.any(problem.B) and u0 is None:
-        return w, "none"  # x_0 has no first QP answer: nothing to pin with
+    u0 = None
+    if np.any(problem.B):
+        u0 = first_input(problem, design, x0)
+        if u0 is None:
+            return w, "none"  # x_0 has no first QP answer: nothing to pin with
     if not can_pin_at(problem, x0, theta_star, u0):  # D(x_0, u_0) lost rank, or θ* inside Θ
         return w, "none"
     return apply_pin(problem, x0, theta_star, w, mode, u0), mode
