@@ -88,11 +88,18 @@ def test_resolves_are_counted_from_the_messages_the_code_writes(example_spec, ex
                         {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10, "max_iter": 1})
     minmax = AdaptiveMPC(example_spec.problem, example_design, backend="drake", options=OnlineOptions(cost="minmax"))
     tight_failed = minmax.mpc.solve(np.array([2.0, 3.0]), np.asarray(example_design.h_theta0), np.zeros(3))
+    # a cvxpy vertex step that the compiled route does not answer (its Clarabel limited to one iteration)
+    cvx = AdaptiveMPC(example_spec.problem, example_design, backend="cvxpy", formulation="vertex")
+    compiled = cvx.mpc._forms[cvx.mpc.capacity].compiled
+    compiled.settings["max_iter"] = 1
+    compiled.forget_solver()
+    not_compiled = cvx.mpc.solve(np.array([2.0, 3.0]), np.asarray(example_design.h_theta0), np.zeros(3))
     details = [describe(0), outside.detail, "", "tube QP (20): tube (15c) 2e-06 > 1e-06; fallback: vertex form of (20) (checked)",
                "plain form (15) fallback: Qhull failed",  # the vertex form's note (drake_vertex._solve_plain)
-               tight_failed.detail]
+               tight_failed.detail, not_compiled.detail]
     assert count_resolves(details) == {"clarabel_retry": 1, "refined_resolve": 0, "minmax_default_tolerances": 1,
-                                       "every_row": 1, "plain_fallback": 1, "answer_check_fallback": 1}
+                                       "every_row": 1, "plain_fallback": 1, "answer_check_fallback": 1,
+                                       "compiled_route_fallback": 1}
 
 
 def stats_cpu_parts_fit(times_ms) -> bool:

@@ -606,13 +606,16 @@ def test_closed_loop_in_lock_step_with_drake_on_example1(example_spec, example_d
 def test_the_kept_clarabel_solver_answers_as_a_fresh_one(example_spec, example_design, formulation):
     """The tube QP keeps its Clarabel solver between steps (SolverCall keep_solver: cvxpy's
     warm_start passes the new data to Clarabel's update). Over a closed loop, v equals that of a
-    controller whose solver is built anew at every step (keep_solver off) to 1e-9."""
+    controller whose solver is built anew at every step (keep_solver off) to 1e-9. The vertex form
+    through ``Problem.solve`` (its compiled route off; that route's kept solver is tested in
+    tests/test_compiled_clarabel.py)."""
     from amcp_drake.online.controller import AdaptiveMPC
     from amcp_drake.online.simulate import disturbance_sequence
 
     pr, sc = example_spec.problem, example_spec.scenario
-    kept = AdaptiveMPC(pr, example_design, backend="cvxpy", formulation=formulation)
-    fresh = AdaptiveMPC(pr, example_design, backend="cvxpy", formulation=formulation)
+    route = {"compiled_qp": False} if formulation == "vertex" else {}
+    kept = AdaptiveMPC(pr, example_design, backend="cvxpy", formulation=formulation, **route)
+    fresh = AdaptiveMPC(pr, example_design, backend="cvxpy", formulation=formulation, **route)
     assert kept.mpc._call.keep_solver
     fresh.mpc._call.keep_solver = False
     w = disturbance_sequence(pr, "uniform", 12, seed=3)

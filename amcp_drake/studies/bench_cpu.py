@@ -13,7 +13,9 @@ CPU time under load, so the performance figures of issue 16 are CPU time of the 
 * ``qp``: the whole tube QP (20) (coefficient updates, vertices of Θ_k, solver, reading back);
 * ``qp_solver``: the QP solver calls alone (Drake: ``Solve``, which includes Drake's translation of
   the program into the solver's format; cvxpy: ``Problem.solve``, which includes cvxpy's parameter
-  application; fast path: the DAQP call and its checks' fallback solves);
+  application, and the compiled route of the vertex form, ``_solve_compiled``, which includes the
+  evaluation of cvxpy's compiled data and reading the variables back; fast path: the DAQP call and
+  its checks' fallback solves);
 * ``total``: the whole ``AdaptiveMPC.step``;
 * ``outside_solvers`` = total − lp_solver − qp_solver: everything that is not a solver call.
 """
@@ -41,6 +43,8 @@ class CpuProfile:
             self._wrap(obj, "solve", "lp_solver")
         for obj in _solver_objects(ctrl.mpc, "qp"):
             self._wrap(obj, "solve", "qp_solver")
+        if hasattr(ctrl.mpc, "_solve_compiled"):  # the cvxpy vertex form's compiled route
+            self._wrap(ctrl.mpc, "_solve_compiled", "qp_solver")
 
     def _wrap(self, obj: Any, method: str, part: str) -> None:
         inner: Callable = getattr(obj, method)

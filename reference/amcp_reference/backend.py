@@ -80,12 +80,16 @@ class CvxpyBackend:
         answer's maximisers reused when they still certify it (:mod:`amcp_reference.set_update_dual`,
         issue 16), the cvxpy LP where neither applies;
         "lp": always the cvxpy LP.
+    compiled_qp: with Clarabel and the vertex formulation, solve each step's QP first from cvxpy's
+        compiled program by a Clarabel solver kept between steps, without ``Problem.solve``
+        (default True; :mod:`amcp_reference.compiled_clarabel`, issue 16); a step it does not answer
+        is solved through ``Problem.solve``. False: always ``Problem.solve``.
     """
 
     name = "cvxpy"
 
     def __init__(self, solver: str = "CLARABEL", solver_options: dict | None = None,
-                 formulation: str = "plain", set_update_method: str = "auto") -> None:
+                 formulation: str = "plain", set_update_method: str = "auto", compiled_qp: bool = True) -> None:
         from .offline import SupportLP
         from .online import ProjectionQP, SetUpdateLP
 
@@ -96,6 +100,7 @@ class CvxpyBackend:
                              f"choose one of {SET_UPDATE_METHODS}")
         self.formulation = formulation
         self.set_update_method = set_update_method
+        self.compiled_qp = bool(compiled_qp)
         self._call = SolverCall(solver, solver_options)
         # the LP (9) has its own call object (same solver and options) so that profilers can tell
         # its solver time from the tube QP's (amcp_drake.studies.bench_cpu)
@@ -178,7 +183,7 @@ class CvxpyBackend:
         if self.formulation == "vertex":
             from .tube_vertex import CvxpyVertexTubeMPC
 
-            return CvxpyVertexTubeMPC(data, call)
+            return CvxpyVertexTubeMPC(data, call, compiled=self.compiled_qp)
         from .tube_mpc import CvxpyTubeMPC
 
         return CvxpyTubeMPC(data, call)

@@ -93,6 +93,12 @@ class SolverCall:
         #: the next solve builds a new solver (cvxpy warm_start=False), which is kept from then on
         self._rebuild = False
 
+    @property
+    def settings(self) -> dict:
+        """The options every solve passes (for a kept Clarabel solver: all of Clarabel's settings,
+        its defaults under this call's options)."""
+        return dict(self._base)
+
     def solve(self, problem: cp.Problem, extra_options: dict | None = None) -> tuple[SolveStatus, float, str]:
         """Solve ``problem``; return (canonical status, solver time in s, detail); cvxpy's SolverError
         and a solver's panic (:func:`is_solver_panic`) are the status ERROR. ``extra_options``
