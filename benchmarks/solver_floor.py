@@ -22,10 +22,14 @@ The controller's own full step (``amcp_drake.studies.bench_cpu``) is timed as in
 floors printed follow from the parts alone:
 
 * Drake vertex full step >= Drake ``Solve``;
-* cvxpy vertex / Drake vertex >= (Clarabel's solve time inside Drake + cvxpy's modelling layer) /
-  Drake's full step: even if the cvxpy backend's own code cost nothing and Clarabel solved cvxpy's
-  QP (97 variables, 822 rows, x̂ kept as variables) as fast as Drake's (43 variables, 768 rows),
-  cvxpy's ``Problem.solve`` would add its modelling layer to the same Clarabel work.
+* cvxpy vertex / Drake vertex through ``Problem.solve`` >= (Clarabel's solve time inside Drake +
+  cvxpy's modelling layer) / Drake's full step: even if the cvxpy backend's own code cost nothing and
+  Clarabel solved cvxpy's QP (97 variables, 822 rows, x̂ kept as variables) as fast as Drake's (43
+  variables, 768 rows), cvxpy's ``Problem.solve`` would add its modelling layer to the same Clarabel
+  work (1.6-1.7×; why the backend solves each step by the compiled route instead);
+* the same floor through the compiled route the backend uses since session 10
+  (:mod:`amcp_reference.compiled_clarabel`: cvxpy's compiled data evaluated into fixed patterns, a
+  kept Clarabel solver updated by the changed entries), timed on the same step again.
 
 Run it from the repository root with the working tree on PYTHONPATH.
 """
@@ -161,6 +165,14 @@ def main() -> None:
         cpu, _ = _cpu(lambda: prob.solve(solver="CLARABEL", warm_start=True, **options))
         add("cvxpy Problem.solve (whole, warm_start)", cpu)
         add("cvxpy modelling layer (whole - Clarabel solve)", cpu - cpu_s)
+        # the compiled route the backend uses (amcp_reference.compiled_clarabel): the same step again
+        form = cvx.mpc._forms[cvx.mpc.capacity]
+        if form.compiled is not None and form.compiled.reason is None:
+            cpu, (answer, _) = _cpu(lambda: cvx.mpc._solve_compiled(form))
+            if answer is None:
+                raise SystemExit(f"step {k}: the compiled route gave no answer")
+            add("cvxpy compiled route (data, update, solve, read back)", cpu)
+            add("cvxpy compiled route without its Clarabel solve", cpu - cpu_s)
     gc.enable()
     med = {name: 1e3 * float(np.median(values)) for name, values in parts.items()}
     print(f"Example 1, X0 {args.facets} facets, N = 10, vertex form, {args.steps} steps; "
@@ -172,9 +184,15 @@ def main() -> None:
     drake_step = med["drake full step"]
     floor = (med["drake Clarabel solve_time (wall, inside Solve)"] + med["cvxpy modelling layer (whole - Clarabel solve)"])
     print(f"measured ratio cvxpy / Drake full step: {med['cvxpy full step'] / drake_step:.2f}")
-    print(f"floor of that ratio: (Clarabel inside Drake {med['drake Clarabel solve_time (wall, inside Solve)']:.3f}"
+    print(f"floor of that ratio through Problem.solve: (Clarabel inside Drake {med['drake Clarabel solve_time (wall, inside Solve)']:.3f}"
           f" + cvxpy modelling layer {med['cvxpy modelling layer (whole - Clarabel solve)']:.3f}) / Drake full step "
           f"{drake_step:.3f} = {floor / drake_step:.2f}")
+    route = med.get("cvxpy compiled route without its Clarabel solve")
+    if route is not None:
+        print(f"floor through the compiled route: (Clarabel inside Drake "
+              f"{med['drake Clarabel solve_time (wall, inside Solve)']:.3f} + compiled route without its Clarabel solve "
+              f"{route:.3f}) / Drake full step {drake_step:.3f} = "
+              f"{(med['drake Clarabel solve_time (wall, inside Solve)'] + route) / drake_step:.2f}")
     print(f"Drake full step {drake_step:.3f} ms, of which at least the Solve {med['drake Solve (whole)']:.3f} ms; "
           f"outside the solver calls {med['drake outside the solver calls (in the step)']:.3f} ms")
 
