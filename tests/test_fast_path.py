@@ -114,11 +114,14 @@ def test_a_nan_answer_of_daqp_is_solved_by_clarabel(example_spec):
     ctrl = AdaptiveMPC(example_spec.problem, d, backend="drake", formulation="vertex", qp_solver="daqp")
     x = np.asarray(example_spec.scenario.x0, float)
     u, rec = ctrl.step(x)
-    ref = DrakeBackend(formulation="vertex", solver_options=TIGHT).tube_mpc(ctrl.data).solve(
-        x, rec.h_theta, rec.theta_hat)
+    # the fallback is Clarabel on the vertex form with the backend's settings: compared with that program
+    # solved apart (not with Clarabel at TIGHT: at the default tolerances this step's v is 1.05e-6 from the
+    # tight answer on an AMD EPYC, session 10; that is Clarabel's accuracy, not the fast path's)
+    ref = DrakeBackend(formulation="vertex").tube_mpc(ctrl.data).solve(x, rec.h_theta, rec.theta_hat)
     assert rec.status is SolveStatus.OPTIMAL, rec.detail
     assert u is not None and np.all(np.isfinite(rec.v))
-    np.testing.assert_allclose(rec.v, ref.v, rtol=0, atol=V_TOL)
+    assert "fast path fell back to Clarabel: non-finite answer" in rec.qp_detail
+    np.testing.assert_allclose(rec.v, ref.v, rtol=0, atol=1e-9)
     assert sum(ctrl.mpc.fast_path_counts.values()) == 1
 
 

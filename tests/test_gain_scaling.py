@@ -236,7 +236,7 @@ def test_generated_problem_the_scaled_lmi_leaves_almost_solved_is_solved(backend
 def test_a_first_try_without_an_answer_is_decided_at_the_backends_options(first_status):
     """Any status of the tight first try but an accepted "optimal" (an "infeasible" at 1e-10 too) is
     decided again at the backend's own options, in the same scaling."""
-    from amcp_drake.backends.gain_scaling import GAIN_TIGHT, solve_scaled
+    from amcp_drake.backends.gain_scaling import GAIN_TIGHT, GAIN_TIGHT_RETRIES, solve_scaled
 
     A, B, Q, R, K, P = _scalar_lqr()
     seen = []
@@ -251,8 +251,34 @@ def test_a_first_try_without_an_answer_is_decided_at_the_backends_options(first_
     gain = solve_scaled(stub, A, B, Q, R, first=GAIN_TIGHT)
     assert gain.status is SolveStatus.OPTIMAL
     np.testing.assert_allclose(gain.K, K, rtol=1e-12)
-    assert [o for _, o in seen] == [GAIN_TIGHT, None]
-    assert seen[0][0] == seen[1][0]  # the same scaling: the re-solve is at other tolerances, not in other units
+    # a stalled ("inaccurate") first try is tried again with less regularisation before the defaults
+    retries = [{**GAIN_TIGHT, **rung} for rung in GAIN_TIGHT_RETRIES] if first_status is SolveStatus.INACCURATE else []
+    assert [o for _, o in seen] == [GAIN_TIGHT, *retries, None]
+    assert len({q for q, _ in seen}) == 1  # the same scaling: the re-solves are at other settings, not in other units
+
+
+def test_a_stalled_first_try_solved_with_less_regularisation_is_the_answer():
+    """Example 1 in x' = 1e3 x (Drake, AMD EPYC): the first try stalled where Example 1's own was
+    solved; the same tolerances with static regularisation 1e-10 solved it, 1e-10 from Example 1's K,
+    where the backend's defaults had given a K 3.3e-5 away."""
+    from amcp_drake.backends.gain_scaling import GAIN_TIGHT, GAIN_TIGHT_RETRIES, solve_scaled
+
+    A, B, Q, R, K, P = _scalar_lqr()
+    seen = []
+
+    def stub(A_t, B_t, Q_t, R_t, weight, options):
+        seen.append(options)
+        T = np.sqrt(Q_t)
+        if options and "static_regularization_constant" in options:
+            return SolveStatus.OPTIMAL, K @ T, T @ P @ T
+        if options:
+            return SolveStatus.INACCURATE, K @ T, T @ P @ T
+        return SolveStatus.OPTIMAL, 1.01 * K @ T, T @ P @ T  # the defaults' answer: elsewhere on the flat optimum
+
+    gain = solve_scaled(stub, A, B, Q, R, first=GAIN_TIGHT)
+    assert gain.status is SolveStatus.OPTIMAL
+    np.testing.assert_allclose(gain.K, K, rtol=1e-12)
+    assert seen == [GAIN_TIGHT, {**GAIN_TIGHT, **GAIN_TIGHT_RETRIES[0]}]
 
 
 def test_an_accepted_first_try_is_the_answer():

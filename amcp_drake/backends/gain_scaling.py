@@ -68,6 +68,14 @@ ScaledSolve = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarr
 #: without an accepted answer (e.g. "inaccurate": cvxpy on massera2017) is solved again at the backend's
 #: own options, so no problem that designed before is lost.
 GAIN_TIGHT = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10}
+#: Settings tried on top of the first try's when it ends without an accepted answer (session 10),
+#: before the backend's own options. Only the static regularisation changes: equilibration and step
+#: lengths stay, so the iterates follow the first try's path and an answer lands where the first try
+#: would have. Example 1 in x' = 1e3 x (Drake, on an AMD EPYC): the first try stalled "AlmostSolved"
+#: where Example 1 itself is solved, the backend's options then gave a K 3.3e-5 from Example 1's (the
+#: flatness of the optimum at 1e-8), this rung a K 1e-10 from it; the other rungs of the QP ladder
+#: (equilibration off, shorter steps) solved it 2.7e-6 … 7e-6 away.
+GAIN_TIGHT_RETRIES = ({"static_regularization_constant": 1e-10},)
 
 
 def tight_first(solver_is_clarabel: bool, user_options) -> dict | None:
@@ -136,8 +144,8 @@ def unstabilisable_vertex(A_vertices, B_vertices) -> int | None:
 
 def solve_scaled(solve: ScaledSolve, A_vertices, B_vertices, Q, R, first: dict | None = None) -> GainResult:
     """The gain LMI by ``solve``, K and P in the original coordinates (module docstring). In every
-    scaling, ``first`` (e.g. :func:`tight_first`) is tried first, then the backend's own options when it
-    gave no accepted answer. Scalings tried in order, each only while no answer is decided
+    scaling, ``first`` (e.g. :func:`tight_first`) is tried first (with :data:`GAIN_TIGHT_RETRIES` when it
+    stalls), then the backend's own options when it gave no accepted answer. Scalings tried in order, each only while no answer is decided
     ("infeasible" and "unbounded" are answers):
 
     1. :func:`gain_scaling` (mean vertex Riccati solution);
@@ -165,14 +173,19 @@ def solve_scaled(solve: ScaledSolve, A_vertices, B_vertices, Q, R, first: dict |
 
 
 def _attempt(solve: ScaledSolve, scaling: GainScaling, A_vertices, B_vertices, Q, R, first: dict | None):
-    """One scaling: the solve with ``first``, then (no accepted answer) with the backend's options.
-    Returns (GainResult in original coordinates, the P of a positive definite answer that was not
+    """One scaling: the solve with ``first`` (when it ends "inaccurate", again with each of
+    :data:`GAIN_TIGHT_RETRIES` on top), then (no accepted answer) with the backend's options. Returns (GainResult in original coordinates, the P of a positive definite answer that was not
     accepted, else None)."""
     data = scaling.scaled(A_vertices, B_vertices, Q, R)
     if first:
         result, _ = _one_solve(solve, scaling, data, first)
         if result.status is SolveStatus.OPTIMAL:
             return result, None
+        if result.status is SolveStatus.INACCURATE:  # stalled: the same path with less regularisation
+            for rung in GAIN_TIGHT_RETRIES:
+                again, _ = _one_solve(solve, scaling, data, {**first, **rung})
+                if again.status is SolveStatus.OPTIMAL:
+                    return again, None
     return _one_solve(solve, scaling, data, None)
 
 
