@@ -230,3 +230,32 @@ def test_the_route_is_on_by_default_off_on_request_and_off_for_other_solvers(exa
     other = AdaptiveMPC(example_spec.problem, example_design, backend="cvxpy", formulation="vertex", solver="SCS")
     assert other.mpc.compiled is False
     assert all(form.compiled is None for form in other.mpc._forms.values())
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_random_problems_get_problem_solves_answers_by_the_compiled_route(seed):
+    """Generated problems (the campaign's generator: n <= 3, p <= 3, θ* on a facet or vertex, pinned
+    Θ_k): 8 closed-loop steps of the cvxpy vertex form with each route from the same states. Statuses
+    are equal, v agrees to 1e-6 (the brief's cross-backend tolerance), and the compiled route answered
+    at least one step of the run."""
+    from amcp_drake.model.options import OnlineOptions
+    from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_drake.studies.random_problems import random_case
+
+    case = random_case(np.random.default_rng(900 + seed), steps=8)
+    problem = case.spec.problem
+    options = OnlineOptions(update=case.options.update, projection=case.options.projection)
+    ctrls = {route: AdaptiveMPC(problem, case.design, backend="cvxpy", formulation="vertex", options=options,
+                                compiled_qp=(route == "compiled")) for route in ("compiled", "problem")}
+    x = np.asarray(case.x0, float)
+    answered = 0
+    for k in range(8):
+        u, rec = ctrls["compiled"].step(x)
+        _, rec_ref = ctrls["problem"].step(x)
+        assert rec.status is rec_ref.status, (k, rec.qp_detail, rec_ref.qp_detail)
+        if u is None:
+            break
+        assert np.max(np.abs(rec.v - rec_ref.v)) <= 1e-6, k
+        answered += "optimal (compiled route)" in rec.qp_detail
+        x = problem.step(x, u, case.theta_star, case.w[k])
+    assert answered >= 1, case.labels
