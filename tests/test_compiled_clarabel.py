@@ -259,3 +259,24 @@ def test_random_problems_get_problem_solves_answers_by_the_compiled_route(seed):
         answered += "optimal (compiled route)" in rec.qp_detail
         x = problem.step(x, u, case.theta_star, case.w[k])
     assert answered >= 1, case.labels
+
+
+def test_a_misread_map_hidden_by_zero_parameter_values_is_caught_at_random_values(monkeypatch):
+    """Tampered: b's map reversed on a problem whose b is the parameter p, set to 0 when the route is
+    built; at p = 0 both readings agree, the check at random parameter values does not. The values
+    set by the caller are restored afterwards."""
+    real = cc_module._split_offset
+
+    def misread(index):
+        A_map, pattern, b_rows, b_map = real(index)
+        return A_map, pattern, b_rows, b_map[::-1].copy()
+
+    monkeypatch.setattr(cc_module, "_split_offset", misread)
+    x = cp.Variable(3, name="x")
+    p = cp.Parameter(3, name="p", value=np.zeros(3))
+    problem = cp.Problem(cp.Minimize(cp.sum_squares(x) - 10 * cp.sum(x)), [x <= p])  # b = p, nothing else
+    compiled = CompiledClarabel(problem, clarabel_defaults())
+    assert compiled.reason is not None and "b differs from cvxpy's get_problem_data" in compiled.reason
+    np.testing.assert_array_equal(p.value, np.zeros(3))
+    monkeypatch.setattr(cc_module, "_split_offset", real)
+    assert CompiledClarabel(problem, clarabel_defaults()).reason is None  # the same problem read right

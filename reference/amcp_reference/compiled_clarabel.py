@@ -19,7 +19,9 @@ values to a Clarabel solver kept between solves (``update`` of values only), and
 variables out of Clarabel's primal vector at cvxpy's own column offsets.
 
 How it is trusted. (1) At construction the data evaluated here is compared with cvxpy's
-``get_problem_data`` for the parameter values set then (:data:`DATA_MATCH_TOL`, relative to each
+``get_problem_data`` for the parameter values set then and for random values of every parameter
+(seed :data:`CHECK_SEED`; the values set then are restored): every entry the parameters reach is
+exercised, not only those that happen to be nonzero (:data:`DATA_MATCH_TOL`, relative to each
 matrix's largest entry); any difference, or a cvxpy whose compiled program lacks what is read
 here, leaves the route off (:attr:`CompiledClarabel.reason`) and the caller uses ``Problem.solve``.
 (2) ``tests/test_compiled_clarabel.py`` compares the data with ``get_problem_data`` on random
@@ -39,6 +41,8 @@ import scipy.sparse as sp
 #: sparse products, so they agree to round-off (measured 0 on Example 1); anything larger means the
 #: compiled program is not read as cvxpy reads it.
 DATA_MATCH_TOL = 1e-12
+#: Seed of the random parameter values of the construction check.
+CHECK_SEED = 20261124
 #: Clarabel's status string of an answer (cvxpy's ``CLARABEL.STATUS_MAP`` maps it to ``optimal``).
 SOLVED = "Solved"
 
@@ -97,6 +101,17 @@ class CompiledClarabel:
         self._cones = dims_to_solver_cones(prog.cone_dims)
         self._columns = {var.id: (int(prog.var_id_to_col[var.id]), var.shape) for var in prog.variables}
         self._check_against(data)
+        # again at random values of every parameter (a map read wrongly where the values set now are zero
+        # would pass the check above), then the values set now are restored
+        saved = [(param, param.value) for param, _, _ in self._slots]
+        rng = np.random.default_rng(CHECK_SEED)
+        try:
+            for param, _ in saved:
+                param.value = rng.standard_normal(param.shape)
+            self._check_against(self.problem.get_problem_data("CLARABEL", enforce_dpp=True)[0])
+        finally:
+            for param, value in saved:
+                param.value = value
 
     def _check_against(self, data) -> None:
         """The data evaluated here equals cvxpy's own (see the module docstring, point 1)."""
