@@ -208,7 +208,8 @@ def test_a_misread_compiled_program_turns_the_route_off(example_spec, example_de
     form = ctrl.mpc._forms[ctrl.mpc.capacity]
     assert form.compiled.reason is not None and "A differs from cvxpy's get_problem_data" in form.compiled.reason
     sol = _solve_once(ctrl, example_spec)
-    assert sol.status is SolveStatus.OPTIMAL and "compiled route" not in sol.detail
+    assert sol.status is SolveStatus.OPTIMAL and "optimal (compiled route)" not in sol.detail
+    assert "compiled route off: ValueError: A differs" in sol.detail  # the step says why
 
 
 def test_a_variable_replaced_in_the_compiled_program_is_named():
@@ -220,6 +221,8 @@ def test_a_variable_replaced_in_the_compiled_program_is_named():
     sol = compiled.solve()
     with pytest.raises(KeyError, match="'a' is not in cvxpy's compiled program"):
         compiled.value(a, sol.x)
+    asked = CompiledClarabel(problem, clarabel_defaults(), read=(a,))  # asked for at construction: the route is off
+    assert asked.reason is not None and "['a'] are not in cvxpy's compiled program" in asked.reason
 
 
 def test_the_route_is_on_by_default_off_on_request_and_off_for_other_solvers(example_spec, example_design):

@@ -51,13 +51,16 @@ class CompiledClarabel:
     """Clarabel's data of a compiled DPP problem, evaluated from the parameters' current values.
 
     ``problem``: a DPP ``cvxpy.Problem`` whose parameters all have values; ``settings``: every
-    Clarabel setting by name (``SolverCall``'s base options). :attr:`reason` is None when the route
-    is usable, else why not (then :meth:`solve` must not be called).
+    Clarabel setting by name (``SolverCall``'s base options); ``read``: the variables the caller will
+    read with :meth:`value` (checked to be in the compiled program now, not at the first answer).
+    :attr:`reason` is None when the route is usable, else why not (then :meth:`solve` must not be
+    called).
     """
 
-    def __init__(self, problem, settings: dict) -> None:
+    def __init__(self, problem, settings: dict, read: tuple = ()) -> None:
         self.problem = problem
         self.settings = dict(settings)
+        self._read = tuple(read)
         self._solver = None
         #: the values of P and A last given to the solver
         self._last: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
@@ -100,6 +103,10 @@ class CompiledClarabel:
             self._P_pattern = sp.csc_array((self.n, self.n))
         self._cones = dims_to_solver_cones(prog.cone_dims)
         self._columns = {var.id: (int(prog.var_id_to_col[var.id]), var.shape) for var in prog.variables}
+        missing = [var.name() for var in self._read if var.id not in self._columns]
+        if missing:
+            raise ValueError(f"variables {missing} are not in cvxpy's compiled program (a variable with attributes "
+                             "such as nonneg=True is replaced there by a new one)")
         self._check_against(data)
         # again at random values of every parameter (a map read wrongly where the values set now are zero
         # would pass the check above), then the values set now are restored

@@ -163,7 +163,7 @@ class CvxpyVertexTubeMPC:
                 pass  # reported as a status by ``solve``
             else:
                 if self.compiled:
-                    form.compiled = CompiledClarabel(form.problem, self._call.settings)
+                    form.compiled = CompiledClarabel(form.problem, self._call.settings, read=(form.v, form.z, form.alpha))
             if len(self._forms) >= MAX_CACHED:
                 self._forms.pop(next(iter(self._forms)))
             self._forms[capacity] = form
@@ -229,8 +229,9 @@ class CvxpyVertexTubeMPC:
         status, solver_time, detail = self._call.solve(form.problem)
         solver_time += compiled_time
         detail = f"{detail}; vertex form, {len(vertices)} vertices of Theta_k"
-        if form.compiled is not None and form.compiled.reason is None:
-            detail += "; compiled route gave no answer, solved through Problem.solve"
+        if form.compiled is not None:  # say why the route did not answer (a user sees why a step is slower)
+            reason = form.compiled.reason
+            detail += "; compiled route gave no answer, solved through Problem.solve" if reason is None else f"; {reason}"
         if status is SolveStatus.INACCURATE and self._call is not self._plain_call:
             # AlmostSolved without iterative refinement (near-degenerate step): again with the user's settings
             status, extra, _ = self._plain_call.solve(form.problem)
