@@ -124,3 +124,35 @@ def test_a_minmax_step_that_stalled_under_every_earlier_rung_is_solved():
     traj = run_scenario(spec, "drake", steps=2)
     assert [r.status for r in traj.records] == [SolveStatus.OPTIMAL] * len(traj.records)
     assert traj.stop_reason == "completed"
+
+
+def test_a_drake_vertex_step_that_stalled_at_1e_10_is_answered_by_the_retry_ladder():
+    """Found by the vertex-form lockstep property (session 10, ci profile; tests/data/lockstep-vertex-
+    ladder: n = 2, p = 2, θ* at a vertex, Θ_k pinned to a point, window update): at step 4 the Drake
+    vertex form at 1e-10 ended AlmostSolved without and with iterative refinement, the controller
+    answered the step by its plain-form fallback and recorded "inaccurate", where cvxpy's vertex form
+    solved it. The vertex forms now go on to the ladder the plain forms use; rung 1 solves it, and v
+    is the plain form's and cvxpy's."""
+    from pathlib import Path
+
+    from amcp_drake.comparison.compare import ACCURATE_CLARABEL
+    from amcp_drake.model.problem_io import load_spec
+    from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_drake.online.simulate import Trajectory
+
+    folder = Path(__file__).parent / "data" / "lockstep-vertex-ladder"
+    spec, traj = load_spec(folder / "problem.json"), Trajectory.load(folder / "trajectory.json.gz")
+    step = traj.records[4]
+    assert step.status is SolveStatus.INACCURATE and "fallback: plain form" in step.detail  # as recorded
+    x = np.asarray(traj.x[4], float)
+    answers = {}
+    for backend, formulation in (("drake", "vertex"), ("drake", "plain"), ("cvxpy", "vertex")):
+        ctrl = AdaptiveMPC(spec.problem, traj.design, backend=backend, formulation=formulation, options=traj.options,
+                           solver_options=ACCURATE_CLARABEL)
+        answers[backend, formulation] = ctrl.mpc.solve(x, step.h_theta, step.theta_hat, step.H_theta)
+    drake_vertex = answers["drake", "vertex"]
+    assert drake_vertex.status is SolveStatus.OPTIMAL, drake_vertex.detail
+    assert "Clarabel retry" in drake_vertex.detail
+    for other in (answers["drake", "plain"], answers["cvxpy", "vertex"]):
+        assert other.status is SolveStatus.OPTIMAL
+        np.testing.assert_allclose(drake_vertex.v, other.v, rtol=0, atol=1e-8)

@@ -2,7 +2,10 @@
 with a numerical solver error (InsufficientProgress).
 
 Both backends use this ladder for the plain form (15) of the QP (both costs), so a retry cannot
-make them disagree. The vertex form (issue 8, certainty-equivalence cost only) has no retries. Each retry is a full solve
+make them disagree, and since session 10 for the vertex form too (after its first try without and its
+second with iterative refinement; :func:`retry_ladder`): the property suite's lockstep comparison of
+the vertex forms found a Drake step at 1e-10 that ended AlmostSolved after both, answered only by the
+controller's fallback, where cvxpy's solved it. Each retry is a full solve
 with Clarabel's default tolerances (1e-8); only a status "Solved" is accepted, so a retry never
 turns an inaccurate answer into "optimal" by loosening anything. Which rung solved a step is
 written into ``MPCSolution.detail``.
@@ -90,15 +93,24 @@ def solve_with_retries(solve: Callable[[dict | None], tuple[Any, SolveStatus, fl
             return result, status, spent_first, ""
         note = f"{first_note}; "
     result, status, elapsed = solve(None)
-    elapsed += spent_first
+    result, status, elapsed, ladder_note = retry_ladder(solve, result, status, elapsed + spent_first)
+    return result, status, elapsed, note + ladder_note if ladder_note else note.rstrip("; ")
+
+
+def retry_ladder(solve: Callable[[dict | None], tuple[Any, SolveStatus, float]], result: Any, status: SolveStatus,
+                 elapsed: float) -> tuple[Any, SolveStatus, float, str]:
+    """The ladder alone, after a solve that ended with (``result``, ``status``, ``elapsed``): while the
+    status is in RETRIED, ``solve(extra_options)`` once per rung. Returns as :func:`solve_with_retries`,
+    the note "" when no retry was needed. Used by :func:`solve_with_retries` and by the vertex forms,
+    whose first two solves (without, then with iterative refinement) are their own."""
     if status not in RETRIED:
-        return result, status, elapsed, note.rstrip("; ")
+        return result, status, elapsed, ""
     for rung, extra in enumerate(CLARABEL_RETRY_LADDER):
         result, status, spent = solve(extra)
         elapsed += spent
         if status not in RETRIED:
-            return result, status, elapsed, note + describe(rung)
-    return result, status, elapsed, f"{note}after {len(CLARABEL_RETRY_LADDER)} Clarabel retries"
+            return result, status, elapsed, describe(rung)
+    return result, status, elapsed, f"after {len(CLARABEL_RETRY_LADDER)} Clarabel retries"
 
 
 def describe(rung: int) -> str:

@@ -19,7 +19,8 @@ Decision vector y = [z (N+1)·n | α (N+1) | v N·m]. :class:`~.base.MPCSolution
 When the vertices cannot be enumerated (more than ``vertex_form.MAX_COMBINATIONS`` bases and a
 flat Θ_k), the step is solved by the plain form instead, and ``detail`` says so. Clarabel runs
 with :data:`~.vertex_form.CLARABEL_OPTIONS` (no iterative refinement); a step that ends
-``AlmostSolved`` is solved again with the user's settings.
+``AlmostSolved`` is solved again with the user's settings, then with the Clarabel retry ladder
+(:func:`~.clarabel_retry.retry_ladder`, as the plain form and the cvxpy vertex form).
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ import scipy.sparse as sp
 from pydrake.solvers import MathematicalProgram
 
 from amcp_drake.backends.base import MPCSolution, TubeMPCData
+from amcp_drake.backends.clarabel_retry import RETRIED, retry_ladder
 from amcp_drake.backends.condensed_cost import CondensedCost
 from amcp_drake.backends.daqp_fast import DaqpFastPath
 from amcp_drake.backends.drake_solver import DrakeSolver, infeasible_constraint_names
@@ -244,12 +246,21 @@ class DrakeVertexTubeMPC:
             status = self._plain_solver.status(result)
             solver_time += extra
             detail += "; re-solved with iterative refinement"
+        if status in RETRIED and self._plain_solver.name == "clarabel":
+            result, status, solver_time, note = retry_ladder(self._plain_once, result, status, solver_time)
+            detail += f"; {note}"
         if status is not SolveStatus.OPTIMAL:
             names = infeasible_constraint_names(result, self.prog)
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names,
                                detail=f"{result.get_solution_result()}; {detail}")
         yv = result.get_x_val()  # y is the program's only decision vector, in order
         return self._solution(yv, Hv, g2, const, solver_time, update_time, detail)
+
+    def _plain_once(self, extra_options):
+        """(result, status, seconds) of the program solved with the user's settings and ``extra_options``
+        (a rung of :func:`~.clarabel_retry.retry_ladder`)."""
+        result, elapsed = self._plain_solver.solve(self.prog, extra_options)
+        return result, self._plain_solver.status(result), elapsed
 
     @property
     def fast_path_counts(self) -> dict[str, int] | None:

@@ -16,6 +16,7 @@ test_assumption11_terminal_set_is_...       Assumption 11 for X_f, every vertex 
 test_corollary16_state_converges_...        Corollary 16
 test_finite_gain_l2_ratio_stays_bounded     (22), with what a finite run can and cannot show
 test_backends_agree_in_lockstep             Drake and cvxpy agree step by step
+test_vertex_forms_agree_in_lockstep         the same for the vertex form of (20)
 ==========================================  ================================================
 
 Modules: :mod:`.strategies` (problems built valid, not filtered), :mod:`.feasible` (the feasible

@@ -18,7 +18,7 @@ The follower's estimator state is set through the controller's attributes (``H_t
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -78,22 +78,31 @@ def _theta_k_diff(step: int, lead, rec) -> Difference:
     return _diff(step, "h_theta", supports[0], supports[1])
 
 
-def accurate_controller(case, backend: str) -> AdaptiveMPC:
+def vertex_case(case):
+    """``case`` with the online options the vertex form of (20) takes: the certainty-equivalence cost
+    (17), constant θ (d_θ = 0) and no persistent excitation (the min-max cost, the predicted sets (26)
+    and the PE constraint need the plain form); the problem, design, x0, θ*, disturbances, update,
+    window and projection are the case's."""
+    return replace(case, options=replace(case.options, cost="certainty_equivalence", d_theta=0.0, pe_window=None))
+
+
+def accurate_controller(case, backend: str, formulation: str = "plain") -> AdaptiveMPC:
     """The controller of ``case`` on ``backend`` with Clarabel at :data:`ACCURATE` tolerances."""
-    return AdaptiveMPC(case.problem, case.design, backend=backend, options=case.options, solver_options=ACCURATE)
+    return AdaptiveMPC(case.problem, case.design, backend=backend, options=case.options, solver_options=ACCURATE,
+                       formulation=formulation)
 
 
-def accurate_run(case, backend: str):
+def accurate_run(case, backend: str, formulation: str = "plain"):
     """The leader's run for the comparison (:func:`amcp_properties.cases.run` with :func:`accurate_controller`)."""
     from .cases import run
 
-    return run(case, backend, accurate_controller(case, backend))
+    return run(case, backend, accurate_controller(case, backend, formulation))
 
 
-def follow(traj, case, follower: str) -> tuple[list[Difference], list[tuple[int, str, str]]]:
+def follow(traj, case, follower: str, formulation: str = "plain") -> tuple[list[Difference], list[tuple[int, str, str]]]:
     """Replay every step of ``traj`` on ``follower`` (at :data:`ACCURATE` tolerances, as the leader
     of :func:`accurate_run`); returns the differences and the statuses (step, leader, follower) that differ."""
-    ctrl = accurate_controller(case, follower)
+    ctrl = accurate_controller(case, follower, formulation)
     window = case.options.window if case.options.update == "window" else 1
     diffs: list[Difference] = []
     statuses: list[tuple[int, str, str]] = []
@@ -119,10 +128,11 @@ def follow(traj, case, follower: str) -> tuple[list[Difference], list[tuple[int,
     return diffs, statuses
 
 
-def backends_agree(traj, case, follower: str) -> CheckResult:
+def backends_agree(traj, case, follower: str, formulation: str = "plain") -> CheckResult:
     """Every compared quantity within its tolerance and the same status at every step."""
-    claim = f"backends agree in lockstep ({traj.backend} leads, {follower} follows)"
-    diffs, statuses = follow(traj, case, follower)
+    form = "" if formulation == "plain" else f", {formulation} form"
+    claim = f"backends agree in lockstep ({traj.backend} leads, {follower} follows{form})"
+    diffs, statuses = follow(traj, case, follower, formulation)
     if statuses:
         k, a, b = statuses[0]
         return judge("lockstep", claim, -np.inf, 0.0, f"status differs at step {k}: {a} vs {b} ({len(statuses)} steps)")

@@ -21,7 +21,8 @@ nothing). When S exceeds the capacity the problem is rebuilt for S vertices (and
 :func:`amcp_drake.backends.vertex_form.theta_vertices` (basis enumeration, exact for flat Θ_k);
 the fallback to the plain form is taken when they cannot be enumerated. Clarabel runs with
 :data:`amcp_drake.backends.vertex_form.CLARABEL_OPTIONS` (no iterative refinement); a step that
-ends ``optimal_inaccurate`` is solved again with the user's settings.
+ends ``optimal_inaccurate`` is solved again with the user's settings, then with the Clarabel retry
+ladder (:func:`amcp_drake.backends.clarabel_retry.retry_ladder`, as the Drake vertex form).
 
 With Clarabel (and ``compiled=True``, the default) each step is first solved from cvxpy's compiled
 program by a Clarabel solver kept between steps, without ``Problem.solve``
@@ -39,6 +40,7 @@ import cvxpy as cp
 import numpy as np
 
 from amcp_drake.backends.base import MPCSolution, TubeMPCData
+from amcp_drake.backends.clarabel_retry import RETRIED, retry_ladder
 from amcp_drake.backends.vertex_form import (
     CLARABEL_OPTIONS,
     VertexEnumerationError,
@@ -237,6 +239,13 @@ class CvxpyVertexTubeMPC:
             status, extra, _ = self._plain_call.solve(form.problem)
             solver_time += extra
             detail += "; re-solved with iterative refinement"
+        if status in RETRIED and self._plain_call.name == "CLARABEL":
+            def once(extra_options):  # a rung of the ladder with the user's settings underneath
+                rung_status, spent, rung_detail = self._plain_call.solve(form.problem, extra_options)
+                return rung_detail, rung_status, spent
+
+            _, status, solver_time, note = retry_ladder(once, None, status, solver_time)
+            detail += f"; {note}"
         if status is not SolveStatus.OPTIMAL:
             names = self._diagnose(x, vertices) if status is SolveStatus.INFEASIBLE else ()
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names, detail=detail)
