@@ -284,3 +284,18 @@ def test_qp_time_counts_every_pe_solve():
     assert qp_time(enforced) == 0.05
     fallback = StepRecord(**base, times={"solver": 0.02, "pe_solver": 0.05}, pe_status="fallback")
     assert qp_time(fallback) == pytest.approx(0.07)
+
+
+def test_the_bench_records_the_processors_model(tmp_path):
+    """The model name is read from /proc/cpuinfo's first "model name" line (figures differ by
+    processor, session 10); without that file, platform's processor name."""
+    from amcp_drake.studies.bench import cpu_model, machine_info
+
+    info = tmp_path / "cpuinfo"
+    info.write_text("processor\t: 0\nvendor_id\t: AuthenticAMD\nmodel name\t: AMD EPYC 7B13\n\n"
+                    "processor\t: 1\nmodel name\t: AMD EPYC 7B13\n")
+    assert cpu_model(str(info)) == "AMD EPYC 7B13"
+    assert cpu_model(str(tmp_path / "missing")) != ""
+    machine = machine_info()
+    assert isinstance(machine["cpu_model"], str) and machine["cpu_model"]
+    assert "daqp" in machine["versions"]

@@ -277,13 +277,29 @@ def machine_info() -> dict[str, Any]:
     from importlib import metadata
 
     versions = {}
-    for pkg in ("drake", "cvxpy", "clarabel", "numpy", "scipy"):
+    for pkg in ("drake", "cvxpy", "clarabel", "daqp", "numpy", "scipy"):
         try:
             versions[pkg] = metadata.version(pkg)
         except metadata.PackageNotFoundError:
             versions[pkg] = None
     return {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-            "cpu_count": os.cpu_count(), "python": platform.python_version(), "versions": versions}
+            "cpu_model": cpu_model(), "cpu_count": os.cpu_count(), "python": platform.python_version(),
+            "versions": versions}
+
+
+def cpu_model(cpuinfo: str = "/proc/cpuinfo") -> str:
+    """The processor's model name (Linux: the first "model name" of ``cpuinfo``; elsewhere
+    ``platform.processor()``). Recorded because figures differ by processor: session 10 ran on an AMD
+    EPYC about 30 % faster per step than the machine of sessions 5-9, and round-off there decided
+    differently where the gain LMI's optimum is flat (docs/decisions.md)."""
+    try:
+        with open(cpuinfo, encoding="utf-8") as handle:
+            for line in handle:
+                if line.lower().startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
 
 
 def run_benchmarks(settings: BenchSettings | None = None,
