@@ -94,12 +94,17 @@ def test_resolves_are_counted_from_the_messages_the_code_writes(example_spec, ex
     compiled.settings["max_iter"] = 1
     compiled.forget_solver()
     not_compiled = cvx.mpc.solve(np.array([2.0, 3.0]), np.asarray(example_design.h_theta0), np.zeros(3))
+    # a cvxpy plain step whose first answer was above the vertex form's optimum (tests/test_cvxpy_backend.py)
+    from tests.test_cvxpy_backend import ACCURATE_10, _plain, _suboptimal_step
+
+    spec, traj, rec, x = _suboptimal_step()
+    resolved = _plain(spec, traj, "cvxpy", ACCURATE_10).solve(x, rec.h_theta, rec.theta_hat, rec.H_theta)
     details = [describe(0), outside.detail, "", "tube QP (20): tube (15c) 2e-06 > 1e-06; fallback: vertex form of (20) (checked)",
                "plain form (15) fallback: Qhull failed",  # the vertex form's note (drake_vertex._solve_plain)
-               tight_failed.detail, not_compiled.detail]
+               tight_failed.detail, not_compiled.detail, resolved.detail]
     assert count_resolves(details) == {"clarabel_retry": 1, "refined_resolve": 0, "minmax_default_tolerances": 1,
                                        "every_row": 1, "plain_fallback": 1, "answer_check_fallback": 1,
-                                       "compiled_route_fallback": 1}
+                                       "compiled_route_fallback": 1, "optimality_resolve": 1}
 
 
 def stats_cpu_parts_fit(times_ms) -> bool:

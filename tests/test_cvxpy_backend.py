@@ -775,3 +775,55 @@ def test_massera2017_plain_form_on_a_theta_k_1e_4_wide_is_answered_and_verified(
     other = get_backend("drake", formulation="vertex").tube_mpc(data).solve(x, h_theta, theta_hat)
     assert other.status is SolveStatus.OPTIMAL
     assert abs(sol.cost - other.cost) <= 1e-6 and np.max(np.abs(sol.v - other.v)) <= 1e-5
+
+
+# -- the plain form's answer checked against the vertex form's optimum (session 10) ---------------------------
+
+def _suboptimal_step():
+    """Step 8 of the recorded run (thorough profile, session 10; tests/data/lockstep-plain-suboptimal: n = 1,
+    p = 2, exact update (7), Θ_k a slab 1.3e-6 wide, x_8 = −0.023, cost 7.5e-4)."""
+    from pathlib import Path
+
+    from amcp_drake.model.problem_io import load_spec
+    from amcp_drake.online.simulate import Trajectory
+
+    folder = Path(__file__).parent / "data" / "lockstep-plain-suboptimal"
+    spec, traj = load_spec(folder / "problem.json"), Trajectory.load(folder / "trajectory.json.gz")
+    return spec, traj, traj.records[8], np.asarray(traj.x[8], float)
+
+
+def _plain(spec, traj, backend, options):
+    from amcp_drake.online.controller import AdaptiveMPC
+
+    return AdaptiveMPC(spec.problem, traj.design, backend=backend, formulation="plain", options=traj.options,
+                       solver_options=options).mpc
+
+
+ACCURATE_10 = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10}
+
+
+def test_a_suboptimal_plain_answer_is_caught_by_the_vertex_forms_optimum_and_solved_again():
+    """At 1e-10 Clarabel ended "Solved" on cvxpy's plain form with a cost 8.2e-9 above the optimum and v
+    1.3e-4 off (the Drake plain form at 1e-12, the reference here, and the lockstep property's leader);
+    the answer is now checked against the vertex form's optimum and solved again at tol_feas 1e-12."""
+    spec, traj, rec, x = _suboptimal_step()
+    reference = _plain(spec, traj, "drake", {"tol_gap_abs": 1e-12, "tol_gap_rel": 1e-12, "tol_feas": 1e-12}).solve(
+        x, rec.h_theta, rec.theta_hat, rec.H_theta)
+    sol = _plain(spec, traj, "cvxpy", ACCURATE_10).solve(x, rec.h_theta, rec.theta_hat, rec.H_theta)
+    assert sol.status is SolveStatus.OPTIMAL
+    assert "above the vertex form's optimum" in sol.detail and "re-solved at tol_feas 1e-12" in sol.detail
+    np.testing.assert_allclose(sol.v, reference.v, rtol=0, atol=1e-8)
+    assert sol.Lambda is not None and sol.Lambda.shape[-1] == rec.H_theta.shape[0]
+
+
+def test_a_plain_answer_that_stays_suboptimal_is_inaccurate(monkeypatch):
+    """Tampered: the re-solve at the same feasibility tolerance (factor 1) gives the same suboptimal
+    answer; the step is then "inaccurate" with no answer (the controller answers it by the other
+    formulation, checked), never a suboptimal "optimal"."""
+    import amcp_reference.tube_mpc as tube_mpc
+
+    monkeypatch.setattr(tube_mpc, "TIGHTER_FEASIBILITY", 1.0)
+    spec, traj, rec, x = _suboptimal_step()
+    sol = _plain(spec, traj, "cvxpy", ACCURATE_10).solve(x, rec.h_theta, rec.theta_hat, rec.H_theta)
+    assert sol.status is SolveStatus.INACCURATE and sol.v is None
+    assert "still above" in sol.detail

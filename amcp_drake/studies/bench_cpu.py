@@ -14,8 +14,8 @@ CPU time under load, so the performance figures of issue 16 are CPU time of the 
 * ``qp_solver``: the QP solver calls alone (Drake: ``Solve``, which includes Drake's translation of
   the program into the solver's format; cvxpy: ``Problem.solve``, which includes cvxpy's parameter
   application, and the compiled route of the vertex form, ``_solve_compiled``, which includes the
-  evaluation of cvxpy's compiled data and reading the variables back; fast path: the DAQP call and
-  its checks' fallback solves);
+  evaluation of cvxpy's compiled data and reading the variables back, also inside the cvxpy plain
+  form's optimality check by its vertex form; fast path: the DAQP call and its checks' fallback solves);
 * ``total``: the whole ``AdaptiveMPC.step``;
 * ``outside_solvers`` = total − lp_solver − qp_solver: everything that is not a solver call.
 """
@@ -45,6 +45,11 @@ class CpuProfile:
             self._wrap(obj, "solve", "qp_solver")
         if hasattr(ctrl.mpc, "_solve_compiled"):  # the cvxpy vertex form's compiled route
             self._wrap(ctrl.mpc, "_solve_compiled", "qp_solver")
+        check = getattr(ctrl.mpc, "_vertex_check", None)  # the cvxpy plain form's optimality check
+        if check is not None:
+            for obj in _solver_objects(check, "qp"):
+                self._wrap(obj, "solve", "qp_solver")
+            self._wrap(check, "_solve_compiled", "qp_solver")
 
     def _wrap(self, obj: Any, method: str, part: str) -> None:
         inner: Callable = getattr(obj, method)

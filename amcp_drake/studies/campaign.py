@@ -169,7 +169,8 @@ def _resolve_counts(traj, backend: str) -> dict[str, float]:
     form's fall back to every row of (15c) only in the Drake backend's plain form (the cvxpy plain
     form always has every row), the min–max QP's re-solve at the default tolerances only in a run with
     the min–max cost (19) (the campaign draws the certainty-equivalence cost), the fall back from the
-    compiled route to ``Problem.solve`` only in the cvxpy vertex form. Keys ``resolve_<kind>``;
+    compiled route to ``Problem.solve`` only in the cvxpy vertex form, the optimality re-solve only in
+    the cvxpy plain form. Keys ``resolve_<kind>``;
     the summary shows the fraction of problems with at least one such step (for every_row: how often
     the campaign did not test the reduced program alone)."""
     from amcp_drake.studies.resolves import count_resolves, step_notes
@@ -178,7 +179,8 @@ def _resolve_counts(traj, backend: str) -> dict[str, float]:
     minmax = getattr(getattr(traj, "options", None), "cost", "certainty_equivalence") == "minmax"
     applies = {"plain_fallback": FORMULATION == "vertex", "every_row": FORMULATION == "plain" and backend == "drake",
                "minmax_default_tolerances": minmax,
-               "compiled_route_fallback": FORMULATION == "vertex" and backend == "cvxpy"}
+               "compiled_route_fallback": FORMULATION == "vertex" and backend == "cvxpy",
+               "optimality_resolve": FORMULATION == "plain" and backend == "cvxpy"}
     return {f"resolve_{kind}": float(n) for kind, n in counts.items() if applies.get(kind, True)}
 
 

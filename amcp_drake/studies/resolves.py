@@ -4,7 +4,8 @@ the bench and the campaign summary count them the same way).
 A step's notes are the detail of the QP (20) answer it applied (``StepRecord.qp_detail``, from
 ``MPCSolution.detail``: the Clarabel retry ladder, the reduced plain form's fall back to every row of
 (15c), the vertex form's fall back to the plain form, the cvxpy vertex form's fall back from its
-compiled route to ``Problem.solve``) joined with the controller's answer-check notes
+compiled route to ``Problem.solve``, the cvxpy plain form's re-solve of an answer above the vertex
+form's optimum) joined with the controller's answer-check notes
 (``StepRecord.detail``: an answer re-solved with iterative refinement, or replaced by another method
 after it failed its checks). Kinds that cannot occur for a backend or formulation count 0.
 """
@@ -19,6 +20,7 @@ RESOLVE_MARKS = {
     "every_row": "every row of (15c)",                      # reduced plain form -> every row
     "plain_fallback": "plain form (15) fallback",            # vertex form without Θ_k's vertices
     "compiled_route_fallback": "compiled route gave no answer",  # cvxpy vertex form: solved through Problem.solve
+    "optimality_resolve": "above the vertex form's optimum",  # cvxpy plain form: re-solved at a tighter tol_feas
     # an answer failed its check, another method answered (the controller's notes end "...; fallback: ...";
     # the leading "; " keeps "plain form (15) fallback: " out of this count)
     "answer_check_fallback": "; fallback: ",

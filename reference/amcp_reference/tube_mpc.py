@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import cvxpy as cp
@@ -66,6 +66,17 @@ ROW_CAPACITY_STEP = 8
 #: first tries needing a retry 50 -> 6; CPU per closed-loop step +3-5 % (Example 1) to +6-15 %
 #: (massera2017). docs/decisions.md, "The cvxpy plain form's unanswered QPs on massera2017".
 PLAIN_FORM_CLARABEL_OPTIONS = {"direct_solve_method": "faer", "max_threads": 1}
+#: The optimality check of the plain form's answer (session 10, :meth:`CvxpyTubeMPC._checked_optimal`):
+#: its cost may exceed the vertex form's optimum of the same step by at most this many times the gap
+#: tolerance in effect (tol_gap_abs + tol_gap_rel·|cost|, for the errors of both solves). Why: on a
+#: generated problem (thorough profile; n = 1, p = 2, exact update (7), a Θ_k slab 1.3e-6 wide,
+#: x_k = −0.023) Clarabel ended "Solved" at 1e-10 with a cost 8.2e-9 above the optimum (v 1.3e-4
+#: off): the feasibility tolerance is relative to the largest variables, and in this form α_N (23.7)
+#: and Λ (up to 129) are large and not unique (the cost depends on v only).
+OPTIMALITY_SLACK = 10.0
+#: The re-solve of an answer that fails that check: Clarabel's feasibility tolerance this many times
+#: the one in effect (tighter), the gap tolerances unchanged. On the case above 1e-12 gave v to 8e-10.
+TIGHTER_FEASIBILITY = 1e-2
 #: Offset of a padded row 0·θ <= PAD_OFFSET: any positive value leaves the program the same; 1 is the
 #: scale of the unit rows.
 PAD_OFFSET = 1.0
@@ -83,6 +94,14 @@ class _Formulation:
     Lambda: list[cp.Variable]
     groups: dict[str, list[cp.Constraint]] = field(default_factory=dict)
     slacks: dict[str, cp.Variable] = field(default_factory=dict)
+
+
+def clarabel_defaults_of_interest() -> dict[str, float]:
+    """Clarabel's default gap and feasibility tolerances (read from the installed Clarabel)."""
+    from .solver_call import clarabel_defaults
+
+    defaults = clarabel_defaults()
+    return {name: float(defaults[name]) for name in ("tol_gap_abs", "tol_gap_rel", "tol_feas")}
 
 
 def relaxed_groups(call, elastic: Callable[[], Any], groups: tuple[str, ...]) -> tuple[str, ...]:
@@ -243,6 +262,16 @@ class CvxpyTubeMPC:
         """``call``: the backend's ``SolverCall``; with Clarabel, a copy with
         :data:`PLAIN_FORM_CLARABEL_OPTIONS` under the user's options is used."""
         self.data = data
+        #: the vertex form of (20) that checks the optimality of each answer (_checked_optimal); with
+        #: Clarabel and the certainty-equivalence cost, on the user's options
+        self._vertex_check = None
+        if call.name == "CLARABEL" and not data.minmax:
+            from .tube_vertex import CvxpyVertexTubeMPC
+
+            self._vertex_check = CvxpyVertexTubeMPC(data, SolverCall(call.name, call.options, keep_solver=True),
+                                                    plain_fallback=False)
+        self._tolerances = {**clarabel_defaults_of_interest(), **{k: float(v) for k, v in call.options.items()
+                                                                  if k in ("tol_gap_abs", "tol_gap_rel", "tol_feas")}}
         if call.name == "CLARABEL":
             call = SolverCall(call.name, {**PLAIN_FORM_CLARABEL_OPTIONS, **call.options}, keep_solver=call.keep_solver)
         self._call = call
@@ -364,7 +393,48 @@ class CvxpyTubeMPC:
             cost = minmax_plan_cost(self.data, z, alpha, v)
         else:
             cost = nominal_cost(self.data, x, theta_hat, v)
-        return MPCSolution(status, v, z, alpha, Lam, cost, solver_time, update_time, detail=detail)
+        sol = MPCSolution(status, v, z, alpha, Lam, cost, solver_time, update_time, detail=detail)
+        if u0_bounds is None and h_theta.ndim == 1 and self._vertex_check is not None:
+            sol = self._checked_optimal(sol, form, x, h_theta, theta_hat, H_theta)
+        return sol
+
+    def _checked_optimal(self, sol: MPCSolution, form: _Formulation, x, h_theta, theta_hat, H_theta) -> MPCSolution:
+        """``sol`` when its cost is within :data:`OPTIMALITY_SLACK` gap tolerances of the vertex form's
+        optimum of the same step (the same program in (z, α, v); amcp_reference.tube_vertex, cvxpy's own),
+        else the answer re-solved at a tighter feasibility tolerance (:data:`TIGHTER_FEASIBILITY`) when
+        that one passes, else the status INACCURATE (the controller then answers the step by the other
+        formulation, checked). No check when the vertex form gives no optimum (its vertices cannot be
+        enumerated, or it ends otherwise): the answer is kept as it is, and the detail says so."""
+        vertex = self._vertex_check.solve(x, h_theta, theta_hat, H_theta)
+        extra = vertex.solver_time or 0.0
+        if vertex.status is not SolveStatus.OPTIMAL:
+            return replace(sol, solver_time=sol.solver_time + extra,
+                           detail=f"{sol.detail}; optimality not checked (vertex form: {vertex.status.value})")
+        options = self._tolerances
+        slack = OPTIMALITY_SLACK * (options["tol_gap_abs"] + options["tol_gap_rel"] * abs(vertex.cost))
+        excess = sol.cost - vertex.cost
+        if excess <= slack:
+            return replace(sol, solver_time=sol.solver_time + extra)
+        tighter = {"tol_feas": TIGHTER_FEASIBILITY * options["tol_feas"]}
+        status, spent, _ = self._call.solve(form.problem, tighter)
+        note = (f"the first answer's cost was {excess:.2e} above the vertex form's optimum (allowed {slack:.1e}); "
+                f"re-solved at tol_feas {tighter['tol_feas']:.0e}")
+        if status is SolveStatus.OPTIMAL:
+            again = self._read(form, x, theta_hat)
+            if again.cost - vertex.cost <= slack:
+                return replace(again, solver_time=sol.solver_time + extra + spent, update_time=sol.update_time,
+                               detail=f"{sol.detail}; {note}")
+        return MPCSolution(SolveStatus.INACCURATE, None, None, None, None, None, sol.solver_time + extra + spent,
+                           sol.update_time, detail=f"{sol.detail}; {note}: still above (status {status.value})")
+
+    def _read(self, form: _Formulation, x, theta_hat) -> MPCSolution:
+        """The certainty-equivalence answer held by ``form``'s variables (after an optimal solve)."""
+        nv, u = np.shape(self.data.X0_vertices)[0], np.shape(self.data.H_x)[0]
+        v = np.asarray(form.v.value, float).T.copy()
+        z = np.asarray(form.z.value, float).T.copy()
+        alpha = np.asarray(form.alpha.value, float).copy()
+        Lam = np.stack([np.asarray(L.value, float).reshape(nv, u, self.capacity)[..., :self.q] for L in form.Lambda])
+        return MPCSolution(SolveStatus.OPTIMAL, v, z, alpha, Lam, nominal_cost(self.data, x, theta_hat, v))
 
     def _solve(self, problem: cp.Problem, refine: bool = False) -> tuple[SolveStatus, float, str]:
         """(status, solver time, detail): Clarabel with the retry ladder of

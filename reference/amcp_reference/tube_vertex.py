@@ -126,15 +126,18 @@ class CvxpyVertexTubeMPC:
 
     formulation = "vertex"
 
-    def __init__(self, data: TubeMPCData, call, compiled: bool = True) -> None:
+    def __init__(self, data: TubeMPCData, call, compiled: bool = True, plain_fallback: bool = True) -> None:
         """``call``: the backend's ``SolverCall``; with Clarabel, a copy with
         :data:`amcp_drake.backends.vertex_form.CLARABEL_OPTIONS` under the user's options is used.
         ``compiled``: with Clarabel, solve each step first from cvxpy's compiled program
-        (:mod:`amcp_reference.compiled_clarabel`); False: always through ``Problem.solve``."""
+        (:mod:`amcp_reference.compiled_clarabel`); False: always through ``Problem.solve``.
+        ``plain_fallback``: solve a step whose Θ_k vertices cannot be enumerated by the plain form; False
+        (the plain form's own optimality check, which must not call the plain form): the status ERROR."""
         from .solver_call import SolverCall
 
         self.data = data
         self.compiled = bool(compiled) and call.name == "CLARABEL"
+        self.plain_fallback = plain_fallback
         self._plain_call = call
         if call.name == "CLARABEL":
             call = SolverCall(call.name, {**CLARABEL_OPTIONS, **call.options}, keep_solver=True)
@@ -214,6 +217,8 @@ class CvxpyVertexTubeMPC:
             # Θ_k's vertices are enumerated only when Θ_k changed (to the bit), as in the Drake backend
             vertices = last[2] if unchanged else theta_vertices(H, h_theta)
         except VertexEnumerationError as exc:
+            if not self.plain_fallback:
+                return MPCSolution(SolveStatus.ERROR, None, None, None, None, None, detail=f"vertex form: {exc}")
             return self._solve_plain(x, h_theta, theta_hat, H_theta, str(exc))
         self._last_vertices = (h_theta.copy(), H.copy(), vertices)
         self.capacity = max(self.capacity, len(vertices))
