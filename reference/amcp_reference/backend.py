@@ -185,5 +185,12 @@ class CvxpyBackend:
 
             return CvxpyVertexTubeMPC(data, call, compiled=self.compiled_qp)
         from .tube_mpc import CvxpyTubeMPC
+        from .tube_vertex import CvxpyVertexTubeMPC
 
-        return CvxpyTubeMPC(data, call)
+        # the plain form's answers are checked against the vertex form's optimum (session 10; tube_mpc,
+        # _checked_optimal): with Clarabel and the certainty-equivalence cost, on the user's options
+        check = None
+        if self._call.name == "CLARABEL" and not data.minmax:
+            check = CvxpyVertexTubeMPC(data, SolverCall(self._call.name, self._call.options, keep_solver=True),
+                                       compiled=self.compiled_qp, plain_fallback=False)
+        return CvxpyTubeMPC(data, call, vertex_check=check)

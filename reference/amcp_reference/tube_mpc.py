@@ -258,18 +258,14 @@ def formulate(data: TubeMPCData, q: int, elastic: bool = False, u0_bounds: bool 
 class CvxpyTubeMPC:
     """QP (20) built once; :meth:`solve` sets x_k, Θ_k, θ̂_k and re-solves the same problem."""
 
-    def __init__(self, data: TubeMPCData, call) -> None:
+    def __init__(self, data: TubeMPCData, call, vertex_check=None) -> None:
         """``call``: the backend's ``SolverCall``; with Clarabel, a copy with
-        :data:`PLAIN_FORM_CLARABEL_OPTIONS` under the user's options is used."""
+        :data:`PLAIN_FORM_CLARABEL_OPTIONS` under the user's options is used. ``vertex_check``: the
+        vertex form of (20) on the same data (``CvxpyVertexTubeMPC``, built by the backend, which
+        imports both forms) that checks the optimality of each certainty-equivalence answer
+        (:meth:`_checked_optimal`); None: no check."""
         self.data = data
-        #: the vertex form of (20) that checks the optimality of each answer (_checked_optimal); with
-        #: Clarabel and the certainty-equivalence cost, on the user's options
-        self._vertex_check = None
-        if call.name == "CLARABEL" and not data.minmax:
-            from .tube_vertex import CvxpyVertexTubeMPC
-
-            self._vertex_check = CvxpyVertexTubeMPC(data, SolverCall(call.name, call.options, keep_solver=True),
-                                                    plain_fallback=False)
+        self._vertex_check = vertex_check if call.name == "CLARABEL" and not data.minmax else None
         self._tolerances = {**clarabel_defaults_of_interest(), **{k: float(v) for k, v in call.options.items()
                                                                   if k in ("tol_gap_abs", "tol_gap_rel", "tol_feas")}}
         if call.name == "CLARABEL":
