@@ -378,18 +378,7 @@ class CvxpyTubeMPC:
         if status is not SolveStatus.OPTIMAL:
             names = self._diagnose(x, h_theta, theta_hat) if status is SolveStatus.INFEASIBLE else ()
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names, detail=detail)
-        f = form
-        nv, u = np.shape(self.data.X0_vertices)[0], np.shape(self.data.H_x)[0]
-        v = np.asarray(f.v.value, float).T.copy()           # (N, m)
-        z = np.asarray(f.z.value, float).T.copy()           # (N+1, n)
-        alpha = np.asarray(f.alpha.value, float).copy()     # (N+1,)
-        Lam = np.stack([np.asarray(L.value, float).reshape(nv, u, self.capacity)[..., :self.q]
-                        for L in f.Lambda])  # (N, nv, u, q): padded columns dropped (_padded)
-        if self.data.minmax:  # (19) of the plan, not Σ s_l² (backends.minmax_cost)
-            cost = minmax_plan_cost(self.data, z, alpha, v)
-        else:
-            cost = nominal_cost(self.data, x, theta_hat, v)
-        sol = MPCSolution(status, v, z, alpha, Lam, cost, solver_time, update_time, detail=detail)
+        sol = replace(self._read(form, x, theta_hat), solver_time=solver_time, update_time=update_time, detail=detail)
         if u0_bounds is None and h_theta.ndim == 1 and self._vertex_check is not None:
             sol = self._checked_optimal(sol, form, x, h_theta, theta_hat, H_theta)
         return sol
@@ -424,13 +413,16 @@ class CvxpyTubeMPC:
                            sol.update_time, detail=f"{sol.detail}; {note}: still above (status {status.value})")
 
     def _read(self, form: _Formulation, x, theta_hat) -> MPCSolution:
-        """The certainty-equivalence answer held by ``form``'s variables (after an optimal solve)."""
+        """The answer held by ``form``'s variables after an optimal solve, with its cost: (19) of the plan
+        for the min-max cost (not Σ s_l², backends.minmax_cost), else (17)."""
         nv, u = np.shape(self.data.X0_vertices)[0], np.shape(self.data.H_x)[0]
-        v = np.asarray(form.v.value, float).T.copy()
-        z = np.asarray(form.z.value, float).T.copy()
-        alpha = np.asarray(form.alpha.value, float).copy()
-        Lam = np.stack([np.asarray(L.value, float).reshape(nv, u, self.capacity)[..., :self.q] for L in form.Lambda])
-        return MPCSolution(SolveStatus.OPTIMAL, v, z, alpha, Lam, nominal_cost(self.data, x, theta_hat, v))
+        v = np.asarray(form.v.value, float).T.copy()           # (N, m)
+        z = np.asarray(form.z.value, float).T.copy()           # (N+1, n)
+        alpha = np.asarray(form.alpha.value, float).copy()     # (N+1,)
+        Lam = np.stack([np.asarray(L.value, float).reshape(nv, u, self.capacity)[..., :self.q]
+                        for L in form.Lambda])  # (N, nv, u, q): padded columns dropped (_padded)
+        cost = minmax_plan_cost(self.data, z, alpha, v) if self.data.minmax else nominal_cost(self.data, x, theta_hat, v)
+        return MPCSolution(SolveStatus.OPTIMAL, v, z, alpha, Lam, cost)
 
     def _solve(self, problem: cp.Problem, refine: bool = False) -> tuple[SolveStatus, float, str]:
         """(status, solver time, detail): Clarabel with the retry ladder of
