@@ -144,9 +144,9 @@ def unstabilisable_vertex(A_vertices, B_vertices) -> int | None:
 
 def solve_scaled(solve: ScaledSolve, A_vertices, B_vertices, Q, R, first: dict | None = None) -> GainResult:
     """The gain LMI by ``solve``, K and P in the original coordinates (module docstring). In every
-    scaling, ``first`` (e.g. :func:`tight_first`) is tried first (with :data:`GAIN_TIGHT_RETRIES` when it
-    stalls), then the backend's own options when it gave no accepted answer. Scalings tried in order, each only while no answer is decided
-    ("infeasible" and "unbounded" are answers):
+    scaling, ``first`` (e.g. :func:`tight_first`) is tried first (with :data:`GAIN_TIGHT_RETRIES` when
+    it stalls), then the backend's own options when it gave no accepted answer. Scalings tried in
+    order, each only while no answer is decided ("infeasible" and "unbounded" are answers):
 
     1. :func:`gain_scaling` (mean vertex Riccati solution);
     2. the coordinates of the answer of 1 when it was "inaccurate", or "optimal" but violating (16);
@@ -174,8 +174,9 @@ def solve_scaled(solve: ScaledSolve, A_vertices, B_vertices, Q, R, first: dict |
 
 def _attempt(solve: ScaledSolve, scaling: GainScaling, A_vertices, B_vertices, Q, R, first: dict | None):
     """One scaling: the solve with ``first`` (when it ends "inaccurate", again with each of
-    :data:`GAIN_TIGHT_RETRIES` on top), then (no accepted answer) with the backend's options. Returns (GainResult in original coordinates, the P of a positive definite answer that was not
-    accepted, else None)."""
+    :data:`GAIN_TIGHT_RETRIES` on top), then (no accepted answer) with the backend's options. Returns
+    (GainResult in original coordinates, the P of a positive definite answer that was not accepted,
+    else None)."""
     data = scaling.scaled(A_vertices, B_vertices, Q, R)
     if first:
         result, _ = _one_solve(solve, scaling, data, first)

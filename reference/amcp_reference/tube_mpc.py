@@ -32,7 +32,7 @@ from amcp_drake.model.status import SolveStatus
 
 from .nominal_cost import certainty_equivalence_cost, nominal_cost
 from .offline import sqrtm_psd
-from .solver_call import SolverCall
+from .solver_call import SolverCall, clarabel_defaults
 
 #: Constraint groups, named as in the Drake backend so that reports read the same.
 GROUP_15A = "(15a) state and input constraints"
@@ -94,14 +94,6 @@ class _Formulation:
     Lambda: list[cp.Variable]
     groups: dict[str, list[cp.Constraint]] = field(default_factory=dict)
     slacks: dict[str, cp.Variable] = field(default_factory=dict)
-
-
-def clarabel_defaults_of_interest() -> dict[str, float]:
-    """Clarabel's default gap and feasibility tolerances (read from the installed Clarabel)."""
-    from .solver_call import clarabel_defaults
-
-    defaults = clarabel_defaults()
-    return {name: float(defaults[name]) for name in ("tol_gap_abs", "tol_gap_rel", "tol_feas")}
 
 
 def relaxed_groups(call, elastic: Callable[[], Any], groups: tuple[str, ...]) -> tuple[str, ...]:
@@ -266,8 +258,9 @@ class CvxpyTubeMPC:
         (:meth:`_checked_optimal`); None: no check."""
         self.data = data
         self._vertex_check = vertex_check if call.name == "CLARABEL" and not data.minmax else None
-        self._tolerances = {**clarabel_defaults_of_interest(), **{k: float(v) for k, v in call.options.items()
-                                                                  if k in ("tol_gap_abs", "tol_gap_rel", "tol_feas")}}
+        # the gap and feasibility tolerances in effect (Clarabel's defaults under the user's options)
+        settings = {**clarabel_defaults(), **call.options} if call.name == "CLARABEL" else {}
+        self._tolerances = {k: float(settings[k]) for k in ("tol_gap_abs", "tol_gap_rel", "tol_feas") if k in settings}
         if call.name == "CLARABEL":
             call = SolverCall(call.name, {**PLAIN_FORM_CLARABEL_OPTIONS, **call.options}, keep_solver=call.keep_solver)
         self._call = call
