@@ -127,12 +127,11 @@ def test_a_minmax_step_that_stalled_under_every_earlier_rung_is_solved():
 
 
 def test_a_drake_vertex_step_that_stalled_at_1e_10_is_answered_by_the_retry_ladder():
-    """Found by the vertex-form lockstep property (session 10, ci profile; tests/data/lockstep-vertex-
-    ladder: n = 2, p = 2, θ* at a vertex, Θ_k pinned to a point, window update): at step 4 the Drake
-    vertex form at 1e-10 ended AlmostSolved without and with iterative refinement, the controller
-    answered the step by its plain-form fallback and recorded "inaccurate", where cvxpy's vertex form
-    solved it. The vertex forms now go on to the ladder the plain forms use; rung 1 solves it, and v
-    is the plain form's and cvxpy's."""
+    """A recorded hard step (tests/data/lockstep-vertex-ladder: n = 2, p = 2, θ* at a vertex, Θ_k
+    pinned to a point, window update): at step 4 the Drake vertex form at 1e-10 can end AlmostSolved
+    with and without iterative refinement. The vertex form must answer the step itself (optimal,
+    checked) with the v of the plain form and of cvxpy's vertex form. Which rung of the retry ladder
+    answers depends on the processor's round-off and is deliberately not asserted."""
     from pathlib import Path
 
     from amcp_drake.comparison.compare import ACCURATE_CLARABEL
@@ -152,7 +151,7 @@ def test_a_drake_vertex_step_that_stalled_at_1e_10_is_answered_by_the_retry_ladd
         answers[backend, formulation] = ctrl.mpc.solve(x, step.h_theta, step.theta_hat, step.H_theta)
     drake_vertex = answers["drake", "vertex"]
     assert drake_vertex.status is SolveStatus.OPTIMAL, drake_vertex.detail
-    assert "Clarabel retry" in drake_vertex.detail
+    assert "fallback" not in drake_vertex.detail, drake_vertex.detail  # answered by the vertex form itself
     for other in (answers["drake", "plain"], answers["cvxpy", "vertex"]):
         assert other.status is SolveStatus.OPTIMAL
         np.testing.assert_allclose(drake_vertex.v, other.v, rtol=0, atol=1e-8)
