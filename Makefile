@@ -11,7 +11,12 @@ $(BIN)/amcp: pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	touch $(BIN)/amcp
 
-.PHONY: install run test lint
+# the documentation site: MkDocs with warnings as errors, written to site/
+$(BIN)/mkdocs: $(BIN)/amcp
+	$(BIN)/python -m pip install --quiet -e '.[dev,docs]'
+	touch $(BIN)/mkdocs
+
+.PHONY: install run test lint docs
 install: $(BIN)/amcp
 
 run: $(BIN)/amcp
@@ -24,3 +29,6 @@ lint: $(BIN)/amcp
 
 test: lint
 	$(BIN)/python -m pytest
+
+docs: $(BIN)/mkdocs
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
