@@ -1,4 +1,4 @@
-"""``amcp bench``: per-step times of the online loop (issue 8); see :mod:`amcp_drake.studies.bench`."""
+"""``amcp bench``: per-step times of the online loop; see :mod:`amcp_drake.studies.bench`."""
 
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ from amcp_drake.cli.common import EXIT_BAD_INPUT, EXIT_OK, bad_input_exits_2
               help="Tube QP formulation(s): plain (15) with Λ, (5b) at Θ_k's vertices, or fast = the vertex form "
                    "with the DAQP fast path (Drake only) (repeatable; default all three).")
 @click.option("--target-repeats", type=int, default=None,
-              help="How often issue 16's targets are timed on runs of their own (default 5, quick 1); a target "
+              help="How often the performance targets are timed on runs of their own (default 5, quick 1); a target "
                    "counts as met only when every repeat meets it.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Disturbance seed.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default="amcp-out/bench", show_default=True,

@@ -47,7 +47,7 @@ def summary_text(store) -> str:
         if commands:
             lines.append(f"  seed {seed} #{idx}: replay with")
             lines += [f"    {command}" for command in commands]
-        elif folder:  # a store of schema 1 (issue 9) recorded no commands
+        elif folder:  # a store of schema 1 (the first store layout) recorded no commands
             lines.append(f"  seed {seed} #{idx}: {folder}")
         else:
             lines.append(f"  seed {seed} #{idx}: (no replay files: " + ((message or "").splitlines() or [""])[0] + ")")
