@@ -31,7 +31,9 @@ from amcp_drake.cli.common import EXIT_BAD_INPUT, EXIT_OK, bad_input_exits_2
 @click.option("--no-plot", is_flag=True, help="Write the JSON only.")
 @bad_input_exits_2
 def bench_cmd(quick, steps, scaling_steps, only, backends, formulations, target_repeats, seed, out_dir, no_plot):
-    """Time the online loop, CPU (thread time) and wall: set update, LMS, QP, QP solver, everything
+    """Performance benchmarks of the online loop (medians, ratios).
+
+    Times the online loop, CPU (thread time) and wall: set update, LMS, QP, QP solver, everything
     outside the solvers and the total per step (median, p90), Example 1 with X0 of 4 and 8 facets,
     both backends, plain / vertex / fast path, run in lockstep (ratios from the same run); then sweeps
     over N, the facets of X0, p and n with design times. Writes JSON, a PNG and scaling.md."""
