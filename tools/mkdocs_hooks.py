@@ -1,0 +1,63 @@
+"""MkDocs hook of the documentation site (mkdocs.yml, ``hooks``): mathematics written as plain text.
+
+The pages and docstrings write subscripts and optimal values as plain text (x_k, Θ_k, [H_x]_i,
+θ*, v*_{0|k}). Markdown would read a pair of underscores, or a star after a symbol, as the start of
+emphasis and turn the text between into italics. This hook adds one Markdown extension to every
+conversion (the pages and the API pages of mkdocstrings):
+
+* underscores never mark emphasis (``_em_`` is not used in these docs; ``*em*`` and ``**bold**`` are);
+* a star right after a mathematical symbol (θ*, θ̂*, v*, x*, Λ*, ...) and not followed by a letter or
+  another star is a literal star.
+
+Code spans and fenced code are left as they are.
+"""
+
+from __future__ import annotations
+
+import re
+
+from markdown import Markdown
+from markdown.extensions import Extension
+from markdown.preprocessors import Preprocessor
+
+#: a star that follows a symbol (a Greek letter, a one-letter Latin symbol, a combining accent, the
+#: closing brace of a subscript) and is not followed by a letter or a star: θ*, θ*_k, A(θ*), v*_{0|k};
+#: the star that closes *emphasis* follows a word of two or more letters and is left alone
+SYMBOL_STAR = re.compile(r"(?:(?<=[Α-Ωα-ω\u0300-\u036f}])|(?<=\b[A-Za-z]))\*(?![A-Za-z*])")
+CODE_SPAN = re.compile(r"(`+)(?:.+?)\1")
+
+
+def escape_symbol_stars(line: str) -> str:
+    """``line`` with the stars of SYMBOL_STAR escaped outside code spans."""
+    out, pos = [], 0
+    for match in CODE_SPAN.finditer(line):
+        out.append(SYMBOL_STAR.sub(r"\\*", line[pos:match.start()]))
+        out.append(match.group(0))
+        pos = match.end()
+    out.append(SYMBOL_STAR.sub(r"\\*", line[pos:]))
+    return "".join(out)
+
+
+class SymbolStars(Preprocessor):
+    """Escape the stars of mathematical symbols (after fenced code has been set aside)."""
+
+    def run(self, lines: list[str]) -> list[str]:
+        return [escape_symbol_stars(line) for line in lines]
+
+
+class PlainMathText(Extension):
+    """Underscores never mark emphasis; stars after symbols are literal."""
+
+    def extendMarkdown(self, md: Markdown) -> None:  # noqa: N802 - the name Markdown calls
+        delimiters = getattr(md, "delimiters", None)
+        if delimiters is not None:  # Python-Markdown with delimiter runs: "_" is one delimiter
+            delimiters.remove("_")
+        if "em_strong2" in md.inlinePatterns:  # earlier Python-Markdown: the underscore pattern
+            md.inlinePatterns.deregister("em_strong2")
+        md.preprocessors.register(SymbolStars(md), "amcp_symbol_stars", 5)
+
+
+def on_config(config):
+    """Add the extension after the configured ones (MkDocs calls this with the validated config)."""
+    config.markdown_extensions.append(PlainMathText())
+    return config
