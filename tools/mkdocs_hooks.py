@@ -7,7 +7,8 @@ conversion (the pages and the API pages of mkdocstrings):
 
 * underscores never mark emphasis (``_em_`` is not used in these docs; ``*em*`` and ``**bold**`` are);
 * a star right after a mathematical symbol (θ*, θ̂*, v*, x*, Λ*, ...) and not followed by a letter or
-  another star is a literal star.
+  another star is a literal star;
+* in a table row, the bar of a subscript (X_{l|k}, v*_{0|k}) is part of the cell, not a column break.
 
 Code spans and fenced code are left as they are.
 """
@@ -25,24 +26,44 @@ from markdown.preprocessors import Preprocessor
 #: the star that closes *emphasis* follows a word of two or more letters and is left alone
 SYMBOL_STAR = re.compile(r"(?:(?<=[Α-Ωα-ω\u0300-\u036f}])|(?<=\b[A-Za-z]))\*(?![A-Za-z*])")
 CODE_SPAN = re.compile(r"(`+)(?:.+?)\1")
+#: a subscript in braces that holds an unescaped bar: {l|k}, {0|k}, {l+1|k}
+SUBSCRIPT_BAR = re.compile(r"\{[^{}|`]*(?<!\\)\|[^{}`]*\}")
+
+
+def outside_code(line: str, fix) -> str:
+    """``line`` with ``fix`` applied to the text outside its code spans."""
+    out, pos = [], 0
+    for match in CODE_SPAN.finditer(line):
+        out.append(fix(line[pos:match.start()]))
+        out.append(match.group(0))
+        pos = match.end()
+    out.append(fix(line[pos:]))
+    return "".join(out)
 
 
 def escape_symbol_stars(line: str) -> str:
     """``line`` with the stars of SYMBOL_STAR escaped outside code spans."""
-    out, pos = [], 0
-    for match in CODE_SPAN.finditer(line):
-        out.append(SYMBOL_STAR.sub(r"\\*", line[pos:match.start()]))
-        out.append(match.group(0))
-        pos = match.end()
-    out.append(SYMBOL_STAR.sub(r"\\*", line[pos:]))
-    return "".join(out)
+    return outside_code(line, lambda text: SYMBOL_STAR.sub(r"\\*", text))
+
+
+def escape_subscript_bars(line: str) -> str:
+    """A table row ``line`` with the bars inside subscript braces escaped (``{l\\|k}``), outside code."""
+    return outside_code(line, lambda text: SUBSCRIPT_BAR.sub(
+        lambda m: re.sub(r"(?<!\\)\|", r"\\|", m.group(0)), text))
 
 
 class SymbolStars(Preprocessor):
-    """Escape the stars of mathematical symbols (after fenced code has been set aside)."""
+    """Escape the stars of mathematical symbols, and the subscript bars of table rows (after fenced
+    code has been set aside)."""
 
     def run(self, lines: list[str]) -> list[str]:
-        return [escape_symbol_stars(line) for line in lines]
+        out = []
+        for line in lines:
+            line = escape_symbol_stars(line)
+            if line.lstrip().startswith("|"):
+                line = escape_subscript_bars(line)
+            out.append(line)
+        return out
 
 
 class PlainMathText(Extension):
