@@ -1,22 +1,30 @@
 # Two commands (README): `make run` runs the main job, `make test` runs the code contracts (`make lint`)
 # and every test (pytest's testpaths: tests and properties).
-# Both create or reuse the local virtual environment .venv and install the project into it.
+# Both create or reuse the local virtual environment .venv and install the project into it from the
+# lock file. `make lock` re-resolves the lock after a change of pyproject.toml; `make upgrade` moves
+# it to the newest releases and runs the suite against them.
 PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-$(BIN)/amcp: pyproject.toml
+# The tested versions of every dependency, with hashes, are pinned in requirements.lock (CPython 3.11,
+# Linux x86_64): a fresh clone installs exactly those, then the project itself without dependencies.
+$(BIN)/amcp: pyproject.toml requirements.lock
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	$(BIN)/python -m pip install --quiet --require-hashes -r requirements.lock
+	$(BIN)/python -m pip install --quiet --no-deps -e .
 	touch $(BIN)/amcp
 
-# the documentation site: MkDocs with warnings as errors, written to site/
+# the documentation site: the docs extra (MkDocs and its plugins; not in requirements.lock) on top of
+# the locked environment, pip keeping every locked version that satisfies it
 $(BIN)/mkdocs: $(BIN)/amcp
-	$(BIN)/python -m pip install --quiet -e '.[dev,docs]'
+	$(BIN)/python -m pip install --quiet -e '.[docs]'
 	touch $(BIN)/mkdocs
 
-.PHONY: install run test lint docs
+LOCK_FLAGS := --extra dev --generate-hashes --python-version 3.11 --python-platform x86_64-manylinux_2_34 \
+	--custom-compile-command "make lock" --quiet -o requirements.lock
+
+.PHONY: install run test lint lock upgrade docs
 install: $(BIN)/amcp
 
 run: $(BIN)/amcp
@@ -30,5 +38,18 @@ lint: $(BIN)/amcp
 test: lint
 	$(BIN)/python -m pytest
 
+# re-resolve requirements.lock after a change of pyproject.toml, keeping every pin that still fits
+lock: $(BIN)/amcp
+	$(BIN)/uv pip compile pyproject.toml $(LOCK_FLAGS)
+
+# move every pin to the newest release, install them, and run the whole suite against them;
+# commit requirements.lock only if the suite is green
+upgrade: $(BIN)/amcp
+	$(BIN)/uv pip compile pyproject.toml $(LOCK_FLAGS) --upgrade
+	$(BIN)/python -m pip install --quiet --require-hashes -r requirements.lock
+	$(BIN)/python -m pip install --quiet --no-deps -e .
+	$(MAKE) test
+
+# the documentation site, built with warnings as errors into site/
 docs: $(BIN)/mkdocs
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
