@@ -15,10 +15,16 @@ $(BIN)/amcp: pyproject.toml requirements.lock
 	$(BIN)/python -m pip install --quiet --no-deps -e .
 	touch $(BIN)/amcp
 
+# the documentation site: the docs extra (MkDocs and its plugins; not in requirements.lock) on top of
+# the locked environment, pip keeping every locked version that satisfies it
+$(BIN)/mkdocs: $(BIN)/amcp
+	$(BIN)/python -m pip install --quiet -e '.[docs]'
+	touch $(BIN)/mkdocs
+
 LOCK_FLAGS := --extra dev --generate-hashes --python-version 3.11 --python-platform x86_64-manylinux_2_34 \
 	--custom-compile-command "make lock" --quiet -o requirements.lock
 
-.PHONY: install run test lint lock upgrade
+.PHONY: install run test lint lock upgrade docs
 install: $(BIN)/amcp
 
 run: $(BIN)/amcp
@@ -43,3 +49,7 @@ upgrade: $(BIN)/amcp
 	$(BIN)/python -m pip install --quiet --require-hashes -r requirements.lock
 	$(BIN)/python -m pip install --quiet --no-deps -e .
 	$(MAKE) test
+
+# the documentation site, built with warnings as errors into site/
+docs: $(BIN)/mkdocs
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site

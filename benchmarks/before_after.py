@@ -1,4 +1,4 @@
-"""Before/after of a branch in ONE interleaved run (issue 16): CPU per part, Example 1, 8 facets, N = 10.
+"""Before/after of a change in ONE interleaved run: CPU per part, Example 1, 8 facets, N = 10.
 
     python benchmarks/before_after.py --before <git revision> [--steps 300] [--config drake/vertex ...]
 
@@ -80,7 +80,7 @@ def main() -> None:
         gc.disable()
         for k in range(args.steps + 1):
             # the order alternates step by step: the run right after another one's solver call finds the
-            # caches evicted (same code as before and after: 5-18 µs more for the second, session 5)
+            # caches evicted (same code as before and after: 5-18 µs more for the second)
             for run in (runs if k % 2 == 0 else runs[::-1]):
                 start = time.perf_counter()
                 u, rec, parts = run["profile"].step(run["x"])

@@ -1,5 +1,5 @@
 """Golden comparison of ``amcp certify``: the certificate.json of Examples 1 and 2 on both backends,
-written by two versions of the code, must be equal except timestamps and timings (issue 15, "Behaviour
+written by two versions of the code, must be equal except timestamps and timings (docs/architecture.md, "Behaviour
 unchanged"). Not a test (four closed-loop runs take minutes); docs/architecture.md says how it was used.
 
     # 1. the bundles of one version (the code on PYTHONPATH; a detached worktree for an old commit)

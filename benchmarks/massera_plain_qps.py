@@ -1,4 +1,4 @@
-"""The cvxpy plain form's tube QPs (20) on massera2017 with θ* = −1 and vertex disturbances (session 8).
+"""The cvxpy plain form's tube QPs (20) on massera2017 with θ* = −1 and vertex disturbances.
 
 Rebuilds the session-7 measurement (docs/decisions.md, "The cvxpy plain form writes (15c) as
 c κ_l + Λ s_l"): 40-step closed loops (cvxpy backend, plain form, x_0 of the example's scenario) on
@@ -13,8 +13,8 @@ formulation: QPs left without an answer, and first tries that needed a retry.
     python benchmarks/massera_plain_qps.py --loops [--example massera2017|lorenzen2019] [--steps 40]
 
 ``--clarabel``: Clarabel options of the cvxpy plain form (the user's options, over the backend's
-``tube_mpc.PLAIN_FORM_CLARABEL_OPTIONS``): ``direct_solve_method: qdldl`` gives the QP as before
-session 8. ``--loops``: 40-step closed loops of the cvxpy plain form (the controller as a user runs
+``tube_mpc.PLAIN_FORM_CLARABEL_OPTIONS``): ``direct_solve_method: qdldl`` gives the QP with
+Clarabel's default factorisation. ``--loops``: 40-step closed loops of the cvxpy plain form (the controller as a user runs
 it, solver kept between steps) with QDLDL and with faer in lockstep (step k of each, the order
 alternating), per seed: steps whose notes show a retry or a fallback (studies.resolves), and the
 medians of CPU (thread time) and wall time per step; any other built-in example with its own scenario
@@ -158,7 +158,7 @@ def closed_loops(example: str, steps: int, seeds) -> int:
     massera = example == "massera2017"
     theta_star = THETA_STAR if massera else np.asarray(spec.scenario.theta_star, float)
     offline = design(problem, spec.design, backend="cvxpy")
-    # before: QDLDL for the plain form as before session 8 (the user's option overrides the backend's);
+    # before: QDLDL for the plain form (Clarabel's default factorisation) (the user's option overrides the backend's);
     # after: the backend as it is (faer for the plain form's QP, every other problem unchanged)
     solvers = {"qdldl (before)": {"direct_solve_method": "qdldl"}, "faer (after)": {}}
     for seed in seeds:

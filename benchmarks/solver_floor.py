@@ -1,4 +1,4 @@
-"""Where the solver-bound targets of issue 16 stop: the solver calls of one step, timed apart.
+"""Where the solver-bound performance targets stop: the solver calls of one step, timed apart.
 
     python benchmarks/solver_floor.py [--steps 300] [--facets 8]
 
@@ -27,7 +27,7 @@ floors printed follow from the parts alone:
   Clarabel solved cvxpy's QP (97 variables, 822 rows, x̂ kept as variables) as fast as Drake's (43
   variables, 768 rows), cvxpy's ``Problem.solve`` would add its modelling layer to the same Clarabel
   work (1.6-1.7×; why the backend solves each step by the compiled route instead);
-* the same floor through the compiled route the backend uses since session 10
+* the same floor through the compiled route the backend uses
   (:mod:`amcp_reference.compiled_clarabel`: cvxpy's compiled data evaluated into fixed patterns, a
   kept Clarabel solver updated by the changed entries), timed on the same step again.
 

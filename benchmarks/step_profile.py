@@ -1,4 +1,4 @@
-"""CPU time per part of a full step (issue 16): Example 1, X0 with 8 facets, N = 10, in lockstep.
+"""CPU time per part of a full step: Example 1, X0 with 8 facets, N = 10, in lockstep.
 
     python benchmarks/step_profile.py [--steps 300] [--config drake/vertex ...]
 

@@ -11,7 +11,7 @@ design, max |K̃T − K| / max |K| (0 up to the solvers' accuracy when the desig
     PYTHONPATH=.:reference:properties python benchmarks/units_twins.py SEED START COUNT [BACKENDS] > out.txt
 
 Run it on two trees (before/after) and compare the summaries printed at the end. Designs only, no
-closed loop (session 7's /work/scratch/scaled_reach.py ran whole campaign problems).
+closed loop.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Issue 14, items 2-3: design and robust feasible region of the SLS-MPC 2-D family per ε_A.
+"""Design and robust feasible region of the SLS-MPC 2-D family per ε_A, for each X0 template.
 
 For every ε_A of the sweep and every design choice below, the script designs (every design check
 of offline/checks.py must pass, else the row says why), then decides on a 10 x 10 grid of initial
@@ -7,9 +7,9 @@ controller's QP (status optimal) and, independently, by the vertex-form LP of
 properties/amcp_properties/feasible.py (scipy HiGHS); disagreements are counted and printed.
 
 Choices:
-* ``before``: what main needed before issue 14: the minimal-RPI template with the smallest facet
-  count that designs (8, 12, 16, 20, 24, 32, 48, 64, 96; issue 14 measured 8/12/20/48/96);
-* ``auto``: the default design of this branch (first candidate of offline/auto.py that passes);
+* ``before``: the minimal-RPI template alone, with the smallest facet count that designs
+  (8, 12, 16, 20, 24, 32, 48, 64, 96): what a user needed without the automatic design;
+* ``auto``: the default design (first candidate of offline/auto.py that passes);
 * ``contractive λ, R x c``: the λ-contractive template with the gain of the LMI with R scaled by c.
 
     PYTHONPATH=.:reference:properties python benchmarks/x0_template_regions.py [--grid 10] [--out FILE]

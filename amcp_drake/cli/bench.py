@@ -1,4 +1,4 @@
-"""``amcp bench``: per-step times of the online loop (issue 8); see :mod:`amcp_drake.studies.bench`."""
+"""``amcp bench``: per-step times of the online loop; see :mod:`amcp_drake.studies.bench`."""
 
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ from amcp_drake.cli.common import EXIT_BAD_INPUT, EXIT_OK, bad_input_exits_2
               help="Tube QP formulation(s): plain (15) with Λ, (5b) at Θ_k's vertices, or fast = the vertex form "
                    "with the DAQP fast path (Drake only) (repeatable; default all three).")
 @click.option("--target-repeats", type=int, default=None,
-              help="How often issue 16's targets are timed on runs of their own (default 5, quick 1); a target "
+              help="How often the performance targets are timed on runs of their own (default 5, quick 1); a target "
                    "counts as met only when every repeat meets it.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Disturbance seed.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default="amcp-out/bench", show_default=True,
@@ -31,7 +31,9 @@ from amcp_drake.cli.common import EXIT_BAD_INPUT, EXIT_OK, bad_input_exits_2
 @click.option("--no-plot", is_flag=True, help="Write the JSON only.")
 @bad_input_exits_2
 def bench_cmd(quick, steps, scaling_steps, only, backends, formulations, target_repeats, seed, out_dir, no_plot):
-    """Time the online loop, CPU (thread time) and wall: set update, LMS, QP, QP solver, everything
+    """Performance benchmarks of the online loop (medians, ratios).
+
+    Times the online loop, CPU (thread time) and wall: set update, LMS, QP, QP solver, everything
     outside the solvers and the total per step (median, p90), Example 1 with X0 of 4 and 8 facets,
     both backends, plain / vertex / fast path, run in lockstep (ratios from the same run); then sweeps
     over N, the facets of X0, p and n with design times. Writes JSON, a PNG and scaling.md."""

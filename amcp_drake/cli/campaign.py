@@ -47,7 +47,7 @@ def summary_text(store) -> str:
         if commands:
             lines.append(f"  seed {seed} #{idx}: replay with")
             lines += [f"    {command}" for command in commands]
-        elif folder:  # a store of schema 1 (issue 9) recorded no commands
+        elif folder:  # a store of schema 1 (the first store layout) recorded no commands
             lines.append(f"  seed {seed} #{idx}: {folder}")
         else:
             lines.append(f"  seed {seed} #{idx}: (no replay files: " + ((message or "").splitlines() or [""])[0] + ")")
@@ -94,8 +94,11 @@ def report_html(store, damage: list[str] | None = None) -> str:
               help="Only render the store as HTML to this file (no run).")
 @bad_input_exits_2
 def campaign_cmd(systems, backends, seed, scheduler, workers, store_path, steps, resume, report_file):
-    """Draw random problems (the library's numpy generator, amcp_drake.studies.random_problems), run
-    every claim check on each closed loop for each backend, fan out on Dask, and keep every result in SQLite."""
+    """Verification campaign of random problems on Dask, stored in SQLite.
+
+    Draws random problems (the library's numpy generator, amcp_drake.studies.random_problems), runs
+    every claim check on each closed loop for each backend, fans out on Dask, and keeps every result in
+    SQLite."""
     from amcp_drake.model.errors import ProblemError
     from amcp_drake.studies.campaign_store import CampaignStore
 

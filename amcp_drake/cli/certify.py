@@ -47,9 +47,11 @@ from amcp_drake.cli.common import (
 @bad_input_exits_2
 def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend, formulation, steps, seed, out_dir,
                 trajectory_file, online, max_memory):
-    """Run the adaptive MPC on PROBLEM (default: --example lorenzen2019, x0 = [2, 3],
-    θ* = [0.8, 0.2, -0.5], 50 steps, uniform disturbance, seed 0), check every claim of the paper
-    from the recorded data with numpy/scipy only, and write certificate.json, report.html and
+    """Run a closed loop and check every claim of the paper independently.
+
+    Runs the adaptive MPC on PROBLEM (default: --example lorenzen2019, x0 = [2, 3],
+    θ* = [0.8, 0.2, -0.5], 50 steps, uniform disturbance, seed 0), checks every claim of the paper
+    from the recorded data with numpy/scipy only, and writes certificate.json, report.html and
     trajectory.json.gz into --out.
 
     Exit code 0: every claim holds; 1: a claim failed or could not be checked (the bundle is

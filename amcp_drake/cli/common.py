@@ -137,7 +137,7 @@ example_option = click.option("--example", default=None, help="Built-in example 
 
 formulation_option = click.option("--formulation", type=click.Choice(["plain", "vertex"]), default="plain",
                                   show_default=True,
-                                  help="Tube QP: plain (15) with multipliers, or the exact vertex form (faster, issue 8).")
+                                  help="Tube QP: plain (15) with multipliers, or the exact vertex form (faster).")
 
 def update_options(func):
     """--update, --window, --projection (the online set update and LMS projection; defaults: the
@@ -160,7 +160,7 @@ def section4_options(func):
     func = click.option("--pe-level", "pe_level", type=click.FloatRange(min=0.0, min_open=True), default=None,
                         help="PE level ρ (default: file, else 0.1).")(func)
     func = click.option("--pe", "pe_window", type=click.IntRange(min=1), default=None,
-                        help="Enforce a persistently exciting input over windows of this length (spec §8, m = 1; "
+                        help="Enforce a persistently exciting input over windows of this length (Section 4.2 of the paper, m = 1; "
                              "default: the file's online section, else off). Needs --formulation plain.")(func)
     return d_theta_option(func)
 

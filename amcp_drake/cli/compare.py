@@ -1,4 +1,4 @@
-"""``amcp compare``: the Drake and cvxpy backends side by side (issue 4)."""
+"""``amcp compare``: the Drake and cvxpy backends side by side."""
 
 from __future__ import annotations
 

@@ -32,7 +32,7 @@ def _fmt(a) -> str:
 @max_memory_option
 @bad_input_exits_2
 def design_cmd(problem_file, example, x0_template, backend, as_json, max_memory):
-    """Compute K, P, X0, w_bar, f_bar, Xf and mu (spec §4-§6) and verify them independently."""
+    """Compute K, P, X0, w_bar, f_bar, Xf and mu ((11), (14), (16), Appendix A.1) and verify them independently."""
     from amcp_drake.offline.checks import verify_design
     from amcp_drake.offline.design import design
 

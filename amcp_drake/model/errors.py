@@ -45,7 +45,7 @@ class DesignError(AmcpError, RuntimeError):
 
 
 class TerminalSetError(DesignError):
-    """The terminal set recursion of spec §5.1 gave an empty set or did not converge."""
+    """The terminal set recursion (Appendix A.1) gave an empty set or did not converge."""
 
 
 class BackendNotFound(AmcpError, ImportError):

@@ -31,7 +31,7 @@ class OnlineOptions:
     Θ_{l|k} = {H_θ θ <= min(h_θk + l d_θ n, h_θ0)} in (28b). Supported for update "fixed", "window"
     and "none" with the plain formulation (docs/decisions.md, "Section 4 extensions").
 
-    ``pe_window``, ``pe_level`` (Section 4.2, spec §8): when ``pe_window`` = P is set (m = 1 only), the
+    ``pe_window``, ``pe_level`` (Section 4.2 of the paper): when ``pe_window`` = P is set (m = 1 only), the
     input is kept persistently exciting by Σ_{j=k−P+1}^{k} ū_j ū_jᵀ ⪰ ρ I (ρ = ``pe_level``) on the
     stacked input ū_k = [u_k; …; u_{k−n}]: (20) is solved with K x_k + v_{0|k} <= u₋ and with
     >= u₊ and the cheaper solution is applied; with no feasible one, (20) without the PE constraint

@@ -134,7 +134,7 @@ class Problem:
         return self.B0 + np.tensordot(np.asarray(theta, float), self.B, axes=1)
 
     def regressor(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """D(x, u) = [A_1 x + B_1 u, ..., A_p x + B_p u], shape (n, p) (spec §2)."""
+        """D(x, u) = [A_1 x + B_1 u, ..., A_p x + B_p u], shape (n, p) (regressor of Section 2 of the paper)."""
         return (self.A @ np.asarray(x, float) + self.B @ np.asarray(u, float)).T
 
     def step(self, x: np.ndarray, u: np.ndarray, theta: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -323,18 +323,18 @@ DEFAULT_X0_LAMBDA = 0.9
 
 @dataclass(frozen=True, eq=False)
 class DesignOptions:
-    """Choices for the offline design (spec §4-§6, §5.1). Every [REC] choice is a field here.
+    """Choices for the offline design ((11), (14), (16), Appendix A.1). Every choice the paper leaves open is a field here.
 
     * ``x0_facets``: number of facet directions of the tube shape X0 (2-D: equally spaced angles;
       n-D: ±e_i, then ±(e_i ± e_j)/√2, ...). X0 is the template outer approximation of the minimal
-      robust positively invariant set of x⁺ = A_cl(θ)x + w, θ ∈ Θ (spec §5, "Choice of X0").
+      robust positively invariant set of x⁺ = A_cl(θ)x + w, θ ∈ Θ (the paper's suggestion for X0).
     * ``K``, ``P``: user-given gain and terminal weight, verified instead of designed.
     * ``lmi_margin``: ε of the LMI S ⪰ εI and the strictness of (16), in the scaled coordinates of
       ``backends/gain_scaling.py`` (where the mean vertex Riccati solution is I), so relative to the
       cost-to-go and independent of the units of x and u.
     * ``mu_state_bound``: when Z is unbounded in x, the box |x_i| <= bound used to evaluate
       sup ‖D(x,u)‖² in (11); required then. ``mu_fraction``: μ = fraction / sup ‖D‖² (< 1: strict).
-    * ``centre_dynamics``: A_z of spec §5.1 step 2: ``"nominal"`` = A_cl(θ̂0), ``"zero"`` = 0.
+    * ``centre_dynamics``: A_z, the centre dynamics z⁺ = A_z z of the terminal recursion (Appendix A.1): ``"nominal"`` = A_cl(θ̂0), ``"zero"`` = 0.
     * ``terminal_max_iter``: iteration cap of the terminal set recursion.
     * ``theta_extra_directions``: extra facet normals (k, p) for the fixed-complexity shape H_θ of (9).
     * ``x0_template``: the cross-section template (offline/templates.py, docs/decisions.md "X0 templates"):
@@ -349,7 +349,7 @@ class DesignOptions:
     * ``state_units``: ``"normalised"`` (default): the design is computed in the state units where
       W's extents are equal and mapped back, so the same system in other diagonal units gets the same
       design (offline/units.py; no change where W's extents are already equal); ``"as written"``: in
-      the units of the file (the design before session 8; kept by the recorded regression problems).
+      the units of the file (kept by the recorded regression problems, which pin the designs they were recorded with).
     """
 
     x0_facets: int = 8

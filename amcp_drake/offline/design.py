@@ -34,7 +34,7 @@ X0_INFLATION = x0_templates.X0_INFLATION
 
 
 def design(problem: Problem, options: DesignOptions | None = None, backend="drake") -> OfflineDesign:
-    """Compute the offline design of the algorithm (spec §6, "Offline").
+    """Compute the offline design of the algorithm (the offline part of the paper's algorithm).
 
     With ``options.x0_template == "auto"`` (the default) the templates of
     :mod:`amcp_drake.offline.auto` are tried in their documented order and the first design that

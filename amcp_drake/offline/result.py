@@ -25,7 +25,7 @@ class OfflineDesign:
     * ``H_x`` (u, n): X0 = {x | H_x x <= 1} (14); ``X0_vertices`` (v, n).
     * ``w_bar`` (u,): [w̄]_i = max_{w∈W} [H_x]_i w; ``f_bar`` (c,): [f̄]_i = max_{x∈X0} [F+GK]_i x.
     * ``h_bar`` (v_p, u): [h̄^k]_i = max_{x∈X0} [H_x]_i A_cl(θ^k) x (App. A.1); ``lambda_bar`` = max h̄.
-    * ``A_z`` (n, n): centre dynamics of the terminal recursion (spec §5.1 step 2).
+    * ``A_z`` (n, n): centre dynamics z⁺ = A_z z of the terminal recursion (Appendix A.1).
     * ``H_T`` (r, n), ``h_T`` (r,): X_f = {(z, α) | H_T z + h_T α <= 1, α >= 0} (Assumption 11).
     * ``mu``: gain of (12); ``mu_sup`` = sup ‖D(x,u)‖₂² over ``mu_region`` (the (x,u) set used).
     * ``H_theta`` (q, p), ``h_theta0`` (q,): the fixed shape and initial offsets of (9), Θ ⊆ Θ0.

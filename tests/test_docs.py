@@ -1,0 +1,85 @@
+"""The documentation speaks of the software and points into the repository.
+
+* README.md stays short (under 100 lines) with exactly one Python block;
+* README.md, docs/, benchmarks/README.md and the CLI's help texts name no "session N" or "issue N";
+* every repository path they name exists;
+* every decision of docs/decisions.md has a context, a decision and a consequence;
+* the text escapes of the documentation site (tools/plain_math.py, used by tools/mkdocs_hooks.py)
+  turn the stars of θ* and the bars of X_{l|k} in table rows into literal characters, and nothing else.
+
+`make docs` builds the site itself with warnings as errors; these checks run without MkDocs.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DOC_FILES = sorted([ROOT / "README.md", ROOT / "benchmarks" / "README.md", *(ROOT / "docs").rglob("*.md")])
+CLI_FILES = sorted((ROOT / "amcp_drake" / "cli").glob("*.py"))
+HISTORY = re.compile(r"session [0-9]|issue [0-9]+", re.IGNORECASE)
+#: a path into the repository named in the text (placeholders such as NAME or <x> are not paths)
+REPO_PATH = re.compile(r"(?<![\w/.-])((?:amcp_drake|reference|properties|tests|benchmarks|examples|docs|tools)/[\w./*-]+)")
+
+
+def _plain_math():
+    spec = importlib.util.spec_from_file_location("plain_math", ROOT / "tools" / "plain_math.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_readme_is_short_and_has_one_python_snippet():
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert len(text.splitlines()) < 100
+    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
+    assert len(blocks) == 1
+    assert "amcp.certify(traj)" in blocks[0]
+
+
+@pytest.mark.parametrize("path", DOC_FILES + CLI_FILES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_no_history_in_the_docs_and_the_help_texts(path):
+    lines = [f"{i}: {line}" for i, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
+             if HISTORY.search(line)]
+    assert lines == [], "history belongs in CHANGELOG.md:\n" + "\n".join(lines)
+
+
+@pytest.mark.parametrize("path", DOC_FILES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_repository_path_named_in_the_docs_exists(path):
+    missing = []
+    for match in REPO_PATH.finditer(path.read_text(encoding="utf-8")):
+        name = match.group(1).rstrip(".,;:)")
+        if "..." in name or "NAME" in name:
+            continue
+        exists = any(ROOT.glob(name)) if "*" in name else (ROOT / name).exists()
+        if not exists:
+            missing.append(name)
+    assert missing == []
+
+
+def test_every_decision_has_context_decision_and_consequence():
+    text = (ROOT / "docs" / "decisions.md").read_text(encoding="utf-8")
+    entries = re.split(r"^### ", text, flags=re.M)[1:]
+    assert len(entries) >= 30
+    incomplete = [entry.splitlines()[0] for entry in entries
+                  if not all(re.search(rf"\*\*{word}[.:]?\*\*", entry) for word in ("Context", "Decision", "Consequence"))]
+    assert incomplete == []
+    assert "\n## Additional decisions" in text, "the tail heading where new decisions are appended"
+
+
+def test_plain_math_escapes_symbol_stars_and_nothing_else():
+    pm = _plain_math()
+    assert pm.escape_symbol_stars("θ* ∈ Θ_k, A(θ*) x, v*_{0|k}, θ̂*") == r"θ\* ∈ Θ_k, A(θ\*) x, v\*_{0|k}, θ̂\*"
+    for unchanged in ("*emphasis* of words", "**bold**", "`θ*` in code", "x ** 2"):
+        assert pm.escape_symbol_stars(unchanged) == unchanged
+
+
+def test_plain_math_escapes_subscript_bars_in_table_rows_outside_code():
+    pm = _plain_math()
+    row = "| `tube` | x_k ∈ X_{0|k} and X_{l+1|k} | `{a|b}` | min |"
+    assert pm.escape_subscript_bars(row) == r"| `tube` | x_k ∈ X_{0\|k} and X_{l+1\|k} | `{a|b}` | min |"
+    assert pm.escape_subscript_bars(r"| X_{0\|k} |") == r"| X_{0\|k} |"  # already escaped: unchanged
