@@ -108,6 +108,8 @@ def _check_tree(data: Any, state: _Parse, source: str, error: type[Exception]) -
     pass); raise on the first duplicate key, rejected number or excess depth."""
     if isinstance(data, _Rejected):
         raise _error(error, "file", data.expected, data.received)
+    if not isinstance(data, (dict, list)):  # a lone scalar (null, 5, "text"): nothing inside to check
+        return
     look_inside = state.rejected or bool(state.duplicates)
     stack: list[tuple[Any, tuple[Any, ...]]] = [(data, ())]
     while stack:
