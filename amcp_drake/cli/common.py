@@ -90,8 +90,21 @@ def seeds_option(help_text: str, default: int):
                         help=help_text)
 
 
+class FiniteFloatRange(click.FloatRange):
+    """A click FloatRange that refuses NaN and ±inf (``nan >= 1`` is false, so FloatRange lets NaN
+    through, and an infinite limit is no limit)."""
+
+    def convert(self, value, param, ctx):
+        import math
+
+        number = click.FLOAT.convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number.", param, ctx)
+        return super().convert(number, param, ctx)
+
+
 max_memory_option = click.option(
-    "--max-memory", "max_memory", type=click.FloatRange(min=1.0), default=DEFAULT_MAX_MEMORY_MB, show_default=True,
+    "--max-memory", "max_memory", type=FiniteFloatRange(min=1.0), default=DEFAULT_MAX_MEMORY_MB, show_default=True,
     help="Refuse a run whose estimated size (tube QP nonzeros, recorded steps; docs/problem-format.md, "
          "'Size limits') exceeds this many MiB, before anything is built.")
 
