@@ -406,3 +406,27 @@ def test_sigterm_during_verify_stops_its_pytest_child_and_says_so(tmp_path):
             break
         assert time.monotonic() < deadline, "a process of the group is still running"
         time.sleep(0.1)
+
+
+def test_the_compiled_schema_check_accepts_what_amcp_writes_and_agrees_with_jsonschema():
+    """The one-pass predicate that accepts valid trajectories (jsonschema runs only on invalid ones) is
+    used (not None), accepts every trajectory of tests/data, and rejects what jsonschema rejects."""
+    import gzip
+
+    import jsonschema
+
+    from amcp_drake.model.trajectory_schema import _fast_check, trajectory_schema
+
+    fast = _fast_check()
+    assert fast is not None
+    reference = jsonschema.Draft202012Validator(trajectory_schema())
+    with gzip.open(TRAJECTORY_DATA, "rt") as handle:
+        good = json.load(handle)
+    assert fast(good) and reference.is_valid(good)
+    for path, value in (("records.3.k", -1), ("records.3.status", "fine"), ("theta_star.1", "0.2"),
+                        ("records.3.Lambda.0.0.0.0", True), ("design.mu", 2e15), ("records.3.pe_bounds", [1.0]),
+                        ("options.window", 0), ("stop_reason", "done"), ("records.3.times.total", "1")):
+        data = json.loads(json.dumps(good))
+        set_(path, value)(data)
+        assert not reference.is_valid(data), path
+        assert not fast(data), path

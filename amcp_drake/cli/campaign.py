@@ -1,4 +1,4 @@
-"""``amcp campaign``: verification campaigns at scale on Dask (issues 9 and 17).
+"""``amcp campaign``: verification campaigns at scale on Dask.
 
 Exit codes: 0 every problem passed; 1 a problem failed (its replay commands are printed); 2 bad
 input: a bad option, a --store that is a directory, damaged, not a campaign store, or made with
@@ -50,7 +50,7 @@ def summary_text(store) -> str:
         if commands:
             lines.append(f"  seed {seed} #{idx}: replay with")
             lines += [f"    {command}" for command in commands]
-        elif folder:  # a store of schema 1 (issue 9) recorded no commands
+        elif folder:  # a store of schema 1 recorded no commands
             lines.append(f"  seed {seed} #{idx}: {folder}")
         else:
             lines.append(f"  seed {seed} #{idx}: (no replay files: " + ((message or "").splitlines() or [""])[0] + ")")

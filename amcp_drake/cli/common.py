@@ -204,7 +204,7 @@ example_option = click.option("--example", default=None, help="Built-in example 
 
 formulation_option = click.option("--formulation", type=click.Choice(["plain", "vertex"]), default="plain",
                                   show_default=True,
-                                  help="Tube QP: plain (15) with multipliers, or the exact vertex form (faster, issue 8).")
+                                  help="Tube QP: plain (15) with multipliers, or the exact vertex form (faster).")
 
 def update_options(func):
     """--update, --window, --projection (the online set update and LMS projection; defaults: the

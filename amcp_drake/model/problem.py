@@ -354,7 +354,7 @@ class DesignOptions:
     * ``state_units``: ``"normalised"`` (default): the design is computed in the state units where
       W's extents are equal and mapped back, so the same system in other diagonal units gets the same
       design (offline/units.py; no change where W's extents are already equal); ``"as written"``: in
-      the units of the file (the design before session 8; kept by the recorded regression problems).
+      the units of the file (kept by the recorded regression problems, which were designed that way).
     """
 
     x0_facets: int = 8

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Callable
 from functools import lru_cache
 from importlib import resources
 from typing import Any
@@ -90,6 +91,110 @@ def _validator():
     return fast(schema)
 
 
+_TYPES: dict[str, Callable[[Any], bool]] = {
+    "object": lambda v: type(v) is dict,
+    "array": lambda v: type(v) is list,
+    "string": lambda v: type(v) is str,
+    "integer": lambda v: type(v) is int,
+    "number": lambda v: type(v) is int or type(v) is float,
+    "null": lambda v: v is None,
+    "boolean": lambda v: type(v) is bool,
+}
+
+
+def _compile(schema: dict, defs: dict, named: dict[str, Callable[[Any], bool]]) -> Callable[[Any], bool]:
+    """A predicate equivalent to validating against ``schema`` (the keywords the trajectory schema uses;
+    any other keyword raises KeyError, and the caller then uses jsonschema alone). True means valid;
+    False means "let jsonschema find and word the error"."""
+    known = {"$ref", "anyOf", "type", "const", "enum", "minimum", "maximum", "exclusiveMinimum", "minLength",
+             "pattern", "required", "properties", "additionalProperties", "items", "minItems", "maxItems",
+             "description", "title", "$schema", "$id", "$defs"}
+    unknown = set(schema) - known
+    if unknown:
+        raise KeyError(sorted(unknown))
+    if "$ref" in schema:
+        name = schema["$ref"].removeprefix("#/$defs/")
+        if name not in named:
+            named[name] = lambda v: False  # recursion guard, replaced below
+            compiled = _compile(defs[name], defs, named)
+            named[name] = compiled
+        return lambda v: named[name](v)
+    checks: list[Callable[[Any], bool]] = []
+    if "anyOf" in schema:
+        options = [_compile(sub, defs, named) for sub in schema["anyOf"]]
+        checks.append(lambda v: any(option(v) for option in options))
+    if "type" in schema:
+        checks.append(_TYPES[schema["type"]])
+    if "const" in schema:
+        const = schema["const"]
+        checks.append(lambda v: type(v) is type(const) and v == const)
+    if "enum" in schema:
+        values = schema["enum"]
+        checks.append(lambda v: any(type(v) is type(x) and v == x for x in values))
+    number = lambda v: type(v) is int or type(v) is float  # noqa: E731
+    if "minimum" in schema:
+        low = schema["minimum"]
+        checks.append(lambda v: not number(v) or v >= low)
+    if "maximum" in schema:
+        high = schema["maximum"]
+        checks.append(lambda v: not number(v) or v <= high)
+    if "exclusiveMinimum" in schema:
+        low_open = schema["exclusiveMinimum"]
+        checks.append(lambda v: not number(v) or v > low_open)
+    if "minLength" in schema:
+        length = schema["minLength"]
+        checks.append(lambda v: type(v) is not str or len(v) >= length)
+    if "pattern" in schema:
+        pattern = re.compile(schema["pattern"])
+        checks.append(lambda v: type(v) is not str or pattern.search(v) is not None)
+    if "items" in schema or "minItems" in schema or "maxItems" in schema:
+        item = _compile(schema.get("items", {}), defs, named)
+        least, most = schema.get("minItems", 0), schema.get("maxItems")
+        checks.append(lambda v: type(v) is not list or (len(v) >= least and (most is None or len(v) <= most)
+                                                        and all(item(x) for x in v)))
+    if "required" in schema or "properties" in schema or "additionalProperties" in schema:
+        required = tuple(schema.get("required", ()))
+        props = {key: _compile(sub, defs, named) for key, sub in schema.get("properties", {}).items()}
+        extra = schema.get("additionalProperties", True)
+        other = (lambda v: True) if extra is True else (lambda v: False) if extra is False else _compile(extra, defs,
+                                                                                                         named)
+
+        def check_object(v) -> bool:
+            if type(v) is not dict:
+                return True
+            if any(key not in v for key in required):
+                return False
+            for key, value in v.items():
+                check = props.get(key)
+                if not (check(value) if check is not None else other(value)):
+                    return False
+            return True
+
+        checks.append(check_object)
+    return lambda v: all(check(v) for check in checks)
+
+
+@lru_cache(maxsize=1)
+def _fast_check() -> Callable[[Any], bool] | None:
+    """The whole trajectory schema as one predicate (:func:`_compile`), with numeric lists checked in one
+    pass each; None when the schema uses a keyword the compiler does not know."""
+    schema = trajectory_schema()
+    defs = schema["$defs"]
+    bound = float(defs["entry"]["maximum"])
+    named: dict[str, Callable[[Any], bool]] = {
+        "entry": lambda v: _number_ok(v, bound),
+        "vector": lambda v: _vector_ok(v, bound),
+        "matrix": lambda v: type(v) is list and bool(v) and all(_vector_ok(row, bound) for row in v),
+        "rows": lambda v: type(v) is list and all(_vector_ok(row, bound) for row in v),
+        "array": lambda v: _array_ok(v, bound),
+        "tensor": lambda v: _number_ok(v, bound) or _array_ok(v, bound),
+    }
+    try:
+        return _compile(schema, defs, named)
+    except KeyError:
+        return None
+
+
 def _message(error) -> str:
     from amcp_drake.model.problem_io import _deepest, _schema_error
 
@@ -101,7 +206,12 @@ def _message(error) -> str:
 
 
 def validate_trajectory_layout(data: Any) -> None:
-    """Check ``data`` against the trajectory schema; TrajectoryError naming the first bad field."""
+    """Check ``data`` against the trajectory schema; TrajectoryError naming the first bad field. A valid
+    file is accepted by the compiled predicate alone (:func:`_fast_check`, linear in the file); only an
+    invalid one goes through jsonschema, for the exact field and message."""
+    fast = _fast_check()
+    if fast is not None and fast(data):
+        return
     errors = sorted(_validator().iter_errors(data), key=lambda e: [str(p) for p in e.absolute_path])
     if errors:
         raise TrajectoryError(_message(errors[0]))

@@ -149,6 +149,11 @@ class Trajectory:
         truncated or corrupt gzip data, non-UTF-8 text, invalid or non-strict JSON (duplicate keys, NaN)
         and an unknown format version raise TrajectoryError naming the file or the field."""
         path = Path(path)
+        try:
+            open(path, "rb").close()
+        except OSError as exc:
+            raise TrajectoryError(f"--trajectory: expected a readable trajectory file; received {path}, which "
+                                  f"cannot be read ({exc.strerror or exc})") from None
         raw = read_bytes_limited(path, MAX_TRAJECTORY_BYTES, TrajectoryError, "trajectory file", gzip_ok=True)
         if raw[:2] == GZIP_MAGIC:
             raw = _gunzip(raw, path)

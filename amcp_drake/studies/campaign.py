@@ -1,4 +1,4 @@
-"""Verification campaigns on Dask distributed (issues 9 and 17).
+"""Verification campaigns on Dask distributed.
 
 ``run_campaign`` draws problem ``idx`` of campaign ``seed`` from the library's numpy generator
 (:func:`amcp_drake.studies.random_problems.random_case`, seeded per problem by :func:`problem_seed`;
@@ -10,7 +10,7 @@ queue. A task whose worker dies is re-run by Dask (``retries``); an interrupted 
 with ``resume=True`` by skipping the indices already stored, and only with the settings the store
 was made with (:func:`campaign_settings`, recorded in the store).
 
-Replays (issue 17, item 3). Each drawn case becomes a complete problem file first
+Replays. Each drawn case becomes a complete problem file first
 (:func:`replay_spec`: problem, design options, ``online`` options, x0, θ*, steps and the explicit
 disturbance array), which is serialised and parsed back; the campaign then runs *that* file through
 :func:`amcp_drake.online.replay.run_scenario`, the function ``amcp certify PROBLEM`` runs, with the offline
@@ -42,12 +42,12 @@ TASK_RETRIES = 2
 #: The generator of campaign problems and its version: a store records it (``generator`` setting), so a
 #: store made with another generator is never resumed. Change it whenever problem ``idx`` of a seed
 #: would come out different (another generator, or a change of random_problems' draws).
-#: Version 2 (session 6): the online options draw the exact update (7) too (the problems are those of 1).
-#: Version 3 (session 7): 1/4 of the problems are written in badly scaled state units
+#: Version 2: the online options draw the exact update (7) too (the problems are those of 1).
+#: Version 3: 1/4 of the problems are written in badly scaled state units
 #: (``ProblemShape.scaled_states``); every later draw of a seed moves.
-#: Version 4 (session 8): the same draws, but the design is made in state units normalised by W
+#: Version 4: the same draws, but the design is made in state units normalised by W
 #: (offline/units.py), so which draws design, their X0 and the initial states drawn from it move.
-#: Version 5 (session 9): problems with input uncertainty and p <= n are pinned too (w_0 chosen for the
+#: Version 5: problems with input uncertainty and p <= n are pinned too (w_0 chosen for the
 #: controller's first input u_0, studies/pinning.py); the pin draw then moves every later draw of a seed.
 #: Same version: a W whose largest extent is outside offline/units.EXTENT_BAND is designed at another
 #: common scale (a scaled draw with every state in units 1e-2 and extents below 0.01).
@@ -91,7 +91,7 @@ def library_versions() -> dict[str, str]:
 
 
 def campaign_settings(seed: int, systems: int, backends: Iterable[str], steps: int) -> dict[str, Any]:
-    """Everything that determines a campaign's results, as recorded in its store (issue 17, item 4):
+    """Everything that determines a campaign's results, as recorded in its store:
     a store made with other settings is never resumed (scheduler and workers do not change results
     and are not recorded)."""
     return {"seed": int(seed), "systems": int(systems), "backends": list(backends), "steps": int(steps),
@@ -151,7 +151,7 @@ def save_replay(folder: str | Path, text: str, result: dict[str, Any], trajs: di
 
 def _coverage(traj) -> dict[str, float]:
     """Did the run exercise the claims? Constraints active, Θ_k shrinking, θ* near ∂Θ_k, and the
-    hard cases of issue 13 (:func:`~amcp_drake.studies.random_problems.hard_case_coverage`: a
+    hard cases (:func:`~amcp_drake.studies.random_problems.hard_case_coverage`: a
     lower-dimensional Θ_k, θ* at a vertex / on a facet of Θ)."""
     from amcp_drake.studies.random_problems import hard_case_coverage, theta_shrank
 

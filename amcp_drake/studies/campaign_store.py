@@ -1,4 +1,4 @@
-"""The campaign store: one SQLite file, written as each problem finishes (issues 9 and 17).
+"""The campaign store: one SQLite file, written as each problem finishes.
 
 Tables (schema version :data:`SCHEMA_VERSION`, marked by ``PRAGMA application_id`` =
 :data:`APPLICATION_ID` and ``PRAGMA user_version``):
@@ -15,7 +15,11 @@ Tables (schema version :data:`SCHEMA_VERSION`, marked by ``PRAGMA application_id
 * ``completions(campaign_seed, idx, at)``: an append-only log, one row per completion received,
   so a test can prove that no problem was run to completion twice across an interrupt + resume.
 
-Every write is one transaction; a crash loses at most the problem being written. An existing file
+Every write is one transaction; a crash loses at most the problem being written, and a failed write (a
+full disk) rolls back, leaving the store resumable. A campaign holds the store exclusively
+(``exclusive=True``: an ``flock`` on the file for as long as it is open), so a second campaign on the
+same store is refused at once instead of running the same problems again; ``--report`` only reads and
+needs no lock. An existing file
 is inspected read-only before it is opened for writing (:func:`inspect_store`): a file that is not
 SQLite, is damaged (truncated, garbled: ``PRAGMA quick_check``) or holds another schema raises
 :class:`~amcp_drake.model.errors.CampaignStoreError` naming the file, and is never written to.
@@ -38,8 +42,8 @@ from amcp_drake.model.errors import CampaignStoreError
 
 #: ``PRAGMA application_id`` of a campaign store: "amcp" in ASCII (sqlite.org/fileformat.html, offset 68).
 APPLICATION_ID = 0x616D6370
-#: ``PRAGMA user_version``: 2 = with the settings table and replay commands (issue 17); stores of
-#: issue 9 have no marks (version 1) and can be read by --report but not resumed.
+#: ``PRAGMA user_version``: 2 = with the settings table and replay commands; stores of
+#: the first layout have no marks (version 1) and can be read by --report but not resumed.
 SCHEMA_VERSION = 2
 #: The first 16 bytes of every SQLite 3 database file.
 SQLITE_HEADER = b"SQLite format 3\x00"
@@ -72,7 +76,7 @@ TABLES = {
     "coverage": ("campaign_seed", "idx", "backend", "key", "value"),
     "completions": ("campaign_seed", "idx", "at"),
 }
-#: The tables of an issue-9 store (schema 1): no settings, no replay column.
+#: The tables of a store of the first layout (schema 1): no settings, no replay column.
 LEGACY_TABLES = {name: tuple(c for c in cols if c != "replay") for name, cols in TABLES.items() if name != "settings"}
 #: How a setting is named in messages (the CLI option that sets it).
 SETTING_NAMES = {"seed": "--seed", "systems": "--systems", "backends": "--backends", "steps": "--steps",
@@ -136,7 +140,7 @@ def _table_columns(db: sqlite3.Connection) -> dict[str, tuple[str, ...]]:
 @dataclass
 class StoreState:
     """What :func:`inspect_store` found: ``kind`` is "new" (missing, empty file or empty database),
-    "store" (schema 2) or "legacy" (an issue-9 store without settings)."""
+    "store" (schema 2) or "legacy" (a schema-1 store without settings)."""
 
     kind: str
     settings: dict[str, Any] | None = None
