@@ -17,6 +17,7 @@ from amcp_drake.cli.common import (
     bad_input_exits_2,
     exit_verdict,
     formulation_option,
+    interruptible,
     load_problem_spec,
     max_memory_option,
     online_options,
@@ -25,6 +26,7 @@ from amcp_drake.cli.common import (
     problem_options,
     seed_option,
     steps_option,
+    write_error,
 )
 
 
@@ -44,6 +46,8 @@ from amcp_drake.cli.common import (
 @online_options
 @max_memory_option
 @click.pass_context
+@interruptible(lambda kw, exc: f"nothing written to {kw['out_dir']} (its staging folder was removed); "
+               "run the command again")
 @bad_input_exits_2
 def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend, formulation, steps, seed, out_dir,
                 trajectory_file, online, max_memory):
@@ -80,7 +84,10 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
         if traj.stop_reason.startswith("inconsistent"):
             click.echo(f"warning: the run stopped: {traj.stop_reason}; certifying the partial trajectory", err=True)
     cert = certify(traj, spec)
-    out = write_outputs(out_dir, traj, cert)
+    try:
+        out = write_outputs(out_dir, traj, cert)
+    except OSError as exc:  # a full disk or a failing medium: write_outputs removed what it had staged
+        raise write_error("--out", out_dir, exc) from None
     _print(cert, out)
     exit_verdict(cert.passed)
 

@@ -11,6 +11,7 @@ from amcp_drake.cli.common import (
     backend_option,
     bad_input_exits_2,
     exit_verdict,
+    interruptible,
     load_problem_spec,
     problem_options,
     update_options,
@@ -36,6 +37,8 @@ from amcp_drake.cli.common import (
 @click.option("--out", "out_dir", default="amcp-out", show_default=True, type=click.Path(file_okay=False),
               help="Folder for coverage.json and coverage.png.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
+@interruptible(lambda kw, exc: f"nothing new written to {kw['out_dir']} (each file is written whole or not at all); "
+               "run the command again")
 @bad_input_exits_2
 def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, points_file, adapt_steps, adapt_x0,
                  update, window, projection, out_dir, no_progress):

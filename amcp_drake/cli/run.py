@@ -12,6 +12,7 @@ from amcp_drake.cli.common import (
     bad_input_exits_2,
     exit_verdict,
     formulation_option,
+    interruptible,
     max_memory_option,
     online_options,
     output_file_callback,
@@ -34,6 +35,8 @@ from amcp_drake.cli.common import (
 @click.option("--save", type=click.Path(), default=None, callback=output_file_callback,
               help="Save the trajectory (JSON, .gz allowed).")
 @max_memory_option
+@interruptible(lambda kw, exc: "the run stopped" + (f"; nothing saved to {kw['save']}" if kw.get("save") else "")
+               + "; run the command again")
 @bad_input_exits_2
 def run_cmd(problem_file, example, x0_template, backend, formulation, steps, seed, disturbance, online, every, save,
             max_memory):

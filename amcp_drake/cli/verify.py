@@ -21,7 +21,7 @@ from pathlib import Path
 
 import click
 
-from amcp_drake.cli.common import bad_input_exits_2, exit_verdict
+from amcp_drake.cli.common import bad_input_exits_2, exit_verdict, interruptible
 
 #: property test -> the claim it checks (table order)
 CLAIMS = {
@@ -101,6 +101,8 @@ def _run_mutants(backends: list[str]) -> bool:
               help="Online backend(s) under test; the lockstep comparison needs both.")
 @click.option("--mutants", "with_mutants", is_flag=True, help="Also run the seeded bugs and report which claim caught each.")
 @click.option("--pytest-arg", "pytest_args", multiple=True, help="Extra argument for pytest (repeatable), e.g. -x.")
+@interruptible(lambda kw, exc: "the property suite was stopped (its pytest process too); nothing was written; "
+               "run the command again")
 @bad_input_exits_2
 def verify_cmd(profile, backend, with_mutants, pytest_args):
     """Run the property suite (one test per claim of the paper) and print claim, examples, coverage, result."""
