@@ -39,6 +39,7 @@ def summary_text(store) -> str:
     lines.append(f"{'coverage':34s} {'backend':8s} {'fraction':>9s} {'runs':>6s}")
     for key, backend, frac, count in store.coverage_table():
         lines.append(f"{key:34s} {backend:8s} {frac:9.2f} {count:6d}")
+    lines += [""] + answer_lines(store.answer_table())
     lines.append("")
     lines.append("slowest problems: " + ", ".join(f"#{idx} {sec:.1f} s" for _, idx, sec in store.slowest()))
     failures = store.failures()
@@ -52,6 +53,25 @@ def summary_text(store) -> str:
         else:
             lines.append(f"  seed {seed} #{idx}: (no replay files: " + ((message or "").splitlines() or [""])[0] + ")")
     return "\n".join(lines)
+
+
+def answer_lines(rows: list[tuple[str, str, float, int, int]]) -> list[str]:
+    """Fallback and re-solve rates per backend and kind: of the backend's answers of each problem, the share
+    that was not its first answer, and the problems with at least one such step."""
+    totals = {(backend, key[: -len("_answers")]): total for key, backend, total, _, _ in rows if key.endswith("_answers")}
+    lines = [f"{'solver answers':44s} {'backend':8s} {'steps':>7s} {'rate':>9s} {'problems':>9s}"]
+    for key, backend, total, with_any, problems in rows:
+        for outcome in ("resolved", "fallback", "not_solved"):
+            head, sep, kind = key.partition(f"_{outcome}")
+            if sep and (kind == "" or kind.startswith("_")) and head.startswith("answers_"):
+                answered = totals.get((backend, head), 0.0)
+                rate = total / answered if answered else float("nan")
+                label = f"{head[len('answers_'):]} {outcome}{(' ' + kind[1:]) if kind else ''}"
+                lines.append(f"{label:44s} {backend:8s} {int(total):7d} {rate:9.2%} {int(with_any):5d}/{problems}")
+                break
+    if len(lines) == 1:
+        lines.append("(no solver answers recorded)")
+    return lines
 
 
 def report_html(store, damage: list[str] | None = None) -> str:

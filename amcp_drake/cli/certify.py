@@ -1,7 +1,8 @@
 """``amcp certify``: run a closed loop (or load a saved one), check every claim independently, write the bundle.
 
-Exit codes: 0 every claim holds; 1 a claim failed **or could not be checked** (verdict
-``incomplete``: a claim that did not run is not a pass); 2 bad input (unreadable or malformed
+Exit codes: 0 every claim holds and every solver answer was the backend's own; 1 a claim failed **or
+could not be checked** (verdict ``incomplete``: a claim that did not run is not a pass), or the backend's
+conformance failed (a check rejected one of its answers and a fallback answered); 2 bad input (unreadable or malformed
 problem or trajectory file, bad option, --out naming a file). On exit 2 no
 output is written; on 0 and 1 the bundle (certificate.json, report.html, trajectory.json.gz) is
 written atomically into --out.
@@ -58,8 +59,9 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
     from the recorded data with numpy/scipy only, and writes certificate.json, report.html and
     trajectory.json.gz into --out.
 
-    Exit code 0: every claim holds; 1: a claim failed or could not be checked (the bundle is
-    still written); 2: bad input (nothing is written). See docs/certificate.md."""
+    Exit code 0: every claim holds and the backend answered every problem itself; 1: a claim failed or
+    could not be checked, or a check rejected a backend answer (backend conformance failed; the bundle
+    is still written); 2: bad input (nothing is written). See docs/certificate.md."""
     from amcp_drake.certificate.certify import certify
     from amcp_drake.certificate.report import check_out_dir, remove_stale_staging, write_outputs
     from amcp_drake.model.errors import ProblemError
@@ -89,7 +91,7 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
     except OSError as exc:  # a full disk or a failing medium: write_outputs removed what it had staged
         raise write_error("--out", out_dir, exc) from None
     _print(cert, out)
-    exit_verdict(cert.passed)
+    exit_verdict(cert.passed and cert.conformance != "fail")
 
 
 def _run(spec, backend: str, steps: int, seed: int, formulation: str = "plain", options=None,
@@ -141,4 +143,19 @@ def _print(cert, out) -> None:
     else:
         click.echo(f"NOT CERTIFIED (incomplete): {counts['not_run']} claim(s) could not be checked: "
                    f"{', '.join(cert.ids('not_run'))}")
+    answers = cert.solver_answers
+    for line in answers.get("summary", []):
+        click.echo(f"solver answers: {line}" if not line.startswith(" ") else f"               {line}")
+    if cert.conformance == "fail":
+        click.echo(f"BACKEND CONFORMANCE FAILED: {answers['backend']}'s answers were rejected by the answer checks at "
+                   f"step(s) {_steps(answers['rejected_steps'])}; the claims above are checked on the answers the "
+                   "controller applied (the fallbacks'), so this is a defect of the backend, not of the paper's claims")
+    elif cert.conformance == "pass":
+        click.echo(f"backend conformance: pass ({answers['backend']} answered every problem itself)")
+    else:
+        click.echo("backend conformance: unknown (the trajectory has no record of how its solver answers were obtained)")
     click.echo(f"wrote {out}/certificate.json, {out}/report.html, {out}/trajectory.json.gz")
+
+
+def _steps(steps: list[int]) -> str:
+    return ", ".join(map(str, steps[:10])) + (f", ... ({len(steps)} in all)" if len(steps) > 10 else "")

@@ -168,7 +168,8 @@ def _design_as_written(problem: Problem, options: DesignOptions, backend="drake"
     return OfflineDesign(K=K, P=P, H_x=H_x, X0_vertices=X0_vertices, w_bar=w_bar, f_bar=f_bar, h_bar=h_bar,
                          lambda_bar=lambda_bar, A_z=A_z, H_T=H_T, h_T=h_T, mu=float(mu), mu_sup=float(mu_sup),
                          mu_region=region, H_theta=H_theta_n, h_theta0=h_theta0, theta_vertices=theta_vertices,
-                         terminal_iterations=iterations, backend=be.name, gain_source=source, info=info)
+                         terminal_iterations=iterations, backend=be.name, gain_source=source, info=info,
+                         mu_state_bound=options.mu_state_bound)
 
 
 def _require_stable(A_cl: np.ndarray) -> None:

@@ -32,6 +32,7 @@ from amcp_drake.model.problem_io import (
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.model.trajectory_schema import check_consistency, validate_trajectory_layout
 from amcp_drake.offline.design import OfflineDesign
+from amcp_drake.online import answers
 from amcp_drake.online.controller import AdaptiveMPC, StepRecord
 
 TRAJECTORY_FORMAT = "amcp-trajectory"
@@ -221,6 +222,8 @@ def _record_to_dict(r: StepRecord) -> dict[str, Any]:
             value = value.tolist()
         elif isinstance(value, SolveStatus):
             value = value.value
+        elif f.name == "answers" and value is not None:
+            value = [dict(e) for e in value]
         elif isinstance(value, tuple):
             # ±inf (one-sided PE bounds) is not JSON: stored as None
             value = [None if isinstance(v, float) and not np.isfinite(v) else v for v in value]
@@ -259,6 +262,8 @@ def _record_from_dict(d: dict[str, Any]) -> StepRecord:
             value = SolveStatus(value)
         elif f.name == "infeasible_constraints":
             value = tuple(value)
+        elif f.name == "answers":
+            value = answers.validate(value, "answers")
         elif f.name == "pe_bounds" and value is not None:
             value = (float("-inf") if value[0] is None else value[0], float("inf") if value[1] is None else value[1])
         kwargs[f.name] = value
@@ -276,7 +281,8 @@ def simulate(controller: AdaptiveMPC, x0, theta_star, steps: int, disturbance: s
 
     The run ends early, keeping the partial trajectory, when a step's status is not OPTIMAL.
     InconsistentDataError (Θ_{k-1} ∩ Δ_k empty) propagates with the partial trajectory attached
-    as ``exc.trajectory``.
+    as ``exc.trajectory``. ``mu_state_bound`` (the box of (11) when Z is unbounded in x) defaults to
+    the one the controller's design recorded, so the trajectory carries what its certificate needs.
     """
     problem = controller.problem
     x = np.asarray(x0, float)
@@ -295,6 +301,8 @@ def simulate(controller: AdaptiveMPC, x0, theta_star, steps: int, disturbance: s
             raise ProblemError("theta_star" if theta_star.ndim == 1 else f"theta_star[{k}]",
                                "a point of Theta (Assumption 1 / 17)", f"{th.tolist()}")
     check_theta_rate(theta_star, controller.options.d_theta)
+    if mu_state_bound is None:
+        mu_state_bound = getattr(controller.design, "mu_state_bound", None)
     W = disturbance_sequence(problem, disturbance, steps, seed)
     controller.reset()
     xs, us, ws, records = [x], [], [], []

@@ -184,6 +184,16 @@ def _resolve_counts(traj, backend: str) -> dict[str, float]:
     return {f"resolve_{kind}": float(n) for kind, n in counts.items() if applies.get(kind, True)}
 
 
+def _answer_counts(traj) -> dict[str, float]:
+    """How the run's solver answers were obtained (:func:`amcp_drake.online.answers.counts`), as coverage keys
+    ``answers_<problem>_<count>`` (``answers_tube_qp_answers``, ``answers_tube_qp_fallback_vertex_form``, ...):
+    the summary reports, per backend and kind, the share of answers that were not the backend's own."""
+    from amcp_drake.online import answers
+
+    return {f"answers_{problem}_{key.replace(' ', '_')}": float(n)
+            for problem, per in answers.counts(traj.records).items() for key, n in per.items()}
+
+
 def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure_dir: str,
                 steps: int = CAMPAIGN_STEPS, draw: Callable | None = None) -> dict[str, Any]:
     """Draw, run and certify problem ``idx`` on each backend (a Dask task; also callable directly).
@@ -213,7 +223,7 @@ def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure
             cert = certify(traj, spec)
             result["claims"][backend] = {c.name: {"status": c.status, "margin": c.margin} for c in cert.claims}
             result["verdicts"][backend] = cert.verdict
-            result["coverage"][backend] = {**_coverage(traj), **_resolve_counts(traj, backend),
+            result["coverage"][backend] = {**_coverage(traj), **_resolve_counts(traj, backend), **_answer_counts(traj),
                                            # built, not reached: the generator's label is exact
                                            "scaled_units": float(bool(built_scaled(result["labels"])))}
         failed = any(c["status"] != "pass" for claims in result["claims"].values() for c in claims.values())

@@ -387,9 +387,17 @@ class CampaignStore:
         return [tuple(r) for r in rows]
 
     def coverage_table(self) -> list[tuple[str, str, float, int]]:
-        """(key, backend, fraction of problems with value > 0, count)."""
-        rows = self.db.execute("SELECT key, backend, AVG(value > 0), COUNT(*) FROM coverage GROUP BY key, backend "
-                               "ORDER BY key, backend")
+        """(key, backend, fraction of problems with value > 0, count); the solver-answer counts
+        (keys ``answers_...``) are :meth:`answer_table`'s."""
+        rows = self.db.execute("SELECT key, backend, AVG(value > 0), COUNT(*) FROM coverage WHERE key NOT LIKE 'answers\\_%' "
+                               "ESCAPE '\\' GROUP BY key, backend ORDER BY key, backend")
+        return [tuple(r) for r in rows]
+
+    def answer_table(self) -> list[tuple[str, str, float, int, int]]:
+        """(key, backend, total count over the problems, problems with a count > 0, problems) of the
+        solver-answer counts ``answers_<problem>_<count>`` (studies.campaign._answer_counts)."""
+        rows = self.db.execute("SELECT key, backend, SUM(value), SUM(value > 0), COUNT(*) FROM coverage "
+                               "WHERE key LIKE 'answers\\_%' ESCAPE '\\' GROUP BY key, backend ORDER BY backend, key")
         return [tuple(r) for r in rows]
 
     def problem_counts(self) -> dict[str, int]:
