@@ -277,3 +277,32 @@ def test_reproducer_scripts_say_whether_the_defect_reproduces(tmp_path):
 def test_run_matrix_rejects_unknown_settings():
     with pytest.raises(ValueError, match="settings"):
         run_matrix([lp_x_geq_1()], ["py:tests.solver_stubs:correct"], settings="loose")
+
+
+# -- the HTML page in a real browser ---------------------------------------------------------------------
+
+def test_matrix_page_renders_in_headless_chromium(tmp_path):
+    """Every cell of solvers.json is in the DOM that Chromium builds from solvers.html, with its verdict."""
+    from amcp_drake.studies.solver_matrix.report import to_json, write_outputs
+    from amcp_drake.studies.solver_matrix.runner import Cell, MatrixRun
+    from tests.test_report_browser import _chromium, parse
+
+    chromium = _chromium()
+    if chromium is None:
+        pytest.skip("Chromium is not installed (apt-get install -y chromium); the browser check did not run")
+    a, b = lp_x_geq_1(), lp_x_geq_1()
+    b.id = "second <problem> & 'quotes'"
+    configs = ["drake:clarabel", "cvxpy:OSQP"]
+    cells = [Cell(a.id, configs[0], "correct", wall_s=0.01, cpu_s=0.01), Cell(a.id, configs[1], "wrong", detail="x < y & z"),
+             Cell(b.id, configs[0], "crash", detail="SIGABRT"), Cell(b.id, configs[1], "timeout")]
+    data = to_json(MatrixRun("default", 5.0, configs, [a, b], cells))
+    _, page = write_outputs(tmp_path, data)
+    cmd = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+           "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={tmp_path / 'profile'}",
+           "--dump-dom", page.resolve().as_uri()]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    doc = parse(done.stdout)
+    shown = {(t[1]["data-problem"], t[1]["data-solver"]): t[1]["data-verdict"] for t in doc.tags if "data-verdict" in t[1]}
+    assert shown == {(c["problem"], c["solver"]): c["verdict"] for c in data["cells"]}
+    assert [t[1]["data-solver"] for t in doc.tags if t[0] == "tr" and "data-solver" in t[1]] == configs

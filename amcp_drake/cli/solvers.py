@@ -55,17 +55,19 @@ def solvers_cmd(corpus, solvers, settings, kinds, time_limit, out_dir, no_reprod
     from amcp_drake.studies.solver_matrix.runner import run_matrix
     from amcp_drake.studies.solver_matrix.solvers import available_configurations
 
-    problems = load_corpus(list(corpus) or shipped_corpus_dir())
     for kind in kinds:
         if kind not in KINDS:
             raise ProblemError("--kind", f"one of {sorted(KINDS)}", repr(kind))
-    if kinds:
-        problems = [p for p in problems if p.kind in kinds]
-    configs = available_configurations() if solvers is None else [s.strip() for s in solvers.split(",") if s.strip()]
-    for config in configs:
+    configs = None if solvers is None else [s.strip() for s in solvers.split(",") if s.strip()]
+    for config in configs or ():
         stack, _, name = config.partition(":")
         if stack not in ("drake", "cvxpy", "py") or not name:
             raise ProblemError("--solvers", "drake:NAME, cvxpy:NAME or py:MODULE:FUNCTION, comma-separated", repr(config))
+    problems = load_corpus(list(corpus) or shipped_corpus_dir())
+    if kinds:
+        problems = [p for p in problems if p.kind in kinds]
+    if configs is None:
+        configs = available_configurations()
     if not configs or not problems:
         raise ProblemError("--solvers/--corpus", "at least one solver configuration and one problem",
                            f"{len(configs)} configurations, {len(problems)} problems")

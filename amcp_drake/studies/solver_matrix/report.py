@@ -77,7 +77,7 @@ def to_html(data: dict[str, Any]) -> str:
            "<table id='summary'><caption>Per solver configuration</caption><tr><th>solver</th>"
            + "".join(f"<th>{esc(v)}</th>" for v in VERDICTS) + "<th>median wall (ms)</th><th>median CPU (ms)</th></tr>"]
     for config, s in data["summary"].items():
-        out.append(f"<tr><td>{esc(config)}</td>" + "".join(
+        out.append(f"<tr data-solver=\"{esc(config, quote=True)}\"><td>{esc(config)}</td>" + "".join(
             f"<td class='c' style='background:{COLOURS[v] if s['counts'][v] else '#fff'}'>{s['counts'][v]}</td>" for v in VERDICTS)
             + f"<td class='c'>{_fmt_time(s['median_wall_s'])}</td><td class='c'>{_fmt_time(s['median_cpu_s'])}</td></tr>")
     out.append("</table>")
@@ -91,7 +91,9 @@ def to_html(data: dict[str, Any]) -> str:
                 row.append("<td></td>")
                 continue
             tip = esc(f"{cell['verdict']}: {cell['status']} {cell['detail']}".strip(), quote=True)
-            row.append(f"<td class='c' title=\"{tip}\" style='background:{COLOURS[cell['verdict']]}'>"
+            row.append(f"<td class='c' title=\"{tip}\" data-problem=\"{esc(p['id'], quote=True)}\" "
+                       f"data-solver=\"{esc(c, quote=True)}\" data-verdict=\"{esc(cell['verdict'], quote=True)}\" "
+                       f"style='background:{COLOURS[cell['verdict']]}'>"
                        f"{LETTERS[cell['verdict']]}</td>")
         out.append("".join(row) + "</tr>")
     out.append("</table><p>C correct, F honest failure, W wrong (success reported, answer infeasible or suboptimal "

@@ -197,7 +197,8 @@ def run_matrix(problems: list[CorpusProblem], configurations: list[str], setting
     """Every configuration on every problem, one child process at a time (the machine is shared)."""
     if settings not in TOLERANCES:
         raise ValueError(f"settings {settings!r}: expected one of {sorted(TOLERANCES)}")
-    ctx = context()
+    stacks = {c.split(":", 1)[0] for c in configurations}
+    ctx = context([PRELOAD[0], *(m for m, stack in zip(PRELOAD[1:], ("drake", "cvxpy")) if stack in stacks)])
     run = MatrixRun(settings, time_limit, list(configurations), list(problems))
     start = time.perf_counter()
     for pr in problems:
