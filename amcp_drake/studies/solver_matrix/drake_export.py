@@ -23,7 +23,8 @@ import scipy.sparse as sp
 
 from amcp_drake.studies.solver_matrix.corpus import CorpusProblem
 
-#: (module, function) of a caller -> corpus kind; searched from the innermost frame outwards.
+#: (module, function or qualified name, or None for any) of a caller -> corpus kind: the first entry found
+#: on the call stack decides (Drake's programs, then the cvxpy backend's).
 CALL_SITES = (
     ("amcp_drake.online.controller", "_irredundant_rows", "exact_update_lp"),
     ("amcp_drake.backends.drake_", "_gain_lmi", "gain_sdp"),
@@ -32,6 +33,12 @@ CALL_SITES = (
     ("amcp_drake.backends.drake_vertex", None, "tube_qp_vertex"),
     ("amcp_drake.backends.drake_tube", None, "tube_qp_plain"),
     ("amcp_drake.backends.drake_", "support", "support_lp"),
+    ("amcp_reference.offline", "_gain_lmi", "gain_sdp"),
+    ("amcp_reference.online", "ProjectionQP.solve", "projection_qp"),
+    ("amcp_reference.online", "SetUpdateLP.solve", "set_update_lp"),
+    ("amcp_reference.tube_vertex", None, "tube_qp_vertex"),
+    ("amcp_reference.tube_mpc", None, "tube_qp_plain"),
+    ("amcp_reference.offline", "SupportLP.solve", "support_lp"),
 )
 
 
@@ -117,10 +124,11 @@ def call_site_kind(frame) -> str | None:
     exact update's redundancy LPs go through the backend's support LPs, so the order decides)."""
     stack = []
     while frame is not None:
-        stack.append((frame.f_globals.get("__name__", ""), frame.f_code.co_name))
+        code = frame.f_code
+        stack.append((frame.f_globals.get("__name__", ""), code.co_name, getattr(code, "co_qualname", code.co_name)))
         frame = frame.f_back
     for site_module, site_func, kind in CALL_SITES:
-        if any(module == site_module and (site_func is None or site_func == func) for module, func in stack):
+        if any(module == site_module and site_func in (None, func, qualname) for module, func, qualname in stack):
             return kind
     return None
 
@@ -143,8 +151,8 @@ class ProgramRecorder:
     """``with ProgramRecorder(context) as rec:`` records every Drake program solved inside the block.
 
     ``context`` is a dict read at each solve (the caller updates it, e.g. with the step index) and
-    stored as the problem's provenance. ``solve=False`` records without solving and raises
-    :class:`SolveSkipped` in place of the solve (for inputs known to abort the process)."""
+    stored as the problem's provenance. ``solve=False`` (or ``context["record_only"]``) records without
+    solving and raises :class:`SolveSkipped` in place of the solve (for inputs known to abort the process)."""
 
     context: dict[str, Any] = field(default_factory=dict)
     solve: bool = True
@@ -170,7 +178,7 @@ class ProgramRecorder:
                 err = ""
             rec = Recorded(kind, problem, solver_self.name, options, error=err)
             recorder.records.append(rec)
-            if not recorder.solve:
+            if not recorder.solve or recorder.context.get("record_only"):
                 raise SolveSkipped(kind)
             result, elapsed = recorder._original(solver_self, prog, extra_options)
             rec.success = bool(result.is_success())

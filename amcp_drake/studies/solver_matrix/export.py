@@ -11,7 +11,10 @@ Sources (:func:`example_sources`, :func:`hard_case_sources`):
   the optimum (``lockstep-plain-suboptimal``, step 8), the massera2017 plain step on a 1e-4-wide Θ_k,
   the generated gain LMI that ended AlmostSolved, and the gain LMI of x⁺ = 1.5x + 0·u at margin 1e-8
   (infeasible; Clarabel panicked on it), recorded without solving; two recorded projections (12) onto
-  degenerate sets and the support LPs of a window update on a sliver Θ_k.
+  degenerate sets and the support LPs of a window update on a sliver Θ_k;
+* the cvxpy backend's own problems (:mod:`.cvxpy_export`): Example 1 (design and the plain form with
+  (9)), the plain step 8 of ``lockstep-plain-suboptimal`` and the unstabilisable gain LMI as cvxpy
+  poses them.
 
 Of the many programs of one (source, kind), :func:`select` keeps up to ``per_kind`` of distinct shape,
 spread over the run (a hard case keeps all of its). ``index.json`` lists what was recorded, kept,
@@ -31,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from amcp_drake.studies.solver_matrix.corpus import write_json_atomic
+from amcp_drake.studies.solver_matrix.cvxpy_export import CvxpyRecorder
 from amcp_drake.studies.solver_matrix.drake_export import ProgramRecorder, Recorded, SolveSkipped
 from amcp_drake.studies.solver_matrix.reference import verify_reference
 
@@ -47,9 +51,15 @@ class Source:
     run: Callable[[ProgramRecorder], None]
     hard: bool = False
     note: str = ""
+    slug: str = ""
 
 
-def example_sources(examples=DEFAULT_EXAMPLES, steps: int = 6) -> Iterator[Source]:
+def example_sources(examples=DEFAULT_EXAMPLES, steps: int = 6, backend: str = "drake") -> Iterator[Source]:
+    """The runs of the examples on ``backend`` (Drake: plain + (9) LP, vertex + (7); cvxpy: the plain form
+    with (9) only, its vertex form being solved by a compiled Clarabel outside the recorded calls)."""
+    runs = ((("plain", "fixed", {"set_update_method": "lp"}), ("vertex", "exact", {})) if backend == "drake"
+            else (("plain", "fixed", {"set_update_method": "lp"}),))
+
     def make(name: str) -> Callable[[ProgramRecorder], None]:
         def run(rec: ProgramRecorder) -> None:
             from amcp_drake.model.examples import get_example
@@ -60,14 +70,14 @@ def example_sources(examples=DEFAULT_EXAMPLES, steps: int = 6) -> Iterator[Sourc
 
             spec = get_example(name)
             rec.context.update(stage="design")
-            d = design(spec.problem, spec.design, backend="drake")
+            d = design(spec.problem, spec.design, backend=backend)
             base = spec.online or OnlineOptions()
             sc = spec.scenario
-            for formulation, update, extra in (("plain", "fixed", {"set_update_method": "lp"}), ("vertex", "exact", {})):
+            for formulation, update, extra in runs:
                 rec.context.update(stage=f"closed loop, {formulation} form, update {update}", steps=steps)
                 options = dataclasses.replace(base, update=update, d_theta=0.0, pe_window=None,
                                               cost="certainty_equivalence")
-                ctrl = AdaptiveMPC(spec.problem, d, backend="drake", options=options, formulation=formulation, **extra)
+                ctrl = AdaptiveMPC(spec.problem, d, backend=backend, options=options, formulation=formulation, **extra)
                 theta = np.asarray(sc.theta_star_for(steps), float)
                 theta = theta if theta.ndim == 1 else theta[0]
                 simulate(ctrl, sc.x0, theta, steps, "uniform", seed=sc.seed)
@@ -75,13 +85,13 @@ def example_sources(examples=DEFAULT_EXAMPLES, steps: int = 6) -> Iterator[Sourc
         return run
 
     for name in examples:
-        yield Source(f"example {name}", make(name))
+        yield Source(f"example {name} ({backend})", make(name), slug=name if backend == "drake" else f"{name}-{backend}")
 
 
 def hard_case_sources(data_dir: Path) -> Iterator[Source]:
     """The recorded hard cases found under ``data_dir`` (the repository's tests/data)."""
 
-    def replay_step(folder: str, k: int, formulation: str, tight: bool) -> Callable[[ProgramRecorder], None]:
+    def replay_step(folder: str, k: int, formulation: str, tight: bool, backend: str = "drake") -> Callable[[ProgramRecorder], None]:
         def run(rec: ProgramRecorder) -> None:
             from amcp_drake.comparison.compare import ACCURATE_CLARABEL
             from amcp_drake.model.problem_io import load_spec
@@ -91,9 +101,9 @@ def hard_case_sources(data_dir: Path) -> Iterator[Source]:
             spec = load_spec(data_dir / folder / "problem.json")
             traj = Trajectory.load(data_dir / folder / "trajectory.json.gz")
             step = traj.records[k]
-            ctrl = AdaptiveMPC(spec.problem, traj.design, backend="drake", formulation=formulation, options=traj.options,
+            ctrl = AdaptiveMPC(spec.problem, traj.design, backend=backend, formulation=formulation, options=traj.options,
                                **({"solver_options": ACCURATE_CLARABEL} if tight else {}))
-            rec.context.update(stage=f"step {k} replayed, {formulation} form")
+            rec.context.update(stage=f"step {k} replayed, {backend} {formulation} form")
             ctrl.mpc.solve(np.asarray(traj.x[k], float), step.h_theta, step.theta_hat, step.H_theta)
 
         return run
@@ -111,19 +121,25 @@ def hard_case_sources(data_dir: Path) -> Iterator[Source]:
 
         return run
 
-    def gain(file: str | None, margin: float) -> Callable[[ProgramRecorder], None]:
+    def gain(file: str | None, margin: float, backend: str = "drake") -> Callable[[ProgramRecorder], None]:
         def run(rec: ProgramRecorder) -> None:
-            from amcp_drake.backends.drake_ import DrakeBackend
-
             if file is None:
                 A_v, B_v, Q, R = np.array([[[1.5]]]), np.zeros((1, 1, 1)), np.eye(1), np.eye(1)
-                rec.solve = False   # Clarabel panicked on it and Drake aborted the process: record only
+                rec.context["record_only"] = True   # Clarabel panicked on it, Drake aborted the process
             else:
                 data = json.loads((data_dir / file).read_text())
                 A_v, B_v, Q, R = (np.array(data[k], float) for k in ("A_vertices", "B_vertices", "Q", "R"))
             rec.context.update(stage=f"gain LMI (16) as written, margin {margin:g}")
             try:
-                DrakeBackend()._gain_lmi(A_v, B_v, Q, R, np.eye(A_v.shape[1]), margin)
+                if backend == "drake":
+                    from amcp_drake.backends.drake_ import DrakeBackend
+
+                    DrakeBackend()._gain_lmi(A_v, B_v, Q, R, np.eye(A_v.shape[1]), margin)
+                else:
+                    from amcp_reference.offline import _gain_lmi
+                    from amcp_reference.solver_call import SolverCall
+
+                    _gain_lmi(SolverCall("CLARABEL", None), A_v, B_v, Q, R, np.eye(A_v.shape[1]), margin)
             except SolveSkipped:
                 pass
 
@@ -165,11 +181,19 @@ def hard_case_sources(data_dir: Path) -> Iterator[Source]:
          "projection (12) onto a collapsed Θ_1: cvxpy ended optimal_inaccurate"),
         ("window-sliver-lp.json", supports("window-sliver-lp.json"),
          "support LPs of a window update on a sliver Θ_k (n = 1, p = 2)"),
-        (None, gain(None, 1e-8), "gain LMI (16) of x+ = 1.5x + 0u at margin 1e-8 (infeasible): Clarabel panicked in Rust"),
+        ("lockstep-plain-suboptimal", replay_step("lockstep-plain-suboptimal", 8, "plain", True, "cvxpy"),
+         "cvxpy plain form on a 1.3e-6-wide Θ_k: Clarabel at 1e-10 ended Solved 8.2e-9 above the optimum, v 1.3e-4 off",
+         "lockstep-plain-suboptimal-cvxpy"),
+        (None, gain(None, 1e-8), "gain LMI (16) of x+ = 1.5x + 0u at margin 1e-8 (infeasible): Clarabel panicked in Rust "
+         "and Drake aborted the process", "unstabilisable-gain-lmi"),
+        (None, gain(None, 1e-8, "cvxpy"), "the same LMI as the cvxpy backend poses it (PSD slack variables)",
+         "unstabilisable-gain-lmi-cvxpy"),
     ]
-    for path, run, note in cases:
+    for case in cases:
+        path, run, note = case[:3]
+        slug = case[3] if len(case) > 3 else (path or "").replace(".json", "")
         if path is None or (data_dir / path).exists():
-            yield Source(f"hard case {path or 'unstabilisable-gain-lmi'}", run, hard=True, note=note)
+            yield Source(f"hard case {slug}", run, hard=True, note=note, slug=slug)
 
 
 def select(records: list[Recorded], per_kind: int) -> list[Recorded]:
@@ -207,20 +231,22 @@ def export_corpus(out_dir: Path, sources: list[Source], per_kind: int = 2, max_b
     for source in sources:
         rec = ProgramRecorder({"source": source.name})
         error = ""
-        with rec:
+        with rec, CvxpyRecorder(rec.context, records=rec.records) as crec:
             try:
                 source.run(rec)
             except Exception as exc:  # noqa: BLE001 - a source that fails is reported, the others go on
                 error = f"{type(exc).__name__}: {exc}"[:300]
         chosen = [r for r in rec.records if r.problem is not None] if source.hard else select(rec.records, per_kind)
-        entry = {"source": source.name, "note": source.note, "recorded": len(rec.records), "unsupported": rec.unsupported,
+        entry = {"source": source.name, "note": source.note, "recorded": len(rec.records),
+                 "unsupported": rec.unsupported + crec.unsupported,
                  "selected": len(chosen), "kept": 0, "error": error}
         counters: dict[str, int] = {}
         for r in chosen:
             pr = r.problem
             k = counters[r.kind] = counters.get(r.kind, 0) + 1
-            pr.id = _slug(f"{source.name.split(' ', 2)[-1]}-{r.kind}-{k}")
-            pr.provenance.update(backend="drake", solver_in_run=r.solver, options_in_run=_jsonable(r.options),
+            pr.id = _slug(f"{source.slug or source.name}-{r.kind}-{k}")
+            pr.provenance.pop("record_only", None)
+            pr.provenance.update(backend="cvxpy" if r.solver.startswith("cvxpy") else "drake", solver_in_run=r.solver, options_in_run=_jsonable(r.options),
                                  success_in_run=r.success, status_in_run=r.solver_status, hard_case=source.hard,
                                  note=source.note)
             why = verify_reference(pr)
@@ -247,7 +273,16 @@ def export_corpus(out_dir: Path, sources: list[Source], per_kind: int = 2, max_b
 
 
 def _jsonable(value: Any) -> Any:
-    return json.loads(json.dumps(value, default=str))
+    """Plain JSON: unknown objects as text, non-finite numbers (e.g. Clarabel's time limit inf) as text."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, float) and not np.isfinite(value):
+        return str(value)
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    return str(value)
 
 
 __all__ = ["DEFAULT_EXAMPLES", "Source", "example_sources", "export_corpus", "hard_case_sources", "select"]
