@@ -216,7 +216,8 @@ def script_text(pr: CorpusProblem, solver: str, settings: str, verdict: str, det
 
 
 def write_reproducers(run: MatrixRun, out_dir: Path) -> list[Reproducer]:
-    """One script per (solver, wrong|crash): the smallest problem showing it."""
+    """One script per (solver, wrong|crash): the smallest problem showing it; with a Drake configuration
+    also :data:`NONFINITE_SCRIPT` (a NaN coefficient, which no corpus file can hold)."""
     problems = {p.id: p for p in run.problems}
     chosen: dict[tuple[str, str], Any] = {}
     for cell in run.cells:
@@ -226,12 +227,52 @@ def write_reproducers(run: MatrixRun, out_dir: Path) -> list[Reproducer]:
         if key not in chosen or problems[cell.problem].size < problems[chosen[key].problem].size:
             chosen[key] = cell
     out = []
+    if any(c.split(":", 1)[0] == "drake" for c in run.configurations):
+        out.append(Reproducer("drake", "crash", "(none: NaN coefficient)",
+                              write_text_atomic(out_dir / NONFINITE_NAME, NONFINITE_SCRIPT)))
     for (solver, verdict), cell in sorted(chosen.items()):
         pr = problems[cell.problem]
         name = f"{solver.replace(':', '-').lower()}-{verdict}-{pr.id}.py"
         path = write_text_atomic(out_dir / name, script_text(pr, solver, run.settings, verdict, cell.detail))
         out.append(Reproducer(solver, verdict, pr.id, path))
     return out
+
+
+NONFINITE_NAME = "drake-nonfinite-constraint.py"
+#: The known finding that no corpus problem can hold (JSON has no NaN): Drake on a non-finite coefficient.
+NONFINITE_SCRIPT = r'''#!/usr/bin/env python3
+"""Drake: a NaN in a linear constraint's matrix ends the Python process (SystemExit from a C++
+DRAKE_THROW_UNLESS) instead of raising an ordinary exception; a NaN in a linear cost is answered with
+kSolverSpecificError. Exit 1: reproduces (SystemExit seen); 0: an ordinary exception or a status; 3:
+pydrake missing. Needs numpy and pydrake only.
+"""
+import sys
+
+import numpy as np
+
+try:
+    from pydrake.solvers import ClarabelSolver, MathematicalProgram
+except ImportError as exc:
+    print(f"cannot run: {exc}")
+    sys.exit(3)
+from importlib.metadata import version
+
+print(f"drake {version('drake')}, numpy {np.__version__}, python {sys.version.split()[0]}")
+prog = MathematicalProgram()
+x = prog.NewContinuousVariables(1, "x")
+prog.AddLinearCost(np.array([1.0]), 0.0, x)
+try:
+    prog.AddLinearConstraint(np.array([[np.nan]]), np.array([1.0]), np.array([np.inf]), x)
+    result = ClarabelSolver().Solve(prog)
+except SystemExit as exc:
+    print(f"REPRODUCES: a NaN coefficient raised SystemExit({exc.code}): an uncaught one ends the interpreter")
+    sys.exit(1)
+except Exception as exc:  # noqa: BLE001
+    print(f"does not reproduce: an ordinary exception {type(exc).__name__}: {exc}")
+    sys.exit(0)
+print(f"does not reproduce: the solve returned {result.get_solution_result()}")
+sys.exit(0)
+'''
 
 
 @dataclass
