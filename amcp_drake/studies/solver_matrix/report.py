@@ -103,9 +103,35 @@ def to_html(data: dict[str, Any]) -> str:
     return "\n".join(out)
 
 
+def markdown(data: dict[str, Any]) -> str:
+    """The summary and the per-kind matrix of a solvers.json as Markdown tables (for docs)."""
+    lines = ["| solver | " + " | ".join(VERDICTS) + " | median wall ms | median CPU ms |",
+             "|---|" + "---:|" * (len(VERDICTS) + 2)]
+    for config, s in data["summary"].items():
+        lines.append(f"| {config} | " + " | ".join(str(s["counts"][v]) for v in VERDICTS)
+                     + f" | {_fmt_time(s['median_wall_s'])} | {_fmt_time(s['median_cpu_s'])} |")
+    kinds = list(dict.fromkeys(p["kind"] for p in data["problems"]))
+    kind_of = {p["id"]: p["kind"] for p in data["problems"]}
+    lines += ["", "Per kind of problem, correct / total taken (W wrong, X crash, T timeout, F honest failure):", "",
+              "| solver | " + " | ".join(f"{k} {KINDS[k][0]}" for k in kinds) + " |", "|---|" + "---|" * len(kinds)]
+    for config in data["configurations"]:
+        row = []
+        for kind in kinds:
+            cells = [c for c in data["cells"] if c["solver"] == config and kind_of[c["problem"]] == kind and c["verdict"] != "n/a"]
+            if not cells:
+                row.append("n/a")
+                continue
+            text = f"{sum(c['verdict'] == 'correct' for c in cells)}/{len(cells)}"
+            marks = [f"{sum(c['verdict'] == v for c in cells)}{LETTERS[v]}" for v in ("wrong", "crash", "timeout", "honest failure")
+                     if any(c["verdict"] == v for c in cells)]
+            row.append(text + (" " + " ".join(marks) if marks else ""))
+        lines.append(f"| {config} | " + " | ".join(row) + " |")
+    return "\n".join(lines)
+
+
 def write_outputs(out_dir: Path, data: dict[str, Any]) -> tuple[Path, Path]:
     return (write_json_atomic(out_dir / "solvers.json", data, indent=1),
             write_text_atomic(out_dir / "solvers.html", to_html(data)))
 
 
-__all__ = ["LETTERS", "MATRIX_FORMAT", "MATRIX_VERSION", "terminal_table", "to_html", "to_json", "write_outputs"]
+__all__ = ["LETTERS", "MATRIX_FORMAT", "MATRIX_VERSION", "markdown", "terminal_table", "to_html", "to_json", "write_outputs"]
