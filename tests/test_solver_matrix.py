@@ -334,3 +334,15 @@ def test_the_nonfinite_reproducer_runs_standalone(tmp_path):
     # either verdict is a statement about the installed Drake; the script must reach one of them
     assert result.outcome in ("reproduces", "no longer reproduces")
     assert result.last_line.startswith(("REPRODUCES", "does not reproduce"))
+
+
+def test_markdown_tables_count_what_the_cells_say():
+    from amcp_drake.studies.solver_matrix.report import markdown, to_json
+    from amcp_drake.studies.solver_matrix.runner import Cell, MatrixRun
+
+    a, b = lp_x_geq_1(), lp_x_geq_1()
+    b.id = "b"
+    cells = [Cell(a.id, "s", "correct", wall_s=0.002, cpu_s=0.001), Cell(b.id, "s", "wrong")]
+    text = markdown(to_json(MatrixRun("default", 5.0, ["s"], [a, b], cells)))
+    assert "| s | 1 | 0 | 1 | 0 | 0 | 0 | 2.0 | 1.0 |" in text
+    assert "| s | 1/2 1W |" in text
