@@ -93,7 +93,28 @@ def seeds_option(help_text: str, default: int):
 max_memory_option = click.option(
     "--max-memory", "max_memory", type=click.FloatRange(min=1.0), default=DEFAULT_MAX_MEMORY_MB, show_default=True,
     help="Refuse a run whose estimated size (tube QP nonzeros, recorded steps; docs/problem-format.md, "
-         "'Size limits') exceeds this many MiB, before anything is built.")
+         "'Size limits') exceeds this many MiB, before anything is built; every stage of the offline design is "
+         "sized against the same limit (a design candidate above it is skipped, with the stage named).")
+
+#: Default of ``--candidate-budget`` (seconds per candidate of the automatic design).
+DEFAULT_CANDIDATE_BUDGET = 60.0
+
+candidate_budget_option = click.option(
+    "--candidate-budget", "candidate_budget", type=click.FloatRange(min=0.1), default=DEFAULT_CANDIDATE_BUDGET,
+    show_default=True,
+    help="Time budget in seconds of one candidate of the offline design (automatic mode: a candidate over it is "
+         "recorded as 'time budget' and the next one is tried; a fixed template stops with that reason).")
+
+
+def design_budget(max_memory: float = DEFAULT_MAX_MEMORY_MB, candidate_budget: float | None = DEFAULT_CANDIDATE_BUDGET,
+                  quiet: bool = False):
+    """The :class:`~amcp_drake.offline.budget.DesignBudget` of a command: ``--max-memory``,
+    ``--candidate-budget`` and progress lines on stderr (each design candidate when it starts and ends,
+    long stages every few seconds) unless ``quiet``."""
+    from amcp_drake.offline.budget import DesignBudget
+
+    progress = None if quiet else (lambda line: click.echo(line, err=True))
+    return DesignBudget(max_memory, candidate_budget, progress)
 
 
 def bad_input_exits_2(func: Callable) -> Callable:

@@ -321,13 +321,22 @@ STATE_UNITS = ("normalised", "as written")
 DEFAULT_X0_LAMBDA = 0.9
 
 
+def default_x0_facets(n: int) -> int:
+    """Facets of the ``"mrpi"`` template when ``design.x0_facets`` is not given: 8 (the paper's
+    Example 1 and every earlier design of this project) while 8 >= 2n, i.e. n <= 4, else 2n (the
+    ±e_i box, the fewest directions :func:`~amcp_drake.offline.templates.template_directions` takes)."""
+    return max(8, 2 * int(n))
+
+
 @dataclass(frozen=True, eq=False)
 class DesignOptions:
     """Choices for the offline design (spec §4-§6, §5.1). Every [REC] choice is a field here.
 
-    * ``x0_facets``: number of facet directions of the tube shape X0 (2-D: equally spaced angles;
-      n-D: ±e_i, then ±(e_i ± e_j)/√2, ...). X0 is the template outer approximation of the minimal
-      robust positively invariant set of x⁺ = A_cl(θ)x + w, θ ∈ Θ (spec §5, "Choice of X0").
+    * ``x0_facets``: number of facet directions of the ``"mrpi"`` tube shape X0 (2-D: equally spaced
+      angles; n-D: ±e_i, then ±(e_i ± e_j)/√2, ...). X0 is the template outer approximation of the
+      minimal robust positively invariant set of x⁺ = A_cl(θ)x + w, θ ∈ Θ (spec §5, "Choice of X0").
+      None (default): :func:`default_x0_facets` of the dimension (8 up to n = 4, 2n above), so a
+      file without a ``design`` section is valid at every n; the other templates do not use it.
     * ``K``, ``P``: user-given gain and terminal weight, verified instead of designed.
     * ``lmi_margin``: ε of the LMI S ⪰ εI and the strictness of (16), in the scaled coordinates of
       ``backends/gain_scaling.py`` (where the mean vertex Riccati solution is I), so relative to the
@@ -336,6 +345,9 @@ class DesignOptions:
       sup ‖D(x,u)‖² in (11); required then. ``mu_fraction``: μ = fraction / sup ‖D‖² (< 1: strict).
     * ``centre_dynamics``: A_z of spec §5.1 step 2: ``"nominal"`` = A_cl(θ̂0), ``"zero"`` = 0.
     * ``terminal_max_iter``: iteration cap of the terminal set recursion.
+    * ``terminal_set``: ``"recursion"`` (Appendix A.1, spec §5.1), ``"scaled"`` (the copy
+      {H_x z + α1 <= ᾱ1} of offline/terminal.py, as many rows as X0, centre dynamics z⁺ = 0) or
+      ``"auto"`` (default: the recursion up to n = 3, the scaled copy above).
     * ``theta_extra_directions``: extra facet normals (k, p) for the fixed-complexity shape H_θ of (9).
     * ``x0_template``: the cross-section template (offline/templates.py, docs/decisions.md "X0 templates"):
       ``"auto"`` (default: the order of offline/auto.py, first design passing every design check),
@@ -352,7 +364,7 @@ class DesignOptions:
       the units of the file (the design before session 8; kept by the recorded regression problems).
     """
 
-    x0_facets: int = 8
+    x0_facets: int | None = None
     K: np.ndarray | None = None
     P: np.ndarray | None = None
     lmi_margin: float = 1e-6
@@ -367,10 +379,12 @@ class DesignOptions:
     x0_H: np.ndarray | None = None
     gain_R_scale: float = 1.0
     state_units: str = "normalised"
+    terminal_set: str = "auto"
 
     def validate_for(self, problem: Problem) -> DesignOptions:
         """Check values and shapes against ``problem``; return self."""
-        as_positive_int("design.x0_facets", self.x0_facets, 2 * problem.n)
+        if self.x0_facets is not None:
+            as_positive_int("design.x0_facets", self.x0_facets, 2 * problem.n)
         if self.K is not None:
             object.__setattr__(self, "K", as_matrix("design.K", self.K, rows=problem.m, cols=problem.n))
         if self.P is not None:
@@ -388,6 +402,8 @@ class DesignOptions:
             raise ProblemError("design.mu_fraction", "a number in (0, 1) (1/μ > sup‖D‖² is strict)", repr(self.mu_fraction))
         if self.state_units not in STATE_UNITS:
             raise ProblemError("design.state_units", f"one of {list(STATE_UNITS)}", repr(self.state_units))
+        if self.terminal_set not in ("auto", "recursion", "scaled"):
+            raise ProblemError("design.terminal_set", "one of ['auto', 'recursion', 'scaled']", repr(self.terminal_set))
         if self.centre_dynamics not in ("nominal", "zero"):
             raise ProblemError("design.centre_dynamics", "'nominal' or 'zero'", repr(self.centre_dynamics))
         as_positive_int("design.terminal_max_iter", self.terminal_max_iter, 1)
@@ -397,6 +413,11 @@ class DesignOptions:
                                as_matrix("design.theta_extra_directions", self.theta_extra_directions, cols=problem.p))
         self._validate_template(problem)
         return self
+
+    def facets_for(self, n: int) -> int:
+        """The facet count of the ``"mrpi"`` template at dimension n: ``x0_facets`` when given, else
+        :func:`default_x0_facets` (n)."""
+        return int(self.x0_facets) if self.x0_facets is not None else default_x0_facets(n)
 
     def _validate_template(self, problem: Problem) -> None:
         kinds = ("auto", "mrpi", "contractive", "given")

@@ -185,13 +185,17 @@ def _resolve_counts(traj, backend: str) -> dict[str, float]:
 
 
 def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure_dir: str,
-                steps: int = CAMPAIGN_STEPS, draw: Callable | None = None) -> dict[str, Any]:
+                steps: int = CAMPAIGN_STEPS, draw: Callable | None = None,
+                max_memory_mb: float | None = None) -> dict[str, Any]:
     """Draw, run and certify problem ``idx`` on each backend (a Dask task; also callable directly).
 
     ``draw(campaign_seed, idx, steps)`` returns the case (default :func:`draw_case`); the run is that
     of the case's complete problem file (:func:`replay_spec`, :func:`round_trip`), through the same
-    :func:`~amcp_drake.online.replay.run_scenario` as ``amcp certify``."""
+    :func:`~amcp_drake.online.replay.run_scenario` as ``amcp certify``. ``max_memory_mb``: the memory limit
+    of the design's stages (``--max-memory``; None: the default limit); a problem above it is recorded as an
+    error naming the stage."""
     from amcp_drake.certificate.certify import certify
+    from amcp_drake.offline.budget import DesignBudget
     from amcp_drake.offline.design import design
     from amcp_drake.online.replay import run_scenario
     from amcp_drake.studies.random_problems import built_scaled
@@ -204,7 +208,8 @@ def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure
         result["labels"] = {k: str(v) for k, v in getattr(case, "labels", {}).items()}
         spec, text = round_trip(replay_spec(case))
         result["digest"] = _digest(text)
-        offline = design(spec.problem, spec.design, backend=DESIGN_BACKEND)
+        budget = DesignBudget() if max_memory_mb is None else DesignBudget(max_memory_mb)
+        offline = design(spec.problem, spec.design, backend=DESIGN_BACKEND, budget=budget)
         trajs = {}
         for backend in backends:
             traj = run_scenario(spec, backend, design_backend=DESIGN_BACKEND, formulation=FORMULATION,
@@ -238,8 +243,10 @@ def _digest(text: str) -> str:
 
 def run_campaign(store_path: str | Path, systems: int, backends: Iterable[str] = ("drake", "cvxpy"),
                  seed: int = 0, scheduler: str | None = None, workers: int = 2, resume: bool = False,
-                 steps: int = CAMPAIGN_STEPS, progress: bool = True, failure_dir: str | Path | None = None) -> dict:
-    """Run (or resume) a campaign; returns counts {"submitted", "stored", "skipped"}."""
+                 steps: int = CAMPAIGN_STEPS, progress: bool = True, failure_dir: str | Path | None = None,
+                 max_memory_mb: float | None = None) -> dict:
+    """Run (or resume) a campaign; returns counts {"submitted", "stored", "skipped"}. ``max_memory_mb``:
+    the design's memory limit in every problem (:func:`run_problem`)."""
     from dask.distributed import Client, LocalCluster, as_completed
 
     from amcp_drake.model.errors import ProblemError
@@ -268,7 +275,7 @@ def run_campaign(store_path: str | Path, systems: int, backends: Iterable[str] =
     stored = 0
     try:
         futures = [client.submit(run_problem, seed, i, backends, failure_dir, steps, key=f"amcp-{seed}-{i}",
-                                 retries=TASK_RETRIES, pure=False) for i in todo]
+                                 retries=TASK_RETRIES, pure=False, max_memory_mb=max_memory_mb) for i in todo]
         bar = None
         if progress:
             from tqdm import tqdm
