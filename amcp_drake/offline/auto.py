@@ -19,7 +19,9 @@ A user-given K, P (``design.K``/``design.P``) skips the lower-gain K's; a user-g
 replaces the λ list; a ``gain_R_scale`` other than 1 is used in step 2 and replaces the LMI gain in
 step 3 (only larger scales are added).
 
-From n = 4 on (:data:`BOUNDED_FIRST_N`) the bounded-complexity constructions come first: step 3
+From n = 4 on (:data:`BOUNDED_FIRST_N`) the bounded-complexity constructions come first: the
+``parallelotope`` template (offline/parallelotope.py: 2n facets, 2^n vertices, K from a linear
+program started at the LMI gain), then step 3
 (the contractive template, whose rows are capped by
 :func:`~amcp_drake.offline.templates.contractive_max_rows`, with the scaled-copy terminal set of
 offline/terminal.py, as many rows as X0) before step 2, whose fixed template directions rarely fit
@@ -102,7 +104,9 @@ def candidate_options(problem: Problem, options: DesignOptions) -> list[DesignOp
         out.append(replace(options, x0_template="given"))
     first_mrpi = replace(base, x0_H=None, x0_facets=options.facets_for(problem.n))
     bounded_first = problem.n >= BOUNDED_FIRST_N
-    if not bounded_first:
+    if bounded_first:  # fixed complexity first: 2n facets, 2^n vertices
+        out.append(replace(options, x0_template="parallelotope", x0_H=None))
+    else:
         out.append(first_mrpi)
     lambdas = (options.x0_lambda,) if options.x0_lambda is not None else AUTO_LAMBDAS
     gains = [options.gain_R_scale]
@@ -180,6 +184,8 @@ def template_label(options: DesignOptions, facets: int | None = None, dimension:
     if kind == "mrpi":
         count = options.x0_facets if options.x0_facets is not None or dimension is None else options.facets_for(dimension)
         text = f"mrpi, {count if count is not None else 'default'} facets"
+    elif kind == "parallelotope":
+        text = "parallelotope" + (f", {facets} facets" if facets is not None else "")
     elif kind == "contractive":
         text = f"contractive, lambda {options.x0_lambda if options.x0_lambda is not None else DEFAULT_X0_LAMBDA:g}"
         if facets is not None:

@@ -14,6 +14,7 @@ from amcp_drake.model import polytope
 from amcp_drake.model.errors import DesignError, ProblemError, TerminalSetError
 from amcp_drake.model.problem import DEFAULT_X0_LAMBDA, DesignOptions, Problem
 from amcp_drake.model.status import SolveStatus
+from amcp_drake.offline import parallelotope
 from amcp_drake.offline import templates as x0_templates
 from amcp_drake.offline import units
 from amcp_drake.offline.auto import design_auto, template_label
@@ -138,6 +139,9 @@ def _design_as_written(problem: Problem, options: DesignOptions, backend="drake"
 
     # K and P: Assumption 8 and (16)
     K, P, source = gain if gain is not None else robust_gain(problem, options, be)
+    T_par = None
+    if options.x0_template == "parallelotope":  # K from the LP of offline/parallelotope.py, P from (16) for it
+        K, P, source, T_par = _parallelotope_gain(problem, options, K, P, source, be, budget)
     A_cl = closed_loop_vertices(problem, K, theta_vertices)
     _require_stable(A_cl)
     if source != "given":
@@ -146,7 +150,7 @@ def _design_as_written(problem: Problem, options: DesignOptions, backend="drake"
     # X0: the cross-section template (offline/templates.py)
     FGK = problem.F + problem.G @ K
     budget.tick("X0 template")
-    H_x = _x0(problem, A_cl, FGK, be, options, budget)
+    H_x = _x0(problem, A_cl, FGK, be, options, budget) if T_par is None else _parallelotope_x0(problem, A_cl, T_par, budget)
     budget.require_vertices("X0 vertices", len(H_x), problem.n)
     X0_vertices = polytope.vertices(H_x, np.ones(len(H_x)))
     budget.tick("w_bar, f_bar, h_bar")
@@ -195,6 +199,29 @@ def _design_as_written(problem: Problem, options: DesignOptions, backend="drake"
                          lambda_bar=lambda_bar, A_z=A_z, H_T=H_T, h_T=h_T, mu=float(mu), mu_sup=float(mu_sup),
                          mu_region=region, H_theta=H_theta_n, h_theta0=h_theta0, theta_vertices=theta_vertices,
                          terminal_iterations=iterations, backend=be.name, gain_source=source, info=info)
+
+
+def _parallelotope_gain(problem: Problem, options: DesignOptions, K, P, source: str, be, budget: DesignBudget):
+    """(K, P, source, T) of the parallelotope template (offline/parallelotope.py): a given K is kept
+    (only the basis T is computed for it); otherwise K from the LP started at the LMI gain and P from
+    the LMI (16) for that K."""
+    if source == "given":
+        A0, B0 = problem.A_of(problem.theta_hat0), problem.B_of(problem.theta_hat0)
+        T = np.linalg.inv(parallelotope.real_eigenbasis(A0 + B0 @ K))
+        return K, P, source, parallelotope.perron_scaled(T, closed_loop_vertices(problem, K, problem.theta_vertices()))
+    K_lp, T, _ = parallelotope.parallelotope_gain(problem, K, budget)
+    P_lp = parallelotope.fixed_gain_terminal_weight(problem, K_lp, be, options.lmi_margin)
+    return K_lp, P_lp, "lp (parallelotope)" if source == "lmi" else f"lp (parallelotope, from {source})", T
+
+
+def _parallelotope_x0(problem: Problem, A_cl: np.ndarray, T: np.ndarray, budget: DesignBudget) -> np.ndarray:
+    """H_x of {‖T x‖∞ <= 1} scaled to robust invariance (offline/parallelotope.py, step 3)."""
+    n = problem.n
+    budget.require("X0 template parallelotope: vertices", 8.0 * (2 ** n) * n * 4, f"2^{n} vertices")
+    signs = np.array(np.meshgrid(*[[-1.0, 1.0]] * n, indexing="ij")).reshape(n, -1).T
+    verts = signs @ np.linalg.inv(T).T
+    H = np.vstack([T, -T])
+    return x0_templates.scale_to_robust_invariance(H, verts, problem.H_w, A_cl, "parallelotope")
 
 
 def _require_stable(A_cl: np.ndarray) -> None:
