@@ -18,6 +18,7 @@ from amcp_drake.cli.common import (
     EXIT_OK,
     bad_input_exits_2,
     exit_verdict,
+    max_memory_option,
     output_file_callback,
     store_path_callback,
 )
@@ -112,8 +113,9 @@ def report_html(store, damage: list[str] | None = None) -> str:
               "problems are skipped; other settings are refused).")
 @click.option("--report", "report_file", default=None, type=click.Path(), callback=output_file_callback,
               help="Only render the store as HTML to this file (no run).")
+@max_memory_option
 @bad_input_exits_2
-def campaign_cmd(systems, backends, seed, scheduler, workers, store_path, steps, resume, report_file):
+def campaign_cmd(systems, backends, seed, scheduler, workers, store_path, steps, resume, report_file, max_memory):
     """Verification campaign of random problems on Dask, stored in SQLite.
 
     Draws random problems (the library's numpy generator, amcp_drake.studies.random_problems), runs
@@ -130,7 +132,7 @@ def campaign_cmd(systems, backends, seed, scheduler, workers, store_path, steps,
     from amcp_drake.studies.campaign import run_campaign
 
     counts = run_campaign(store_path, systems, chosen, seed=seed, scheduler=scheduler, workers=workers,
-                          resume=resume, steps=steps)
+                          resume=resume, steps=steps, max_memory_mb=max_memory)
     store = CampaignStore(store_path)
     click.echo(f"submitted {counts['submitted']}, stored {counts['stored']}, skipped (already stored) {counts['skipped']}")
     click.echo(summary_text(store))

@@ -16,6 +16,8 @@ from amcp_drake.cli.common import (
     ONLINE_OPTION_NAMES,
     backend_option,
     bad_input_exits_2,
+    candidate_budget_option,
+    design_budget,
     exit_verdict,
     formulation_option,
     interruptible,
@@ -46,12 +48,13 @@ from amcp_drake.cli.common import (
               help="Re-check a saved trajectory (.json or .json.gz) instead of running the loop.")
 @online_options
 @max_memory_option
+@candidate_budget_option
 @click.pass_context
 @interruptible(lambda kw, exc: f"nothing written to {kw['out_dir']} (its staging folder was removed); "
                "run the command again")
 @bad_input_exits_2
 def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend, formulation, steps, seed, out_dir,
-                trajectory_file, online, max_memory):
+                trajectory_file, online, max_memory, candidate_budget):
     """Run a closed loop and check every claim of the paper independently.
 
     Runs the adaptive MPC on PROBLEM (default: --example lorenzen2019, x0 = [2, 3],
@@ -70,7 +73,8 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
     if trajectory_file is not None:
         from click.core import ParameterSource
 
-        run_options = ("backend", "design_backend", "steps", "seed", *ONLINE_OPTION_NAMES, "max_memory", "x0_template")
+        run_options = ("backend", "design_backend", "steps", "seed", *ONLINE_OPTION_NAMES, "max_memory", "x0_template",
+                       "candidate_budget")
         given = [f"--{name.replace('_', '-')}" for name in run_options
                  if ctx.get_parameter_source(name) is ParameterSource.COMMANDLINE]
         if given:
@@ -82,7 +86,8 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
                                            "a scenario (x0, theta_star, ...) in the problem file to run",
                                            "Add a \"scenario\" object, or pass --trajectory.")
         seed = spec.scenario.seed if seed is None else seed
-        traj = _run(spec, backend, steps, seed, formulation, options, design_backend)
+        traj = _run(spec, backend, steps, seed, formulation, options, design_backend,
+                    design_budget(max_memory, candidate_budget))
         if traj.stop_reason.startswith("inconsistent"):
             click.echo(f"warning: the run stopped: {traj.stop_reason}; certifying the partial trajectory", err=True)
     cert = certify(traj, spec)
@@ -95,13 +100,13 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
 
 
 def _run(spec, backend: str, steps: int, seed: int, formulation: str = "plain", options=None,
-         design_backend: str | None = None):
+         design_backend: str | None = None, budget=None):
     """Offline design, then the closed loop with a progress bar (Drake/cvxpy imported only here); the
     same path as a campaign run (:func:`amcp_drake.online.replay.run_scenario`), so a replay is exact."""
     from amcp_drake.online.replay import run_scenario
 
     return run_scenario(spec, backend, design_backend=design_backend, formulation=formulation, steps=steps,
-                        seed=seed, options=options, progress=True)
+                        seed=seed, options=options, progress=True, design_budget=budget)
 
 
 def _load_trajectory(path: str, problem_file, example):

@@ -107,7 +107,28 @@ class FiniteFloatRange(click.FloatRange):
 max_memory_option = click.option(
     "--max-memory", "max_memory", type=FiniteFloatRange(min=1.0), default=DEFAULT_MAX_MEMORY_MB, show_default=True,
     help="Refuse a run whose estimated size (tube QP nonzeros, recorded steps; docs/problem-format.md, "
-         "'Size limits') exceeds this many MiB, before anything is built.")
+         "'Size limits') exceeds this many MiB, before anything is built; every stage of the offline design is "
+         "sized against the same limit (a design candidate above it is skipped, with the stage named).")
+
+#: Default of ``--candidate-budget`` (seconds per candidate of the automatic design).
+DEFAULT_CANDIDATE_BUDGET = 60.0
+
+candidate_budget_option = click.option(
+    "--candidate-budget", "candidate_budget", type=click.FloatRange(min=0.1), default=DEFAULT_CANDIDATE_BUDGET,
+    show_default=True,
+    help="Time budget in seconds of one candidate of the offline design (automatic mode: a candidate over it is "
+         "recorded as 'time budget' and the next one is tried; a fixed template stops with that reason).")
+
+
+def design_budget(max_memory: float = DEFAULT_MAX_MEMORY_MB, candidate_budget: float | None = DEFAULT_CANDIDATE_BUDGET,
+                  quiet: bool = False):
+    """The :class:`~amcp_drake.offline.budget.DesignBudget` of a command: ``--max-memory``,
+    ``--candidate-budget`` and progress lines on stderr (each design candidate when it starts and ends,
+    long stages every few seconds) unless ``quiet``."""
+    from amcp_drake.offline.budget import DesignBudget
+
+    progress = None if quiet else (lambda line: click.echo(line, err=True))
+    return DesignBudget(max_memory, candidate_budget, progress)
 
 
 def bad_input_exits_2(func: Callable) -> Callable:
@@ -181,7 +202,7 @@ def write_error(option: str, path, exc: OSError) -> ProblemError:
 
 
 x0_template_option = click.option(
-    "--x0-template", "x0_template", type=click.Choice(["auto", "mrpi", "contractive", "given"]), default=None,
+    "--x0-template", "x0_template", type=click.Choice(["auto", "mrpi", "contractive", "given", "parallelotope"]), default=None,
     help="Cross-section template of the tube (docs/decisions.md, 'X0 templates'): auto tries them in a documented "
          "order and keeps the first design passing every check. Default: the problem file's design.x0_template, "
          "else auto. 'given' needs design.x0_H in the file.")

@@ -132,7 +132,9 @@ def estimate_run_size(n: int, m: int, p: int, N: int, facets: int, theta_rows: i
 
 def estimate_for(problem, design_options=None, steps: int = 1, online=None) -> SizeEstimate:
     """:func:`estimate_run_size` for a :class:`~amcp_drake.model.problem.Problem` and its options."""
-    facets = getattr(design_options, "x0_facets", 8) if design_options is not None else 8
+    facets = max(8, 2 * problem.n)
+    if design_options is not None and getattr(design_options, "x0_facets", None) is not None:
+        facets = design_options.x0_facets
     extra = getattr(design_options, "theta_extra_directions", None) if design_options is not None else None
     theta_rows = len(problem.H_theta) + (0 if extra is None else len(np.atleast_2d(extra)))
     window = online.window if online is not None and getattr(online, "update", "") == "window" else 1

@@ -195,13 +195,17 @@ def _answer_counts(traj) -> dict[str, float]:
 
 
 def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure_dir: str,
-                steps: int = CAMPAIGN_STEPS, draw: Callable | None = None) -> dict[str, Any]:
+                steps: int = CAMPAIGN_STEPS, draw: Callable | None = None,
+                max_memory_mb: float | None = None) -> dict[str, Any]:
     """Draw, run and certify problem ``idx`` on each backend (a Dask task; also callable directly).
 
     ``draw(campaign_seed, idx, steps)`` returns the case (default :func:`draw_case`); the run is that
     of the case's complete problem file (:func:`replay_spec`, :func:`round_trip`), through the same
-    :func:`~amcp_drake.online.replay.run_scenario` as ``amcp certify``."""
+    :func:`~amcp_drake.online.replay.run_scenario` as ``amcp certify``. ``max_memory_mb``: the memory limit
+    of the design's stages (``--max-memory``; None: the default limit); a problem above it is recorded as an
+    error naming the stage."""
     from amcp_drake.certificate.certify import certify
+    from amcp_drake.offline.budget import DesignBudget
     from amcp_drake.offline.design import design
     from amcp_drake.online.replay import run_scenario
     from amcp_drake.studies.random_problems import built_scaled
@@ -214,7 +218,8 @@ def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure
         result["labels"] = {k: str(v) for k, v in getattr(case, "labels", {}).items()}
         spec, text = round_trip(replay_spec(case))
         result["digest"] = _digest(text)
-        offline = design(spec.problem, spec.design, backend=DESIGN_BACKEND)
+        budget = DesignBudget() if max_memory_mb is None else DesignBudget(max_memory_mb)
+        offline = design(spec.problem, spec.design, backend=DESIGN_BACKEND, budget=budget)
         trajs = {}
         for backend in backends:
             traj = run_scenario(spec, backend, design_backend=DESIGN_BACKEND, formulation=FORMULATION,
@@ -341,14 +346,16 @@ def store_write_error(store_path: str | Path, exc: BaseException):
 
 def run_campaign(store_path: str | Path, systems: int, backends: Iterable[str] = ("drake", "cvxpy"),
                  seed: int = 0, scheduler: str | None = None, workers: int = 2, resume: bool = False,
-                 steps: int = CAMPAIGN_STEPS, progress: bool = True, failure_dir: str | Path | None = None) -> dict:
+                 steps: int = CAMPAIGN_STEPS, progress: bool = True, failure_dir: str | Path | None = None,
+                 max_memory_mb: float | None = None) -> dict:
     """Run (or resume) a campaign; returns counts {"submitted", "stored", "skipped"}.
 
     The store is held exclusively while the campaign runs (:class:`CampaignStore` ``exclusive``): a
     second campaign on the same store is refused (CampaignStoreError, exit 2), so no problem is run
     twice. A bad ``scheduler`` is refused before the store is touched. An interrupt (KeyboardInterrupt,
     which the CLI raises on SIGTERM too) shuts the workers down and propagates with ``stored``: the
-    number of problems of the campaign in the store."""
+    number of problems of the campaign in the store. ``max_memory_mb``: the design's memory limit in
+    every problem (:func:`run_problem`)."""
     import sqlite3
 
     from dask.distributed import as_completed
@@ -379,7 +386,7 @@ def run_campaign(store_path: str | Path, systems: int, backends: Iterable[str] =
     bar = None
     try:
         futures = [client.submit(run_problem, seed, i, backends, failure_dir, steps, key=f"amcp-{seed}-{i}",
-                                 retries=TASK_RETRIES, pure=False) for i in todo]
+                                 retries=TASK_RETRIES, pure=False, max_memory_mb=max_memory_mb) for i in todo]
         if progress:
             from tqdm import tqdm
 
