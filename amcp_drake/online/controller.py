@@ -22,6 +22,7 @@ from amcp_drake.model.problem import Problem
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.offline.design import OfflineDesign
 from amcp_drake.online import answer_checks
+from amcp_drake.online.formulation_choice import resolve_formulation
 
 #: Rows of Δ_k are scaled to unit norm before the update: near x = 0 the raw rows −H_w D_{k−1} are of
 #: order ‖x_{k−1}‖, and the LP solvers' absolute tolerances then allow errors of order tol/‖row‖ in θ
@@ -51,7 +52,7 @@ QP_NO_ANSWER = RETRIED
 REDUNDANT_ROW_TOL = polytope.REDUNDANCY_TOL
 
 # ufunc reductions called directly: ``ndarray.all``/``sum`` and ``np.all`` reach these same reductions
-# through Python wrappers (~1-2 µs per call in the online loop, issue 16)
+# through Python wrappers (~1-2 µs per call in the online loop)
 _and_reduce = np.logical_and.reduce
 _add_reduce = np.add.reduce
 # Products of 1-D/2-D operands are written ``a.dot(b)``: the BLAS call of ``@`` (gemv/gemm, the same bits:
@@ -132,6 +133,8 @@ class AdaptiveMPC:
         self.problem = problem
         self.design = design
         self.options = options or OnlineOptions()
+        # formulation="auto": the size rule of amcp_drake.online.formulation_choice picks plain or vertex
+        backend_options, self.formulation_choice = resolve_formulation(backend_options, problem, design, self.options)
         self.backend = get_backend(backend, **backend_options)
         self._backend_spec = (backend, dict(backend_options))
         self._other_mpc = None  # the other formulation of (20), built on first need (answer checks)
@@ -176,7 +179,7 @@ class AdaptiveMPC:
         #: the last inputs u_k (m = 1) the PE constraint needs: pe_quadratic reads only the last
         #: pe_window − 1 + n of them, so at most pe_window + n are kept (none without PE)
         self._u_hist: list[float] = []
-        #: (H, h, vertices) of the last Θ_k whose vertices the tube check enumerated (issue 16: reused
+        #: (H, h, vertices) of the last Θ_k whose vertices the tube check enumerated (reused
         #: while Θ_k is unchanged to the bit, which is most steps once Θ_k has settled)
         self._checked_vertices: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
         self._regression_cache: tuple | None = None
@@ -280,10 +283,10 @@ class AdaptiveMPC:
 
         The removed rows are checked in order and a row that is not implied is put back at once, so the
         rows checked after it are checked against it too. Sound: adding rows to the kept set can only
-        shrink it, so a removed row implied by the smaller set stays implied. (Until session 6 one
-        failed row kept every row, and Θ_k grew by ~7 rows a step on campaign seed 13 #6, generator 2;
-        until session 7 the re-check ran HiGHS at its default tolerances, which was the LP 4e-8 off
-        there, not the backend's: rows were put back at 7 of 15 steps, now at none.)"""
+        shrink it, so a removed row implied by the smaller set stays implied. Putting back only the failed
+        row (not every row) keeps Θ_k from growing by several rows a step; the re-check uses the backend's
+        LP tolerances (HiGHS at its defaults was 4e-8 off on campaign seed 13 #6 and put rows back at 7
+        of 15 steps)."""
         H = np.vstack([self.H_theta, H_delta])
         h = np.concatenate([self.h_theta, h_delta])
         _, radius = polytope.chebyshev_center(H, h)
@@ -524,8 +527,8 @@ class AdaptiveMPC:
             other = "vertex" if getattr(self.backend, "formulation", "plain") == "plain" else "plain"
             options = {**backend_options, "formulation": other}
             # the fast path (qp_solver="daqp") is the vertex form's only: the plain form of a fast-path
-            # controller is solved by the backend's solver (found by `amcp bench --quick`, session 8:
-            # the fallback raised ValueError instead of solving)
+            # controller is solved by the backend's solver (with qp_solver="daqp" the plain form
+            # would raise ValueError instead of solving)
             options.pop("qp_solver", None)
             self._other_mpc = get_backend(name, **options).tube_mpc(self.data)
         return self._other_mpc
