@@ -15,13 +15,10 @@ $(BIN)/amcp: pyproject.toml requirements.lock
 	$(BIN)/python -m pip install --quiet --no-deps -e .
 	touch $(BIN)/amcp
 
-# the documentation site: the docs extra (MkDocs and its plugins; not in requirements.lock) on top of
-# the locked environment, pip keeping every locked version that satisfies it
+# the documentation site's tools (the docs extra) are pinned in requirements.lock too
 $(BIN)/mkdocs: $(BIN)/amcp
-	$(BIN)/python -m pip install --quiet -e '.[docs]'
-	touch $(BIN)/mkdocs
 
-LOCK_FLAGS := --extra dev --generate-hashes --python-version 3.11 --python-platform x86_64-manylinux_2_34 \
+LOCK_FLAGS := --extra dev --extra docs --generate-hashes --python-version 3.11 --python-platform x86_64-manylinux_2_34 \
 	--custom-compile-command "make lock" --quiet -o requirements.lock
 
 .PHONY: install run test lint lock upgrade docs

@@ -1,14 +1,19 @@
 """amcp-drake: verification suite for the adaptive robust MPC of Lorenzen, Cannon & Allgöwer (2019).
 
 Public API (imports are lazy so that ``import amcp_drake`` and ``amcp --help`` stay fast; Drake and
-cvxpy are loaded only when a backend is used)::
+cvxpy are loaded only when a backend is used). A run and its certificate, the same verdict and claims
+as ``amcp certify --steps 20`` (tests/test_api_verdict.py; docs/api-snippet.md):
 
-    import amcp_drake as amcp
-    problem = amcp.examples.lorenzen2019()
-    offline = amcp.design(problem, backend="drake")
-    ctrl = amcp.AdaptiveMPC(problem, offline, backend="drake")
-    traj = amcp.simulate(ctrl, x0=[2, 3], theta_star=[0.8, 0.2, -0.5], steps=50, disturbance="uniform")
-    cert = amcp.certify(traj)
+>>> import amcp_drake as amcp
+>>> spec = amcp.examples.lorenzen2019_spec()      # or amcp.load_spec("examples/lorenzen2019.json")
+>>> offline = amcp.design(spec.problem, spec.design, backend="drake")
+>>> ctrl = amcp.AdaptiveMPC(spec.problem, offline, backend="drake")   # or "cvxpy"
+>>> traj = amcp.simulate(ctrl, x0=[2, 3], theta_star=[0.8, 0.2, -0.5], steps=20, disturbance="uniform", seed=0)
+>>> cert = amcp.certify(traj)
+>>> cert.verdict, cert.conformance
+('pass', 'pass')
+>>> cert.solver_answers["summary"][-1]
+'drake answered 21 of 21 tube QPs (20) itself'
 """
 
 from __future__ import annotations

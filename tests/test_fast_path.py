@@ -1,4 +1,4 @@
-"""The fast path of the vertex form (issue 16, amcp_drake/backends/daqp_fast.py): DAQP's answers are
+"""The fast path of the vertex form (amcp_drake/backends/daqp_fast.py): DAQP's answers are
 the QP's (v within 1e-6 of Clarabel at tight tolerances on every step of a short Example 1 run),
 and an answer that fails a check is never used (the step is solved by Clarabel and counted)."""
 
@@ -15,7 +15,7 @@ from amcp_drake.model.status import SolveStatus
 from amcp_drake.online.controller import AdaptiveMPC
 from amcp_drake.online.simulate import disturbance_sequence
 
-#: issue 16: the fast path gives the same v as Clarabel at tight tolerance to 1e-6
+#: the fast path gives the same v as Clarabel at tight tolerance to 1e-6
 V_TOL = 1e-6
 #: Clarabel at tight tolerances: the reference the fast path is compared with
 TIGHT = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10}
@@ -90,7 +90,7 @@ def test_fast_path_needs_the_vertex_form():
 
 def test_the_checks_reject_a_non_finite_answer(fast_run):
     """DAQP 0.11 reported "optimal" with NaN in w and its multipliers (Example 1, 4-facet X0, step 0, in
-    the proximal step; session 8); NaN compares False everywhere, so the checks passed it."""
+    the proximal step); NaN compares False everywhere, so without a finiteness test the checks would pass it."""
     ctrl, _ = fast_run
     model = next(iter(ctrl.mpc._fast.models.values()))
     w, lam = model.last_w.copy(), model.last_lam.copy()
@@ -116,7 +116,7 @@ def test_a_nan_answer_of_daqp_is_solved_by_clarabel(example_spec):
     u, rec = ctrl.step(x)
     # the fallback is Clarabel on the vertex form with the backend's settings: compared with that program
     # solved apart (not with Clarabel at TIGHT: at the default tolerances this step's v is 1.05e-6 from the
-    # tight answer on an AMD EPYC, session 10; that is Clarabel's accuracy, not the fast path's)
+    # tight answer on an AMD EPYC; that is Clarabel's accuracy, not the fast path's)
     ref = DrakeBackend(formulation="vertex").tube_mpc(ctrl.data).solve(x, rec.h_theta, rec.theta_hat)
     assert rec.status is SolveStatus.OPTIMAL, rec.detail
     assert u is not None and np.all(np.isfinite(rec.v))
@@ -142,3 +142,79 @@ def test_a_fast_path_answer_failing_the_controllers_checks_falls_back_to_the_pla
     u, rec = ctrl.step(np.asarray(example_spec.scenario.x0, float))
     assert u is not None and rec.status is SolveStatus.INACCURATE
     assert "fallback: plain form of (20) (checked)" in rec.detail
+
+
+# -- each acceptance check of the fast path at its tolerance edge: 2x outside rejected, 0.5x inside accepted --
+# The documented tolerances (amcp_drake/backends/daqp_fast.py), written here rather than read from the module,
+# so that a loosened constant is caught instead of followed.
+STATIONARITY_TOL = 1e-9
+PRIMAL_TOL = 1e-8
+DUAL_TOL = 1e-8
+def _edge_model(fast_run):
+    ctrl, _ = fast_run
+    model = next(iter(ctrl.mpc._fast.models.values()))
+    w, lam = model.last_w.copy(), model.last_lam.copy()
+    assert model.check(w, lam) == ""
+    return model, w, lam
+
+
+def _stationarity_scale(model, w) -> float:
+    """max(1, ‖q‖∞, ‖P₀ w‖∞) with P₀ the cost Hessian without the regularisation of (z, α)."""
+    P0 = np.array(model.P)
+    zalpha = np.arange(len(w) - len(model.v))
+    P0[zalpha, zalpha] = 0.0
+    return max(1.0, float(np.max(np.abs(model.q))), float(np.max(np.abs(P0 @ w))))
+
+
+@pytest.mark.parametrize("factor, rejected", [(2.0, True), (0.5, False)])
+def test_the_stationarity_check_at_its_tolerance_edge(fast_run, factor, rejected):
+    """A multiplier of an active row moved so that the stationarity residual is factor × STATIONARITY_TOL·scale.
+    With the tolerance loosened from 1e-9 to 1e-6 the 2× answer (a residual of 2e-9·scale) was accepted."""
+    model, w, lam = _edge_model(fast_run)
+    slack = model.b - model.A @ w
+    row = int(np.argmin(slack))                                 # an active row: its slack is ~0
+    size = factor * STATIONARITY_TOL * _stationarity_scale(model, w) / float(np.max(np.abs(model.A[row])))
+    off = lam.copy()
+    off[model.n_alpha + row] += size
+    reason = model.check(w, off)
+    if rejected:
+        assert reason.startswith("stationarity residual"), reason
+    else:
+        assert reason == "", reason
+
+
+@pytest.mark.parametrize("factor, rejected", [(2.0, True), (0.5, False)])
+def test_the_primal_feasibility_check_at_its_tolerance_edge(fast_run, factor, rejected):
+    """w moved in (z, α) only (no cost there, so stationarity is unchanged) across the active rows, the worst
+    one by factor × PRIMAL_TOL·max(1, |b|)."""
+    model, w, lam = _edge_model(fast_run)
+    slack = model.b - model.A @ w
+    row = int(np.argmin(slack))
+    direction = np.zeros_like(w)
+    zalpha = slice(model.n_alpha, len(w) - len(model.v))       # z only: α keeps its bound α >= 0 untouched
+    direction[zalpha] = model.A[row, zalpha]
+    assert np.linalg.norm(direction) > 0
+    rates = (model.A @ direction) / np.maximum(1.0, np.abs(model.b))   # relative violation per unit step
+    active = slack <= 1e-12 * np.maximum(1.0, np.abs(model.b))
+    t = factor * PRIMAL_TOL / float(np.max(rates[active]))
+    moved = w + t * direction
+    worst = float(np.max((model.A @ moved - model.b) / np.maximum(1.0, np.abs(model.b))))
+    assert worst == pytest.approx(factor * PRIMAL_TOL, rel=1e-3)  # the edge the test means
+    reason = model.check(moved, lam)
+    if rejected:
+        assert reason.startswith("primal infeasible"), reason
+    else:
+        assert not reason.startswith("primal infeasible"), reason
+
+
+@pytest.mark.parametrize("factor, rejected", [(2.0, True), (0.5, False)])
+def test_the_multiplier_sign_check_at_its_tolerance_edge(fast_run, factor, rejected):
+    """An inactive row's multiplier set to −factor × DUAL_TOL: 2× is "of the wrong sign"; 0.5× is round-off
+    for that check (the stationarity check, which runs after it, may still reject the answer)."""
+    model, w, lam = _edge_model(fast_run)
+    rows = lam[model.n_alpha:]
+    row = int(np.flatnonzero(rows == 0.0)[0])
+    off = lam.copy()
+    off[model.n_alpha + row] = -factor * DUAL_TOL
+    reason = model.check(w, off)
+    assert reason.startswith("multiplier of the wrong sign") == rejected, reason

@@ -1,4 +1,4 @@
-"""Fast path of the vertex form (issue 16, off by default): the QP (20) solved densely by DAQP, a
+"""Fast path of the vertex form (off by default): the QP (20) solved densely by DAQP, a
 dual active-set solver warm-started from the previous step's active set, every answer checked.
 
 ``DrakeBackend(formulation="vertex", qp_solver="daqp")``. The QP is the one of
@@ -8,8 +8,8 @@ dual active-set solver warm-started from the previous step's active set, every a
     minimise ½ wᵀ P w + qᵀ w   s.t.   α >= 0,   A w <= b,
 
 with P = 2H on v (the condensed cost (17)-(18), :mod:`.condensed_cost`) and zero on (z, α). DAQP
-needs a positive definite P, so P gets :data:`REGULARISATION` on the diagonal of (z, α) (issue 16:
-DAQP reported false infeasibility at N = 5, 4 facets, p = 4 with 1e-10). The answer is then
+needs a positive definite P, so P gets :data:`REGULARISATION` on the diagonal of (z, α) (with
+1e-10 DAQP reported false infeasibility at N = 5, 4 facets, p = 4). The answer is then
 **verified against the original problem** (no regularisation, the original rows, plain numpy):
 
 * DAQP's exit flag says optimal;
@@ -34,7 +34,7 @@ import time
 import numpy as np
 
 #: Diagonal regularisation of (z, α) in DAQP's Hessian (they have no cost of their own). Measured on
-#: Example 1 (issue 16): 1e-8 solves every step; 1e-10 gave false "infeasible" at N = 5, 4 facets,
+#: Example 1: 1e-8 solves every step; 1e-10 gave false "infeasible" at N = 5, 4 facets,
 #: p = 4. Its effect on the optimum is removed from the checks (they use the unregularised cost).
 REGULARISATION = 1e-8
 #: Row violation accepted (relative to max(1, |b|)): Clarabel's own feasibility tolerance is 1e-8.
@@ -151,7 +151,7 @@ class DaqpVertexQP:
         if not (np.all(np.isfinite(w)) and np.all(np.isfinite(lam))):
             # DAQP 0.11 can report "optimal" with NaN: measured on Example 1, 4-facet X0, step 0, in the
             # proximal step after update(f=...) (the same QP solved afresh is finite); every comparison
-            # below is False for NaN, so without this line the answer passed every check (session 8)
+            # below is False for NaN, so without this line such an answer would pass every check
             return "non-finite answer (NaN or inf in w or the multipliers)"
         na = self.n_alpha
         slack = self.b - self.A @ w
@@ -174,20 +174,66 @@ class DaqpVertexQP:
         return ""
 
 
+#: Steps of the measured switch: on the first CALIBRATION_STEPS steps that DAQP answers, the same
+#: step is also solved (and timed) by Clarabel; the fast path stays on only if DAQP's median thread
+#: CPU time is at most Clarabel's. Measured on Example 1 (scaling table, benchmarks/README.md): DAQP
+#: 2.6× faster at N = 10, 1.2× at N = 20, 2.1× slower at N = 40; a size rule alone would depend on the
+#: number of active constraints, which only the solve itself shows.
+CALIBRATION_STEPS = 3
+#: The dense workspace of one DAQP model holds (rows × variables) float64 entries: above this many
+#: (32 MB) the model is not built and the fast path is switched off (every step by Clarabel).
+MAX_DENSE_ENTRIES = 4_000_000
+
+
 class DaqpFastPath:
-    """The DAQP models of one tube QP, one per vertex count S (made on first use), and the count of
-    steps answered by DAQP and of fallbacks to Clarabel."""
+    """The DAQP models of one tube QP, one per vertex count S (made on first use), the count of steps
+    answered by DAQP and of fallbacks to Clarabel, and the measured switch: ``active`` turns False
+    (for the rest of the run, with ``off_reason``) when DAQP was slower than Clarabel on the first
+    :data:`CALIBRATION_STEPS` steps, or when a dense model would exceed :data:`MAX_DENSE_ENTRIES`."""
 
     def __init__(self, order: np.ndarray, n_alpha: int, v_slice: slice, fixed_A: np.ndarray,
                  fixed_b: np.ndarray, A15b: np.ndarray, rows_per_vertex: int) -> None:
         self._args = (order, n_alpha, v_slice, fixed_A, fixed_b, A15b)
         self._rows_per_vertex = rows_per_vertex
+        self._fixed_rows = A15b.shape[0] + len(fixed_b)
+        self._size = len(order)
         self.models: dict[int, DaqpVertexQP] = {}
         self.counts = {"daqp": 0, "fallback": 0}
         self.last_fallback = ""  # the reason of the last fallback (also in MPCSolution.detail)
+        self.active = True
+        self.off_reason = ""
+        #: (DAQP CPU s, Clarabel CPU s) of the calibration steps
+        self.calibration: list[tuple[float, float]] = []
 
-    def model(self, S: int) -> DaqpVertexQP:
+    @property
+    def calibrating(self) -> bool:
+        """True while the measured switch still times Clarabel beside DAQP."""
+        return self.active and len(self.calibration) < CALIBRATION_STEPS
+
+    def calibrate(self, daqp_cpu: float, clarabel_cpu: float) -> None:
+        """Record one calibration step; after the last one, switch off when DAQP's median is larger."""
+        self.calibration.append((float(daqp_cpu), float(clarabel_cpu)))
+        if len(self.calibration) == CALIBRATION_STEPS:
+            fast, slow = (float(np.median([c[i] for c in self.calibration])) for i in (0, 1))
+            if fast > slow:
+                self.switch_off(f"DAQP {1e3 * fast:.2f} ms > Clarabel {1e3 * slow:.2f} ms CPU per step "
+                                f"(median of {CALIBRATION_STEPS} steps)")
+
+    def switch_off(self, reason: str) -> None:
+        self.active, self.off_reason = False, reason
+
+    def dense_entries(self, S: int) -> int:
+        """Entries of the dense constraint matrix of the model for S vertices."""
+        return (self._fixed_rows + S * self._rows_per_vertex) * self._size
+
+    def model(self, S: int) -> DaqpVertexQP | None:
+        """The model for S vertices (made on first use); None (and the fast path off) when it would
+        exceed :data:`MAX_DENSE_ENTRIES`."""
         if S not in self.models:
+            entries = self.dense_entries(S)
+            if entries > MAX_DENSE_ENTRIES:
+                self.switch_off(f"dense QP of {entries} entries > {MAX_DENSE_ENTRIES} (S = {S} vertices)")
+                return None
             self.models[S] = DaqpVertexQP(*self._args, tube_rows=S * self._rows_per_vertex)
         return self.models[S]
 
@@ -200,4 +246,4 @@ class DaqpFastPath:
         return y, detail, elapsed
 
 
-__all__ = ["REGULARISATION", "DaqpFastPath", "DaqpVertexQP"]
+__all__ = ["CALIBRATION_STEPS", "MAX_DENSE_ENTRIES", "REGULARISATION", "DaqpFastPath", "DaqpVertexQP"]

@@ -224,10 +224,22 @@ class DrakeVertexTubeMPC:
         Hv, g, const = self._cost_model.matrices(x, theta_hat)
         g2 = _TWO * g  # 2g: Drake's linear term (½ yᵀ(2H)y + (2g)ᵀy) and the cost's 2gᵀv, computed once
         fast_note = ""
-        if self._fast is not None:
+        if self._fast is not None and self._fast.active:
+            cpu = time.thread_time()
             sol, fast_note = self._solve_fast(S, vertices, b15b, Hv, g, g2, const, start)
             if sol is not None:
+                if self._fast.calibrating:
+                    # the measured switch (daqp_fast.DaqpFastPath.calibrate): the same step by Clarabel, timed
+                    fast_cpu, cpu = time.thread_time() - cpu, time.thread_time()
+                    self._solve_clarabel(S, vertices, b15b, Hv, g2, const, start, "")
+                    self._fast.calibrate(fast_cpu, time.thread_time() - cpu)
                 return sol
+        elif self._fast is not None:
+            fast_note = f"; fast path off: {self._fast.off_reason}"
+        return self._solve_clarabel(S, vertices, b15b, Hv, g2, const, start, fast_note)
+
+    def _solve_clarabel(self, S, vertices, b15b, Hv, g2, const, start, fast_note: str) -> MPCSolution:
+        """The step's QP (20) by the Drake program (Clarabel unless another solver was named)."""
         if self._drake_version != self._vertex_version or self._tube_S != S:
             rows = self._rows_for(S)
             rows.write(self._block(vertices))
@@ -282,6 +294,8 @@ class DrakeVertexTubeMPC:
         else (None, note for the detail of the Clarabel solve that follows); counted in
         ``fast_path_counts``."""
         model = self._fast.model(S)
+        if model is None:
+            return None, f"; fast path off: {self._fast.off_reason}"
         if model.version != self._vertex_version:
             rows = self._rows_for(S)
             rows.write(self._block(vertices))

@@ -17,6 +17,14 @@ backend that ran the loop):
 * the optimality of the recorded (z, α, v) for the QP (20) rebuilt from the record, by KKT
   residuals (:mod:`amcp_drake.certificate.optimality`).
 
+The claims are checked on the answers the controller applied (a checked fallback answer is a solved
+step for Theorem 14). Whose answers they were is reported beside the verdict: the section
+``solver_answers`` counts, per problem, the backend's first answers, re-solves, fallbacks (with
+their kind and the check that rejected the backend's answer) and unsolved steps
+(:mod:`amcp_drake.online.answers`), and :attr:`Certificate.conformance` is the backend's own verdict
+line: ``"fail"`` when any of its answers was rejected, so that a backend defect reads as one, never as
+a failed theorem and never as nothing.
+
 Each claim is a :class:`~amcp_drake.model.check_result.CheckResult` (margin, tolerance, worst step in
 ``data["worst_step"]``). :attr:`Certificate.passed` is True only when every claim passed: a claim
 that could not run (``not_run``) makes the verdict ``"incomplete"``, which is not a pass. The JSON
@@ -43,12 +51,16 @@ from amcp_drake.model.errors import TrajectoryError
 from amcp_drake.model.problem import ProblemSpec
 from amcp_drake.model.problem_io import jsonable
 from amcp_drake.model.status import SolveStatus
+from amcp_drake.online import answers
 from amcp_drake.online.simulate import Trajectory
 
 CERTIFICATE_FORMAT = "amcp-certificate"
 #: Version of the certificate JSON layout (bump on any incompatible change; see docs/certificate.md).
 CERTIFICATE_VERSION = 1
 VERDICT_PASS, VERDICT_FAIL, VERDICT_INCOMPLETE = "pass", "fail", "incomplete"
+#: Backend conformance (:func:`amcp_drake.online.answers.summarize`): every answer the backend's own;
+#: some answer rejected by a check; provenance not recorded.
+CONFORMANCE_PASS, CONFORMANCE_FAIL, CONFORMANCE_UNKNOWN = "pass", "fail", "unknown"
 #: Recorded copies of the same number (x_k in the record and in the state array) must agree exactly
 #: up to float64 rounding of a JSON round trip (which is exact); anything else is a corrupt file.
 DUPLICATE_TOL = 1e-12
@@ -65,6 +77,15 @@ class Certificate:
     run: dict[str, Any]
     problem: dict[str, Any]
     created: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds"))
+    #: the ``solver_answers`` section (:func:`amcp_drake.online.answers.summarize`)
+    solver_answers: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def conformance(self) -> str:
+        """The backend's verdict line: ``"pass"`` (every answer was its own, first or re-solved),
+        ``"fail"`` (an answer was rejected by a check: a backend defect, whatever the claims say) or
+        ``"unknown"`` (a trajectory without provenance)."""
+        return self.solver_answers.get("conformance", CONFORMANCE_UNKNOWN)
 
     @property
     def not_claimed(self) -> list[dict[str, str]]:
@@ -105,6 +126,7 @@ class Certificate:
             "created": self.created, "verdict": self.verdict, "passed": self.passed, "counts": self.counts(),
             "problem": self.problem, "run": self.run,
             "claims": [claim_to_dict(c) for c in self.claims],
+            "backend_conformance": self.conformance, "solver_answers": self.solver_answers,
             "figures": self.figures, "series": self.series,
         })
 
@@ -135,7 +157,7 @@ def certify(traj: Trajectory, problem_spec: ProblemSpec | None = None) -> Certif
     numbers, copies of the same quantity that disagree); wrong *values* are failed claims instead.
     """
     validate_trajectory(traj)
-    state_bound = traj.mu_state_bound
+    state_bound = traj.mu_state_bound if traj.mu_state_bound is not None else traj.design.mu_state_bound
     if problem_spec is not None:
         _require_same_problem(traj, problem_spec)
         if state_bound is None:
@@ -151,7 +173,8 @@ def certify(traj: Trajectory, problem_spec: ProblemSpec | None = None) -> Certif
     claims = [c for c in claims if not c.data.get("not_claimed")]
     return Certificate(claims=claims, figures=figures, series=series, run=info,
                        problem={"name": traj.problem.name, "n": traj.problem.n, "m": traj.problem.m,
-                                "p": traj.problem.p, "N": traj.problem.N})
+                                "p": traj.problem.p, "N": traj.problem.N},
+                       solver_answers=answers.summarize(traj.records, traj.backend))
 
 
 # -- design ------------------------------------------------------------------------------------------
@@ -246,7 +269,7 @@ def validate_trajectory(traj: Trajectory) -> None:
 
 
 def has_no_multipliers(traj: Trajectory) -> bool:
-    """True for runs of the vertex formulation (issue 8), whose QP has no Λ (records hold None)."""
+    """True for runs of the vertex formulation, whose QP has no Λ (records hold None)."""
     return traj.meta.get("formulation") == "vertex"
 
 

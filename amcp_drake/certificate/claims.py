@@ -21,7 +21,7 @@ import numpy as np
 from amcp_drake.model import polytope
 from amcp_drake.model.check_result import CheckResult, judge, not_run
 from amcp_drake.model.polytope import theta_vertices
-from amcp_drake.model.status import SolveStatus
+from amcp_drake.online import answers
 from amcp_drake.online.simulate import Trajectory
 
 # -- tolerances --------------------------------------------------------------------------------
@@ -146,14 +146,18 @@ class RunView:
     def inputs(self) -> list[tuple[int, np.ndarray, np.ndarray]]:
         out = [(k, self.traj.x[k], self.traj.u[k]) for k in range(self.T)]
         if len(self.records) == self.T + 1 and self.records[-1].u is not None \
-                and self.records[-1].status is SolveStatus.OPTIMAL:
+                and answers.qp_applied(self.records[-1]):
             out.append((self.T, self.traj.x[self.T], np.asarray(self.records[-1].u, float)))
         return out
 
     @cached_property
     def solved(self) -> list[int]:
-        """Steps whose tube QP (20) returned a solution (z, α, v, Λ recorded)."""
-        return [r.k for r in self.records if r.status is SolveStatus.OPTIMAL and r.z is not None]
+        """Steps that applied a checked answer of the tube QP (20) (z, α, v recorded): the backend's own,
+        or a checked answer of the other formulation after the backend's was rejected
+        (:func:`amcp_drake.online.answers.qp_applied`; a record without provenance: status "optimal").
+        The claims are checked on the answers the controller applied; whose answers they were is the
+        certificate's ``solver_answers`` section."""
+        return [r.k for r in self.records if answers.qp_applied(r)]
 
     @cached_property
     def theta_k_vertices(self) -> list[np.ndarray | None]:
@@ -241,13 +245,16 @@ def mu_precondition(view: RunView, state_bound: float | None) -> CheckResult:
 def recursive_feasibility(view: RunView) -> CheckResult:
     """Theorem 14 (i): the QP (20) (and the updates (9), (12) before it) solved at every step.
 
-    Margin: −(number of steps k = 0..T without an optimal solution, missing records included).
+    A step counts as solved when the controller applied a checked answer of (20) (:attr:`RunView.solved`),
+    whichever method gave it: a backend defect is the ``solver_answers`` section's, not Theorem 14's.
+    Margin: −(number of steps k = 0..T without an applied answer, missing records included).
     """
     expected = view.T + 1
-    failed = [r.k for r in view.records if r.status is not SolveStatus.OPTIMAL]
+    solved = set(view.solved)
+    failed = [r.k for r in view.records if r.k not in solved]
     missing = list(range(len(view.records), expected))
     bad = sorted(failed + missing)
-    statuses = {r.k: r.status.value for r in view.records if r.status is not SolveStatus.OPTIMAL}
+    statuses = {r.k: r.status.value for r in view.records if r.k not in solved}
     detail = (f"{expected - len(bad)} of {expected} steps solved; stop reason: {view.traj.stop_reason}"
               + (f"; failed: {statuses}" if statuses else "") + (f"; missing records: {missing}" if missing else ""))
     return tag(judge("recursive feasibility", "Theorem 14 (i): 𝔻(x_k, Θ_k) ≠ ∅ and the QP (20) solved at every step",
@@ -437,7 +444,7 @@ def lms_update(view: RunView) -> CheckResult:
         if k + 1 >= len(view.records):
             continue
         nxt = view.records[k + 1]
-        if nxt.projection_status is not SolveStatus.OPTIMAL:
+        if not answers.projection_is_projection(nxt):  # a kept θ̂_k or a centre: no projection claimed
             continue
         th = view.records[k].theta_hat
         D = view.regressor(k)

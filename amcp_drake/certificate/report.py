@@ -113,18 +113,22 @@ def write_outputs(out_dir: str | os.PathLike, traj: Trajectory, cert: Certificat
     out.mkdir(parents=True, exist_ok=True)
     remove_stale_staging(out)
     staging = out / f".certify-staging-{uuid.uuid4().hex}"
-    staging.mkdir()
-    with open(staging / STAGING_LOCK, "wb") as lock:
+    lock = None
+    try:  # a failure (a full disk) or an interrupt before the commit leaves nothing behind
+        staging.mkdir()
+        lock = open(staging / STAGING_LOCK, "wb")
         fcntl.flock(lock, fcntl.LOCK_EX)  # held while this process writes (the kernel drops it on a kill)
-        try:
-            (staging / CERTIFICATE_FILE).write_text(json.dumps(cert.to_dict(), indent=1, allow_nan=False))
-            (staging / REPORT_FILE).write_text(render_report(traj, cert), encoding="utf-8")
-            traj.save(staging / TRAJECTORY_FILE)
-        except BaseException:
-            shutil.rmtree(staging, ignore_errors=True)
-            if created:
-                shutil.rmtree(out, ignore_errors=True)
-            raise
+        (staging / CERTIFICATE_FILE).write_text(json.dumps(cert.to_dict(), indent=1, allow_nan=False))
+        (staging / REPORT_FILE).write_text(render_report(traj, cert), encoding="utf-8")
+        traj.save(staging / TRAJECTORY_FILE)
+    except BaseException:
+        if lock is not None:
+            lock.close()
+        shutil.rmtree(staging, ignore_errors=True)
+        if created:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+    with lock:
         _commit(staging, out)
     return out
 

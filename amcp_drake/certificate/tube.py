@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from amcp_drake.certificate.claims import RunView, max_over_set, step_check, tag
+from amcp_drake.certificate.claims import RunView, max_over_set, not_claimed, step_check, tag
 from amcp_drake.model import polytope
 from amcp_drake.model.check_result import CheckResult, judge
 
@@ -175,6 +175,15 @@ def tube_checks(view: RunView) -> list[CheckResult]:
         # The vertex formulation enforces (5b) at the vertices of Θ_k without multipliers: there is no Λ
         # to check. (5b) itself is still checked above by vertex enumeration (tube_propagation).
         return checks
+    if view.solved and not lam_nonneg:
+        # every applied answer is the vertex form's (the plain form's answers were rejected and the
+        # other formulation answered): no Λ was applied, so no claim about Λ is made for this run
+        reason = ("every applied answer of (20) is the vertex form's (no multipliers): the plain form's answers were "
+                  "rejected, see solver_answers")
+        return checks + [not_claimed(cid, name, claim, GROUP_TUBE, reason) for cid, name, claim in (
+            ("multipliers_nonneg", "Λ >= 0", "Proposition 9: the multipliers Λ^j_(l|k) are non-negative"),
+            ("multipliers_15c", "(15c) residual", "(15c): Λ^j h_θk + H_x d^j − α_(l+1) 1 <= −w̄ with the recorded Λ"),
+            ("multipliers_15d", "(15d) residual", "(15d): H_x D^j = Λ^j H_θk with the recorded Λ"))]
     return checks + [
         step_check("multipliers_nonneg", GROUP_TUBE, "Λ >= 0", "Proposition 9: the multipliers Λ^j_(l|k) are non-negative",
                    lam_nonneg, QP_TOL, "margin = min entry of Λ", none),

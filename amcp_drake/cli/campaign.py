@@ -18,6 +18,7 @@ from amcp_drake.cli.common import (
     EXIT_OK,
     bad_input_exits_2,
     exit_verdict,
+    max_memory_option,
     output_file_callback,
     store_path_callback,
 )
@@ -39,6 +40,7 @@ def summary_text(store) -> str:
     lines.append(f"{'coverage':34s} {'backend':8s} {'fraction':>9s} {'runs':>6s}")
     for key, backend, frac, count in store.coverage_table():
         lines.append(f"{key:34s} {backend:8s} {frac:9.2f} {count:6d}")
+    lines += [""] + answer_lines(store.answer_table())
     lines.append("")
     lines.append("slowest problems: " + ", ".join(f"#{idx} {sec:.1f} s" for _, idx, sec in store.slowest()))
     failures = store.failures()
@@ -52,6 +54,25 @@ def summary_text(store) -> str:
         else:
             lines.append(f"  seed {seed} #{idx}: (no replay files: " + ((message or "").splitlines() or [""])[0] + ")")
     return "\n".join(lines)
+
+
+def answer_lines(rows: list[tuple[str, str, float, int, int]]) -> list[str]:
+    """Fallback and re-solve rates per backend and kind: of the backend's answers of each problem, the share
+    that was not its first answer, and the problems with at least one such step."""
+    totals = {(backend, key[: -len("_answers")]): total for key, backend, total, _, _ in rows if key.endswith("_answers")}
+    lines = [f"{'solver answers':44s} {'backend':8s} {'steps':>7s} {'rate':>9s} {'problems':>9s}"]
+    for key, backend, total, with_any, problems in rows:
+        for outcome in ("resolved", "fallback", "not_solved"):
+            head, sep, kind = key.partition(f"_{outcome}")
+            if sep and (kind == "" or kind.startswith("_")) and head.startswith("answers_"):
+                answered = totals.get((backend, head), 0.0)
+                rate = total / answered if answered else float("nan")
+                label = f"{head[len('answers_'):]} {outcome}{(' ' + kind[1:]) if kind else ''}"
+                lines.append(f"{label:44s} {backend:8s} {int(total):7d} {rate:9.2%} {int(with_any):5d}/{problems}")
+                break
+    if len(lines) == 1:
+        lines.append("(no solver answers recorded)")
+    return lines
 
 
 def report_html(store, damage: list[str] | None = None) -> str:
@@ -92,8 +113,9 @@ def report_html(store, damage: list[str] | None = None) -> str:
               "problems are skipped; other settings are refused).")
 @click.option("--report", "report_file", default=None, type=click.Path(), callback=output_file_callback,
               help="Only render the store as HTML to this file (no run).")
+@max_memory_option
 @bad_input_exits_2
-def campaign_cmd(systems, backends, seed, scheduler, workers, store_path, steps, resume, report_file):
+def campaign_cmd(systems, backends, seed, scheduler, workers, store_path, steps, resume, report_file, max_memory):
     """Verification campaign of random problems on Dask, stored in SQLite.
 
     Draws random problems (the library's numpy generator, amcp_drake.studies.random_problems), runs
@@ -110,7 +132,7 @@ def campaign_cmd(systems, backends, seed, scheduler, workers, store_path, steps,
     from amcp_drake.studies.campaign import run_campaign
 
     counts = run_campaign(store_path, systems, chosen, seed=seed, scheduler=scheduler, workers=workers,
-                          resume=resume, steps=steps)
+                          resume=resume, steps=steps, max_memory_mb=max_memory)
     store = CampaignStore(store_path)
     click.echo(f"submitted {counts['submitted']}, stored {counts['stored']}, skipped (already stored) {counts['skipped']}")
     click.echo(summary_text(store))

@@ -1,7 +1,8 @@
 """``amcp certify``: run a closed loop (or load a saved one), check every claim independently, write the bundle.
 
-Exit codes: 0 every claim holds; 1 a claim failed **or could not be checked** (verdict
-``incomplete``: a claim that did not run is not a pass); 2 bad input (unreadable or malformed
+Exit codes: 0 every claim holds and every solver answer was the backend's own; 1 a claim failed **or
+could not be checked** (verdict ``incomplete``: a claim that did not run is not a pass), or the backend's
+conformance failed (a check rejected one of its answers and a fallback answered); 2 bad input (unreadable or malformed
 problem or trajectory file, bad option, --out naming a file). On exit 2 no
 output is written; on 0 and 1 the bundle (certificate.json, report.html, trajectory.json.gz) is
 written atomically into --out.
@@ -15,8 +16,11 @@ from amcp_drake.cli.common import (
     ONLINE_OPTION_NAMES,
     backend_option,
     bad_input_exits_2,
+    candidate_budget_option,
+    design_budget,
     exit_verdict,
     formulation_option,
+    interruptible,
     load_problem_spec,
     max_memory_option,
     online_options,
@@ -25,6 +29,7 @@ from amcp_drake.cli.common import (
     problem_options,
     seed_option,
     steps_option,
+    write_error,
 )
 
 
@@ -43,10 +48,13 @@ from amcp_drake.cli.common import (
               help="Re-check a saved trajectory (.json or .json.gz) instead of running the loop.")
 @online_options
 @max_memory_option
+@candidate_budget_option
 @click.pass_context
+@interruptible(lambda kw, exc: f"nothing written to {kw['out_dir']} (its staging folder was removed); "
+               "run the command again")
 @bad_input_exits_2
 def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend, formulation, steps, seed, out_dir,
-                trajectory_file, online, max_memory):
+                trajectory_file, online, max_memory, candidate_budget):
     """Run a closed loop and check every claim of the paper independently.
 
     Runs the adaptive MPC on PROBLEM (default: --example lorenzen2019, x0 = [2, 3],
@@ -54,8 +62,9 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
     from the recorded data with numpy/scipy only, and writes certificate.json, report.html and
     trajectory.json.gz into --out.
 
-    Exit code 0: every claim holds; 1: a claim failed or could not be checked (the bundle is
-    still written); 2: bad input (nothing is written). See docs/certificate.md."""
+    Exit code 0: every claim holds and the backend answered every problem itself; 1: a claim failed or
+    could not be checked, or a check rejected a backend answer (backend conformance failed; the bundle
+    is still written); 2: bad input (nothing is written). See docs/certificate.md."""
     from amcp_drake.certificate.certify import certify
     from amcp_drake.certificate.report import check_out_dir, remove_stale_staging, write_outputs
     from amcp_drake.model.errors import ProblemError
@@ -64,7 +73,8 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
     if trajectory_file is not None:
         from click.core import ParameterSource
 
-        run_options = ("backend", "design_backend", "steps", "seed", *ONLINE_OPTION_NAMES, "max_memory", "x0_template")
+        run_options = ("backend", "design_backend", "steps", "seed", *ONLINE_OPTION_NAMES, "max_memory", "x0_template",
+                       "candidate_budget")
         given = [f"--{name.replace('_', '-')}" for name in run_options
                  if ctx.get_parameter_source(name) is ParameterSource.COMMANDLINE]
         if given:
@@ -76,23 +86,27 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
                                            "a scenario (x0, theta_star, ...) in the problem file to run",
                                            "Add a \"scenario\" object, or pass --trajectory.")
         seed = spec.scenario.seed if seed is None else seed
-        traj = _run(spec, backend, steps, seed, formulation, options, design_backend)
+        traj = _run(spec, backend, steps, seed, formulation, options, design_backend,
+                    design_budget(max_memory, candidate_budget))
         if traj.stop_reason.startswith("inconsistent"):
             click.echo(f"warning: the run stopped: {traj.stop_reason}; certifying the partial trajectory", err=True)
     cert = certify(traj, spec)
-    out = write_outputs(out_dir, traj, cert)
+    try:
+        out = write_outputs(out_dir, traj, cert)
+    except OSError as exc:  # a full disk or a failing medium: write_outputs removed what it had staged
+        raise write_error("--out", out_dir, exc) from None
     _print(cert, out)
-    exit_verdict(cert.passed)
+    exit_verdict(cert.passed and cert.conformance != "fail")
 
 
 def _run(spec, backend: str, steps: int, seed: int, formulation: str = "plain", options=None,
-         design_backend: str | None = None):
+         design_backend: str | None = None, budget=None):
     """Offline design, then the closed loop with a progress bar (Drake/cvxpy imported only here); the
     same path as a campaign run (:func:`amcp_drake.online.replay.run_scenario`), so a replay is exact."""
     from amcp_drake.online.replay import run_scenario
 
     return run_scenario(spec, backend, design_backend=design_backend, formulation=formulation, steps=steps,
-                        seed=seed, options=options, progress=True)
+                        seed=seed, options=options, progress=True, design_budget=budget)
 
 
 def _load_trajectory(path: str, problem_file, example):
@@ -134,4 +148,19 @@ def _print(cert, out) -> None:
     else:
         click.echo(f"NOT CERTIFIED (incomplete): {counts['not_run']} claim(s) could not be checked: "
                    f"{', '.join(cert.ids('not_run'))}")
+    answers = cert.solver_answers
+    for line in answers.get("summary", []):
+        click.echo(f"solver answers: {line}" if not line.startswith(" ") else f"               {line}")
+    if cert.conformance == "fail":
+        click.echo(f"BACKEND CONFORMANCE FAILED: {answers['backend']}'s answers were rejected by the answer checks at "
+                   f"step(s) {_steps(answers['rejected_steps'])}; the claims above are checked on the answers the "
+                   "controller applied (the fallbacks'), so this is a defect of the backend, not of the paper's claims")
+    elif cert.conformance == "pass":
+        click.echo(f"backend conformance: pass ({answers['backend']} answered every problem itself)")
+    else:
+        click.echo("backend conformance: unknown (the trajectory has no record of how its solver answers were obtained)")
     click.echo(f"wrote {out}/certificate.json, {out}/report.html, {out}/trajectory.json.gz")
+
+
+def _steps(steps: list[int]) -> str:
+    return ", ".join(map(str, steps[:10])) + (f", ... ({len(steps)} in all)" if len(steps) > 10 else "")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import functools
 import sys
 from collections.abc import Callable
@@ -90,10 +91,44 @@ def seeds_option(help_text: str, default: int):
                         help=help_text)
 
 
+class FiniteFloatRange(click.FloatRange):
+    """A click FloatRange that refuses NaN and ±inf (``nan >= 1`` is false, so FloatRange lets NaN
+    through, and an infinite limit is no limit)."""
+
+    def convert(self, value, param, ctx):
+        import math
+
+        number = click.FLOAT.convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number.", param, ctx)
+        return super().convert(number, param, ctx)
+
+
 max_memory_option = click.option(
-    "--max-memory", "max_memory", type=click.FloatRange(min=1.0), default=DEFAULT_MAX_MEMORY_MB, show_default=True,
+    "--max-memory", "max_memory", type=FiniteFloatRange(min=1.0), default=DEFAULT_MAX_MEMORY_MB, show_default=True,
     help="Refuse a run whose estimated size (tube QP nonzeros, recorded steps; docs/problem-format.md, "
-         "'Size limits') exceeds this many MiB, before anything is built.")
+         "'Size limits') exceeds this many MiB, before anything is built; every stage of the offline design is "
+         "sized against the same limit (a design candidate above it is skipped, with the stage named).")
+
+#: Default of ``--candidate-budget`` (seconds per candidate of the automatic design).
+DEFAULT_CANDIDATE_BUDGET = 60.0
+
+candidate_budget_option = click.option(
+    "--candidate-budget", "candidate_budget", type=click.FloatRange(min=0.1), default=DEFAULT_CANDIDATE_BUDGET,
+    show_default=True,
+    help="Time budget in seconds of one candidate of the offline design (automatic mode: a candidate over it is "
+         "recorded as 'time budget' and the next one is tried; a fixed template stops with that reason).")
+
+
+def design_budget(max_memory: float = DEFAULT_MAX_MEMORY_MB, candidate_budget: float | None = DEFAULT_CANDIDATE_BUDGET,
+                  quiet: bool = False):
+    """The :class:`~amcp_drake.offline.budget.DesignBudget` of a command: ``--max-memory``,
+    ``--candidate-budget`` and progress lines on stderr (each design candidate when it starts and ends,
+    long stages every few seconds) unless ``quiet``."""
+    from amcp_drake.offline.budget import DesignBudget
+
+    progress = None if quiet else (lambda line: click.echo(line, err=True))
+    return DesignBudget(max_memory, candidate_budget, progress)
 
 
 def bad_input_exits_2(func: Callable) -> Callable:
@@ -113,8 +148,61 @@ def bad_input_exits_2(func: Callable) -> Callable:
     return wrapper
 
 
+class Terminated(KeyboardInterrupt):
+    """Raised in the main thread on SIGTERM while a command of :func:`interruptible` runs, so that a
+    SIGTERM unwinds exactly like Ctrl-C (staging folders removed, workers stopped, stores closed)."""
+
+
+def _raise_terminated(signum, frame) -> None:
+    raise Terminated()
+
+
+def interruptible(describe: Callable[[dict, BaseException], str]) -> Callable:
+    """Handle SIGTERM like SIGINT in a command and end an interrupt with one line on stderr,
+    ``interrupted (SIGTERM): <describe(kwargs, exc)>``, and exit code 128 + the signal number (130 on
+    Ctrl-C, 143 on SIGTERM) instead of click's "Aborted!" or a traceback. ``describe`` says what was
+    (not) written and how to continue, from the command's keyword arguments."""
+    import signal
+
+    def decorate(func: Callable) -> Callable:
+        @functools.wraps(func)
+        def wrapper(*args, **kwargs):
+            import threading
+
+            main = threading.current_thread() is threading.main_thread()
+            previous = signal.signal(signal.SIGTERM, _raise_terminated) if main else None
+            try:
+                return func(*args, **kwargs)
+            except KeyboardInterrupt as exc:
+                signum = signal.SIGTERM if isinstance(exc, Terminated) else signal.SIGINT
+                try:
+                    text = describe(kwargs, exc)
+                except Exception:  # noqa: BLE001 - the line is said even if the description fails
+                    text = "stopped"
+                click.echo(f"interrupted ({signum.name}): {text}", err=True)
+                sys.exit(128 + signum)
+            finally:
+                if main:
+                    signal.signal(signal.SIGTERM, previous)
+
+        return wrapper
+
+    return decorate
+
+
+#: errno values of a failed write that the user can fix (full disk, quota, read-only or failing medium).
+WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EIO, errno.EFBIG})
+
+
+def write_error(option: str, path, exc: OSError) -> ProblemError:
+    """A ProblemError naming ``option`` for a write that failed with ``exc`` (a full disk: ENOSPC)."""
+    name = errno.errorcode.get(exc.errno or 0, "")
+    cause = f"{exc.strerror or exc}" + (f" ({name})" if name else "")
+    return ProblemError(option, "a place where the output can be written", f"{path}: {cause}; nothing was written")
+
+
 x0_template_option = click.option(
-    "--x0-template", "x0_template", type=click.Choice(["auto", "mrpi", "contractive", "given"]), default=None,
+    "--x0-template", "x0_template", type=click.Choice(["auto", "mrpi", "contractive", "given", "parallelotope"]), default=None,
     help="Cross-section template of the tube (docs/decisions.md, 'X0 templates'): auto tries them in a documented "
          "order and keeps the first design passing every check. Default: the problem file's design.x0_template, "
          "else auto. 'given' needs design.x0_H in the file.")

@@ -38,11 +38,14 @@ from amcp_drake.cli.common import (
               callback=output_file_callback,
               help="JSON file with every difference.")
 @formulation_option
+@click.option("--allow-fallbacks", is_flag=True,
+              help="Accept steps where one backend's answer failed its check and a re-solve or fallback answered "
+                   "(by default such a step is a disagreement, exit 1, naming the step, the backend and the check).")
 @click.option("--quiet", is_flag=True, help="Only the summary, no per-step table.")
 @max_memory_option
 @bad_input_exits_2
 def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_solver, cvxpy_solver, accurate, online,
-                out_file, formulation, quiet, max_memory):
+                out_file, formulation, allow_fallbacks, quiet, max_memory):
     """Compare u, v, cost, h_theta and theta_hat (and report z, alpha) of both backends per step."""
     from amcp_drake.comparison.compare import ACCURATE_CLARABEL, INFORMATIONAL, TOLERANCES, independent, lockstep
     from amcp_drake.model.errors import ProblemError
@@ -58,7 +61,7 @@ def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_sol
     backend_options = ({"solver": drake_solver, "formulation": formulation, **tolerances},
                        {"solver": cvxpy_solver, "formulation": formulation, **tolerances})
     run = lockstep if mode == "lockstep" else independent
-    comp = run(spec, steps, seed, options=options, backend_options=backend_options)
+    comp = run(spec, steps, seed, options=options, backend_options=backend_options, allow_fallbacks=allow_fallbacks)
 
     if not quiet:
         per_step: dict[int, dict[str, float]] = defaultdict(dict)
@@ -78,11 +81,30 @@ def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_sol
     click.echo(f"{comp.mode} comparison, backends {comp.backends[0]} ({drake_solver}) vs {comp.backends[1]} ({cvxpy_solver}), "
                f"{steps} steps, seed {seed}" + (", Clarabel at 1e-10 (--accurate)" if accurate else ""))
     click.echo(f"{'quantity':14s} {'largest diff':>13s} {'at step':>8s} {'tolerance':>11s}  (abs + rel*scale)   verdict")
-    for q, d in sorted(comp.worst().items()):
-        abs_tol, rel_tol = TOLERANCES.get(q, (float("nan"), float("nan")))
-        verdict = "info (not unique)" if q in INFORMATIONAL else ("agree" if d.agree else "DISAGREE")
+    worst = comp.worst()
+    for q, d in sorted(worst.items()):
+        if q in INFORMATIONAL:
+            continue
+        abs_tol, rel_tol = TOLERANCES[q]
         step = "design" if d.step is None else str(d.step)
+        verdict = "agree" if d.agree else "DISAGREE"
         click.echo(f"{q:14s} {d.difference:13.3e} {step:>8s} {d.tolerance:11.3e}  ({abs_tol:g} + {rel_tol:g}*{d.scale:.3g})  {verdict}")
+    info = [(q, worst[q]) for q in INFORMATIONAL if q in worst]
+    if info:
+        click.echo("information only, not compared (z and alpha are not unique minimisers of (20): the cost depends on v "
+                   "alone): " + ", ".join(f"{q} largest diff {d.difference:.3e} at step {d.step}" for q, d in info))
+    for name in comp.backends:
+        counts = comp.answer_counts.get(name, {})
+        if counts:
+            parts = [f"{p}: {c['first'] + c['resolved']} of {sum(c.values())} its own"
+                     + "".join(f", {c[o]} {o}" for o in ("resolved", "fallback", "not_solved") if c[o])
+                     for p, c in counts.items()]
+            click.echo(f"answers of {name}: " + "; ".join(parts))
+    for m in comp.answer_mismatches:
+        how = {"resolved": "re-solved", "fallback": "fallback", "not_solved": "not solved"}[m["outcome"]]
+        click.echo(f"{'accepted (--allow-fallbacks)' if allow_fallbacks else 'DISAGREE'}: step {m['step']}: {m['backend']} "
+                   f"needed help on its {m['problem']} answer ({how}{' by ' + m['kind'] if m['kind'] else ''}; failed "
+                   f"check: {m['check'] or '-'}), the other backend answered first")
     if comp.drift:
         k_max = max(range(len(comp.drift)), key=comp.drift.__getitem__)
         click.echo(f"state drift |x_a - x_b|: max {comp.drift[k_max]:.3e} at step {k_max}")
@@ -91,6 +113,12 @@ def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_sol
         click.echo(f"status differs at step {k}: {a} vs {b}")
     for note in comp.notes:
         click.echo(f"note: {note}")
+    if comp.answer_mismatches and not allow_fallbacks:
+        by_backend = sorted({m["backend"] for m in comp.answer_mismatches})
+        first = comp.answer_mismatches[0]
+        click.echo(f"DISAGREE: {len(comp.answer_mismatches)} step answer(s) needed a re-solve or fallback in "
+                   f"{', '.join(by_backend)} only; first: step {first['step']}, {first['backend']}, {first['problem']}, "
+                   f"failed check {first['check'] or '-'} (--allow-fallbacks accepts this)")
     bad = comp.disagreements()
     if bad:
         first = min(bad, key=lambda d: (d.step if d.step is not None else -1))

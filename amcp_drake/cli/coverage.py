@@ -10,8 +10,13 @@ import click
 from amcp_drake.cli.common import (
     backend_option,
     bad_input_exits_2,
+    candidate_budget_option,
+    check_run_size,
+    design_budget,
     exit_verdict,
+    interruptible,
     load_problem_spec,
+    max_memory_option,
     problem_options,
     update_options,
 )
@@ -35,10 +40,14 @@ from amcp_drake.cli.common import (
 @update_options
 @click.option("--out", "out_dir", default="amcp-out", show_default=True, type=click.Path(file_okay=False),
               help="Folder for coverage.json and coverage.png.")
-@click.option("--no-progress", is_flag=True, help="No progress bar.")
+@click.option("--no-progress", is_flag=True, help="No progress bar (and no design progress lines).")
+@max_memory_option
+@candidate_budget_option
+@interruptible(lambda kw, exc: f"nothing new written to {kw['out_dir']} (each file is written whole or not at all); "
+               "run the command again")
 @bad_input_exits_2
 def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, points_file, adapt_steps, adapt_x0,
-                 update, window, projection, out_dir, no_progress):
+                 update, window, projection, out_dir, no_progress, max_memory, candidate_budget):
     """Feasible fraction of a grid of initial states (QP (20), confirmed by an LP).
 
     Writes coverage.json (every point, both verdicts, every disagreement) and coverage.png (n <= 2).
@@ -78,7 +87,8 @@ def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, po
             raise ProblemError("--adapt-x0", f"{pr.n} numbers separated by commas", repr(adapt_x0)) from None
         if len(adapt_x0) != pr.n:
             raise ProblemError("--adapt-x0", f"{pr.n} numbers separated by commas", f"{len(adapt_x0)} numbers")
-    d = design(pr, spec.design, backend=backend)
+    check_run_size(spec, 1, online, max_memory)
+    d = design(pr, spec.design, backend=backend, budget=design_budget(max_memory, candidate_budget, quiet=no_progress))
 
     def progress_factory(total, label):
         if no_progress:

@@ -12,7 +12,9 @@ import numpy as np
 from amcp_drake.cli.common import (
     backend_option,
     bad_input_exits_2,
+    candidate_budget_option,
     check_run_size,
+    design_budget,
     exit_verdict,
     load_problem_spec,
     max_memory_option,
@@ -30,8 +32,9 @@ def _fmt(a) -> str:
 @backend_option
 @click.option("--json", "as_json", is_flag=True, help="Print the design and checks as JSON.")
 @max_memory_option
+@candidate_budget_option
 @bad_input_exits_2
-def design_cmd(problem_file, example, x0_template, backend, as_json, max_memory):
+def design_cmd(problem_file, example, x0_template, backend, as_json, max_memory, candidate_budget):
     """Compute K, P, X0, w_bar, f_bar, Xf and mu ((11), (14), (16), Appendix A.1) and verify them independently."""
     from amcp_drake.offline.checks import verify_design
     from amcp_drake.offline.design import design
@@ -39,7 +42,7 @@ def design_cmd(problem_file, example, x0_template, backend, as_json, max_memory)
     spec = with_x0_template(load_problem_spec(problem_file, example), x0_template)
     pr = spec.problem
     check_run_size(spec, 1, None, max_memory)  # the design builds the tube QP's sets, not a run
-    d = design(pr, spec.design, backend=backend)
+    d = design(pr, spec.design, backend=backend, budget=design_budget(max_memory, candidate_budget))
     checks = verify_design(pr, d, spec.design.mu_state_bound)
     ok = all(c.passed for c in checks)
     if as_json:
@@ -59,7 +62,9 @@ def design_cmd(problem_file, example, x0_template, backend, as_json, max_memory)
         click.echo(f"X0: {len(d.H_x)} facets, {len(d.X0_vertices)} vertices, lambda_bar = {d.lambda_bar:.5f}")
         click.echo(f"w_bar = {_fmt(d.w_bar)}")
         click.echo(f"f_bar = {_fmt(d.f_bar)}")
-        click.echo(f"Xf: {len(d.H_T)} rows after {d.terminal_iterations} iterations")
+        terminal = (d.info or {}).get("terminal_set", "recursion")
+        click.echo(f"Xf: {len(d.H_T)} rows, " + (f"recursion of Appendix A.1 ({d.terminal_iterations} iterations)"
+                                                 if terminal == "recursion" else "scaled copy of X0 (offline/terminal.py)"))
         click.echo(f"mu = {d.mu:.6g} (sup ||D||^2 = {d.mu_sup:.6g} over {d.mu_region})")
         click.echo(f"H_theta for (9): {len(d.H_theta)} rows")
         click.echo("")

@@ -25,6 +25,7 @@ COMMANDS = {
     "coverage": ("amcp_drake.cli.coverage", "coverage_cmd",
                  "Feasible region of the QP (20) on a grid of x0, robust and after adaptation (QP + LP)."),
     "bench": ("amcp_drake.cli.bench", "bench_cmd", "Performance benchmarks (medians, ratios)."),
+    "solvers": ("amcp_drake.cli.solvers", "solvers_cmd", "Solver conformance matrix on the corpus of this scheme's problems."),
 }
 
 

@@ -10,8 +10,11 @@ import numpy as np
 from amcp_drake.cli.common import (
     backend_option,
     bad_input_exits_2,
+    candidate_budget_option,
+    design_budget,
     exit_verdict,
     formulation_option,
+    interruptible,
     max_memory_option,
     online_options,
     output_file_callback,
@@ -34,9 +37,12 @@ from amcp_drake.cli.common import (
 @click.option("--save", type=click.Path(), default=None, callback=output_file_callback,
               help="Save the trajectory (JSON, .gz allowed).")
 @max_memory_option
+@candidate_budget_option
+@interruptible(lambda kw, exc: "the run stopped" + (f"; nothing saved to {kw['save']}" if kw.get("save") else "")
+               + "; run the command again")
 @bad_input_exits_2
 def run_cmd(problem_file, example, x0_template, backend, formulation, steps, seed, disturbance, online, every, save,
-            max_memory):
+            max_memory, candidate_budget):
     """Design, then run the adaptive MPC closed loop and print one line per step."""
     from amcp_drake.cli.summary import format_table, step_table
     from amcp_drake.offline.design import design
@@ -45,7 +51,7 @@ def run_cmd(problem_file, example, x0_template, backend, formulation, steps, see
 
     spec, steps, options = prepare_run(problem_file, example, x0_template, steps, online, max_memory)
     sc, pr = spec.scenario, spec.problem
-    d = design(pr, spec.design, backend=backend)
+    d = design(pr, spec.design, backend=backend, budget=design_budget(max_memory, candidate_budget))
     update = options.update
     ctrl = AdaptiveMPC(pr, d, backend=backend, options=options, formulation=formulation)
     traj = simulate(ctrl, sc.x0, sc.theta_star_for(steps), steps, disturbance or sc.disturbance_for(steps),

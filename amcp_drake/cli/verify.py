@@ -21,7 +21,7 @@ from pathlib import Path
 
 import click
 
-from amcp_drake.cli.common import bad_input_exits_2, exit_verdict
+from amcp_drake.cli.common import bad_input_exits_2, exit_verdict, interruptible
 
 #: property test -> the claim it checks (table order)
 CLAIMS = {
@@ -83,9 +83,25 @@ def _print_table(results: dict[str, tuple[str, str]], coverage: dict) -> None:
                    f"{gen:.1%} rejected by the offline design; closed-loop runs "
                    f"{coverage.get('runs', {}).get('simulated', 0)} simulated, "
                    f"{coverage.get('runs', {}).get('reused', 0)} reused")
+    _print_answers(coverage.get("answers", {}))
     click.echo("coverage: Z act = a constraint of Z active in the run; Θ shr = Θk shrank; θ*∈∂ / θ*≈∂ = θ* within "
                "1e-6 / 1e-2 of the boundary of Θk; Θk↓d = some Θk lower-dimensional (Chebyshev radius <= 1e-5); "
                "θ*vx / θ*fc = θ* at a vertex of Θ / elsewhere on its boundary (fractions of the examples)")
+
+
+def _print_answers(answers: dict) -> None:
+    """Fallback and re-solve rates per backend and kind over every closed-loop run of the suite."""
+    if not answers:
+        return
+    click.echo("\nsolver answers over the suite's runs (not the backend's first answer: re-solved / fallback / not solved):")
+    for backend in sorted(answers):
+        for problem, c in sorted(answers[backend].items()):
+            n = c.get("answers", 0)
+            kinds = ", ".join(f"{k} {v} ({v / n:.2%})" for k, v in sorted(c.items())
+                              if k not in ("answers", "first", "resolved", "fallback", "not_solved") and v)
+            click.echo(f"  {backend:6s} {problem:13s} {n:7d} answers: resolved {c.get('resolved', 0)}, fallback "
+                       f"{c.get('fallback', 0)} ({c.get('fallback', 0) / max(n, 1):.2%}), not solved "
+                       f"{c.get('not_solved', 0)}" + (f"; {kinds}" if kinds else ""))
 
 
 def _run_mutants(backends: list[str]) -> bool:
@@ -101,6 +117,8 @@ def _run_mutants(backends: list[str]) -> bool:
               help="Online backend(s) under test; the lockstep comparison needs both.")
 @click.option("--mutants", "with_mutants", is_flag=True, help="Also run the seeded bugs and report which claim caught each.")
 @click.option("--pytest-arg", "pytest_args", multiple=True, help="Extra argument for pytest (repeatable), e.g. -x.")
+@interruptible(lambda kw, exc: "the property suite was stopped (its pytest process too); nothing was written; "
+               "run the command again")
 @bad_input_exits_2
 def verify_cmd(profile, backend, with_mutants, pytest_args):
     """Run the property suite (one test per claim of the paper) and print claim, examples, coverage, result."""

@@ -1,4 +1,4 @@
-"""Cross-backend comparison (issue 4): the same algorithm, two formulations, step by step.
+"""Cross-backend comparison: the same algorithm, two formulations, step by step.
 
 * **lockstep** (default): one closed loop driven by backend A; at every step backend B receives the
   same x_k, Θ_{k-1}, θ̂_{k-1} and previous (x_{k-1}, u_{k-1}), so any difference in the updated h_θk,
@@ -14,6 +14,12 @@ objective is not strictly convex in v in general, so v and u agree only to the Q
 (measured on Example 2, 30 steps: 2e-6 in v, 1.6e-8 in the cost; the same tolerances apply).
 With persistent excitation (spec §8) the PE status and dimension must match exactly and the
 enforced level to ``pe_level``'s tolerance.
+
+How each answer was obtained counts too (``StepRecord.answers``, :mod:`amcp_drake.online.answers`):
+where one backend needed a re-solve or a fallback (or solved nothing after a failed check) on a step
+where the other answered first, :attr:`Comparison.answer_mismatches` names the step, the backend and
+the failed check, and the backends do not agree unless ``allow_fallbacks`` says such help is
+acceptable: a fallback makes the applied answers equal while the backend that needed it is wrong.
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ import numpy as np
 from amcp_drake.model.options import OnlineOptions
 from amcp_drake.model.problem import ProblemSpec, check_theta_rate
 from amcp_drake.offline.design import OfflineDesign, design
+from amcp_drake.online import answers
 from amcp_drake.online.controller import AdaptiveMPC
 from amcp_drake.online.simulate import disturbance_sequence
 
@@ -91,10 +98,33 @@ class Comparison:
     statuses: list[tuple[int, str, str]] = field(default_factory=list)
     drift: list[float] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    #: where one backend needed a re-solve or fallback and the other did not (answers.mismatches)
+    answer_mismatches: list[dict[str, Any]] = field(default_factory=list)
+    #: per backend, the count of its answers per (problem, outcome) over the run
+    answer_counts: dict[str, dict[str, dict[str, int]]] = field(default_factory=dict)
+    #: re-solves and fallbacks of one backend alone are acceptable (they then do not decide ``agree``)
+    allow_fallbacks: bool = False
 
     @property
     def agree(self) -> bool:
-        return all(d.agree for d in self.differences) and all(a == b for _, a, b in self.statuses)
+        return (all(d.agree for d in self.differences) and not self.status_differences()
+                and (self.allow_fallbacks or not self.answer_mismatches))
+
+    def status_differences(self) -> list[tuple[int, str, str]]:
+        """Steps whose statuses differ; with ``allow_fallbacks``, not those where one backend's status
+        is "optimal_inaccurate" because its answer was rejected and a checked fallback answered (an
+        answer mismatch at that step says so)."""
+        helped = {m["step"] for m in self.answer_mismatches if m["outcome"] in ("resolved", "fallback")}
+        return [(k, a, b) for k, a, b in self.statuses
+                if a != b and not (self.allow_fallbacks and k in helped and "optimal" in (a, b)
+                                   and {a, b} <= {"optimal", "optimal_inaccurate"})]
+
+    def count_answers(self, backend: str, record) -> None:
+        """Add ``record.answers`` to ``answer_counts[backend]``."""
+        counts = self.answer_counts.setdefault(backend, {})
+        for e in record.answers or ():
+            per = counts.setdefault(e["problem"], {o: 0 for o in answers.OUTCOMES})
+            per[e["outcome"]] += 1
 
     def worst(self) -> dict[str, Difference]:
         """The largest difference (relative to its tolerance) per quantity."""
@@ -123,7 +153,9 @@ class Comparison:
                 "statuses": [{"step": k, "a": a, "b": b} for k, a, b in self.statuses],
                 "differences": [d.to_dict() for d in self.differences],
                 "informational": [d.to_dict() for d in self.informational],
-                "drift": self.drift, "notes": self.notes, "flat_optimum_steps": self.flat_optimum_steps()}
+                "drift": self.drift, "notes": self.notes, "flat_optimum_steps": self.flat_optimum_steps(),
+                "answer_mismatches": self.answer_mismatches, "answer_counts": self.answer_counts,
+                "allow_fallbacks": self.allow_fallbacks}
 
 
 def _diff(quantity: str, step: int | None, a, b) -> Difference:
@@ -176,10 +208,10 @@ def _compare_sets(a: OfflineDesign, b: OfflineDesign) -> list[Difference]:
 
 def lockstep(spec: ProblemSpec, steps: int, seed: int, backends=("drake", "cvxpy"), options: OnlineOptions | None = None,
              backend_options: tuple[dict, dict] = ({}, {}), progress: bool = False,
-             compare_offline: bool = True) -> Comparison:
+             compare_offline: bool = True, allow_fallbacks: bool = False) -> Comparison:
     """Lockstep comparison (module docstring); with ``compare_offline`` the designs too."""
     pr, sc = spec.problem, spec.scenario
-    comp = Comparison("lockstep", (backends[0], backends[1]))
+    comp = Comparison("lockstep", (backends[0], backends[1]), allow_fallbacks=allow_fallbacks)
     if compare_offline:
         design_diffs, (d, _) = compare_designs(spec, backends)
         comp.differences += design_diffs
@@ -201,6 +233,7 @@ def lockstep(spec: ProblemSpec, steps: int, seed: int, backends=("drake", "cvxpy
         u_a, ra = ctrl_a.step(x)
         u_b, rb = ctrl_b.step(x)
         comp.statuses.append((k, ra.status.value, rb.status.value))
+        _compare_answers(comp, k, ra, rb)
         comp.differences.append(_diff("h_theta", k, ra.h_theta, rb.h_theta))
         comp.differences.append(_diff("theta_hat", k, ra.theta_hat, rb.theta_hat))
         if u_a is None or u_b is None:
@@ -214,6 +247,13 @@ def lockstep(spec: ProblemSpec, steps: int, seed: int, backends=("drake", "cvxpy
             break
         x = pr.step(x, u_a, theta[k] if theta.ndim == 2 else theta, W[k])
     return comp
+
+
+def _compare_answers(comp: Comparison, k: int, ra, rb) -> None:
+    """Count both records' answers and note where one backend needed help the other did not."""
+    comp.count_answers(comp.backends[0], ra)
+    comp.count_answers(comp.backends[1], rb)
+    comp.answer_mismatches += answers.mismatches(k, ra.answers, rb.answers, comp.backends)
 
 
 def _pe_diffs(k: int, ra, rb) -> list[Difference]:
@@ -238,12 +278,13 @@ def _sync(target: AdaptiveMPC, source: AdaptiveMPC) -> None:
 
 
 def independent(spec: ProblemSpec, steps: int, seed: int, backends=("drake", "cvxpy"),
-                options: OnlineOptions | None = None, backend_options: tuple[dict, dict] = ({}, {})) -> Comparison:
+                options: OnlineOptions | None = None, backend_options: tuple[dict, dict] = ({}, {}),
+                allow_fallbacks: bool = False) -> Comparison:
     """Two closed loops, each with its own design, on the same disturbance sequence."""
     from amcp_drake.online.simulate import simulate
 
     pr, sc = spec.problem, spec.scenario
-    comp = Comparison("independent", (backends[0], backends[1]))
+    comp = Comparison("independent", (backends[0], backends[1]), allow_fallbacks=allow_fallbacks)
     design_diffs, designs = compare_designs(spec, backends)
     comp.differences += design_diffs
     W = disturbance_sequence(pr, sc.disturbance_for(steps), steps, seed)
@@ -252,6 +293,7 @@ def independent(spec: ProblemSpec, steps: int, seed: int, backends=("drake", "cv
     ta, tb = trajs
     for k, (ra, rb) in enumerate(zip(ta.records, tb.records)):
         comp.statuses.append((k, ra.status.value, rb.status.value))
+        _compare_answers(comp, k, ra, rb)
     n = min(len(ta.x), len(tb.x))
     comp.drift = [float(np.linalg.norm(ta.x[k] - tb.x[k])) for k in range(n)]
     for k in range(min(ta.steps, tb.steps)):

@@ -24,6 +24,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import stat
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +34,13 @@ from amcp_drake.model.errors import ProblemFileError
 MAX_DEPTH = 64
 #: Longest integer literal accepted: 18 digits always fit a signed 64-bit integer.
 MAX_INT_DIGITS = 18
+#: Largest problem file or points file read, in bytes (docs/decisions.md, "Input size limits"): 64 MiB of
+#: JSON is about 3 million numbers, far more than any problem within the size limits of a run needs.
+MAX_INPUT_BYTES = 64 * 2**20
+#: Bytes read first, and checked for binary data before the rest is read.
+READ_CHUNK = 1 << 16
+#: The first two bytes of gzip data (RFC 1952).
+GZIP_MAGIC = b"\x1f\x8b"
 
 _BOMS = (
     (b"\x00\x00\xfe\xff", "UTF-32 (big-endian, with byte-order mark)"),
@@ -108,6 +116,8 @@ def _check_tree(data: Any, state: _Parse, source: str, error: type[Exception]) -
     pass); raise on the first duplicate key, rejected number or excess depth."""
     if isinstance(data, _Rejected):
         raise _error(error, "file", data.expected, data.received)
+    if not isinstance(data, (dict, list)):  # a lone scalar (null, 5, "text"): nothing inside to check
+        return
     look_inside = state.rejected or bool(state.duplicates)
     stack: list[tuple[Any, tuple[Any, ...]]] = [(data, ())]
     while stack:
@@ -212,22 +222,76 @@ def _guess_nul_encoding(sample: bytes) -> str:
     return "binary data"
 
 
-def read_text_strict(path: str | os.PathLike, error: type[Exception] = ProblemFileError,
-                     what: str = "file") -> str:
-    """The UTF-8 text of ``path`` (:func:`decode_utf8`); unreadable files raise ``error`` naming the path."""
+def _sniff(first: bytes, source: str, error: type[Exception], gzip_ok: bool) -> None:
+    """Refuse binary data from the first chunk of a file, before the rest is read (a device such as
+    /dev/zero or /dev/urandom, an image, a gzip file where text is expected)."""
+    if gzip_ok and first[:2] == GZIP_MAGIC:
+        return
+    for bom, name in _BOMS:
+        if first.startswith(bom):
+            return  # decode_utf8 names the encoding once the (bounded) file is read
+    if b"\x00" in first[:READ_CHUNK]:
+        guess = _guess_nul_encoding(first[:400])
+        if guess == "binary data":
+            raise _error(error, "file", "UTF-8 encoded JSON text", f"{source} contains NUL bytes ({guess})")
+
+
+def read_bytes_limited(path: str | os.PathLike, limit: int = MAX_INPUT_BYTES,
+                       error: type[Exception] = ProblemFileError, what: str = "file", gzip_ok: bool = False) -> bytes:
+    """The bytes of ``path``, at most ``limit`` of them: a regular file larger than the limit is refused
+    before it is read, any other file (a pipe, a device) as soon as more than ``limit`` bytes arrived,
+    and binary data (NUL bytes: /dev/zero, /dev/urandom) after the first :data:`READ_CHUNK` bytes.
+    ``gzip_ok``: gzip data (magic 1f 8b) pass the binary check. Errors are ``error`` naming the path."""
     path = Path(path)
+    source = str(path)
+
+    def too_big(received: str) -> Exception:
+        return _error(error, "file", f"at most {limit:,} bytes (the size limit of a {what}; docs/decisions.md, "
+                      "'Input size limits')", f"{source}: {received}")
+
     try:
-        raw = path.read_bytes()
+        handle = open(path, "rb")
     except IsADirectoryError:
         raise _error(error, "file", f"a readable {what}", f"{path} is a directory") from None
     except OSError as exc:
         raise _error(error, "file", f"a readable {what}", f"{path}: {exc.strerror or exc}") from None
-    return decode_utf8(raw, str(path), error)
+    with handle:
+        try:
+            info = os.fstat(handle.fileno())
+            if stat.S_ISDIR(info.st_mode):
+                raise _error(error, "file", f"a readable {what}", f"{path} is a directory")
+            if stat.S_ISREG(info.st_mode) and info.st_size > limit:
+                raise too_big(f"{info.st_size:,} bytes")
+            chunks: list[bytes] = []
+            total = 0
+            while True:
+                chunk = handle.read(READ_CHUNK if not chunks else min(limit + 1 - total, 1 << 24) or 1)
+                if not chunk:
+                    break
+                if not chunks:
+                    _sniff(chunk, source, error, gzip_ok)
+                total += len(chunk)
+                if total > limit:
+                    raise too_big(f"more than {limit:,} bytes")
+                chunks.append(chunk)
+        except IsADirectoryError:
+            raise _error(error, "file", f"a readable {what}", f"{path} is a directory") from None
+        except OSError as exc:
+            raise _error(error, "file", f"a readable {what}", f"{path}: {exc.strerror or exc}") from None
+    return b"".join(chunks)
 
 
-def load_json_strict(path: str | os.PathLike, error: type[Exception] = ProblemFileError, what: str = "file") -> Any:
+def read_text_strict(path: str | os.PathLike, error: type[Exception] = ProblemFileError,
+                     what: str = "file", limit: int = MAX_INPUT_BYTES) -> str:
+    """The UTF-8 text of ``path`` (:func:`decode_utf8`), at most ``limit`` bytes
+    (:func:`read_bytes_limited`); unreadable files raise ``error`` naming the path."""
+    return decode_utf8(read_bytes_limited(path, limit, error, what), str(path), error)
+
+
+def load_json_strict(path: str | os.PathLike, error: type[Exception] = ProblemFileError, what: str = "file",
+                     limit: int = MAX_INPUT_BYTES) -> Any:
     """:func:`read_text_strict` then :func:`loads_strict`."""
-    return loads_strict(read_text_strict(path, error, what), str(path), error)
+    return loads_strict(read_text_strict(path, error, what, limit), str(path), error)
 
 
 def first_non_finite(value: Any, path: tuple[Any, ...] = ()) -> tuple[str, Any] | None:
@@ -246,5 +310,5 @@ def first_non_finite(value: Any, path: tuple[Any, ...] = ()) -> tuple[str, Any] 
     return None
 
 
-__all__ = ["MAX_DEPTH", "MAX_INT_DIGITS", "decode_utf8", "first_non_finite", "json_path", "load_json_strict",
-           "loads_strict", "read_text_strict"]
+__all__ = ["MAX_DEPTH", "MAX_INPUT_BYTES", "MAX_INT_DIGITS", "decode_utf8", "first_non_finite", "json_path",
+           "load_json_strict", "loads_strict", "read_bytes_limited", "read_text_strict"]

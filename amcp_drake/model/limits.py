@@ -132,7 +132,9 @@ def estimate_run_size(n: int, m: int, p: int, N: int, facets: int, theta_rows: i
 
 def estimate_for(problem, design_options=None, steps: int = 1, online=None) -> SizeEstimate:
     """:func:`estimate_run_size` for a :class:`~amcp_drake.model.problem.Problem` and its options."""
-    facets = getattr(design_options, "x0_facets", 8) if design_options is not None else 8
+    facets = max(8, 2 * problem.n)
+    if design_options is not None and getattr(design_options, "x0_facets", None) is not None:
+        facets = design_options.x0_facets
     extra = getattr(design_options, "theta_extra_directions", None) if design_options is not None else None
     theta_rows = len(problem.H_theta) + (0 if extra is None else len(np.atleast_2d(extra)))
     window = online.window if online is not None and getattr(online, "update", "") == "window" else 1
@@ -166,6 +168,8 @@ def nonredundant_rows(H: np.ndarray, h: np.ndarray, interior: np.ndarray) -> np.
     if len(first) <= 1:
         return first
     _, S, Vt = np.linalg.svd(P[first], full_matrices=False)
+    if S[0] == 0:  # every row is zero (0 <= h holds everywhere): nothing to compare, every row kept
+        return first
     rank = int(np.sum(S > RANK_TOL * S[0]))
     if rank > MAX_HULL_DIM:  # only exact duplicates are merged
         _, unique = np.unique(P, axis=0, return_index=True)
@@ -219,6 +223,32 @@ def _note(name: str, total: int, keep: np.ndarray) -> str:
     return note + " (\"keep_redundant_rows\": true keeps every row)"
 
 
+def normalise_theta_rows(H: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """The rows of Θ = {θ | H θ <= h} as read from a hand-written file, made comparable: a zero row with
+    h_i >= 0 holds everywhere and is dropped; a zero row with h_i < 0 is left for the validation (Θ is
+    empty, refused naming ``Theta.h[i]``); every other row is divided by its largest |entry| (the same
+    set: rows scaled by 1e-9 or 1e9 give the same design as unit rows). Returns (H, h, notes); the
+    arrays are the inputs when nothing changed."""
+    zero = np.all(H == 0, axis=1)
+    notes = []
+    if np.any(zero & (h < 0)):
+        return H, h, notes
+    if np.any(zero) and not np.all(zero):
+        dropped = np.flatnonzero(zero)
+        shown = ", ".join(str(int(i)) for i in dropped[:8]) + (", ..." if len(dropped) > 8 else "")
+        notes.append(f"Theta: removed the zero row{'s' if len(dropped) > 1 else ''} {shown} "
+                     f"(0 <= {'h' if len(dropped) > 1 else f'{h[dropped[0]]:g}'} holds everywhere)")
+        H, h = H[~zero], h[~zero]
+    scale = np.max(np.abs(H), axis=1)
+    if np.any(scale != 1.0) and np.all(scale > 0):
+        scaled = np.flatnonzero(scale != 1.0)
+        shown = ", ".join(str(int(i)) for i in scaled[:8]) + (", ..." if len(scaled) > 8 else "")
+        notes.append(f"Theta: rows {shown} divided by their largest |entry| (the same set; rows of very different "
+                     "scales make the support LPs ill-conditioned)")
+        H, h = H / scale[:, None], h / scale
+    return H, h, notes
+
+
 def reduce_rows(H_w: Any, H_theta: Any, h_theta: Any, F: Any, G: Any) -> tuple[dict[str, Any], list[str]]:
     """Redundant rows of W = {H_w w <= 1}, Θ = {H_θ θ <= h_θ} and Z = {F x + G u <= 1} removed, on raw
     (not yet validated) data, so that a problem with 100,000 redundant rows is reduced *before* the
@@ -235,7 +265,11 @@ def reduce_rows(H_w: Any, H_theta: Any, h_theta: Any, F: Any, G: Any) -> tuple[d
             notes.append(_note("W", len(W), keep))
     Ht, ht = _as_rows(H_theta), _as_rows(np.reshape(h_theta, (-1, 1)) if np.ndim(h_theta) == 1 else None)
     if Ht is not None and ht is not None and len(ht) == len(Ht):
-        ht = ht[:, 0]
+        Ht, ht, theta_notes = normalise_theta_rows(Ht, ht[:, 0])
+        if theta_notes:
+            changes.update(H_theta=Ht, h_theta=ht)
+            notes += theta_notes
+    if Ht is not None and ht is not None and len(ht) == len(Ht) and not np.any(np.all(Ht == 0, axis=1)):
         centre, radius = polytope.chebyshev_center(Ht, ht)
         if np.isfinite(radius) and radius > 0:
             keep = nonredundant_rows(Ht, ht, centre)
@@ -271,6 +305,7 @@ __all__ = [
     "estimate_run_size",
     "max_vertices",
     "nonredundant_rows",
+    "normalise_theta_rows",
     "reduce_rows",
     "remove_redundant_rows",
 ]

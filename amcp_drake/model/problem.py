@@ -321,13 +321,22 @@ STATE_UNITS = ("normalised", "as written")
 DEFAULT_X0_LAMBDA = 0.9
 
 
+def default_x0_facets(n: int) -> int:
+    """Facets of the ``"mrpi"`` template when ``design.x0_facets`` is not given: 8 (the paper's
+    Example 1 and every earlier design of this project) while 8 >= 2n, i.e. n <= 4, else 2n (the
+    ±e_i box, the fewest directions :func:`~amcp_drake.offline.templates.template_directions` takes)."""
+    return max(8, 2 * int(n))
+
+
 @dataclass(frozen=True, eq=False)
 class DesignOptions:
     """Choices for the offline design ((11), (14), (16), Appendix A.1). Every choice the paper leaves open is a field here.
 
-    * ``x0_facets``: number of facet directions of the tube shape X0 (2-D: equally spaced angles;
-      n-D: ±e_i, then ±(e_i ± e_j)/√2, ...). X0 is the template outer approximation of the minimal
-      robust positively invariant set of x⁺ = A_cl(θ)x + w, θ ∈ Θ (the paper's suggestion for X0).
+    * ``x0_facets``: number of facet directions of the ``"mrpi"`` tube shape X0 (2-D: equally spaced
+      angles; n-D: ±e_i, then ±(e_i ± e_j)/√2, ...). X0 is the template outer approximation of the
+      minimal robust positively invariant set of x⁺ = A_cl(θ)x + w, θ ∈ Θ (the paper's suggestion for X0).
+      None (default): :func:`default_x0_facets` of the dimension (8 up to n = 4, 2n above), so a
+      file without a ``design`` section is valid at every n; the other templates do not use it.
     * ``K``, ``P``: user-given gain and terminal weight, verified instead of designed.
     * ``lmi_margin``: ε of the LMI S ⪰ εI and the strictness of (16), in the scaled coordinates of
       ``backends/gain_scaling.py`` (where the mean vertex Riccati solution is I), so relative to the
@@ -336,12 +345,16 @@ class DesignOptions:
       sup ‖D(x,u)‖² in (11); required then. ``mu_fraction``: μ = fraction / sup ‖D‖² (< 1: strict).
     * ``centre_dynamics``: A_z, the centre dynamics z⁺ = A_z z of the terminal recursion (Appendix A.1): ``"nominal"`` = A_cl(θ̂0), ``"zero"`` = 0.
     * ``terminal_max_iter``: iteration cap of the terminal set recursion.
+    * ``terminal_set``: ``"recursion"`` (Appendix A.1, spec §5.1), ``"scaled"`` (the copy
+      {H_x z + α1 <= ᾱ1} of offline/terminal.py, as many rows as X0, centre dynamics z⁺ = 0) or
+      ``"auto"`` (default: the recursion up to n = 3, the scaled copy above).
     * ``theta_extra_directions``: extra facet normals (k, p) for the fixed-complexity shape H_θ of (9).
     * ``x0_template``: the cross-section template (offline/templates.py, docs/decisions.md "X0 templates"):
       ``"auto"`` (default: the order of offline/auto.py, first design passing every design check),
       ``"mrpi"`` (minimal-RPI outer approximation with ``x0_facets`` directions), ``"contractive"``
       (maximal ``x0_lambda``-contractive set in Z under u = Kx, scaled to be robustly invariant),
-      ``"given"`` (``x0_H``, rows of X0 = {x | x0_H x <= 1}).
+      ``"given"`` (``x0_H``, rows of X0 = {x | x0_H x <= 1}), ``"parallelotope"`` ({‖T x‖∞ <= s}
+      with a gain K from a linear program making it λ-contractive; offline/parallelotope.py).
     * ``x0_lambda``: λ of the contractive template (None: 0.9 for "contractive"; auto tries its list).
     * ``x0_H`` (u, n): the user's X0 for ``"given"``.
     * ``gain_R_scale`` (>= 1): the gain LMI (16) is solved with R multiplied by this (a lower-gain K,
@@ -352,7 +365,7 @@ class DesignOptions:
       the units of the file (kept by the recorded regression problems, which pin the designs they were recorded with).
     """
 
-    x0_facets: int = 8
+    x0_facets: int | None = None
     K: np.ndarray | None = None
     P: np.ndarray | None = None
     lmi_margin: float = 1e-6
@@ -367,10 +380,12 @@ class DesignOptions:
     x0_H: np.ndarray | None = None
     gain_R_scale: float = 1.0
     state_units: str = "normalised"
+    terminal_set: str = "auto"
 
     def validate_for(self, problem: Problem) -> DesignOptions:
         """Check values and shapes against ``problem``; return self."""
-        as_positive_int("design.x0_facets", self.x0_facets, 2 * problem.n)
+        if self.x0_facets is not None:
+            as_positive_int("design.x0_facets", self.x0_facets, 2 * problem.n)
         if self.K is not None:
             object.__setattr__(self, "K", as_matrix("design.K", self.K, rows=problem.m, cols=problem.n))
         if self.P is not None:
@@ -388,6 +403,8 @@ class DesignOptions:
             raise ProblemError("design.mu_fraction", "a number in (0, 1) (1/μ > sup‖D‖² is strict)", repr(self.mu_fraction))
         if self.state_units not in STATE_UNITS:
             raise ProblemError("design.state_units", f"one of {list(STATE_UNITS)}", repr(self.state_units))
+        if self.terminal_set not in ("auto", "recursion", "scaled"):
+            raise ProblemError("design.terminal_set", "one of ['auto', 'recursion', 'scaled']", repr(self.terminal_set))
         if self.centre_dynamics not in ("nominal", "zero"):
             raise ProblemError("design.centre_dynamics", "'nominal' or 'zero'", repr(self.centre_dynamics))
         as_positive_int("design.terminal_max_iter", self.terminal_max_iter, 1)
@@ -398,8 +415,13 @@ class DesignOptions:
         self._validate_template(problem)
         return self
 
+    def facets_for(self, n: int) -> int:
+        """The facet count of the ``"mrpi"`` template at dimension n: ``x0_facets`` when given, else
+        :func:`default_x0_facets` (n)."""
+        return int(self.x0_facets) if self.x0_facets is not None else default_x0_facets(n)
+
     def _validate_template(self, problem: Problem) -> None:
-        kinds = ("auto", "mrpi", "contractive", "given")
+        kinds = ("auto", "mrpi", "contractive", "given", "parallelotope")
         if not isinstance(self.x0_template, str) or self.x0_template not in kinds:
             raise ProblemError("design.x0_template", f"one of {list(kinds)}", repr(self.x0_template))
         if self.x0_lambda is not None and not (isinstance(self.x0_lambda, (int, float))

@@ -6,9 +6,9 @@ design").
 Order (:func:`candidate_options`):
 
 1. ``given`` with ``design.x0_H``, when the file gives one.
-2. ``mrpi`` with ``design.x0_facets`` (default 8) and the LMI gain: the design of the paper and of
-   every earlier version of this project, so problems that designed before (Example 1) keep
-   exactly the same design.
+2. ``mrpi`` with ``design.x0_facets`` (default 8 up to n = 4, 2n above) and the LMI gain: the
+   design of the paper and of every earlier version of this project, so problems that designed
+   before (Example 1) keep exactly the same design.
 3. ``contractive`` with a lower-gain K first (the LMI solved with R scaled by each of
    :data:`AUTO_R_SCALES`, largest first), then the LMI gain, each with λ in :data:`AUTO_LAMBDAS`:
    a lower gain makes the input constraint bite less and gave the larger region on the SLS-MPC
@@ -18,8 +18,25 @@ Order (:func:`candidate_options`):
 A user-given K, P (``design.K``/``design.P``) skips the lower-gain K's; a user-given ``x0_lambda``
 replaces the λ list; a ``gain_R_scale`` other than 1 is used in step 2 and replaces the LMI gain in
 step 3 (only larger scales are added).
+
+From n = 4 on (:data:`BOUNDED_FIRST_N`) the bounded-complexity constructions come first: the
+``parallelotope`` template (offline/parallelotope.py: 2n facets, 2^n vertices, K from a linear
+program started at the LMI gain), then step 3
+(the contractive template, whose rows are capped by
+:func:`~amcp_drake.offline.templates.contractive_max_rows`, with the scaled-copy terminal set of
+offline/terminal.py, as many rows as X0) before step 2, whose fixed template directions rarely fit
+the closed loop in more than three dimensions (every mrpi candidate diverged on the 4- to 6-state
+chains measured), and the many-facet mrpi candidates of step 4 are left out above
+:data:`MRPI_FACETS_MAX_N` (each costs a long template iteration and, when it converges, a tube QP
+with thousands of X0 vertices).
+
 Each attempt is recorded as (label, outcome, reason, seconds); the returned design carries them in
-``info["attempts"]``; when none passes, :class:`AutoDesignError` lists them all.
+``info["attempts"]``; when none passes, :class:`AutoDesignError` lists them all. Every candidate
+runs under a :class:`~amcp_drake.offline.budget.DesignBudget`: a stage whose size estimate exceeds
+the memory limit ends the candidate as "too large", a candidate over its time budget as "time
+budget"; both are recorded attempts like any other failure. The budget's ``progress`` callback is
+told when each candidate starts and ends (outcome, reason, seconds) and, every few seconds, which
+stage a long candidate is in.
 """
 
 from __future__ import annotations
@@ -31,6 +48,7 @@ from amcp_drake.backends import get_backend
 from amcp_drake.model.errors import DesignError
 from amcp_drake.model.problem import DEFAULT_X0_LAMBDA, DesignOptions, Problem
 from amcp_drake.offline import templates as x0_templates
+from amcp_drake.offline.budget import CandidateTimeout, DesignBudget, DesignSizeError, unbounded
 
 #: λ of the contractive template, tried in this order: 0.9 leaves the tube room to shrink
 #: (α⁺ <= 0.9 α + w̄); larger λ admit a set where a smaller one is empty (the disturbance uses up
@@ -42,11 +60,16 @@ AUTO_LAMBDAS = (0.9, 0.95, 0.98, 0.99)
 AUTO_R_SCALES = (10.0, 100.0)
 #: Facet counts of the last resort (step 4); the issue-14 measurements needed up to 96 in 2-D.
 AUTO_FACETS = (12, 16, 20, 24, 32, 48, 64, 96)
+#: From this dimension on the contractive candidates come before the mrpi template (module docstring).
+BOUNDED_FIRST_N = 4
+#: Above this dimension the many-facet mrpi candidates of step 4 are not tried.
+MRPI_FACETS_MAX_N = 3
 
 
 @dataclass(frozen=True)
 class Attempt:
-    """One try of the automatic design: ``outcome`` is "pass", "design failed" or "check failed"."""
+    """One try of the automatic design: ``outcome`` is "pass", "design failed", "check failed",
+    "too large" (a stage's size estimate exceeded the memory limit) or "time budget"."""
 
     label: str
     outcome: str
@@ -79,7 +102,12 @@ def candidate_options(problem: Problem, options: DesignOptions) -> list[DesignOp
     base = replace(options, x0_template="mrpi")
     if options.x0_H is not None:
         out.append(replace(options, x0_template="given"))
-    out.append(replace(base, x0_H=None))
+    first_mrpi = replace(base, x0_H=None, x0_facets=options.facets_for(problem.n))
+    bounded_first = problem.n >= BOUNDED_FIRST_N
+    if bounded_first:  # fixed complexity first: 2n facets, 2^n vertices
+        out.append(replace(options, x0_template="parallelotope", x0_H=None))
+    else:
+        out.append(first_mrpi)
     lambdas = (options.x0_lambda,) if options.x0_lambda is not None else AUTO_LAMBDAS
     gains = [options.gain_R_scale]
     if options.K is None:  # the lowest gain first: the input constraint bites least (docs/decisions.md)
@@ -87,60 +115,77 @@ def candidate_options(problem: Problem, options: DesignOptions) -> list[DesignOp
     for scale in gains:
         for lam in lambdas:
             out.append(replace(options, x0_template="contractive", x0_lambda=lam, gain_R_scale=scale, x0_H=None))
+    if bounded_first:
+        out.append(first_mrpi)
+        if problem.n > MRPI_FACETS_MAX_N:
+            return out
     limit = x0_templates.max_template_facets(problem.n)
     for facets in AUTO_FACETS:
-        if options.x0_facets < facets <= limit:
+        if options.facets_for(problem.n) < facets <= limit:
             out.append(replace(base, x0_facets=facets, x0_H=None))
     return out
 
 
-def design_auto(problem: Problem, options: DesignOptions, backend, design_fixed, robust_gain, verify, log=None):
+def design_auto(problem: Problem, options: DesignOptions, backend, design_fixed, robust_gain, verify, log=None,
+                budget: DesignBudget | None = None):
     """The first candidate of :func:`candidate_options` whose design passes every check of ``verify``
     (:func:`~amcp_drake.offline.checks.verify_design`); ``log(line)`` is called after each attempt.
 
     ``design_fixed`` and ``robust_gain`` are those of offline/design.py, passed in by
     :func:`~amcp_drake.offline.design.design` (this module sits below design.py: no import cycle).
+    ``budget``: memory limit, per-candidate time budget and progress callback (module docstring).
     """
     be = get_backend(backend)
+    budget = budget or unbounded()
     gains: dict = {}
     attempts: list[Attempt] = []
-    for candidate in candidate_options(problem, options):
-        label = template_label(candidate)
+    candidates = candidate_options(problem, options)
+    for number, candidate in enumerate(candidates, start=1):
+        label = template_label(candidate, dimension=problem.n)
+        cand_budget = budget.for_candidate(f"candidate {number}/{len(candidates)} ({label})")
+        if budget.progress is not None:
+            budget.progress(f"design candidate {number}/{len(candidates)}: {label} ...")
         start = time.perf_counter()
         try:
             key = candidate.gain_R_scale
             if key not in gains:
                 gains[key] = robust_gain(problem, candidate, be)
-            d = design_fixed(problem, candidate, backend=be, gain=gains[key])
+            d = design_fixed(problem, candidate, backend=be, gain=gains[key], budget=cand_budget)
+        except DesignSizeError as exc:
+            _record(attempts, Attempt(label, "too large", _short(exc), time.perf_counter() - start), log, budget)
+            continue
+        except CandidateTimeout as exc:
+            _record(attempts, Attempt(label, "time budget", _short(exc), time.perf_counter() - start), log, budget)
+            continue
         except DesignError as exc:  # includes TemplateError and TerminalSetError
-            attempts.append(Attempt(label, "design failed", _short(exc), time.perf_counter() - start))
-            _emit(log, attempts[-1])
+            _record(attempts, Attempt(label, "design failed", _short(exc), time.perf_counter() - start), log, budget)
             continue
         checks = verify(problem, d, candidate.mu_state_bound)
         failed = [c for c in checks if not c.passed]
         if failed:
             reason = "; ".join(f"{c.name}: {c.status}" + (f" (margin {c.margin:.3g})" if c.margin is not None else "")
                                for c in failed)
-            attempts.append(Attempt(label, "check failed", reason, time.perf_counter() - start))
-            _emit(log, attempts[-1])
+            _record(attempts, Attempt(label, "check failed", reason, time.perf_counter() - start), log, budget)
             continue
-        attempts.append(Attempt(label, "pass", "", time.perf_counter() - start))
-        _emit(log, attempts[-1])
+        _record(attempts, Attempt(label, "pass", "", time.perf_counter() - start), log, budget)
         info = dict(d.info)
-        info["x0_template"] = template_label(candidate, len(d.H_x))
-        info["options"] = {"x0_template": candidate.x0_template, "x0_facets": candidate.x0_facets,
+        info["x0_template"] = template_label(candidate, len(d.H_x), dimension=problem.n)
+        info["options"] = {"x0_template": candidate.x0_template, "x0_facets": candidate.facets_for(problem.n),
                            "x0_lambda": candidate.x0_lambda, "gain_R_scale": candidate.gain_R_scale}
         info["attempts"] = [a.to_dict() for a in attempts]
         return replace(d, info=info)
     raise AutoDesignError(attempts)
 
 
-def template_label(options: DesignOptions, facets: int | None = None) -> str:
+def template_label(options: DesignOptions, facets: int | None = None, dimension: int | None = None) -> str:
     """A short human name of the template of ``options`` ("mrpi, 8 facets", "contractive, lambda 0.9",
-    "..., K from R x 10")."""
+    "..., K from R x 10"); ``dimension`` resolves a default facet count (``design.x0_facets`` not given)."""
     kind = options.x0_template
     if kind == "mrpi":
-        text = f"mrpi, {options.x0_facets} facets"
+        count = options.x0_facets if options.x0_facets is not None or dimension is None else options.facets_for(dimension)
+        text = f"mrpi, {count if count is not None else 'default'} facets"
+    elif kind == "parallelotope":
+        text = "parallelotope" + (f", {facets} facets" if facets is not None else "")
     elif kind == "contractive":
         text = f"contractive, lambda {options.x0_lambda if options.x0_lambda is not None else DEFAULT_X0_LAMBDA:g}"
         if facets is not None:
@@ -171,3 +216,11 @@ def _short(exc: Exception) -> str:
 def _emit(log, attempt: Attempt) -> None:
     if log is not None:
         log(attempt.line())
+
+
+def _record(attempts: list[Attempt], attempt: Attempt, log, budget: DesignBudget) -> None:
+    """Append ``attempt``, hand it to ``log`` and report its end through the budget's progress callback."""
+    attempts.append(attempt)
+    _emit(log, attempt)
+    if budget.progress is not None:
+        budget.progress(f"design candidate {len(attempts)}: {attempt.line()}")

@@ -14,12 +14,14 @@ from amcp_drake.model import polytope
 from amcp_drake.model.errors import DesignError, ProblemError, TerminalSetError
 from amcp_drake.model.problem import DEFAULT_X0_LAMBDA, DesignOptions, Problem
 from amcp_drake.model.status import SolveStatus
+from amcp_drake.offline import parallelotope, units
 from amcp_drake.offline import templates as x0_templates
-from amcp_drake.offline import units
 from amcp_drake.offline.auto import design_auto, template_label
+from amcp_drake.offline.budget import DesignBudget, chunked_row_maxima, chunked_tight_counts, unbounded
 from amcp_drake.offline.checks import verify_design
 from amcp_drake.offline.result import OfflineDesign, closed_loop_vertices, regressor_bound
 from amcp_drake.offline.support import bounded_vertices, row_maxima
+from amcp_drake.offline.terminal import scaled_terminal_set, terminal_set_kind
 
 __all__ = ["OfflineDesign", "closed_loop_vertices", "regressor_bound", "design", "design_fixed", "robust_gain",
            "template_label", "terminal_set", "template_directions"]
@@ -33,7 +35,8 @@ MRPI_RESIDUAL_FRACTION = x0_templates.MRPI_RESIDUAL_FRACTION
 X0_INFLATION = x0_templates.X0_INFLATION
 
 
-def design(problem: Problem, options: DesignOptions | None = None, backend="drake") -> OfflineDesign:
+def design(problem: Problem, options: DesignOptions | None = None, backend="drake",
+           budget: DesignBudget | None = None) -> OfflineDesign:
     """Compute the offline design of the algorithm (the offline part of the paper's algorithm).
 
     With ``options.x0_template == "auto"`` (the default) the templates of
@@ -44,23 +47,29 @@ def design(problem: Problem, options: DesignOptions | None = None, backend="drak
     and mapped back (:mod:`amcp_drake.offline.units`), so the same system in other diagonal state
     units gets the same design; with W's extents equal these units are the user's, bit for bit.
 
-    Raises DesignError (or TerminalSetError, TemplateError) naming the step and the condition that
-    failed; in auto mode a :class:`~amcp_drake.offline.auto.AutoDesignError` listing every attempt.
+    ``budget`` (:class:`~amcp_drake.offline.budget.DesignBudget`): the memory limit every stage is
+    sized against, the time budget of one candidate and the progress callback; None: the default
+    memory limit, no time budget, no progress lines.
+
+    Raises DesignError (or TerminalSetError, TemplateError, DesignSizeError, CandidateTimeout) naming
+    the step and the condition that failed; in auto mode a
+    :class:`~amcp_drake.offline.auto.AutoDesignError` listing every attempt.
     """
     options = (options or DesignOptions()).validate_for(problem)
+    budget = budget or unbounded()
     if options.x0_template != "auto":
-        return design_fixed(problem, options, backend=backend)
+        return design_fixed(problem, options, backend=backend, budget=budget)
     s = units.normalising_scales(problem, options)
     if units.is_identity(s):
         return design_auto(problem, options, backend=backend, design_fixed=_design_as_written, robust_gain=robust_gain,
-                           verify=verify_design)
+                           verify=verify_design, budget=budget)
     normalised, normalised_options = units.to_normalised(problem, options, s)
 
     def verify_in_users_units(_normalised: Problem, found: OfflineDesign, _bound) -> list:
         return verify_design(problem, units.from_normalised(found, s, problem, options), options.mu_state_bound)
 
     found = design_auto(normalised, normalised_options, backend=backend, design_fixed=_design_as_written,
-                        robust_gain=robust_gain, verify=verify_in_users_units)
+                        robust_gain=robust_gain, verify=verify_in_users_units, budget=budget)
     return units.from_normalised(found, s, problem, options)
 
 
@@ -85,7 +94,8 @@ def robust_gain(problem: Problem, options: DesignOptions, be) -> tuple[np.ndarra
     return gain.K, gain.P, "lmi" if scale == 1.0 else f"lmi (R x {scale:g})"
 
 
-def design_fixed(problem: Problem, options: DesignOptions, backend="drake", gain=None) -> OfflineDesign:
+def design_fixed(problem: Problem, options: DesignOptions, backend="drake", gain=None,
+                 budget: DesignBudget | None = None) -> OfflineDesign:
     """The offline design with the template named by ``options.x0_template`` (not "auto"), computed
     in the state units normalised by W and mapped back (:mod:`amcp_drake.offline.units`; with W's
     extents equal, the design as written, bit for bit).
@@ -98,9 +108,10 @@ def design_fixed(problem: Problem, options: DesignOptions, backend="drake", gain
     options = options.validate_for(problem)
     s = units.normalising_scales(problem, options)
     if units.is_identity(s):
-        return _design_as_written(problem, options, backend=backend, gain=gain)
+        return _design_as_written(problem, options, backend=backend, gain=gain, budget=budget)
     normalised, normalised_options = units.to_normalised(problem, options, s)
-    found = _design_as_written(normalised, normalised_options, backend=backend, gain=units.gain_to_normalised(gain, s))
+    found = _design_as_written(normalised, normalised_options, backend=backend, gain=units.gain_to_normalised(gain, s),
+                               budget=budget)
     mapped = units.from_normalised(found, s, problem, options, gain)
     failed = [c.name for c in verify_design(problem, mapped, options.mu_state_bound) if not c.passed]
     if failed:
@@ -111,18 +122,25 @@ def design_fixed(problem: Problem, options: DesignOptions, backend="drake", gain
     return mapped
 
 
-def _design_as_written(problem: Problem, options: DesignOptions, backend="drake", gain=None) -> OfflineDesign:
+def _design_as_written(problem: Problem, options: DesignOptions, backend="drake", gain=None,
+                       budget: DesignBudget | None = None) -> OfflineDesign:
     """The design of :func:`design_fixed` in the units ``problem`` is written in (no normalisation):
-    the template design of spec §4-§6; the automatic mode runs it on the normalised problem."""
+    the template design of spec §4-§6; the automatic mode runs it on the normalised problem. Every
+    stage is sized against ``budget`` before it allocates (module offline/budget.py)."""
     options = options.validate_for(problem)
+    budget = budget or unbounded()
     be = get_backend(backend)
     # μ, eq. (11), first: it needs no solver and fails fast on a missing state box
+    budget.require_vertices("mu (11): the state region's vertices", len(problem.F) + 2 * problem.n, problem.n)
     mu_sup, region = regressor_bound(problem, options.mu_state_bound)
     mu = options.mu_fraction / mu_sup
     theta_vertices = problem.theta_vertices()
 
     # K and P: Assumption 8 and (16)
     K, P, source = gain if gain is not None else robust_gain(problem, options, be)
+    T_par = None
+    if options.x0_template == "parallelotope":  # K from the LP of offline/parallelotope.py, P from (16) for it
+        K, P, source, T_par = _parallelotope_gain(problem, options, K, P, source, be, budget)
     A_cl = closed_loop_vertices(problem, K, theta_vertices)
     _require_stable(A_cl)
     if source != "given":
@@ -130,8 +148,11 @@ def _design_as_written(problem: Problem, options: DesignOptions, backend="drake"
 
     # X0: the cross-section template (offline/templates.py)
     FGK = problem.F + problem.G @ K
-    H_x = _x0(problem, A_cl, FGK, be, options)
+    budget.tick("X0 template")
+    H_x = _x0(problem, A_cl, FGK, be, options, budget) if T_par is None else _parallelotope_x0(problem, A_cl, T_par, budget)
+    budget.require_vertices("X0 vertices", len(H_x), problem.n)
     X0_vertices = polytope.vertices(H_x, np.ones(len(H_x)))
+    budget.tick("w_bar, f_bar, h_bar")
     w_bar = be.support(problem.H_w, np.ones(len(problem.H_w)), H_x)
     f_bar = be.support(H_x, np.ones(len(H_x)), FGK)
     h_bar = np.array([be.support(H_x, np.ones(len(H_x)), H_x @ Ak) for Ak in A_cl])
@@ -141,20 +162,28 @@ def _design_as_written(problem: Problem, options: DesignOptions, backend="drake"
     # The LP values are upper bounds only up to the solver's tolerance; the maxima over the vertices
     # of W and X0 are exact, so the larger of the two is a valid bound for either backend (found on
     # parsi2020_siso: the cvxpy backend's f̄ was 1.5e-9 too small and X_f left Z by 2e-8).
-    w_bar = np.maximum(w_bar, np.max(H_x @ problem.w_vertices().T, axis=1))
-    f_bar = np.maximum(f_bar, np.max(FGK @ X0_vertices.T, axis=1))
-    h_bar = np.maximum(h_bar, np.array([np.max(H_x @ Ak @ X0_vertices.T, axis=1) for Ak in A_cl]))
+    budget.require_vertices("w_bar: the vertices of W", len(problem.H_w), problem.n)
+    w_bar = np.maximum(w_bar, chunked_row_maxima(H_x, problem.w_vertices(), budget, "w_bar"))
+    f_bar = np.maximum(f_bar, chunked_row_maxima(FGK, X0_vertices, budget, "f_bar"))
+    h_bar = np.maximum(h_bar, np.array([chunked_row_maxima(H_x @ Ak, X0_vertices, budget, "h_bar") for Ak in A_cl]))
     lambda_bar = float(np.max(h_bar))
     if lambda_bar >= 1.0:
         raise DesignError(f"X0 is not contractive: lambda_bar = {lambda_bar:.4f} >= 1 (spec §5.1 conditions); "
                           "try more facets (design.x0_facets) or x0_template = 'contractive'")
 
-    # terminal set X_f, spec §5.1
-    if options.centre_dynamics == "nominal":
-        A_z = problem.A_of(problem.theta_hat0) + problem.B_of(problem.theta_hat0) @ K
+    # terminal set X_f, spec §5.1 (the recursion) or the scaled copy of X0 (offline/terminal.py)
+    terminal_kind = terminal_set_kind(options, problem.n)
+    if terminal_kind == "scaled":
+        A_z = np.zeros((problem.n, problem.n))  # the witness of the scaled copy is z⁺ = 0
+        H_T, h_T = scaled_terminal_set(H_x, f_bar, w_bar, h_bar)
+        iterations = 0
     else:
-        A_z = np.zeros((problem.n, problem.n))
-    H_T, h_T, iterations = terminal_set(FGK, f_bar, H_x, A_cl, A_z, w_bar, h_bar, be, options.terminal_max_iter)
+        if options.centre_dynamics == "nominal":
+            A_z = problem.A_of(problem.theta_hat0) + problem.B_of(problem.theta_hat0) @ K
+        else:
+            A_z = np.zeros((problem.n, problem.n))
+        H_T, h_T, iterations = terminal_set(FGK, f_bar, H_x, A_cl, A_z, w_bar, h_bar, be, options.terminal_max_iter,
+                                            budget=budget)
 
     # fixed-complexity shape of (9)
     H_theta = problem.H_theta
@@ -164,11 +193,35 @@ def _design_as_written(problem: Problem, options: DesignOptions, backend="drake"
     h_theta0 = be.support(problem.H_theta, problem.h_theta, H_theta_n)
     _require_finite_support("h_theta0", h_theta0)
 
-    info = {"x0_template": template_label(options, len(H_x))}
+    info = {"x0_template": template_label(options, len(H_x), dimension=problem.n), "terminal_set": terminal_kind}
     return OfflineDesign(K=K, P=P, H_x=H_x, X0_vertices=X0_vertices, w_bar=w_bar, f_bar=f_bar, h_bar=h_bar,
                          lambda_bar=lambda_bar, A_z=A_z, H_T=H_T, h_T=h_T, mu=float(mu), mu_sup=float(mu_sup),
                          mu_region=region, H_theta=H_theta_n, h_theta0=h_theta0, theta_vertices=theta_vertices,
-                         terminal_iterations=iterations, backend=be.name, gain_source=source, info=info)
+                         terminal_iterations=iterations, backend=be.name, gain_source=source, info=info,
+                         mu_state_bound=options.mu_state_bound)
+
+
+def _parallelotope_gain(problem: Problem, options: DesignOptions, K, P, source: str, be, budget: DesignBudget):
+    """(K, P, source, T) of the parallelotope template (offline/parallelotope.py): a given K is kept
+    (only the basis T is computed for it); otherwise K from the LP started at the LMI gain and P from
+    the LMI (16) for that K."""
+    if source == "given":
+        A0, B0 = problem.A_of(problem.theta_hat0), problem.B_of(problem.theta_hat0)
+        T = np.linalg.inv(parallelotope.real_eigenbasis(A0 + B0 @ K))
+        return K, P, source, parallelotope.perron_scaled(T, closed_loop_vertices(problem, K, problem.theta_vertices()))
+    K_lp, T, _ = parallelotope.parallelotope_gain(problem, K, budget)
+    P_lp = parallelotope.fixed_gain_terminal_weight(problem, K_lp, be, options.lmi_margin)
+    return K_lp, P_lp, "lp (parallelotope)" if source == "lmi" else f"lp (parallelotope, from {source})", T
+
+
+def _parallelotope_x0(problem: Problem, A_cl: np.ndarray, T: np.ndarray, budget: DesignBudget) -> np.ndarray:
+    """H_x of {‖T x‖∞ <= 1} scaled to robust invariance (offline/parallelotope.py, step 3)."""
+    n = problem.n
+    budget.require("X0 template parallelotope: vertices", 8.0 * (2 ** n) * n * 4, f"2^{n} vertices")
+    signs = np.array(np.meshgrid(*[[-1.0, 1.0]] * n, indexing="ij")).reshape(n, -1).T
+    verts = signs @ np.linalg.inv(T).T
+    H = np.vstack([T, -T])
+    return x0_templates.scale_to_robust_invariance(H, verts, problem.H_w, A_cl, "parallelotope")
 
 
 def _require_stable(A_cl: np.ndarray) -> None:
@@ -190,21 +243,23 @@ def _require_finite_support(name: str, values: np.ndarray) -> None:
         raise DesignError(f"{name}: a support-function LP was unbounded or failed ({values.tolist()})")
 
 
-def _x0(problem: Problem, A_cl: np.ndarray, FGK: np.ndarray, be, options: DesignOptions) -> np.ndarray:
+def _x0(problem: Problem, A_cl: np.ndarray, FGK: np.ndarray, be, options: DesignOptions,
+        budget: DesignBudget | None = None) -> np.ndarray:
     """Tube shape X0 = {H_x x <= 1} by the template of ``options.x0_template`` (offline/templates.py)."""
     kind = options.x0_template
     if kind == "mrpi":
-        return x0_templates.mrpi_template(problem.H_w, A_cl, be, options.x0_facets, options.mrpi_max_iter,
-                                          Z_rows=np.hstack([problem.F, problem.G]))
+        return x0_templates.mrpi_template(problem.H_w, A_cl, be, options.facets_for(problem.n), options.mrpi_max_iter,
+                                          Z_rows=np.hstack([problem.F, problem.G]), budget=budget)
     if kind == "contractive":
         lam = options.x0_lambda if options.x0_lambda is not None else DEFAULT_X0_LAMBDA
-        return x0_templates.contractive_template(FGK, problem.H_w, A_cl, be, lam)
+        return x0_templates.contractive_template(FGK, problem.H_w, A_cl, be, lam,
+                                                 max_rows=x0_templates.contractive_max_rows(problem.n), budget=budget)
     if kind == "given":
         return x0_templates.given_template(options.x0_H, problem.H_w, A_cl)
     raise ProblemError("design.x0_template", f"one of {list(x0_templates.TEMPLATE_KINDS)}", repr(kind))
 
 
-def terminal_set(FGK, f_bar, H_x, A_cl, A_z, w_bar, h_bar, be, max_iter: int):
+def terminal_set(FGK, f_bar, H_x, A_cl, A_z, w_bar, h_bar, be, max_iter: int, budget: DesignBudget | None = None):
     """X_f by the (z, α) recursion of spec §5.1 (Assumption 11, Appendix A.1).
 
     X^0 = {(F+GK) z + f̄ α <= 1, α >= 0};  X^{i+1} = X^i ∩ Pre(X^i) with the map
@@ -215,13 +270,22 @@ def terminal_set(FGK, f_bar, H_x, A_cl, A_z, w_bar, h_bar, be, max_iter: int):
     Redundancy: while X^i is unbounded, each candidate row is tested by a support LP of the
     backend; once it is bounded, exactly by its vertices (a linear function attains its maximum
     over a polytope at a vertex), which is far faster and needs no solver tolerance.
+
+    Size: the candidate rows of an iteration (new rows × v_p × u) and every vertex enumeration are
+    sized against ``budget`` before they are formed (DesignSizeError naming the stage otherwise), and
+    the rows × vertices products are computed in chunks (offline/budget.py).
     Returns (H_T, h_T, iterations).
     """
+    budget = budget or unbounded()
     n = FGK.shape[1]
-    current = _prune(_dedupe(np.column_stack([FGK, f_bar])), be)
+    current = _prune(_dedupe(np.column_stack([FGK, f_bar])), be, budget)
     new = current
     E = np.array([H_x @ (Ak - A_z) for Ak in A_cl])  # (v_p, u, n)
     for iteration in range(1, max_iter + 1):
+        stage = f"terminal set X_f, iteration {iteration} ({len(current)} rows)"
+        budget.tick(stage)
+        budget.require(stage, 8.0 * len(new) * len(A_cl) * len(H_x) * (n + 1) * 3,
+                       f"{len(new)} new rows x {len(A_cl)} vertices of Theta x {len(H_x)} rows of X0 candidate rows")
         candidates = []
         for a_b in new:
             a, b = a_b[:n], a_b[n]
@@ -236,13 +300,13 @@ def terminal_set(FGK, f_bar, H_x, A_cl, A_z, w_bar, h_bar, be, max_iter: int):
                 lhs_a = b * h_bar[k]                 # (u,)
                 candidates.append(np.column_stack([lhs_z, lhs_a]) / rhs[:, None])
         cand = _dedupe(np.vstack(candidates))
-        values = _row_maxima(current, cand, be)
+        values = _row_maxima(current, cand, be, budget, stage)
         if np.any(np.isnan(values)):
             raise TerminalSetError(f"terminal set recursion: an LP failed at iteration {iteration}")
         keep = ~(values <= 1.0 + TERMINAL_REDUNDANCY_TOL)
         if not np.any(keep):
             return current[:, :n], current[:, n], iteration
-        merged = _prune(np.vstack([current, cand[keep]]), be)
+        merged = _prune(np.vstack([current, cand[keep]]), be, budget)
         old = {tuple(np.round(r, 10)) for r in current}
         new = np.array([r for r in merged if tuple(np.round(r, 10)) not in old])
         current = merged
@@ -267,31 +331,37 @@ def _dedupe(rows: np.ndarray) -> np.ndarray:
     return rows[np.sort(idx)]
 
 
-def _bounded_vertices(rows: np.ndarray, be) -> np.ndarray | None:
+def _bounded_vertices(rows: np.ndarray, be, budget: DesignBudget | None = None,
+                      stage: str = "terminal set X_f: vertices") -> np.ndarray | None:
     """Vertices of {rows · y <= 1, α >= 0} when it is bounded (checked by backend LPs), else None."""
-    return bounded_vertices(*_with_alpha_nonneg(rows), be)
+    return bounded_vertices(*_with_alpha_nonneg(rows), be, budget, stage)
 
 
-def _row_maxima(rows: np.ndarray, directions: np.ndarray, be) -> np.ndarray:
+def _row_maxima(rows: np.ndarray, directions: np.ndarray, be, budget: DesignBudget | None = None,
+                stage: str = "terminal set X_f") -> np.ndarray:
     """max of each direction over {rows · y <= 1, α >= 0}: by vertices when bounded, else by LPs."""
-    return row_maxima(*_with_alpha_nonneg(rows), directions, be)
+    return row_maxima(*_with_alpha_nonneg(rows), directions, be, budget, stage)
 
 
-def _prune(rows: np.ndarray, be) -> np.ndarray:
+def _prune(rows: np.ndarray, be, budget: DesignBudget | None = None) -> np.ndarray:
     """Remove rows of {rows · (z, α) <= 1, α >= 0} implied by the others.
 
     Bounded case: a row is kept iff it is tight (within TERMINAL_REDUNDANCY_TOL) at >= dim
-    vertices of the set, i.e. it supports a facet. Unbounded case: one support LP per row.
+    vertices of the set, i.e. it supports a facet (rows × vertices in chunks). Unbounded case: one
+    support LP per row.
     """
+    budget = budget or unbounded()
     dim = rows.shape[1]
-    verts = _bounded_vertices(rows, be)
+    stage = f"terminal set X_f: redundant rows of {len(rows)}"
+    verts = _bounded_vertices(rows, be, budget, stage)
     if verts is not None:
-        tight = np.abs(rows @ verts.T - 1.0) <= TERMINAL_REDUNDANCY_TOL * 10
-        facet = np.array([np.linalg.matrix_rank(np.column_stack([verts[t], np.ones(t.sum())]), tol=1e-9) >= dim
-                          if t.sum() >= dim else False for t in tight])
+        tight = chunked_tight_counts(rows, verts, TERMINAL_REDUNDANCY_TOL * 10, budget, stage)
+        facet = np.array([np.linalg.matrix_rank(np.column_stack([verts[t], np.ones(len(t))]), tol=1e-9) >= dim
+                          if len(t) >= dim else False for t in tight], dtype=bool)
         return _dedupe(rows[facet])
     keep = np.ones(len(rows), dtype=bool)
     for i in range(len(rows)):
+        budget.tick(stage)
         keep[i] = False
         H, h = _with_alpha_nonneg(rows[keep])
         value = be.support(H, h, rows[i:i + 1])[0]

@@ -53,6 +53,9 @@ class OfflineDesign:
     backend: str
     gain_source: str = "lmi"
     info: dict = field(default_factory=dict)
+    #: the box |x_i| <= bound over which μ of (11) was computed when Z is unbounded in x (None: over Z);
+    #: recorded with the design so that a trajectory carries what the certificate's (11) check needs
+    mu_state_bound: float | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready dict of every field."""
@@ -68,7 +71,7 @@ class OfflineDesign:
         kwargs = {}
         for key, f in cls.__dataclass_fields__.items():
             if key not in data:
-                if key in ("gain_source", "info"):
+                if key in ("gain_source", "info", "mu_state_bound"):
                     continue
                 raise ProblemError(f"design.{key}", "a value", "nothing (missing)")
             value = data[key]

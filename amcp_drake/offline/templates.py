@@ -29,6 +29,7 @@ import numpy as np
 
 from amcp_drake.model import polytope
 from amcp_drake.model.errors import DesignError, ProblemError
+from amcp_drake.offline.budget import DesignBudget, chunked_tight_counts, unbounded
 from amcp_drake.offline.support import bounded_vertices, row_maxima
 
 #: The minimal-RPI iteration stops when T(h) - h is below this fraction of w̄ per row; inflating
@@ -44,6 +45,9 @@ MRPI_DIVERGENCE_FACTOR = 1e6
 MRPI_Z_FACTOR = 10.0
 #: Iteration and complexity caps of the λ-contractive backward iteration (2-D sets of the
 #: literature need 5-30 iterations and 10-40 rows; more rows make the tube QP large: N·v·u·q Λ's).
+#: The row cap is CONTRACTIVE_MAX_ROWS up to n = 3 and grows with n above
+#: (:func:`contractive_max_rows`); the vertex enumerations it implies are sized against the memory
+#: limit (offline/budget.py) whatever the cap.
 CONTRACTIVE_MAX_ITER = 200
 CONTRACTIVE_MAX_ROWS = 200
 #: A candidate row is redundant when the current set keeps it below 1 + this (Qhull vertex
@@ -56,7 +60,7 @@ CONTRACTIVE_CHECK_TOL = 1e-8
 #: falls below this fraction of the radius of the constraint set.
 COLLAPSE_FRACTION = 1e-6
 
-TEMPLATE_KINDS = ("auto", "mrpi", "contractive", "given")
+TEMPLATE_KINDS = ("auto", "mrpi", "contractive", "given", "parallelotope")
 
 
 class TemplateError(DesignError):
@@ -98,6 +102,13 @@ def template_directions(n: int, count: int) -> np.ndarray:
     return np.array(rows[:count])
 
 
+def contractive_max_rows(n: int) -> int:
+    """Row cap of the contractive template at dimension n: :data:`CONTRACTIVE_MAX_ROWS` up to n = 3,
+    then 50 more per state (a λ-contractive set in n dimensions needs rows in proportion to its
+    2n axis directions times the few images of each that the iteration adds)."""
+    return CONTRACTIVE_MAX_ROWS + 50 * max(0, int(n) - 3)
+
+
 def max_template_facets(n: int) -> int:
     """Largest ``count`` :func:`template_directions` accepts for dimension n (None-like 10**9 in 2-D)."""
     if n == 1:
@@ -110,7 +121,7 @@ def max_template_facets(n: int) -> int:
 # -- (a) minimal-RPI outer approximation -----------------------------------------------------------
 
 def mrpi_template(H_w: np.ndarray, A_cl: np.ndarray, be, facets: int, max_iter: int,
-                  Z_rows: np.ndarray | None = None) -> np.ndarray:
+                  Z_rows: np.ndarray | None = None, budget: DesignBudget | None = None) -> np.ndarray:
     """Template outer approximation of the minimal RPI set of x⁺ = A_cl(θ)x + w, θ ∈ Θ, w ∈ W.
 
     Least fixed point of h ↦ max_k σ_{X(h)}(A_cl(θ^k)ᵀ d_i) + σ_W(d_i), X(h) = {D x <= h},
@@ -122,6 +133,7 @@ def mrpi_template(H_w: np.ndarray, A_cl: np.ndarray, be, facets: int, max_iter: 
     (``Z_rows`` = [F G]; such a tube cannot fit in Z, so no design can follow), or, when Z does not
     bound the state in every template direction, 1e6 max σ_W (:data:`MRPI_DIVERGENCE_FACTOR`).
     """
+    budget = budget or unbounded()
     n = A_cl.shape[1]
     name = f"mrpi ({facets} facets)"
     D = template_directions(n, facets)
@@ -135,6 +147,7 @@ def mrpi_template(H_w: np.ndarray, A_cl: np.ndarray, be, facets: int, max_iter: 
             limit = MRPI_Z_FACTOR * z_sup
     h = w_sup.copy()
     for iteration in range(1, max_iter + 1):
+        budget.tick(f"X0 template {name}, iteration {iteration}")
         images = np.array([be.support(D, h, D @ Ak) for Ak in A_cl])
         if not np.all(np.isfinite(images)) or np.any(np.max(images, axis=0) > limit):
             raise TemplateError(name, "diverged",
@@ -155,7 +168,8 @@ def mrpi_template(H_w: np.ndarray, A_cl: np.ndarray, be, facets: int, max_iter: 
 # -- (b) maximal λ-contractive set under u = Kx ----------------------------------------------------
 
 def contractive_template(FGK: np.ndarray, H_w: np.ndarray, A_cl: np.ndarray, be, lam: float,
-                         max_iter: int = CONTRACTIVE_MAX_ITER, max_rows: int = CONTRACTIVE_MAX_ROWS) -> np.ndarray:
+                         max_iter: int = CONTRACTIVE_MAX_ITER, max_rows: int = CONTRACTIVE_MAX_ROWS,
+                         budget: DesignBudget | None = None) -> np.ndarray:
     """The maximal robust λ-contractive set of x⁺ = A_cl(θ)x + w inside C = {x | (F+GK) x <= 1}:
     the largest Ω ⊆ C with A_cl(θ^k) Ω ⊕ W ⊆ λ Ω for every vertex θ^k of Θ; returned as H_x
     with right-hand side 1.
@@ -168,7 +182,11 @@ def contractive_template(FGK: np.ndarray, H_w: np.ndarray, A_cl: np.ndarray, be,
     determination). Ω then satisfies h̄^k + w̄ <= λ: it is λ-contractive (λ̄ <= λ) and robustly
     invariant at once, and Ω ⊆ C gives f̄ <= 1 and α_∞ f̄ < 1 (a non-empty terminal set,
     spec §5.1). Both properties are verified at the vertices before returning.
+
+    Complexity: at most ``max_rows`` rows (:func:`contractive_max_rows`), checked after each
+    iteration, and every vertex enumeration sized against ``budget`` before Qhull runs.
     """
+    budget = budget or unbounded()
     name = f"contractive (lambda = {lam:g})"
     if not 0.0 < lam < 1.0:
         raise ProblemError("design.x0_lambda", "a number in (0, 1)", repr(lam))
@@ -176,10 +194,12 @@ def contractive_template(FGK: np.ndarray, H_w: np.ndarray, A_cl: np.ndarray, be,
     if len(rows) == 0:
         raise TemplateError(name, "no constraint", "F + GK has no non-zero row", "x0_template = 'mrpi'")
     ones_w = np.ones(len(H_w))
-    rows = _prune(rows, be)
+    rows = _prune(rows, be, budget)
     base_radius = None
     new = rows
     for iteration in range(1, max_iter + 1):
+        stage = f"X0 template {name}, iteration {iteration} ({len(rows)} rows)"
+        budget.tick(stage)
         sigma = be.support(H_w, ones_w, new)
         if not np.all(np.isfinite(sigma)):
             raise TemplateError(name, "LP failed", f"sigma_W failed at iteration {iteration}")
@@ -189,18 +209,22 @@ def contractive_template(FGK: np.ndarray, H_w: np.ndarray, A_cl: np.ndarray, be,
                                 f"(sigma_W = {np.max(sigma):.4g} >= lambda, iteration {iteration})",
                                 "a larger lambda (design.x0_lambda) or a lower-gain K (design.gain_R_scale)")
         cand = _unit_rows(np.vstack([(new @ Ak) / room[:, None] for Ak in A_cl]))
-        values = _row_maxima(rows, cand, be)
+        values = _row_maxima(rows, cand, be, budget, stage)
         if np.any(np.isnan(values)):
             raise TemplateError(name, "LP failed", f"a support LP failed at iteration {iteration}")
         violated = cand[~(values <= 1.0 + CONTRACTIVE_REDUNDANCY_TOL)]
         if len(violated) == 0:
-            return _verified(rows, H_w, A_cl, name, lam)
-        merged = _prune(np.vstack([rows, violated]), be)
+            return _verified(rows, H_w, A_cl, name, lam, budget)
+        if len(rows) + len(violated) > 10 * max_rows:  # far past the cap before pruning: stop here
+            raise TemplateError(name, "too complex", f"{len(rows)} rows and {len(violated)} violated candidate rows "
+                                f"at iteration {iteration} (cap {max_rows})",
+                                "a larger lambda (design.x0_lambda) or a lower-gain K (design.gain_R_scale)")
+        merged = _prune(np.vstack([rows, violated]), be, budget)
         old = {tuple(np.round(r, 10)) for r in rows}
         new = np.array([r for r in merged if tuple(np.round(r, 10)) not in old]).reshape(-1, rows.shape[1])
         rows = merged
         if len(new) == 0:
-            return _verified(rows, H_w, A_cl, name, lam)
+            return _verified(rows, H_w, A_cl, name, lam, budget)
         if len(rows) > max_rows:
             raise TemplateError(name, "too complex", f"{len(rows)} rows after {iteration} iterations (cap {max_rows})",
                                 "a larger lambda (design.x0_lambda) or a lower-gain K (design.gain_R_scale)")
@@ -217,8 +241,10 @@ def contractive_template(FGK: np.ndarray, H_w: np.ndarray, A_cl: np.ndarray, be,
                         "a larger lambda (design.x0_lambda) or a lower-gain K (design.gain_R_scale)")
 
 
-def _verified(rows: np.ndarray, H_w: np.ndarray, A_cl: np.ndarray, name: str, lam: float) -> np.ndarray:
+def _verified(rows: np.ndarray, H_w: np.ndarray, A_cl: np.ndarray, name: str, lam: float,
+              budget: DesignBudget | None = None) -> np.ndarray:
     """Check h̄^k + w̄ <= λ at the vertices of {rows x <= 1} (bounded, with interior) and return rows."""
+    (budget or unbounded()).require_vertices(f"X0 template {name}: vertices", len(rows), rows.shape[1])
     try:
         verts = polytope.vertices(rows, np.ones(len(rows)))
     except ValueError as exc:
@@ -279,28 +305,33 @@ def _unit_rows(M: np.ndarray) -> np.ndarray:
     return M[np.sort(idx)]
 
 
-def _bounded_vertices(rows: np.ndarray, be) -> np.ndarray | None:
+def _bounded_vertices(rows: np.ndarray, be, budget: DesignBudget | None = None,
+                      stage: str = "X0 template: vertices") -> np.ndarray | None:
     """Vertices of {rows · x <= 1} when it is bounded, else None."""
-    return bounded_vertices(rows, np.ones(len(rows)), be)
+    return bounded_vertices(rows, np.ones(len(rows)), be, budget, stage)
 
 
-def _row_maxima(rows: np.ndarray, directions: np.ndarray, be) -> np.ndarray:
+def _row_maxima(rows: np.ndarray, directions: np.ndarray, be, budget: DesignBudget | None = None,
+                stage: str = "X0 template") -> np.ndarray:
     """max of each direction over {rows · x <= 1}: by vertices when bounded, else by LPs."""
-    return row_maxima(rows, np.ones(len(rows)), directions, be)
+    return row_maxima(rows, np.ones(len(rows)), directions, be, budget, stage)
 
 
-def _prune(rows: np.ndarray, be) -> np.ndarray:
+def _prune(rows: np.ndarray, be, budget: DesignBudget | None = None) -> np.ndarray:
     """Drop rows of {rows · x <= 1} implied by the others: by facet test at the vertices when the set
-    is bounded, else one support LP per row."""
+    is bounded (rows × vertices in chunks), else one support LP per row."""
+    budget = budget or unbounded()
     dim = rows.shape[1]
-    verts = _bounded_vertices(rows, be)
+    stage = f"X0 template: redundant rows of {len(rows)}"
+    verts = _bounded_vertices(rows, be, budget, stage)
     if verts is not None:
-        tight = np.abs(rows @ verts.T - 1.0) <= CONTRACTIVE_REDUNDANCY_TOL * 1e3
-        facet = np.array([t.sum() >= dim and np.linalg.matrix_rank(verts[t] - verts[t][0], tol=1e-9) >= dim - 1
-                          for t in tight])
+        tight = chunked_tight_counts(rows, verts, CONTRACTIVE_REDUNDANCY_TOL * 1e3, budget, stage)
+        facet = np.array([len(t) >= dim and np.linalg.matrix_rank(verts[t] - verts[t][0], tol=1e-9) >= dim - 1
+                          for t in tight], dtype=bool)
         return _unit_rows(rows[facet])
     keep = np.ones(len(rows), dtype=bool)
     for i in range(len(rows)):
+        budget.tick(stage)
         keep[i] = False
         value = be.support(rows[keep], np.ones(int(keep.sum())), rows[i:i + 1])[0]
         if not (value <= 1.0 + CONTRACTIVE_REDUNDANCY_TOL):

@@ -191,7 +191,8 @@ def from_normalised(design: OfflineDesign, s: np.ndarray, problem: Problem, opti
     info = dict(design.info, state_units={"normalised_by": "W extents", "xi_equals_diag_times_x": s.tolist()})
     return replace(design, K=K, P=P, H_x=design.H_x @ S, X0_vertices=design.X0_vertices @ S_inv,
                    A_z=S_inv @ design.A_z @ S, H_T=design.H_T @ S,
-                   mu=float(options.mu_fraction / mu_sup), mu_sup=float(mu_sup), mu_region=region, info=info)
+                   mu=float(options.mu_fraction / mu_sup), mu_sup=float(mu_sup), mu_region=region, info=info,
+                   mu_state_bound=options.mu_state_bound)
 
 
 __all__ = ["EXTENT_RTOL", "UnitsMappingError", "from_normalised", "gain_to_normalised", "is_identity",

@@ -21,7 +21,8 @@ from amcp_drake.model.options import OnlineOptions
 from amcp_drake.model.problem import Problem
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.offline.design import OfflineDesign
-from amcp_drake.online import answer_checks
+from amcp_drake.online import answer_checks, answers
+from amcp_drake.online.formulation_choice import resolve_formulation
 
 #: Rows of Δ_k are scaled to unit norm before the update: near x = 0 the raw rows −H_w D_{k−1} are of
 #: order ‖x_{k−1}‖, and the LP solvers' absolute tolerances then allow errors of order tol/‖row‖ in θ
@@ -51,7 +52,7 @@ QP_NO_ANSWER = RETRIED
 REDUNDANT_ROW_TOL = polytope.REDUNDANCY_TOL
 
 # ufunc reductions called directly: ``ndarray.all``/``sum`` and ``np.all`` reach these same reductions
-# through Python wrappers (~1-2 µs per call in the online loop, issue 16)
+# through Python wrappers (~1-2 µs per call in the online loop)
 _and_reduce = np.logical_and.reduce
 _add_reduce = np.add.reduce
 # Products of 1-D/2-D operands are written ``a.dot(b)``: the BLAS call of ``@`` (gemv/gemm, the same bits:
@@ -117,6 +118,10 @@ class StepRecord:
     #: after a failed check), its detail follows after "; ". Counted by amcp_drake.studies.resolves.
     qp_detail: str = ""
     times: dict[str, float] = field(default_factory=dict)
+    #: How each solver answer of the step was obtained, as data (amcp_drake.online.answers): one entry
+    #: {"problem", "outcome", "kind", "check"} per problem solved. None: a record without provenance
+    #: (a trajectory written before it was recorded), reported as unknown.
+    answers: list[dict[str, str]] | None = None
 
 
 class AdaptiveMPC:
@@ -132,6 +137,8 @@ class AdaptiveMPC:
         self.problem = problem
         self.design = design
         self.options = options or OnlineOptions()
+        # formulation="auto": the size rule of amcp_drake.online.formulation_choice picks plain or vertex
+        backend_options, self.formulation_choice = resolve_formulation(backend_options, problem, design, self.options)
         self.backend = get_backend(backend, **backend_options)
         self._backend_spec = (backend, dict(backend_options))
         self._other_mpc = None  # the other formulation of (20), built on first need (answer checks)
@@ -176,7 +183,7 @@ class AdaptiveMPC:
         #: the last inputs u_k (m = 1) the PE constraint needs: pe_quadratic reads only the last
         #: pe_window − 1 + n of them, so at most pe_window + n are kept (none without PE)
         self._u_hist: list[float] = []
-        #: (H, h, vertices) of the last Θ_k whose vertices the tube check enumerated (issue 16: reused
+        #: (H, h, vertices) of the last Θ_k whose vertices the tube check enumerated (reused
         #: while Θ_k is unchanged to the bit, which is most steps once Θ_k has settled)
         self._checked_vertices: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
         self._regression_cache: tuple | None = None
@@ -250,15 +257,19 @@ class AdaptiveMPC:
 
         if result.status is SolveStatus.OPTIMAL:
             checks = check(result.h, result.Lambda, getattr(result, "points", None))
-            if not answer_checks.failures(checks):
+            failed = answer_checks.failures(checks)
+            if not failed:
                 record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - t0
                 self.h_theta = self._dilate(self._nested(result.h), 1)
                 record.set_Lambda = result.Lambda
+                self._answer(record, "set_update", "first")
                 return True
             record.set_status = SolveStatus.INACCURATE
             note = answer_checks.describe_failures("set update (9)", checks)
+            why = failed[0].name
         else:
             note = f"set update (9): backend status {result.status.value}"
+            why = f"status {result.status.value}"
         # fallback 1: another solver, the per-row supports of Θ_{k−1} ∩ Δ_k by HiGHS, checked the same way
         sup = polytope.support_certified(np.vstack([H_theta, H_data]), np.concatenate([self.h_theta, h_data]), H_theta)
         record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - t0
@@ -266,10 +277,12 @@ class AdaptiveMPC:
             self.h_theta = self._dilate(self._nested(sup.values), 1)
             record.set_Lambda = sup.duals
             self._note(record, note + "; fallback: HiGHS support LPs (checked)")
+            self._answer(record, "set_update", "fallback", "highs_support_lps", why)
             return True
         # fallback 2: keep Θ_{k−1}, always a valid outer set of Θ_{k−1} ∩ Δ_k (and nested, (10))
         self.h_theta = self._dilate(np.asarray(self.h_theta, float), 1)
         self._note(record, note + "; fallback: kept Θ_(k−1) (HiGHS answer failed too)")
+        self._answer(record, "set_update", "fallback", "kept_previous_set", why)
         return True
 
     def _update_exact(self, H_delta, h_delta, record: StepRecord) -> bool:
@@ -280,10 +293,10 @@ class AdaptiveMPC:
 
         The removed rows are checked in order and a row that is not implied is put back at once, so the
         rows checked after it are checked against it too. Sound: adding rows to the kept set can only
-        shrink it, so a removed row implied by the smaller set stays implied. (Until session 6 one
-        failed row kept every row, and Θ_k grew by ~7 rows a step on campaign seed 13 #6, generator 2;
-        until session 7 the re-check ran HiGHS at its default tolerances, which was the LP 4e-8 off
-        there, not the backend's: rows were put back at 7 of 15 steps, now at none.)"""
+        shrink it, so a removed row implied by the smaller set stays implied. Putting back only the failed
+        row (not every row) keeps Θ_k from growing by several rows a step; the re-check uses the backend's
+        LP tolerances (HiGHS at its defaults was 4e-8 off on campaign seed 13 #6 and put rows back at 7
+        of 15 steps)."""
         H = np.vstack([self.H_theta, H_delta])
         h = np.concatenate([self.h_theta, h_delta])
         _, radius = polytope.chebyshev_center(H, h)
@@ -315,6 +328,9 @@ class AdaptiveMPC:
             self._note(record, f"exact update (7): {len(not_implied)} removed row(s) not implied by the kept rows "
                                f"(worst {max(not_implied.values()):.3g} > {answer_checks.SET_NESTED_TOL:.0e}, HiGHS); "
                                "fallback: those rows kept")
+            self._answer(record, "exact_update", "fallback", "removed_rows_kept", "removed row implied by the kept rows")
+        else:
+            self._answer(record, "exact_update", "first")
         self.H_theta, self.h_theta = H[keep], h[keep]
         return True
 
@@ -329,6 +345,11 @@ class AdaptiveMPC:
     @staticmethod
     def _note(record: StepRecord, text: str) -> None:
         record.detail = f"{record.detail}; {text}" if record.detail else text
+
+    @staticmethod
+    def _answer(record: StepRecord, problem: str, outcome: str, kind: str = "", check: str = "") -> None:
+        """Record how the step's answer of ``problem`` was obtained (:mod:`amcp_drake.online.answers`)."""
+        record.answers.append(answers.entry(problem, outcome, kind, check))
 
     def _dilate(self, h: np.ndarray, l: int) -> np.ndarray:
         """min(h + l d_θ n, h_θ0), n_i = ‖[H_θ]_i‖: the fixed-shape form of D_l(·) ∩ Θ0 of (25)/(26).
@@ -386,19 +407,24 @@ class AdaptiveMPC:
         try:
             if result.status is SolveStatus.OPTIMAL:
                 checks = answer_checks.check_projection(result.theta, theta_tilde, H, h, candidates)
-                if not answer_checks.failures(checks):
+                failed = answer_checks.failures(checks)
+                if not failed:
                     self.theta_hat = np.asarray(result.theta, float)
+                    self._answer(record, "projection", "first")
                     return True
                 record.projection_status = SolveStatus.INACCURATE
                 note = answer_checks.describe_failures(f"projection (12) onto {target}", checks)
+                why = failed[0].name
             else:
                 note = f"projection (12) onto {target}: backend status {result.status.value}"
+                why = f"status {result.status.value}"
             # fallback 1: another solver (least-distance programming by NNLS), checked the same way
             ldp = polytope.least_distance_point(theta_tilde, H, h)
             if ldp is not None and not answer_checks.failures(
                     answer_checks.check_projection(ldp, theta_tilde, H, h, candidates)):
                 self.theta_hat = ldp
                 self._note(record, note + "; fallback: least-distance projection (NNLS, checked)")
+                self._answer(record, "projection", "fallback", "least_distance", why)
                 return True
             # fallback 2: a certified point of S (any θ̂ in S keeps Theorem 14; Lemma 5 is not claimed
             # for such a step: the certificate's lms_update skips steps whose projection is not optimal)
@@ -406,13 +432,16 @@ class AdaptiveMPC:
             Hn, hn = polytope.normalize_rows(H, h)
             if float(np.max(Hn @ self.theta_hat - hn)) <= tol:
                 self._note(record, note + f"; fallback: kept θ̂_(k−1) (in {target})")
+                self._answer(record, "projection", "fallback", "kept_previous_estimate", why)
                 return True
             centre, radius = polytope.chebyshev_center(H, h)
             if np.all(np.isfinite(centre)) and float(np.max(Hn @ centre - hn)) <= tol:
                 self.theta_hat = centre
                 self._note(record, note + f"; fallback: Chebyshev centre of {target} (radius {radius:.3g})")
+                self._answer(record, "projection", "fallback", "chebyshev_centre", why)
                 return True
             self._note(record, note + f"; no certified point of {target}: step not solved")
+            self._answer(record, "projection", "not_solved", "", why)
             return False
         finally:
             record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - t0
@@ -453,10 +482,13 @@ class AdaptiveMPC:
                 # Clarabel answered a PE-bounded QP with (15c) violated by 0.15) counts as no answer,
                 # so the reduced levels and the fallback to (20) alone still apply
                 what = f"tube QP (20) with PE bound u_0 in [{b[0]:.6g}, {b[1]:.6g}]"
-                sol, failed = self._checked_or_refined(sol, x, h_arg, H_arg, b, record, what)
+                sol, failed, resolved = self._checked_or_refined(sol, x, h_arg, H_arg, b, record, what)
                 if failed:
                     self._note(record, answer_checks.describe_failures(what, failed) + "; candidate dropped")
+                    self._answer(record, "pe_candidate", "not_solved", "candidate_dropped", failed[0].name)
                     continue
+                if resolved:
+                    self._answer(record, "pe_candidate", "resolved", "iterative_refinement", resolved)
                 if best is None or sol.cost < best.cost:
                     best, best_b = sol, b
             if best is not None:
@@ -524,8 +556,7 @@ class AdaptiveMPC:
             other = "vertex" if getattr(self.backend, "formulation", "plain") == "plain" else "plain"
             options = {**backend_options, "formulation": other}
             # the fast path (qp_solver="daqp") is the vertex form's only: the plain form of a fast-path
-            # controller is solved by the backend's solver (found by `amcp bench --quick`, session 8:
-            # the fallback raised ValueError instead of solving)
+            # controller is solved by the backend's solver (the fast-path option would raise ValueError there)
             options.pop("qp_solver", None)
             self._other_mpc = get_backend(name, **options).tube_mpc(self.data)
         return self._other_mpc
@@ -537,17 +568,18 @@ class AdaptiveMPC:
         clarabel_retry.NO_REFINEMENT: the re-solve is part of the solve, like the Clarabel retry
         ladder: same program, same solver, and the answer applied is a checked one; found by the
         thorough profile: a first try 1.3e-6 outside (15c) at x_0 on the boundary of the feasible
-        set). ``failed``: the first answer's failed checks when neither passes, else []."""
+        set). ``failed``: the first answer's failed checks when neither passes, else []; ``resolved``: the
+        name of the first answer's failed check when the re-solve answered, else ""."""
         failed = self._failed_tube_checks(sol, x, h_arg, H_arg, record)
         if not failed or not getattr(self.mpc, "REFINES", False):
-            return sol, failed
+            return sol, failed, ""
         alt = self.mpc.solve(x, h_arg, self.theta_hat, H_arg, u0_bounds=u0_bounds, refine=True)
         record.times["solver_refined"] = record.times.get("solver_refined", 0.0) + alt.solver_time
         if alt.status is SolveStatus.OPTIMAL and not self._failed_tube_checks(alt, x, h_arg, H_arg, record):
             self._note(record, answer_checks.describe_failures(f"{what}, first try without iterative refinement",
                                                                failed) + "; re-solved with iterative refinement (checked)")
-            return alt, []
-        return sol, failed
+            return alt, [], failed[0].name
+        return sol, failed, ""
 
     def _failed_tube_checks(self, sol, x, h_arg, H_arg, record: StepRecord) -> list:
         """The failed answer checks of ``sol`` (:meth:`_tube_checks`); their CPU time is added to
@@ -568,29 +600,39 @@ class AdaptiveMPC:
         "infeasible" QP is an answer and has no fallback."""
         if sol.status is not SolveStatus.OPTIMAL:
             if sol.status not in QP_NO_ANSWER:
+                # "infeasible" (or another answer that is no solution): the backend's own answer
+                self._answer(record, "tube_qp", "not_solved", sol.status.value)
                 return None
             alt = self._other_formulation_answer(
-                f"tube QP (20): status {sol.status.value}, no answer ({sol.detail})", x, h_arg, H_arg, record)
+                f"tube QP (20): status {sol.status.value}, no answer ({sol.detail})", f"status {sol.status.value}",
+                x, h_arg, H_arg, record)
             if alt is not None:
                 record.status = SolveStatus.INACCURATE
             return alt
         if checked:
+            self._answer(record, "tube_qp", "first")
             return sol
-        sol, failed = self._checked_or_refined(sol, x, h_arg, H_arg, None, record, "tube QP (20)")
+        sol, failed, resolved = self._checked_or_refined(sol, x, h_arg, H_arg, None, record, "tube QP (20)")
         if not failed:
+            if resolved:
+                self._answer(record, "tube_qp", "resolved", "iterative_refinement", resolved)
+            else:
+                self._answer(record, "tube_qp", "first")
             return sol
         record.status = SolveStatus.INACCURATE
-        return self._other_formulation_answer(answer_checks.describe_failures("tube QP (20)", failed),
+        return self._other_formulation_answer(answer_checks.describe_failures("tube QP (20)", failed), failed[0].name,
                                               x, h_arg, H_arg, record)
 
-    def _other_formulation_answer(self, note: str, x, h_arg, H_arg, record: StepRecord):
+    def _other_formulation_answer(self, note: str, why: str, x, h_arg, H_arg, record: StepRecord):
         """The other formulation's answer of (20) when it passes the answer checks, else None; ``note``
-        (why the first answer is not used) and the outcome are written to ``record.detail``."""
+        (why the first answer is not used) and the outcome are written to ``record.detail``, and the
+        outcome with ``why`` (the first answer's failed check) to ``record.answers``."""
         spent = 0.0
         try:
             other = self._other_formulation()
             if other is None:
                 self._note(record, note + "; no other formulation for these options: step not solved")
+                self._answer(record, "tube_qp", "not_solved", "", why)
                 return None
             form = getattr(other, "formulation", "plain")
             alt = other.solve(x, h_arg, self.theta_hat, H_arg)
@@ -600,10 +642,12 @@ class AdaptiveMPC:
             spent += time.process_time() - t0
             if alt_checks is not None and not answer_checks.failures(alt_checks):
                 self._note(record, note + f"; fallback: {form} form of (20) (checked)")
+                self._answer(record, "tube_qp", "fallback", f"{form}_form", why)
                 return alt
-            why = (f"status {alt.status.value}" if alt_checks is None
-                   else answer_checks.describe_failures("checks", alt_checks))
-            self._note(record, note + f"; fallback {form} form failed ({why}): step not solved")
+            failed_too = (f"status {alt.status.value}" if alt_checks is None
+                          else answer_checks.describe_failures("checks", alt_checks))
+            self._note(record, note + f"; fallback {form} form failed ({failed_too}): step not solved")
+            self._answer(record, "tube_qp", "not_solved", f"{form}_form", why)
             return None
         finally:
             record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + spent
@@ -617,7 +661,7 @@ class AdaptiveMPC:
             raise ProblemError("x", f"a finite state vector of length {self.problem.n}", f"{x!r}")
         self._regression_cache = None
         record = StepRecord(k=self.k, x=x, u=None, status=SolveStatus.NOT_RUN, H_theta=self.H_theta,
-                            h_theta=self.h_theta, theta_hat=self.theta_hat)
+                            h_theta=self.h_theta, theta_hat=self.theta_hat, answers=[])
         if self._prev is not None and self.options.update != "none":
             x_prev, u_prev = self._prev
             t0 = time.perf_counter()

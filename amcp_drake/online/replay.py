@@ -15,13 +15,15 @@ from amcp_drake.model.problem import ProblemSpec
 
 def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: str | None = None,
                  formulation: str = "plain", steps: int | None = None, seed: int | None = None, options=None,
-                 offline=None, progress: bool = False):
+                 offline=None, progress: bool = False, design_budget=None):
     """The closed loop of ``spec.scenario`` on ``backend``; returns the Trajectory (a partial one when
     Θ_{k-1} ∩ Δ_k = ∅ stops the run, with ``stop_reason`` saying so).
 
     ``design_backend``: the backend of the offline design (default: ``backend``); ``offline``: an
     OfflineDesign to use instead of designing; ``steps``/``seed``: override the scenario's;
-    ``options``: the OnlineOptions (default: the file's ``online`` section, else the defaults).
+    ``options``: the OnlineOptions (default: the file's ``online`` section, else the defaults);
+    ``design_budget``: the :class:`~amcp_drake.offline.budget.DesignBudget` of the design (memory limit,
+    time budget per candidate, progress lines; None: the default limit, silent).
     """
     from amcp_drake.model.errors import InconsistentDataError, ProblemError
     from amcp_drake.offline.design import design
@@ -37,7 +39,7 @@ def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: s
     if options is None:
         options = spec.online
     if offline is None:
-        offline = design(spec.problem, spec.design, backend=design_backend or backend)
+        offline = design(spec.problem, spec.design, backend=design_backend or backend, budget=design_budget)
     ctrl = AdaptiveMPC(spec.problem, offline, backend=backend, options=options, formulation=formulation)
     try:
         return simulate(ctrl, sc.x0, sc.theta_star_for(steps), steps, sc.disturbance_for(steps), seed=seed,

@@ -18,7 +18,7 @@ import numpy as np
 
 from amcp_drake.model import polytope
 from amcp_drake.model.errors import InconsistentDataError, ProblemError, TrajectoryError
-from amcp_drake.model.json_strict import decode_utf8, first_non_finite, loads_strict
+from amcp_drake.model.json_strict import GZIP_MAGIC, decode_utf8, first_non_finite, loads_strict, read_bytes_limited
 from amcp_drake.model.options import OnlineOptions
 from amcp_drake.model.problem import DISTURBANCE_KINDS, Problem, ProblemSpec, check_theta_rate
 from amcp_drake.model.problem_io import (
@@ -30,7 +30,9 @@ from amcp_drake.model.problem_io import (
     write_text_atomic,
 )
 from amcp_drake.model.status import SolveStatus
+from amcp_drake.model.trajectory_schema import check_consistency, validate_trajectory_layout
 from amcp_drake.offline.design import OfflineDesign
+from amcp_drake.online import answers
 from amcp_drake.online.controller import AdaptiveMPC, StepRecord
 
 TRAJECTORY_FORMAT = "amcp-trajectory"
@@ -38,7 +40,8 @@ TRAJECTORY_VERSION = 1
 #: Versions of the trajectory format this code reads; any other "version" is refused (exit 2), since
 #: a newer layout may hold data this version would silently ignore.
 SUPPORTED_TRAJECTORY_VERSIONS = (1,)
-#: Largest decompressed trajectory read (a run of MAX_STEPS steps of Example 1 is ~0.5 GB of JSON);
+#: Largest trajectory file read, and largest decompressed content of a gzip one (a run of MAX_STEPS steps
+#: of Example 1 is ~0.5 GB of JSON); the file size is checked before it is read, the decompressed size
 #: guards against a small .gz that expands without end.
 MAX_TRAJECTORY_BYTES = 2**31
 
@@ -148,11 +151,12 @@ class Trajectory:
         and an unknown format version raise TrajectoryError naming the file or the field."""
         path = Path(path)
         try:
-            raw = path.read_bytes()
+            open(path, "rb").close()
         except OSError as exc:
             raise TrajectoryError(f"--trajectory: expected a readable trajectory file; received {path}, which "
                                   f"cannot be read ({exc.strerror or exc})") from None
-        if raw[:2] == b"\x1f\x8b":
+        raw = read_bytes_limited(path, MAX_TRAJECTORY_BYTES, TrajectoryError, "trajectory file", gzip_ok=True)
+        if raw[:2] == GZIP_MAGIC:
             raw = _gunzip(raw, path)
         text = decode_utf8(raw, str(path), TrajectoryError)
         return cls.from_dict(loads_strict(text, str(path), TrajectoryError))
@@ -166,6 +170,8 @@ class Trajectory:
         if isinstance(version, bool) or version not in SUPPORTED_TRAJECTORY_VERSIONS:
             raise TrajectoryError(f"version: expected one of {list(SUPPORTED_TRAJECTORY_VERSIONS)} (the trajectory "
                                   f"format versions this amcp reads); received {version!r}")
+        validate_trajectory_layout(data)
+        check_consistency(data)
         try:
             problem = spec_from_dict(data["problem"], reduce_rows=False).problem
         except ProblemError as exc:
@@ -216,6 +222,8 @@ def _record_to_dict(r: StepRecord) -> dict[str, Any]:
             value = value.tolist()
         elif isinstance(value, SolveStatus):
             value = value.value
+        elif f.name == "answers" and value is not None:
+            value = [dict(e) for e in value]
         elif isinstance(value, tuple):
             # ±inf (one-sided PE bounds) is not JSON: stored as None
             value = [None if isinstance(v, float) and not np.isfinite(v) else v for v in value]
@@ -254,6 +262,8 @@ def _record_from_dict(d: dict[str, Any]) -> StepRecord:
             value = SolveStatus(value)
         elif f.name == "infeasible_constraints":
             value = tuple(value)
+        elif f.name == "answers":
+            value = answers.validate(value, "answers")
         elif f.name == "pe_bounds" and value is not None:
             value = (float("-inf") if value[0] is None else value[0], float("inf") if value[1] is None else value[1])
         kwargs[f.name] = value
@@ -271,7 +281,8 @@ def simulate(controller: AdaptiveMPC, x0, theta_star, steps: int, disturbance: s
 
     The run ends early, keeping the partial trajectory, when a step's status is not OPTIMAL.
     InconsistentDataError (Θ_{k-1} ∩ Δ_k empty) propagates with the partial trajectory attached
-    as ``exc.trajectory``.
+    as ``exc.trajectory``. ``mu_state_bound`` (the box of (11) when Z is unbounded in x) defaults to
+    the one the controller's design recorded, so the trajectory carries what its certificate needs.
     """
     problem = controller.problem
     x = np.asarray(x0, float)
@@ -290,6 +301,8 @@ def simulate(controller: AdaptiveMPC, x0, theta_star, steps: int, disturbance: s
             raise ProblemError("theta_star" if theta_star.ndim == 1 else f"theta_star[{k}]",
                                "a point of Theta (Assumption 1 / 17)", f"{th.tolist()}")
     check_theta_rate(theta_star, controller.options.d_theta)
+    if mu_state_bound is None:
+        mu_state_bound = getattr(controller.design, "mu_state_bound", None)
     W = disturbance_sequence(problem, disturbance, steps, seed)
     controller.reset()
     xs, us, ws, records = [x], [], [], []

@@ -1,4 +1,4 @@
-"""Verification campaigns on Dask distributed (issues 9 and 17).
+"""Verification campaigns on Dask distributed.
 
 ``run_campaign`` draws problem ``idx`` of campaign ``seed`` from the library's numpy generator
 (:func:`amcp_drake.studies.random_problems.random_case`, seeded per problem by :func:`problem_seed`;
@@ -10,7 +10,7 @@ queue. A task whose worker dies is re-run by Dask (``retries``); an interrupted 
 with ``resume=True`` by skipping the indices already stored, and only with the settings the store
 was made with (:func:`campaign_settings`, recorded in the store).
 
-Replays (issue 17, item 3). Each drawn case becomes a complete problem file first
+Replays. Each drawn case becomes a complete problem file first
 (:func:`replay_spec`: problem, design options, ``online`` options, x0, θ*, steps and the explicit
 disturbance array), which is serialised and parsed back; the campaign then runs *that* file through
 :func:`amcp_drake.online.replay.run_scenario`, the function ``amcp certify PROBLEM`` runs, with the offline
@@ -42,12 +42,12 @@ TASK_RETRIES = 2
 #: The generator of campaign problems and its version: a store records it (``generator`` setting), so a
 #: store made with another generator is never resumed. Change it whenever problem ``idx`` of a seed
 #: would come out different (another generator, or a change of random_problems' draws).
-#: Version 2 (session 6): the online options draw the exact update (7) too (the problems are those of 1).
-#: Version 3 (session 7): 1/4 of the problems are written in badly scaled state units
+#: Version 2: the online options draw the exact update (7) too (the problems are those of 1).
+#: Version 3: 1/4 of the problems are written in badly scaled state units
 #: (``ProblemShape.scaled_states``); every later draw of a seed moves.
-#: Version 4 (session 8): the same draws, but the design is made in state units normalised by W
+#: Version 4: the same draws, but the design is made in state units normalised by W
 #: (offline/units.py), so which draws design, their X0 and the initial states drawn from it move.
-#: Version 5 (session 9): problems with input uncertainty and p <= n are pinned too (w_0 chosen for the
+#: Version 5: problems with input uncertainty and p <= n are pinned too (w_0 chosen for the
 #: controller's first input u_0, studies/pinning.py); the pin draw then moves every later draw of a seed.
 #: Same version: a W whose largest extent is outside offline/units.EXTENT_BAND is designed at another
 #: common scale (a scaled draw with every state in units 1e-2 and extents below 0.01).
@@ -91,7 +91,7 @@ def library_versions() -> dict[str, str]:
 
 
 def campaign_settings(seed: int, systems: int, backends: Iterable[str], steps: int) -> dict[str, Any]:
-    """Everything that determines a campaign's results, as recorded in its store (issue 17, item 4):
+    """Everything that determines a campaign's results, as recorded in its store:
     a store made with other settings is never resumed (scheduler and workers do not change results
     and are not recorded)."""
     return {"seed": int(seed), "systems": int(systems), "backends": list(backends), "steps": int(steps),
@@ -151,7 +151,7 @@ def save_replay(folder: str | Path, text: str, result: dict[str, Any], trajs: di
 
 def _coverage(traj) -> dict[str, float]:
     """Did the run exercise the claims? Constraints active, Θ_k shrinking, θ* near ∂Θ_k, and the
-    hard cases of issue 13 (:func:`~amcp_drake.studies.random_problems.hard_case_coverage`: a
+    hard cases (:func:`~amcp_drake.studies.random_problems.hard_case_coverage`: a
     lower-dimensional Θ_k, θ* at a vertex / on a facet of Θ)."""
     from amcp_drake.studies.random_problems import hard_case_coverage, theta_shrank
 
@@ -184,14 +184,28 @@ def _resolve_counts(traj, backend: str) -> dict[str, float]:
     return {f"resolve_{kind}": float(n) for kind, n in counts.items() if applies.get(kind, True)}
 
 
+def _answer_counts(traj) -> dict[str, float]:
+    """How the run's solver answers were obtained (:func:`amcp_drake.online.answers.counts`), as coverage keys
+    ``answers_<problem>_<count>`` (``answers_tube_qp_answers``, ``answers_tube_qp_fallback_vertex_form``, ...):
+    the summary reports, per backend and kind, the share of answers that were not the backend's own."""
+    from amcp_drake.online import answers
+
+    return {f"answers_{problem}_{key.replace(' ', '_')}": float(n)
+            for problem, per in answers.counts(traj.records).items() for key, n in per.items()}
+
+
 def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure_dir: str,
-                steps: int = CAMPAIGN_STEPS, draw: Callable | None = None) -> dict[str, Any]:
+                steps: int = CAMPAIGN_STEPS, draw: Callable | None = None,
+                max_memory_mb: float | None = None) -> dict[str, Any]:
     """Draw, run and certify problem ``idx`` on each backend (a Dask task; also callable directly).
 
     ``draw(campaign_seed, idx, steps)`` returns the case (default :func:`draw_case`); the run is that
     of the case's complete problem file (:func:`replay_spec`, :func:`round_trip`), through the same
-    :func:`~amcp_drake.online.replay.run_scenario` as ``amcp certify``."""
+    :func:`~amcp_drake.online.replay.run_scenario` as ``amcp certify``. ``max_memory_mb``: the memory limit
+    of the design's stages (``--max-memory``; None: the default limit); a problem above it is recorded as an
+    error naming the stage."""
     from amcp_drake.certificate.certify import certify
+    from amcp_drake.offline.budget import DesignBudget
     from amcp_drake.offline.design import design
     from amcp_drake.online.replay import run_scenario
     from amcp_drake.studies.random_problems import built_scaled
@@ -204,7 +218,8 @@ def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure
         result["labels"] = {k: str(v) for k, v in getattr(case, "labels", {}).items()}
         spec, text = round_trip(replay_spec(case))
         result["digest"] = _digest(text)
-        offline = design(spec.problem, spec.design, backend=DESIGN_BACKEND)
+        budget = DesignBudget() if max_memory_mb is None else DesignBudget(max_memory_mb)
+        offline = design(spec.problem, spec.design, backend=DESIGN_BACKEND, budget=budget)
         trajs = {}
         for backend in backends:
             traj = run_scenario(spec, backend, design_backend=DESIGN_BACKEND, formulation=FORMULATION,
@@ -213,7 +228,7 @@ def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure
             cert = certify(traj, spec)
             result["claims"][backend] = {c.name: {"status": c.status, "margin": c.margin} for c in cert.claims}
             result["verdicts"][backend] = cert.verdict
-            result["coverage"][backend] = {**_coverage(traj), **_resolve_counts(traj, backend),
+            result["coverage"][backend] = {**_coverage(traj), **_resolve_counts(traj, backend), **_answer_counts(traj),
                                            # built, not reached: the generator's label is exact
                                            "scaled_units": float(bool(built_scaled(result["labels"])))}
         failed = any(c["status"] != "pass" for claims in result["claims"].values() for c in claims.values())
@@ -236,40 +251,142 @@ def _digest(text: str) -> str:
     return hashlib.sha1(text.encode()).hexdigest()
 
 
+#: Seconds to wait for an existing Dask scheduler to accept a connection (``--scheduler``).
+SCHEDULER_TIMEOUT = 10
+#: Address schemes of a Dask scheduler that ``--scheduler`` accepts.
+SCHEDULER_SCHEMES = ("tcp", "tls", "ws", "wss")
+
+
+def check_scheduler(address: str, timeout: float = SCHEDULER_TIMEOUT) -> None:
+    """``address`` must be a Dask scheduler address (``tcp://host:port``) that accepts a TCP connection
+    within ``timeout`` seconds; ProblemError naming ``--scheduler`` otherwise (checked before the store is
+    touched, so a bad address writes nothing)."""
+    import socket
+    from urllib.parse import urlsplit
+
+    from amcp_drake.model.errors import ProblemError
+
+    expected = "an address of a Dask scheduler, scheme://host:port (e.g. tcp://host:port)"
+    try:
+        parts = urlsplit(address)
+        host, port = parts.hostname, parts.port
+    except ValueError as exc:
+        raise ProblemError("--scheduler", expected, f"{address!r} ({exc})") from None
+    if parts.scheme not in SCHEDULER_SCHEMES or not host or port is None or parts.path not in ("", "/"):
+        raise ProblemError("--scheduler", expected + f"; schemes {', '.join(SCHEDULER_SCHEMES)}", repr(address))
+    try:
+        socket.create_connection((host, port), timeout=timeout).close()
+    except OSError as exc:
+        raise ProblemError("--scheduler", "a reachable Dask scheduler",
+                           f"{address}: {exc.strerror or exc or 'no answer'} (nothing was written)") from None
+
+
+def _connect(scheduler: str):
+    """A Dask Client of the scheduler at ``scheduler``; ProblemError naming ``--scheduler`` when it does
+    not answer as a scheduler within :data:`SCHEDULER_TIMEOUT` seconds."""
+    from dask.distributed import Client
+
+    from amcp_drake.model.errors import ProblemError
+
+    try:
+        return Client(scheduler, timeout=SCHEDULER_TIMEOUT)
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise ProblemError("--scheduler", "a reachable Dask scheduler",
+                           f"{scheduler}: {exc} (nothing was written)") from None
+
+
+#: Loggers of the local Dask workers set to errors only: the worker state machine warns "Async instruction
+#: ... ended with CancelledError" for the task a shutdown cancels.
+QUIET_WORKER_LOGGERS = ("distributed.worker.state_machine",)
+
+
+def _local_cluster(workers: int):
+    """A LocalCluster whose worker processes ignore SIGINT (they inherit the ignored signal): Ctrl-C
+    reaches this process, which shuts the workers down itself, instead of every worker printing a
+    KeyboardInterrupt traceback."""
+    import signal
+    import threading
+
+    from dask.distributed import Client, LocalCluster
+
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+    try:
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+    finally:
+        if main:
+            signal.signal(signal.SIGINT, previous)
+    try:
+        client = Client(cluster)
+        client.run(_quiet_worker_logs)
+        return cluster, client
+    except BaseException:
+        cluster.close()
+        raise
+
+
+def _quiet_worker_logs() -> None:
+    """Run in each local worker process: the loggers of :data:`QUIET_WORKER_LOGGERS` report errors only
+    (a task cancelled by a shutdown is otherwise reported as a warning by every worker)."""
+    import logging
+
+    for name in QUIET_WORKER_LOGGERS:
+        logging.getLogger(name).setLevel(logging.ERROR)
+
+
+def store_write_error(store_path: str | Path, exc: BaseException):
+    """A CampaignStoreError naming ``--store`` for a failed write of the store (a full disk, an I/O
+    error): the transaction being written was rolled back, the problems stored before it are kept."""
+    from amcp_drake.model.errors import CampaignStoreError
+
+    return CampaignStoreError("--store", "a store on a disk it can be written to",
+                              f"{store_path}: {exc} (the problem being written was not stored)",
+                              "Free some space, then continue with --resume: every problem stored before is kept.")
+
+
 def run_campaign(store_path: str | Path, systems: int, backends: Iterable[str] = ("drake", "cvxpy"),
                  seed: int = 0, scheduler: str | None = None, workers: int = 2, resume: bool = False,
-                 steps: int = CAMPAIGN_STEPS, progress: bool = True, failure_dir: str | Path | None = None) -> dict:
-    """Run (or resume) a campaign; returns counts {"submitted", "stored", "skipped"}."""
-    from dask.distributed import Client, LocalCluster, as_completed
+                 steps: int = CAMPAIGN_STEPS, progress: bool = True, failure_dir: str | Path | None = None,
+                 max_memory_mb: float | None = None) -> dict:
+    """Run (or resume) a campaign; returns counts {"submitted", "stored", "skipped"}.
+
+    The store is held exclusively while the campaign runs (:class:`CampaignStore` ``exclusive``): a
+    second campaign on the same store is refused (CampaignStoreError, exit 2), so no problem is run
+    twice. A bad ``scheduler`` is refused before the store is touched. An interrupt (KeyboardInterrupt,
+    which the CLI raises on SIGTERM too) shuts the workers down and propagates with ``stored``: the
+    number of problems of the campaign in the store. ``max_memory_mb``: the design's memory limit in
+    every problem (:func:`run_problem`)."""
+    import sqlite3
+
+    from dask.distributed import as_completed
 
     from amcp_drake.model.errors import ProblemError
     from amcp_drake.studies.campaign_store import CampaignStore
 
     backends = tuple(backends)
-    store = CampaignStore(store_path)  # CampaignStoreError (exit 2) on a damaged or foreign file
+    if scheduler:
+        check_scheduler(scheduler)
+    store = CampaignStore(store_path, exclusive=True)  # CampaignStoreError (exit 2): damaged, foreign or in use
     try:
-        store.require_settings(campaign_settings(seed, systems, backends, steps))
+        try:
+            store.require_settings(campaign_settings(seed, systems, backends, steps))
+        except (sqlite3.OperationalError, OSError) as exc:
+            raise store_write_error(store_path, exc) from None
         done = store.done(seed)
+        if done and not resume:
+            raise ProblemError("--store", f"a new store, or --resume to continue campaign seed {seed}",
+                               f"{store_path} already holds {len(done)} problems of that campaign")
+        client, cluster = (_connect(scheduler), None) if scheduler else _local_cluster(workers)[::-1]
     except BaseException:
-        store.close()
+        store.close(discard_new=True)
         raise
-    if done and not resume:
-        store.close()
-        raise ProblemError("--store", f"a new store, or --resume to continue campaign seed {seed}",
-                           f"{store_path} already holds {len(done)} problems of that campaign")
     todo = [i for i in range(systems) if i not in done]
     failure_dir = str(failure_dir or Path(store_path).with_suffix("").as_posix() + "-failures")
-    cluster = None
-    if scheduler:
-        client = Client(scheduler)
-    else:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
-        client = Client(cluster)
     stored = 0
+    bar = None
     try:
         futures = [client.submit(run_problem, seed, i, backends, failure_dir, steps, key=f"amcp-{seed}-{i}",
-                                 retries=TASK_RETRIES, pure=False) for i in todo]
-        bar = None
+                                 retries=TASK_RETRIES, pure=False, max_memory_mb=max_memory_mb) for i in todo]
         if progress:
             from tqdm import tqdm
 
@@ -277,16 +394,44 @@ def run_campaign(store_path: str | Path, systems: int, backends: Iterable[str] =
         failures = 0
         for future in as_completed(futures):
             result = future.result()
-            stored += store.add(result)
+            try:
+                stored += store.add(result)
+            except (sqlite3.OperationalError, OSError) as exc:
+                raise store_write_error(store_path, exc) from None
             failures += result["status"] != "pass"
             if bar is not None:
                 bar.set_postfix(failures=failures)
                 bar.update(1)
         if bar is not None:
             bar.close()
+    except KeyboardInterrupt as exc:
+        exc.stored = len(done) + stored
+        if bar is not None:
+            bar.close()  # ends the progress line, so that the CLI's last line stands alone
+        raise
     finally:
+        _shut_down(client, cluster)
+        store.close(discard_new=True)
+    return {"submitted": len(todo), "stored": stored, "skipped": len(done)}
+
+
+def _shut_down(client, cluster) -> None:
+    """Close the client and the local cluster quietly (the workers' closing chatter on stderr is not an
+    error); a second interrupt during the shutdown is ignored so that the workers are always stopped."""
+    import logging
+    import signal
+    import threading
+
+    main = threading.current_thread() is threading.main_thread()
+    saved = {sig: signal.signal(sig, signal.SIG_IGN) for sig in (signal.SIGINT, signal.SIGTERM)} if main else {}
+    quiet = logging.getLogger("distributed")
+    level = quiet.level
+    quiet.setLevel(logging.CRITICAL)
+    try:
         client.close()
         if cluster is not None:
             cluster.close()
-        store.close()
-    return {"submitted": len(todo), "stored": stored, "skipped": len(done)}
+    finally:
+        quiet.setLevel(level)
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)

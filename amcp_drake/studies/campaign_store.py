@@ -1,4 +1,4 @@
-"""The campaign store: one SQLite file, written as each problem finishes (issues 9 and 17).
+"""The campaign store: one SQLite file, written as each problem finishes.
 
 Tables (schema version :data:`SCHEMA_VERSION`, marked by ``PRAGMA application_id`` =
 :data:`APPLICATION_ID` and ``PRAGMA user_version``):
@@ -15,7 +15,11 @@ Tables (schema version :data:`SCHEMA_VERSION`, marked by ``PRAGMA application_id
 * ``completions(campaign_seed, idx, at)``: an append-only log, one row per completion received,
   so a test can prove that no problem was run to completion twice across an interrupt + resume.
 
-Every write is one transaction; a crash loses at most the problem being written. An existing file
+Every write is one transaction; a crash loses at most the problem being written, and a failed write (a
+full disk) rolls back, leaving the store resumable. A campaign holds the store exclusively
+(``exclusive=True``: an ``flock`` on the file for as long as it is open), so a second campaign on the
+same store is refused at once instead of running the same problems again; ``--report`` only reads and
+needs no lock. An existing file
 is inspected read-only before it is opened for writing (:func:`inspect_store`): a file that is not
 SQLite, is damaged (truncated, garbled: ``PRAGMA quick_check``) or holds another schema raises
 :class:`~amcp_drake.model.errors.CampaignStoreError` naming the file, and is never written to.
@@ -38,8 +42,8 @@ from amcp_drake.model.errors import CampaignStoreError
 
 #: ``PRAGMA application_id`` of a campaign store: "amcp" in ASCII (sqlite.org/fileformat.html, offset 68).
 APPLICATION_ID = 0x616D6370
-#: ``PRAGMA user_version``: 2 = with the settings table and replay commands (issue 17); stores of
-#: issue 9 have no marks (version 1) and can be read by --report but not resumed.
+#: ``PRAGMA user_version``: 2 = with the settings table and replay commands; stores of
+#: the first layout have no marks (version 1) and can be read by --report but not resumed.
 SCHEMA_VERSION = 2
 #: The first 16 bytes of every SQLite 3 database file.
 SQLITE_HEADER = b"SQLite format 3\x00"
@@ -72,7 +76,7 @@ TABLES = {
     "coverage": ("campaign_seed", "idx", "backend", "key", "value"),
     "completions": ("campaign_seed", "idx", "at"),
 }
-#: The tables of an issue-9 store (schema 1): no settings, no replay column.
+#: The tables of a store of the first layout (schema 1): no settings, no replay column.
 LEGACY_TABLES = {name: tuple(c for c in cols if c != "replay") for name, cols in TABLES.items() if name != "settings"}
 #: How a setting is named in messages (the CLI option that sets it).
 SETTING_NAMES = {"seed": "--seed", "systems": "--systems", "backends": "--backends", "steps": "--steps",
@@ -136,7 +140,7 @@ def _table_columns(db: sqlite3.Connection) -> dict[str, tuple[str, ...]]:
 @dataclass
 class StoreState:
     """What :func:`inspect_store` found: ``kind`` is "new" (missing, empty file or empty database),
-    "store" (schema 2) or "legacy" (an issue-9 store without settings)."""
+    "store" (schema 2) or "legacy" (a schema-1 store without settings)."""
 
     kind: str
     settings: dict[str, Any] | None = None
@@ -223,23 +227,86 @@ class CampaignStore:
     """SQLite store of campaign results (see module docstring). Opening an existing file inspects it
     first (CampaignStoreError on a damaged or foreign file, which is then never written to)."""
 
-    def __init__(self, path: str | Path, *, allow_legacy: bool = False) -> None:
+    def __init__(self, path: str | Path, *, allow_legacy: bool = False, exclusive: bool = False) -> None:
         self.path = Path(path)
-        state = inspect_store(self.path)
-        if state.kind == "legacy" and not allow_legacy:
-            raise _error(self.path, "a campaign store written before settings were recorded (schema 1): the "
-                         "settings of its problems are unknown, so it cannot be resumed",
-                         "Start a new --store; `amcp campaign --report` still reads this one.")
-        self.kind = state.kind
+        self.created = False
+        self._lock_fd: int | None = None
+        self.db = None
+        try:
+            if exclusive:
+                self._lock()
+            state = inspect_store(self.path)
+            if state.kind == "legacy" and not allow_legacy:
+                raise _error(self.path, "a campaign store written before settings were recorded (schema 1): the "
+                             "settings of its problems are unknown, so it cannot be resumed",
+                             "Start a new --store; `amcp campaign --report` still reads this one.")
+            self.kind = state.kind
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self.db = sqlite3.connect(self.path, timeout=LOCK_TIMEOUT)
+            if state.kind == "new":
+                self.db.execute("PRAGMA journal_mode=WAL")
+                self.db.executescript(SCHEMA)
+                self.db.execute(f"PRAGMA application_id = {APPLICATION_ID}")
+                self.db.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
+                self.db.commit()
+                self.kind = "store"
+        except BaseException:
+            self.close(discard_new=True)
+            raise
+
+    def _lock(self) -> None:
+        """Hold an exclusive ``flock`` on the store file for as long as this object is open (the kernel
+        releases it when the process dies): a second writer is refused at once with
+        CampaignStoreError, so two campaigns never run the same problems into one store. SQLite's own
+        locks are POSIX record locks, independent of ``flock`` on Linux. Creates the file (empty, which
+        :func:`inspect_store` reads as a new store) when it does not exist; ``created`` says so."""
+        import fcntl
+        import os
+
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.db = sqlite3.connect(self.path, timeout=LOCK_TIMEOUT)
-        if state.kind == "new":
-            self.db.execute("PRAGMA journal_mode=WAL")
-            self.db.executescript(SCHEMA)
-            self.db.execute(f"PRAGMA application_id = {APPLICATION_ID}")
-            self.db.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
-            self.db.commit()
-            self.kind = "store"
+        try:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o666)
+            self.created = True
+        except FileExistsError:
+            fd = os.open(self.path, os.O_RDWR)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            self.created = False  # the file is the other writer's now
+            raise CampaignStoreError(
+                "--store", "a store no other process is writing",
+                f"{self.path}: in use by another amcp campaign (it holds the store's lock)",
+                "Wait for it to end (or stop it), then continue with --resume; two campaigns never share a "
+                "store.") from None
+        self._lock_fd = fd
+
+    def close(self, discard_new: bool = False) -> None:
+        """Close the store (and release its lock). ``discard_new``: when this object created the file and
+        no problem was stored, remove it and its -wal/-shm files (a refused or failed start writes nothing)."""
+        import os
+
+        if self.db is not None:
+            empty = True
+            if discard_new and self.created:
+                try:
+                    empty = not self.done_any()
+                except sqlite3.Error:
+                    empty = True
+            self.db.close()
+            self.db = None
+        else:
+            empty = True
+        if discard_new and self.created and empty:
+            for name in (self.path.name, self.path.name + "-wal", self.path.name + "-shm", self.path.name + "-journal"):
+                try:
+                    os.unlink(self.path.with_name(name))
+                except FileNotFoundError:
+                    pass
+            self.created = False
+        if self._lock_fd is not None:  # after the connection: closing it drops no SQLite lock of ours
+            os.close(self._lock_fd)
+            self._lock_fd = None
 
     @classmethod
     def in_memory(cls) -> CampaignStore:
@@ -247,12 +314,10 @@ class CampaignStore:
         store = cls.__new__(cls)
         store.path = Path(":memory:")
         store.kind = "store"
+        store.created, store._lock_fd = False, None
         store.db = sqlite3.connect(":memory:")
         store.db.executescript(SCHEMA)
         return store
-
-    def close(self) -> None:
-        self.db.close()
 
     # -- settings -------------------------------------------------------------------------------
     def settings(self) -> dict[str, Any] | None:
@@ -322,9 +387,17 @@ class CampaignStore:
         return [tuple(r) for r in rows]
 
     def coverage_table(self) -> list[tuple[str, str, float, int]]:
-        """(key, backend, fraction of problems with value > 0, count)."""
-        rows = self.db.execute("SELECT key, backend, AVG(value > 0), COUNT(*) FROM coverage GROUP BY key, backend "
-                               "ORDER BY key, backend")
+        """(key, backend, fraction of problems with value > 0, count); the solver-answer counts
+        (keys ``answers_...``) are :meth:`answer_table`'s."""
+        rows = self.db.execute("SELECT key, backend, AVG(value > 0), COUNT(*) FROM coverage WHERE key NOT LIKE 'answers\\_%' "
+                               "ESCAPE '\\' GROUP BY key, backend ORDER BY key, backend")
+        return [tuple(r) for r in rows]
+
+    def answer_table(self) -> list[tuple[str, str, float, int, int]]:
+        """(key, backend, total count over the problems, problems with a count > 0, problems) of the
+        solver-answer counts ``answers_<problem>_<count>`` (studies.campaign._answer_counts)."""
+        rows = self.db.execute("SELECT key, backend, SUM(value), SUM(value > 0), COUNT(*) FROM coverage "
+                               "WHERE key LIKE 'answers\\_%' ESCAPE '\\' GROUP BY key, backend ORDER BY backend, key")
         return [tuple(r) for r in rows]
 
     def problem_counts(self) -> dict[str, int]:

@@ -124,15 +124,15 @@ def load_points(path: str | Path, n: int, grid: int) -> tuple[np.ndarray, str]:
     """A points file: JSON ``{"points": [[x1, ..., xn], ...]}`` (the points themselves) or
     ``{"polytope": {"H": [[..]], "h": [..]}}`` (the grid points of its bounding box that lie in
     {H x <= h}). Returns (points, description); ProblemError naming the field otherwise."""
-    import json
+    from amcp_drake.model.errors import ProblemFileError
+    from amcp_drake.model.json_strict import load_json_strict
 
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except OSError as exc:
-        raise ProblemError("--points", "a readable JSON file", f"{path}: {exc.strerror}") from None
-    except json.JSONDecodeError as exc:
-        raise ProblemError("--points", "valid JSON", f"{path}: {exc.msg} at line {exc.lineno}") from None
+    try:  # strict JSON, at most MAX_INPUT_BYTES, binary data refused before the rest is read
+        data = load_json_strict(path, ProblemFileError, "points file")
+    except ProblemFileError as exc:
+        field = "--points" if exc.field == "file" else f"--points: {exc.field}"
+        raise ProblemError(field, exc.expected, exc.received) from None
     if not isinstance(data, dict) or len({"points", "polytope"} & set(data)) != 1:
         raise ProblemError("--points", "a JSON object with exactly one of the keys 'points', 'polytope'",
                            f"{type(data).__name__} with keys {sorted(data) if isinstance(data, dict) else []}")

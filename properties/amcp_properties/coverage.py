@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 from hypothesis import event
 
+from amcp_drake.online.answers import counts as answer_counts
 from amcp_drake.studies.random_problems import (
     LOWER_DIM_TOL,
     SHRINK_TOL,
@@ -67,6 +68,8 @@ class RunFeatures:
     theta_k_radius: float = float("nan")
     #: "vertex", "facet", "interior" ("" : not measured)
     theta_star_face: str = ""
+    #: how the run's solver answers were obtained (amcp_drake.online.answers.counts)
+    answers: dict = field(default_factory=dict)
 
     def flags(self) -> dict[str, bool]:
         """Feature -> covered; features that were not measured for this run are left out."""
@@ -100,7 +103,8 @@ def features(traj, labels: dict | None = None) -> RunFeatures:
     return RunFeatures(constraints_active=bool(max_constraint >= 1.0 - ACTIVE_TOL), max_constraint=max_constraint,
                        theta_shrank=theta_shrank(traj), theta_star_distance=max(distance, 0.0),
                        completed=traj.stop_reason == "completed", labels=dict(labels or {}),
-                       theta_k_radius=last_theta_k_radius(traj), theta_star_face=theta_star_face(pr, traj.theta_star))
+                       theta_k_radius=last_theta_k_radius(traj), theta_star_face=theta_star_face(pr, traj.theta_star),
+                       answers=answer_counts(traj.records))
 
 
 def _bucket(distance: float) -> str:
@@ -133,9 +137,14 @@ class CoverageRecorder:
         self.flags: dict[str, Counter[str]] = defaultdict(Counter)
         self.measured: dict[str, Counter[str]] = defaultdict(Counter)  # runs on which a feature was measured
         self.labels: dict[str, Counter[str]] = defaultdict(Counter)
+        #: backend -> problem -> Counter of answers per outcome and kind, over every recorded run
+        self.answers: dict[str, dict[str, Counter[str]]] = defaultdict(lambda: defaultdict(Counter))
 
     def record(self, test: str, f: RunFeatures) -> None:
         self.examples[test] += 1
+        backend = test.rpartition("[")[2].rstrip("]") if "[" in test else "?"
+        for problem, per in f.answers.items():
+            self.answers[backend][problem].update(per)
         for name, value in f.flags().items():
             self.flags[test][name] += int(value)
             self.measured[test][name] += 1
@@ -157,6 +166,7 @@ class CoverageRecorder:
         return out
 
     def write_json(self, path: str | Path, extra: dict | None = None) -> None:
-        data = {"tests": self.summary(), "features": FEATURES}
+        data = {"tests": self.summary(), "features": FEATURES,
+                "answers": {b: {p: dict(c) for p, c in per.items()} for b, per in self.answers.items()}}
         data.update(extra or {})
         Path(path).write_text(json.dumps(data, indent=1, sort_keys=True))

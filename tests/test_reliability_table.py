@@ -1,0 +1,432 @@
+"""Bad input and hostile conditions, second table: files that are JSON but hostile (``null``, a zero W,
+zero or badly scaled rows of Θ), tampered trajectories, devices given as files, options that disable a
+limit, unreachable schedulers and full disks. Same contract as tests/test_bad_input_table.py: exit 2
+through the CLI entry point with a message naming the field or option, nothing written below the test
+folder; a row may instead expect exit 0 with the same output as a reference command.
+
+Each row: (id, build, args, exit code, regex, extras). ``extras`` may hold ``patch`` (a function of
+pytest's monkeypatch applied before the command, e.g. a writer failing with ENOSPC), ``seconds`` (the
+command must end within this wall time) and ``same_as`` (argv of a reference command whose stdout must
+equal this one's, timings masked).
+
+The rows that start real processes (two resumes of one campaign store, SIGTERM during certify and
+during a campaign) follow the table.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import re
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from amcp_drake.cli import main
+from tests.test_bad_input_table import TRAJECTORY_DATA, example, files, good_traj, problem, set_, text, traj
+
+
+def theta_scaled(factor: float):
+    def change(data: dict) -> None:
+        data["Theta"]["H"] = [[factor * v for v in row] for row in data["Theta"]["H"]]
+        data["Theta"]["h"] = [factor * v for v in data["Theta"]["h"]]
+
+    return change
+
+
+def zero_theta_row(offset: float):
+    def change(data: dict) -> None:
+        data["Theta"]["H"].append([0.0, 0.0, 0.0])
+        data["Theta"]["h"].append(offset)
+
+    return change
+
+
+def enospc(*args, **kwargs):
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+def disk_full_on_write(monkeypatch) -> None:
+    """Every file write of the certificate bundle fails as on a full disk (ENOSPC)."""
+    import amcp_drake.certificate.report as report
+    import amcp_drake.model.problem_io as problem_io
+
+    monkeypatch.setattr(report.Path, "write_text", enospc)
+    monkeypatch.setattr(problem_io.os, "fdopen", enospc)
+
+
+def disk_full_in_sqlite(monkeypatch) -> None:
+    """The store's first write fails as SQLite reports a full disk."""
+    from amcp_drake.studies import campaign_store
+
+    def full(self, *args, **kwargs):
+        raise sqlite3.OperationalError("database or disk is full")
+
+    monkeypatch.setattr(campaign_store.CampaignStore, "record_settings", full)
+
+
+def disk_full_on_report(monkeypatch) -> None:
+    import amcp_drake.model.problem_io as problem_io
+
+    monkeypatch.setattr(problem_io.os, "fdopen", enospc)
+
+
+def a_store(folder: Path) -> Path:
+    """A campaign store with its settings recorded and no problem (as an interrupted campaign leaves it)."""
+    from amcp_drake.studies.campaign import campaign_settings
+    from amcp_drake.studies.campaign_store import CampaignStore
+
+    path = folder / "c.sqlite"
+    store = CampaignStore(path)
+    store.record_settings(campaign_settings(0, 1, ("drake",), 2))
+    store.close()
+    return path
+
+
+DEVICE_SECONDS = 5.0  # generous for a loaded machine; the read stops at the first 64 KiB
+
+#: (id, build, args, exit code, regex, extras)
+ROWS: list[tuple] = [
+    # 1: a problem file whose whole content is null
+    ("null-problem-design", text("p.json", "null"), ["design", "{file}"], 2,
+     r"file: expected a JSON object at top level; received null", {}),
+    ("null-problem-run", text("p.json", "null"), ["run", "{file}"], 2, r"file: expected a JSON object", {}),
+    ("null-problem-certify", text("p.json", "null"), ["certify", "{file}", "--out", "{folder}/out"], 2,
+     r"file: expected a JSON object", {}),
+    # 2: a zero W
+    ("W.H-all-zero", problem(set_("W.H", [[0, 0], [0, 0]])), ["design", "{file}"], 2,
+     r"W\.H: expected W = \{w \| H_w w <= 1\} bounded; received an unbounded set", {}),
+    # 3: a zero row of Θ (h >= 0: the row holds everywhere and is dropped; h < 0: Θ is empty)
+    ("Theta-zero-row-offset-0", problem(zero_theta_row(0.0)), ["design", "{file}"], 0,
+     r"note: Theta: removed the zero row 6 \(0 <= 0 holds everywhere\)", {"same_as": ["design", "--example",
+                                                                                     "lorenzen2019"]}),
+    ("Theta-zero-row-offset-negative", problem(zero_theta_row(-1e-12)), ["design", "{file}"], 2,
+     r"Theta\.h\[6\]: expected .*>= 0 .*zero row.*; received -1e-12.*empty", {}),
+    # 4, 5: Θ of Example 1 with every row scaled (the same set)
+    ("Theta-rows-times-1e-9", problem(theta_scaled(1e-9)), ["design", "{file}"], 0, r"all design checks pass",
+     {"same_as": ["design", "--example", "lorenzen2019"]}),
+    ("Theta-rows-times-1e9", problem(theta_scaled(1e9)), ["design", "{file}"], 0, r"all design checks pass",
+     {"same_as": ["design", "--example", "lorenzen2019"]}),
+    # 6: numbers given as strings in a trajectory
+    ("trajectory-theta_star-string", traj(set_("theta_star.0", "-0.15")),
+     ["certify", "--trajectory", "{file}", "--out", "{folder}/out"], 2,
+     r"theta_star\[0\]: expected a number; received \"-0\.15\"", {}),
+    ("trajectory-h_theta-string", traj(set_("records.10.h_theta.1", "0.3")),
+     ["certify", "--trajectory", "{file}", "--out", "{folder}/out"], 2,
+     r"records\[10\]\.h_theta\[1\]: expected a number; received \"0\.3\"", {}),
+    # 7: stop_reason inconsistent with the records
+    ("trajectory-stop-reason-infeasible", traj(set_("stop_reason", "infeasible")),
+     ["certify", "--trajectory", "{file}", "--out", "{folder}/out"], 2, r"stop_reason: expected .*completed", {}),
+    ("trajectory-completed-but-failed-step", traj(set_("records.5.status", "infeasible")),
+     ["certify", "--trajectory", "{file}", "--out", "{folder}/out"], 2,
+     r"records\[5\]\.status: expected \"optimal\" or \"optimal_inaccurate\" \(stop_reason \"completed\"", {}),
+    # 8: an integer field given as a float
+    ("trajectory-k-float", traj(set_("records.10.k", 10.0)), ["certify", "--trajectory", "{file}", "--out",
+                                                             "{folder}/out"], 2,
+     r"records\[10\]\.k: expected an integer; received 10\.0", {}),
+    ("trajectory-k-out-of-order", traj(set_("records.10.k", 11)), ["certify", "--trajectory", "{file}", "--out",
+                                                                  "{folder}/out"], 2,
+     r"records\[10\]\.k: expected 10 .*; received 11", {}),
+    # 9: an entry out of the documented range
+    ("trajectory-theta_hat-1e308", traj(set_("records.10.theta_hat", [1e308, 0])),
+     ["certify", "--trajectory", "{file}", "--out", "{folder}/out"], 2,
+     r"records\[10\]\.theta_hat\[0\]: expected .*magnitude.*1e\+308", {}),
+    # 10: a device given as an input file (the read stops early: exit 2 at once)
+    ("trajectory-dev-zero", files(), ["certify", "--trajectory", "/dev/zero", "--out", "{folder}/out"], 2,
+     r"/dev/zero", {"seconds": DEVICE_SECONDS}),
+    ("trajectory-dev-urandom", files(), ["certify", "--trajectory", "/dev/urandom", "--out", "{folder}/out"], 2,
+     r"/dev/urandom", {"seconds": DEVICE_SECONDS}),
+    ("problem-dev-zero", files(), ["design", "/dev/zero"], 2, r"/dev/zero", {"seconds": DEVICE_SECONDS}),
+    ("points-dev-zero", files(), ["coverage", "--points", "/dev/zero"], 2, r"--points.*/dev/zero",
+     {"seconds": DEVICE_SECONDS}),
+    ("problem-over-size-limit", text("p.json", " " * (64 * 2**20 + 1)), ["design", "{file}"], 2,
+     r"file: expected at most 67,108,864 bytes", {"seconds": DEVICE_SECONDS}),
+    # 11: --max-memory that would disable the limit
+    ("run-max-memory-nan", problem(lambda d: None), ["run", "{file}", "--max-memory", "nan"], 2,
+     r"'--max-memory'.*nan", {}),
+    ("run-max-memory-inf", problem(lambda d: None), ["run", "{file}", "--max-memory", "inf"], 2,
+     r"'--max-memory'.*inf", {}),
+    ("run-max-memory-negative", problem(lambda d: None), ["run", "{file}", "--max-memory", "-5"], 2,
+     r"'--max-memory'.*-5", {}),
+    # 12: schedulers that cannot be used
+    ("campaign-scheduler-unreachable", files(), ["campaign", "--systems", "1", "--scheduler", "tcp://127.0.0.1:1",
+                                                 "--store", "{folder}/c.sqlite"], 2,
+     r"--scheduler: expected a reachable Dask scheduler.*tcp://127\.0\.0\.1:1", {"seconds": 20.0}),
+    ("campaign-scheduler-not-a-url", files(), ["campaign", "--systems", "1", "--scheduler", "not a url",
+                                               "--store", "{folder}/c.sqlite"], 2,
+     r"--scheduler: expected an address .*tcp://host:port.*'not a url'", {"seconds": 10.0}),
+    # 13: a full disk under certify --out
+    ("certify-out-disk-full", files(t=good_traj), ["certify", "--trajectory", "{t}", "--out", "{folder}/D"], 2,
+     r"--out: .*No space left on device.*nothing was written", {"patch": disk_full_on_write}),
+    # 14: a full disk under the campaign store, and under --report
+    ("campaign-store-disk-full", files(), ["campaign", "--systems", "1", "--backends", "drake", "--steps", "2",
+                                           "--store", "{folder}/c.sqlite"], 2,
+     r"--store: .*database or disk is full", {"patch": disk_full_in_sqlite}),
+    ("campaign-report-disk-full", files(s=a_store), ["campaign", "--store", "{s}", "--report", "{folder}/r.html"], 2,
+     r"--report: .*No space left on device.*nothing was written", {"patch": disk_full_on_report}),
+]
+
+
+def _snapshot(folder: Path) -> set[str]:
+    return {str(p.relative_to(folder)) for p in folder.rglob("*")}
+
+
+def _masked(output: str) -> str:
+    return re.sub(r"\[\d+(\.\d+)? s\]", "[t]", output)
+
+
+@pytest.mark.parametrize("row", ROWS, ids=[row[0] for row in ROWS])
+def test_hostile_input(row, tmp_path, monkeypatch):
+    case, build, args, code, pattern, extras = row
+    folder = tmp_path / "in"
+    folder.mkdir()
+    names = {"folder": str(folder), **{k: str(v) for k, v in build(folder).items()}}
+    argv = [a.format(**names) for a in args]
+    monkeypatch.chdir(folder)
+    before = _snapshot(folder)
+    if "patch" in extras:
+        extras["patch"](monkeypatch)
+    start = time.monotonic()
+    result = CliRunner().invoke(main, argv)
+    elapsed = time.monotonic() - start
+    output = result.output
+    assert result.exit_code == code, f"{case}: exit {result.exit_code}\n{output}\n{result.exception!r}"
+    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
+    assert "Traceback" not in output
+    assert re.search(pattern, output, re.DOTALL), f"{case}: {pattern!r} not in\n{output}"
+    if "seconds" in extras:
+        assert elapsed < extras["seconds"], f"{case}: {elapsed:.1f} s"
+    created = _snapshot(folder) - before
+    assert not created, f"{case}: wrote {sorted(created)}"
+    if "same_as" in extras:
+        reference = CliRunner().invoke(main, extras["same_as"])
+        assert reference.exit_code == 0
+        assert _masked(result.stdout) == _masked(reference.stdout)
+
+
+# -- real processes ------------------------------------------------------------------------------------
+def _env() -> dict[str, str]:
+    return {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path), "PYTHONUNBUFFERED": "1"}
+
+
+def _amcp(*args: str, **kwargs) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "amcp_drake", *args], env=_env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True, **kwargs)
+
+
+def _finish(proc: subprocess.Popen, seconds: float) -> tuple[int, str, str]:
+    try:
+        out, err = proc.communicate(timeout=seconds)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        out, err = proc.communicate()
+        raise AssertionError(f"did not end within {seconds} s:\n{out}\n{err}") from None
+    return proc.returncode, out, err
+
+
+def _completions(store: Path) -> list[tuple[int, int]]:
+    db = sqlite3.connect(f"{store.resolve().as_uri()}?mode=ro", uri=True)
+    try:
+        return sorted(db.execute("SELECT campaign_seed, idx FROM completions"))
+    finally:
+        db.close()
+
+
+def test_two_resumes_of_one_store_at_once_never_duplicate_work_or_rows(tmp_path):
+    """Two ``amcp campaign --resume`` processes started together on one store: the store is held by one
+    of them (the other exits 2 naming the store and its holder, or finds the work done); every
+    problem is completed exactly once."""
+    from amcp_drake.studies.campaign import campaign_settings
+    from amcp_drake.studies.campaign_store import CampaignStore
+
+    store_path = tmp_path / "c.sqlite"
+    store = CampaignStore(store_path)
+    store.record_settings(campaign_settings(0, 2, ("drake",), 2))
+    store.close()
+    args = ("campaign", "--systems", "2", "--backends", "drake", "--steps", "2", "--workers", "1", "--store",
+            str(store_path), "--resume")
+    procs = [_amcp(*args, cwd=tmp_path) for _ in range(2)]
+    results = [_finish(proc, 240) for proc in procs]
+    codes = sorted(code for code, _, _ in results)
+    assert codes[0] in (0, 1), results  # one ran the campaign (1: a drawn problem failed a claim)
+    if codes[1] == 2:
+        refused = next(err for code, _, err in results if code == 2)
+        assert re.search(r"--store: .*in use by another amcp campaign", refused), refused
+        assert "Traceback" not in refused
+    assert _completions(store_path) == [(0, 0), (0, 1)]
+
+
+def _wait_for(predicate, proc: subprocess.Popen, seconds: float) -> None:
+    deadline = time.monotonic() + seconds
+    while not predicate():
+        assert proc.poll() is None, f"ended early: {proc.communicate()}"
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.01)
+
+
+def test_sigterm_during_certify_removes_the_staging_folder_and_says_so(tmp_path):
+    """SIGTERM while ``amcp certify`` writes its bundle: the staging folder is removed, D holds nothing,
+    and one line says what happened (no traceback)."""
+    out = tmp_path / "D"
+    proc = _amcp("certify", "--trajectory", str(TRAJECTORY_DATA), "--out", str(out))
+    try:
+        _wait_for(lambda: out.is_dir() and any(out.glob(".certify-staging-*")), proc, 120)
+        proc.send_signal(signal.SIGTERM)
+        code, stdout, stderr = _finish(proc, 30)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert code == 128 + signal.SIGTERM, (code, stderr)
+    assert "Traceback" not in stderr
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert lines and re.fullmatch(r"interrupted \(SIGTERM\): .*nothing written.*", lines[-1]), stderr
+    assert not list(out.glob(".certify-staging-*"))
+    assert not list(out.glob("*"))
+
+
+@pytest.mark.parametrize("signum, group", [(signal.SIGTERM, False), (signal.SIGINT, True)], ids=["SIGTERM", "Ctrl-C"])
+def test_signal_during_a_campaign_stops_the_workers_and_says_how_to_resume(tmp_path, signum, group):
+    """SIGTERM to the process, or SIGINT to its whole process group (what Ctrl-C in a terminal does, so the
+    Dask worker processes get it too), while a campaign runs (after its first problem is stored): exit
+    128 + signal, no traceback from the process or its workers, one line naming the resume command;
+    the store holds whole problems only and a resume completes the rest without running any twice."""
+    store_path = tmp_path / "c.sqlite"
+    args = ("campaign", "--systems", "6", "--backends", "drake", "--steps", "2", "--workers", "1", "--store",
+            str(store_path))
+
+    def stored() -> bool:
+        try:
+            return bool(_completions(store_path))
+        except sqlite3.Error:
+            return False
+
+    proc = _amcp(*args, cwd=tmp_path)
+    try:
+        _wait_for(stored, proc, 180)
+        if group:
+            os.killpg(proc.pid, signum)
+        else:
+            proc.send_signal(signum)
+        code, stdout, stderr = _finish(proc, 60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert code == 128 + signum, (code, stderr)
+    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr and "Aborted" not in stderr, stderr
+    lines = [line for line in stderr.splitlines() if line.strip() and "campaign:" not in line]  # the progress bar
+    assert len(lines) == 1, stderr
+    assert re.fullmatch(rf"interrupted \({signal.Signals(signum).name}\): \d+ of 6 problems stored in .*c\.sqlite; "
+                        r"resume with: amcp campaign .*--resume", lines[0]), stderr
+    first = _completions(store_path)
+    assert 1 <= len(first) < 6 and len(set(first)) == len(first)
+    code, stdout, stderr = _finish(_amcp(*args, "--resume", cwd=tmp_path), 240)
+    assert code in (0, 1), stderr
+    assert _completions(store_path) == [(0, i) for i in range(6)]
+
+
+def test_trajectories_in_tests_data_are_valid_against_the_schema():
+    """Every recorded trajectory of tests/data loads (the schema and the consistency checks accept what
+    amcp writes)."""
+    from amcp_drake.online.simulate import Trajectory
+
+    found = sorted(Path(__file__).parent.joinpath("data").rglob("*trajectory*.json.gz"))
+    assert len(found) >= 5
+    for path in found:
+        assert Trajectory.load(path).records
+
+
+def test_a_saved_trajectory_loads_back(tmp_path, example_spec):
+    """A trajectory written by amcp (here a failed final step is not involved) is read back with the same
+    numbers: the schema accepts its own output."""
+    import numpy as np
+
+    from amcp_drake.online.simulate import Trajectory
+
+    loaded = Trajectory.load(TRAJECTORY_DATA)
+    path = loaded.save(tmp_path / "t.json")
+    again = Trajectory.load(path)
+    assert np.array_equal(again.x, loaded.x) and len(again.records) == len(loaded.records)
+    assert json.loads(path.read_text())["stop_reason"] == "completed"
+
+
+def test_answers_field_of_a_record_is_accepted_with_its_documented_shape(tmp_path):
+    """A record may carry ``answers``: a list of {problem, outcome, kind, check}; another outcome is refused."""
+    import gzip
+
+    from amcp_drake.model.errors import TrajectoryError
+    from amcp_drake.online.simulate import Trajectory
+
+    with gzip.open(TRAJECTORY_DATA, "rt") as handle:
+        data = json.load(handle)
+    data["records"][3]["answers"] = [{"problem": "qp", "outcome": "resolved", "kind": "plain", "check": "kkt"}]
+    path = tmp_path / "t.json"
+    path.write_text(json.dumps(data))
+    assert Trajectory.load(path).records
+    data["records"][3]["answers"][0]["outcome"] = "maybe"
+    path.write_text(json.dumps(data))
+    with pytest.raises(TrajectoryError, match=r"records\[3\]\.answers\[0\]\.outcome: expected one of"):
+        Trajectory.load(path)
+
+
+def test_problem_example_file_unchanged_by_row_scaling():
+    """Example 1's own rows are unit rows: loading it scales nothing (no note)."""
+    from amcp_drake.model.examples import get_example
+
+    assert get_example("lorenzen2019").notes == ()
+    assert example()["Theta"]["h"] == [1, 1, 1, 1, 1, 1]
+
+
+def test_sigterm_during_verify_stops_its_pytest_child_and_says_so(tmp_path):
+    """SIGTERM while ``amcp verify`` waits for its property-suite child: exit 143 with one line, and no
+    process of its group is left (the child pytest is stopped too)."""
+    proc = _amcp("verify", "--backend", "drake", cwd=tmp_path)
+    try:
+        assert proc.stdout.readline().startswith("running: ")
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGTERM)
+        code, stdout, stderr = _finish(proc, 60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert code == 128 + signal.SIGTERM, (code, stderr)
+    assert "Traceback" not in stderr
+    assert re.search(r"^interrupted \(SIGTERM\): the property suite was stopped", stderr, re.MULTILINE), stderr
+    deadline = time.monotonic() + 10
+    while True:
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            break
+        assert time.monotonic() < deadline, "a process of the group is still running"
+        time.sleep(0.1)
+
+
+def test_the_compiled_schema_check_accepts_what_amcp_writes_and_agrees_with_jsonschema():
+    """The one-pass predicate that accepts valid trajectories (jsonschema runs only on invalid ones) is
+    used (not None), accepts every trajectory of tests/data, and rejects what jsonschema rejects."""
+    import gzip
+
+    import jsonschema
+
+    from amcp_drake.model.trajectory_schema import _fast_check, trajectory_schema
+
+    fast = _fast_check()
+    assert fast is not None
+    reference = jsonschema.Draft202012Validator(trajectory_schema())
+    with gzip.open(TRAJECTORY_DATA, "rt") as handle:
+        good = json.load(handle)
+    assert fast(good) and reference.is_valid(good)
+    for path, value in (("records.3.k", -1), ("records.3.status", "fine"), ("theta_star.1", "0.2"),
+                        ("records.3.Lambda.0.0.0.0", True), ("design.mu", 2e15), ("records.3.pe_bounds", [1.0]),
+                        ("options.window", 0), ("stop_reason", "done"), ("records.3.times.total", "1")):
+        data = json.loads(json.dumps(good))
+        set_(path, value)(data)
+        assert not reference.is_valid(data), path
+        assert not fast(data), path

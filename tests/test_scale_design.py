@@ -1,0 +1,204 @@
+"""The offline design at n = 4 … 6: defaults valid at every n, the memory and time budget of every
+design stage, the progress lines of the automatic mode, the parallelotope template and the scaled-copy
+terminal set, each re-checked independently (offline/checks.py, numpy/scipy only)."""
+
+from __future__ import annotations
+
+import json
+import tracemalloc
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from amcp_drake.model.problem import ProblemSpec, default_x0_facets
+from amcp_drake.model.problem_io import load_spec, spec_from_dict, spec_to_dict
+from amcp_drake.offline.auto import AutoDesignError, candidate_options, template_label
+from amcp_drake.offline.budget import DesignBudget, DesignSizeError, chunked_row_maxima
+from amcp_drake.offline.checks import verify_design
+from amcp_drake.offline.design import design, design_fixed
+from amcp_drake.offline.terminal import SCALED_MARGIN, scaled_terminal_set
+
+
+def actuated_chain(n: int, w: float = 0.005, eps: float = 0.1, design_section: dict | None = None) -> dict:
+    """A problem file (dict) without a design section unless given: a chain x_i⁺ = x_i + 0.2 x_(i+1)
+    with an input on every state, box W of half-width w, a box Θ on two entries (A[0,1], B[n-1,n-1])."""
+    A0 = np.eye(n) + 0.2 * np.eye(n, k=1)
+    A1 = np.zeros((n, n))
+    A1[0, 1] = 0.2
+    B2 = np.zeros((n, n))
+    B2[-1, -1] = 0.5
+    eye = np.eye(n)
+    data = {"format": "amcp-problem", "version": 1, "name": f"actuated_chain{n}",
+            "system": {"A0": A0.tolist(), "B0": (0.5 * eye).tolist(), "A": [A1.tolist(), np.zeros((n, n)).tolist()],
+                       "B": [np.zeros((n, n)).tolist(), B2.tolist()]},
+            "W": {"H": np.vstack([eye / w, -eye / w]).tolist()},
+            "Theta": {"H": [[1, 0], [-1, 0], [0, 1], [0, -1]], "h": [eps] * 4},
+            "Z": {"F": np.vstack([eye / 5, -eye / 5, np.zeros((2 * n, n))]).tolist(),
+                  "G": np.vstack([np.zeros((2 * n, n)), eye, -eye]).tolist()},
+            "cost": {"Q": eye.tolist(), "R": eye.tolist(), "N": 5},
+            "theta_hat0": [0.0, 0.0],
+            "scenario": {"x0": [0.5] + [0.0] * (n - 1), "theta_star": [0.05, -0.05], "steps": 4,
+                         "disturbance": "uniform", "seed": 0}}
+    if design_section is not None:
+        data["design"] = design_section
+    return data
+
+
+def integrator_chain(n: int) -> dict:
+    """A chain of n integrators with one input (B uncertain), box Θ on two entries, ‖w‖∞ <= 0.01."""
+    data = actuated_chain(n, w=0.01)
+    B0 = np.zeros((n, 1))
+    B0[-1, 0] = 0.2
+    data["system"]["B0"] = B0.tolist()
+    data["system"]["B"] = [np.zeros((n, 1)).tolist(), B0.tolist()]
+    eye = np.eye(n)
+    data["Z"] = {"F": np.vstack([eye / 5, -eye / 5, np.zeros((2, n))]).tolist(),
+                 "G": np.vstack([np.zeros((2 * n, 1)), [[1.0]], [[-1.0]]]).tolist()}
+    data["cost"]["R"] = [[1.0]]
+    return data
+
+
+def _load(tmp_path, data: dict):
+    path = tmp_path / f"{data['name']}.json"
+    path.write_text(json.dumps(data))
+    return load_spec(path)
+
+
+# -- defaults valid at every n -----------------------------------------------------------------------
+@pytest.mark.parametrize("n", [5, 6])
+def test_file_without_design_section_designs_and_passes_every_check(tmp_path, n):
+    spec = _load(tmp_path, actuated_chain(n))
+    assert spec.design.x0_facets is None and spec.design.facets_for(n) == default_x0_facets(n) == 2 * n
+    d = design(spec.problem, spec.design)
+    checks = verify_design(spec.problem, d, spec.design.mu_state_bound)  # numpy/scipy only
+    assert [c.name for c in checks if not c.passed] == []
+    assert len(d.H_x) <= 4 * n and len(d.H_T) <= 4 * n  # bounded complexity at n >= 4
+
+
+def test_default_facets_keep_every_design_up_to_n4():
+    assert [default_x0_facets(n) for n in range(1, 7)] == [8, 8, 8, 8, 10, 12]
+
+
+def test_problem_and_trajectory_layout_at_n6_with_x0_facets_12(tmp_path):
+    """The certificate path: the trajectory records the problem by spec_to_dict(ProblemSpec(problem)),
+    which refused n = 6 with the former default of 8 facets; the file's 12 facets load and round-trip."""
+    spec = _load(tmp_path, actuated_chain(6, design_section={"x0_facets": 12}))
+    assert spec.design.x0_facets == 12
+    recorded = spec_to_dict(ProblemSpec(spec.problem))
+    assert "x0_facets" not in recorded["design"]
+    assert spec_from_dict(recorded).problem.n == 6
+    assert spec_from_dict(spec_to_dict(spec)).design.x0_facets == 12
+    with pytest.raises(Exception, match="x0_facets"):
+        _load(tmp_path, actuated_chain(6, design_section={"x0_facets": 11}))
+
+
+# -- memory budget ---------------------------------------------------------------------------------
+def test_budget_require_just_inside_and_just_outside():
+    budget = DesignBudget(max_memory_mb=1.0)
+    budget.require("stage", 2**20)  # exactly the limit: allowed
+    with pytest.raises(DesignSizeError, match="stage needs an estimated"):
+        budget.require("stage", 2**20 + 1)
+
+
+def test_design_over_the_memory_limit_is_refused_with_the_stage_before_allocating(tmp_path):
+    spec = _load(tmp_path, integrator_chain(4))
+    options = replace(spec.design, x0_template="contractive", x0_lambda=0.99)
+    tracemalloc.start()
+    try:
+        with pytest.raises(DesignSizeError) as err:
+            design_fixed(spec.problem, options, budget=DesignBudget(max_memory_mb=1.0))
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert "X0 template" in err.value.stage and err.value.estimate > err.value.limit == 2**20
+    assert "memory limit of 1.0 MiB" in str(err.value)
+    assert peak < 20 * 2**20  # nothing of the refused size was allocated
+
+
+def test_automatic_design_records_candidates_over_the_limit_and_never_crashes(tmp_path):
+    spec = _load(tmp_path, integrator_chain(4))
+    with pytest.raises(AutoDesignError) as err:
+        design(spec.problem, spec.design, budget=DesignBudget(max_memory_mb=1.0, candidate_seconds=5.0))
+    outcomes = {a.outcome for a in err.value.attempts}
+    assert "too large" in outcomes
+    assert len(err.value.attempts) == len(candidate_options(spec.problem, spec.design))
+
+
+def test_chunked_row_maxima_equal_the_full_product():
+    rng = np.random.default_rng(0)
+    rows, points = rng.normal(size=(1000, 5)), rng.normal(size=(300, 5))
+    budget = DesignBudget(max_memory_mb=1.0)  # chunks of 64 KiB: many chunks
+    # equal up to BLAS's summation order in the blocks (a few ulps), far below any design tolerance
+    np.testing.assert_allclose(chunked_row_maxima(rows, points, budget, "test"), np.max(rows @ points.T, axis=1),
+                               rtol=1e-13, atol=1e-13)
+
+
+# -- progress and time budget ----------------------------------------------------------------------
+def test_automatic_mode_prints_each_candidate_at_start_and_end_in_order_at_n6(tmp_path):
+    spec = _load(tmp_path, integrator_chain(6))
+    lines: list[str] = []
+    with pytest.raises(AutoDesignError) as err:
+        design(spec.problem, spec.design, budget=DesignBudget(candidate_seconds=0.5, progress=lines.append))
+    labels = [template_label(o, dimension=6) for o in candidate_options(spec.problem, spec.design)]
+    assert labels[0] == "parallelotope"  # bounded complexity first from n = 4 on
+    events = [line for line in lines if line.startswith("design candidate")]
+    expected = []
+    for i, (label, attempt) in enumerate(zip(labels, err.value.attempts), start=1):
+        expected += [f"design candidate {i}/{len(labels)}: {label} ...", f"design candidate {i}: {attempt.line()}"]
+    assert events == expected
+    assert any(a.outcome == "time budget" and "0.5 s used up" in a.reason for a in err.value.attempts)
+
+
+# -- the scaled terminal set -----------------------------------------------------------------------
+def _terminal_inputs(product: float):
+    """(H_x, f̄, w̄, h̄) of a box X0 with α_∞ · max f̄ = product."""
+    H_x = np.vstack([np.eye(2), -np.eye(2)])
+    h_bar = np.full((2, 4), 0.5)
+    w_bar = np.full(4, 0.1)  # α_∞ = 0.1 / 0.5 = 0.2
+    return H_x, np.full(3, product / 0.2), w_bar, h_bar
+
+
+def test_scaled_terminal_set_needs_alpha_inf_below_alpha_bar():
+    H_T, h_T = scaled_terminal_set(*_terminal_inputs(1.0 - 2 * SCALED_MARGIN))  # just inside
+    assert np.allclose(h_T * 0.2, (1.0 - 2 * SCALED_MARGIN) / (1.0 - SCALED_MARGIN))
+    with pytest.raises(Exception, match="alpha_inf"):
+        scaled_terminal_set(*_terminal_inputs(1.0 - 0.5 * SCALED_MARGIN))  # just outside
+
+
+@pytest.mark.parametrize("n", [4, 5, 6])
+def test_scaled_terminal_set_satisfies_assumption_11_by_sampling(tmp_path, n):
+    """Independent of offline/checks.py: random (z, α) ∈ X_f, θ ∈ Θ, x ∈ {z} ⊕ αX0, w ∈ W; the successor
+    A_cl(θ)x + w lies in α⁺X0 (z⁺ = 0) with (0, α⁺) ∈ X_f, and (x, Kx) ∈ Z."""
+    spec = _load(tmp_path, actuated_chain(n))
+    pr = spec.problem
+    d = design_fixed(pr, replace(spec.design, x0_template="parallelotope", terminal_set="scaled"))
+    rng = np.random.default_rng(n)
+    alpha_bar = 1.0 / d.h_T[0]
+    W_v, X_v = pr.w_vertices(), d.X0_vertices
+    for _ in range(200):
+        alpha = rng.uniform(0, alpha_bar)
+        z = rng.dirichlet(np.ones(len(X_v))) @ X_v * (alpha_bar - alpha) * rng.uniform()
+        assert np.all(d.H_T @ z + d.h_T * alpha <= 1 + 1e-12)
+        x = z + alpha * (rng.dirichlet(np.ones(len(X_v))) @ X_v)
+        assert np.all(pr.F @ x + pr.G @ (d.K @ x) <= 1 + 1e-9)
+        theta = rng.uniform(-0.1, 0.1, size=2)
+        succ = (pr.A_of(theta) + pr.B_of(theta) @ d.K) @ x + rng.dirichlet(np.ones(len(W_v))) @ W_v
+        alpha_next = float(np.max(d.H_x @ succ))  # the least α⁺ with succ ∈ α⁺X0
+        assert alpha_next <= alpha_bar + 1e-9
+
+
+@pytest.mark.parametrize("n", [4, 6])
+def test_parallelotope_template_is_contractive_and_invariant_by_independent_checks(tmp_path, n):
+    spec = _load(tmp_path, actuated_chain(n))
+    d = design_fixed(spec.problem, replace(spec.design, x0_template="parallelotope"))
+    assert len(d.H_x) == 2 * n and len(d.X0_vertices) == 2 ** n
+    by_name = {c.name: c for c in verify_design(spec.problem, d)}
+    for name in ("terminal cost (16)", "Assumption 8", "X0 contractive", "X0 robustly invariant", "X_f invariant",
+                 "X_f in Z", "X_f non-empty"):
+        assert by_name[name].passed, (name, by_name[name].detail)
+    # contractivity recomputed here from the vertices, without offline/checks.py
+    theta_v = np.array([[s1, s2] for s1 in (-0.1, 0.1) for s2 in (-0.1, 0.1)])
+    lam = max(float(np.max(d.H_x @ (spec.problem.A_of(t) + spec.problem.B_of(t) @ d.K) @ d.X0_vertices.T))
+              for t in theta_v)
+    assert lam < 1.0 and np.isclose(lam, d.lambda_bar, atol=1e-8)
