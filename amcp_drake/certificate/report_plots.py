@@ -163,11 +163,11 @@ def tube_stages(N: int) -> list[int]:
 
 
 def run_tube_steps(solved_ks: list[int]) -> list[int]:
-    """The steps k (at most RUN_TUBE_STEPS, evenly spread, the first included) of the run-along panel."""
-    if not solved_ks:
-        return []
-    picks = np.linspace(0, len(solved_ks) - 1, min(RUN_TUBE_STEPS, len(solved_ks)))
-    return sorted({solved_ks[int(round(i))] for i in picks})
+    """The steps k of the run-along panel: at most RUN_TUBE_STEPS, evenly spread over the solved steps after
+    the first (which the predicted-tube panel shows), the last included; the first when it is the only one."""
+    later = solved_ks[1:] or solved_ks
+    picks = np.linspace(0, len(later) - 1, min(RUN_TUBE_STEPS, len(later)))
+    return sorted({later[int(round(i))] for i in picks}) if later else []
 
 
 def _z_boundary(ax, pr, xlim, ylim) -> bool:
@@ -209,7 +209,7 @@ def _plot_tubes(traj: Trajectory, cert: Certificate):
     from amcp_drake.model import polytope
 
     X0v = polytope.vertices(d.H_x, np.ones(len(d.H_x)))
-    fig = _figure(10.0, 4.8)
+    fig = _figure(11.0, 5.2)
     first = solved[0]
     N = len(first.z) - 1
     stages = tube_stages(N)
@@ -231,7 +231,7 @@ def _plot_tubes(traj: Trajectory, cert: Certificate):
     # right: X_{0|k} (solid) and X_{1|k} (dashed) at a few steps, with x_k and x_{k+1}
     bx = fig.add_subplot(1, 2, 2)
     colors = colormaps["tab10"]
-    pts = [traj.x]
+    pts = [traj.x]  # the view is that of the picked sections (the transient is in the left panel)
     for i, k in enumerate(steps):
         r = traj.records[k]
         c = colors(i)
@@ -242,8 +242,8 @@ def _plot_tubes(traj: Trajectory, cert: Certificate):
         bx.plot(*traj.x[k], "o", color=c, ms=5)
         if k + 1 < len(traj.x):
             bx.plot(*traj.x[k + 1], "x", color=c, ms=7, mew=2)
+    bxlim, bylim = _view(np.vstack(pts[1:]))
     bx.plot(traj.x[:, 0], traj.x[:, 1], "-", color="0.6", lw=0.8, zorder=0)
-    bxlim, bylim = _view(np.vstack(pts))
     for axis, (lx, ly), title in ((ax, (xlim, ylim), f"predicted tube at $k = {first.k}$"),
                                   (bx, (bxlim, bylim), "along the run")):
         drawn = _z_boundary(axis, pr, lx, ly)
@@ -261,7 +261,7 @@ def _plot_tubes(traj: Trajectory, cert: Certificate):
         if drawn:
             handles.append(Patch(facecolor="none", edgecolor="tab:red", hatch="////"))
             labels.append("boundary of Z, excluded side")
-        axis.legend(handles, labels, fontsize="x-small", loc="best", ncol=2 if axis is bx else 1)
+        axis.legend(handles, labels, fontsize="small", loc="best", ncol=2 if axis is bx else 1)
     return _png(fig), (f"Left: cross-sections X_l|{first.k} = z_l|{first.k} ⊕ α_l|{first.k} X0 of the tube "
                        f"predicted at k = {first.k}, stages l = {', '.join(map(str, stages))} of N = {N}. Right: at "
                        f"steps k = {', '.join(map(str, steps))}, X_0|k (solid, containing x_k: circle) and X_1|k "
@@ -377,7 +377,7 @@ def _plot_baseline(traj: Trajectory, cert: Certificate):
     ax.set_yscale("log")
     _finish(ax, r"$\|x_k\|$")
     bx.set_ylim(bottom=0)
-    _finish(bx, r"$\max_i \max_{\theta\in\Theta_k} [H_x D_k(\theta-\hat\theta_k)]_i$")
+    _finish(bx, "parametric part of $s_k$")
     return _png(fig), ("Left: ‖x_k‖ of both closed loops. Right: the parametric part of the one-step tube, what the "
                        "set estimate Θ_k costs the tube at the applied input (the robust baseline keeps Θ_k = Θ).")
 

@@ -209,7 +209,7 @@ def ray_directions(x0: np.ndarray) -> list[tuple[str, np.ndarray]]:
     out: list[tuple[str, np.ndarray]] = []
     norm = float(np.linalg.norm(x0))
     if norm > 0:
-        out += [("x0", x0 / norm), ("−x0", -x0 / norm)]
+        out += [("x0", x0 / norm + 0.0), ("−x0", -x0 / norm + 0.0)]  # + 0.0: no negative zeros
     for i in range(min(n, RAY_AXES)):
         for sign, name in ((1.0, f"+e{i + 1}"), (-1.0, f"−e{i + 1}")):
             e = np.zeros(n)
