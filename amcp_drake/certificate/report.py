@@ -163,6 +163,8 @@ def _fmt(value: Any, digits: int = 3) -> str:
     if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
         return str(value)
     value = float(value)
+    if value == 0:
+        return "0"  # also −0.0
     if not np.isfinite(value):
         return str(value)
     return f"{value:.{digits}e}" if value != 0 and (abs(value) < 1e-3 or abs(value) >= 1e4) else f"{value:.{digits}g}"

@@ -178,7 +178,7 @@ def _z_boundary(ax, pr, xlim, ylim) -> bool:
     XX, YY = np.meshgrid(xs, ys)
     drawn = False
     for row, grow in zip(pr.F, pr.G):
-        if np.any(grow) or not np.any(row):
+        if np.any(grow) or not np.any(row[:2]) or np.any(row[2:]):
             continue
         value = row[0] * XX + row[1] * YY
         if not (np.min(value) <= 1.0 <= np.max(value)):
@@ -197,8 +197,8 @@ def _view(points: np.ndarray, pad: float = 0.08) -> tuple[tuple[float, float], t
 
 def _plot_tubes(traj: Trajectory, cert: Certificate):
     pr, d = traj.problem, traj.design
-    if pr.n != 2:
-        return None, f"Tube cross-sections are drawn for n = 2 only (this problem has n = {pr.n})."
+    if pr.n < 2:
+        return None, "Tube cross-sections are drawn in a state plane: this problem has n = 1."
     solved = [r for r in traj.records if r.z is not None and r.alpha is not None]
     if not solved:
         return None, "No solved step: there is no tube to draw."
@@ -215,8 +215,9 @@ def _plot_tubes(traj: Trajectory, cert: Certificate):
     stages = tube_stages(N)
     steps = run_tube_steps([r.k for r in solved])
 
-    def section(r, l):
-        return _polygon(r.z[l] + r.alpha[l] * X0v)
+    def section(r, l):  # n > 2: the projection onto (x1, x2), the hull of the projected vertices
+        points = r.z[l] + r.alpha[l] * X0v
+        return _polygon(points) if pr.n == 2 else _hull2d(points[:, :2])
 
     # left: the tube predicted at the first solved step, a few stages
     ax = fig.add_subplot(1, 2, 1)
@@ -227,11 +228,11 @@ def _plot_tubes(traj: Trajectory, cert: Certificate):
     centres = np.array([first.z[l] for l in range(N + 1)])
     ax.plot(centres[:, 0], centres[:, 1], ":", color="0.4", lw=1, label=f"$z_{{l|{first.k}}}$, $l = 0..{N}$")
     ax.plot(traj.x[:, 0], traj.x[:, 1], "k.-", lw=0.8, ms=3, label="$x_k$ (closed loop)")
-    xlim, ylim = _view(np.vstack([*rings, traj.x]))
+    xlim, ylim = _view(np.vstack([*rings, traj.x[:, :2]]))
     # right: X_{0|k} (solid) and X_{1|k} (dashed) at a few steps, with x_k and x_{k+1}
     bx = fig.add_subplot(1, 2, 2)
     colors = colormaps["tab10"]
-    pts = [traj.x]  # the view is that of the picked sections (the transient is in the left panel)
+    pts = []  # the view is that of the picked sections (the transient is in the left panel)
     for i, k in enumerate(steps):
         r = traj.records[k]
         c = colors(i)
@@ -239,10 +240,10 @@ def _plot_tubes(traj: Trajectory, cert: Certificate):
         pts += [r0, r1]
         bx.plot(r0[:, 0], r0[:, 1], color=c, lw=1.4, label=f"$k = {k}$")
         bx.plot(r1[:, 0], r1[:, 1], color=c, lw=1.2, ls="--")
-        bx.plot(*traj.x[k], "o", color=c, ms=5)
+        bx.plot(*traj.x[k, :2], "o", color=c, ms=5)
         if k + 1 < len(traj.x):
-            bx.plot(*traj.x[k + 1], "x", color=c, ms=7, mew=2)
-    bxlim, bylim = _view(np.vstack(pts[1:]))
+            bx.plot(*traj.x[k + 1, :2], "x", color=c, ms=7, mew=2)
+    bxlim, bylim = _view(np.vstack(pts))
     bx.plot(traj.x[:, 0], traj.x[:, 1], "-", color="0.6", lw=0.8, zorder=0)
     for axis, (lx, ly), title in ((ax, (xlim, ylim), f"predicted tube at $k = {first.k}$"),
                                   (bx, (bxlim, bylim), "along the run")):
@@ -262,11 +263,12 @@ def _plot_tubes(traj: Trajectory, cert: Certificate):
             handles.append(Patch(facecolor="none", edgecolor="tab:red", hatch="////"))
             labels.append("boundary of Z, excluded side")
         axis.legend(handles, labels, fontsize="small", loc="best", ncol=2 if axis is bx else 1)
-    return _png(fig), (f"Left: cross-sections X_l|{first.k} = z_l|{first.k} ⊕ α_l|{first.k} X0 of the tube "
+    projected = "" if pr.n == 2 else f"Projections onto the plane (x_1, x_2) of the n = {pr.n} dimensional sets. "
+    return _png(fig), (projected + f"Left: cross-sections X_l|{first.k} = z_l|{first.k} ⊕ α_l|{first.k} X0 of the tube "
                        f"predicted at k = {first.k}, stages l = {', '.join(map(str, stages))} of N = {N}. Right: at "
                        f"steps k = {', '.join(map(str, steps))}, X_0|k (solid, containing x_k: circle) and X_1|k "
                        "(dashed, containing the next state x_(k+1): cross). Red line and hatching: the boundary of Z "
-                       "for its rows without input terms (mixed rows are not drawn).")
+                       "for its rows on x_1, x_2 only (other rows are not drawn).")
 
 
 # -- parameter estimates -------------------------------------------------------------------------------------
@@ -373,7 +375,8 @@ def _plot_baseline(traj: Trajectory, cert: Certificate):
     for key, name, style in (("adaptive", "adaptive (this run)", "-"), ("robust", "robust baseline", "--")):
         run = b[key]
         ax.plot(range(len(run["state_norm"])), run["state_norm"], style, marker=".", ms=3, label=name)
-        bx.plot(range(len(run["parametric_tube"])), run["parametric_tube"], style, marker=".", ms=3, label=name)
+        tube = [np.nan if v is None else v for v in run["parametric_tube"]]
+        bx.plot(range(len(tube)), tube, style, marker=".", ms=3, label=name)
     ax.set_yscale("log")
     _finish(ax, r"$\|x_k\|$")
     bx.set_ylim(bottom=0)

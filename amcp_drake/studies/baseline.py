@@ -266,15 +266,18 @@ def robust_beside(traj) -> dict:
     except InconsistentDataError as exc:  # cannot happen with Θ_k ≡ Θ, but never hide it
         robust, stop = exc.trajectory, str(exc)
 
+    def finite(value: float) -> float | None:  # NaN (Θ_k vertices not enumerable) is JSON null
+        return float(value) if np.isfinite(value) else None
+
     def run_figures(t) -> dict:
         tube = tube_series(t, True)
         param = tube_series(t, False)
         return {"steps": len(t.u), "stop_reason": stop if t is robust and stop else t.stop_reason,
                 "all_solved": bool(t.all_solved), "cost": closed_loop_cost(t),
-                "mean_one_step_tube": float(np.mean(tube)) if tube else None,
-                "mean_parametric_tube": float(np.mean(param)) if param else None,
+                "mean_one_step_tube": finite(np.mean(tube)) if tube else None,
+                "mean_parametric_tube": finite(np.mean(param)) if param else None,
                 "final_state_norm": float(np.linalg.norm(t.x[-1])),
-                "parametric_tube": param, "state_norm": np.linalg.norm(t.x, axis=1).tolist()}
+                "parametric_tube": [finite(v) for v in param], "state_norm": np.linalg.norm(t.x, axis=1).tolist()}
 
     last = traj.records[-1]
     h_T = np.asarray(last.h_theta, float)
