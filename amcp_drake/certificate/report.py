@@ -154,7 +154,7 @@ def render_report(traj: Trajectory, cert: Certificate) -> str:
     return env.get_template("report.html").render(
         cert=data, sections=grouped(claims, cert.not_claimed), plots=plots, baseline=data["figures"].get("robust_baseline"),
         gram={"window": window, "first": gram_first, "last": gram_last}, fmt=_fmt, vec=_vec, math=math_html,
-        ratio=_ratio)
+        ratio=_ratio, relative_tolerances=any(c.get("tolerance_relative") for c in claims))
 
 
 def _fmt(value: Any, digits: int = 3) -> str:
