@@ -1,6 +1,6 @@
 """The tube MPC QP (20) in Drake: constraints (15a)-(15d), terminal set, cost (17)-(18).
 
-The program is built once per controller with sparse matrix constraints, reduced exactly (issue 16):
+The program is built once per controller with sparse matrix constraints, reduced exactly:
 
 * (15d) is solved for p of the q multipliers of each row (:mod:`.multiplier_basis`): the program
   holds the other q − p (Λ_N >= 0), the rows Λ_B = c M − Λ_N H_N M >= 0, and (15c) in the form

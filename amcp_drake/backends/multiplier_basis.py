@@ -1,4 +1,4 @@
-"""(15d) solved for p of the q multipliers of each row of (15c): the Drake plain form's Λ (issue 16).
+"""(15d) solved for p of the q multipliers of each row of (15c): the Drake plain form's Λ.
 
 Each row ρ = (l, j, i) of (15c)-(15d) has a multiplier row Λ_ρ = Λ^j_{l|k}[i, :] ∈ R^q with
 

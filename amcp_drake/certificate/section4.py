@@ -30,9 +30,9 @@ GROUP_EXCITATION = "excitation"
 
 #: Recorded cost vs the numpy evaluation, relative to max(|J|, COST_SCALE_FLOOR) (absolute below 1).
 #: Certainty equivalence: both sides are the same quadratic of recorded floats (~1e-14 relative).
-#: Min–max: the backends record (19) of their plan (amcp_drake.backends.minmax_cost; before session 7
-#: the solver's Σ s_l², 1.3e-6 relative off (19) on a problem in badly scaled state units), so both
-#: sides are the same formula of recorded floats too; the tolerance stays what it was for Σ s_l².
+#: Min–max: the backends record (19) of their plan (amcp_drake.backends.minmax_cost; not
+#: the solver's Σ s_l², which can be 1.3e-6 relative off (19) on a problem in badly scaled state units),
+#: so both sides are the same formula of recorded floats too.
 COST_REL_TOL = 1e-6
 COST_SCALE_FLOOR = 1.0
 #: λ_min(window Gram) vs the recorded level, relative to max(1, level): the input sits on a root of

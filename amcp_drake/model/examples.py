@@ -119,11 +119,11 @@ EXAMPLES = {"lorenzen2019": lorenzen2019_spec, "lorenzen2019_ex2": lorenzen2019_
             "bujarbaruah2022": bujarbaruah2022_spec, "massera2017": massera2017_spec,
             "kothare1996": kothare1996_spec, "tranos2022": tranos2022_spec,
             **{f"sls_mpc_2d_eps{e:g}": (lambda e=e: sls_mpc_2d_spec(e)) for e in SLS_EPS_A_SWEEP}}
-#: The built-in systems taken from other publications than Lorenzen et al. (2019) (issue 14).
+#: The built-in systems taken from other publications than Lorenzen et al. (2019).
 LITERATURE_EXAMPLES = ("parsi2020_siso", "parsi2020_mimo", "bujarbaruah2022", "massera2017", "kothare1996",
                        "tranos2022")
 #: The SLS-MPC 2-D family (Chen et al. 2024; constructor amcp_drake.model.sls_mpc_2d) at the ε_A of
-#: issue 14's sweep; any ε_A through ``sls_mpc_2d_spec(eps_A)``.
+#: the sweep SLS_EPS_A_SWEEP; any ε_A through ``sls_mpc_2d_spec(eps_A)``.
 SLSMPC2D_EXAMPLES = tuple(f"sls_mpc_2d_eps{e:g}" for e in SLS_EPS_A_SWEEP)
 
 

@@ -1,4 +1,4 @@
-"""Pinning: a first disturbance w_0 that makes Θ_1 = Θ ∩ Δ_1 collapse (a hard case of issue 13,
+"""Pinning: a first disturbance w_0 that makes Θ_1 = Θ ∩ Δ_1 collapse (a hard case of the property suite,
 built by :mod:`amcp_drake.studies.random_problems` and the Hypothesis strategies, never filtered for).
 
 With θ* on ∂Θ, w_0 is the vertex of W that leaves Θ_1 = {θ*} when θ* is a vertex of Θ, and Θ_1 in

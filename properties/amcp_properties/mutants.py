@@ -87,7 +87,7 @@ def _drop_drake_constraint(description: str) -> Iterator[None]:
                 prog.RemoveConstraint(binding)
         return original(self, prog, extra_options)
 
-    # the Drake backend answers (9) by vertices where it can (issue 16): the LP, and with it this
+    # the Drake backend answers (9) by vertices where it can: the LP, and with it this
     # mutant, would then never run; the mutant forces the LP so that it mutates what it names
     with patch.object(drake_._Solver, "solve", solve), \
             patch.object(set_update_vertices.VertexSetUpdate, "solve", lambda self, *args: None):

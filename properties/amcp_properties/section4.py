@@ -1,4 +1,4 @@
-"""Generators and numpy checks for the Section 4 options (issue 7): the min-max cost (19),
+"""Generators and numpy checks for the Section 4 options: the min-max cost (19),
 persistent excitation (spec §8) and time-varying parameters (Section 4.1), on random systems.
 
 The generators reuse :mod:`amcp_properties.strategies` (designed problems, θ*, boundary initial
@@ -51,7 +51,7 @@ class Section4Sizes:
     max_N: int      # horizon bound of the generated problems (the min-max form is an SOCP)
 
 
-#: ci: 40 examples per option (24 until session 7; why: the docstring of test_section4_options.py)
+#: ci: 40 examples per option (why: the docstring of test_section4_options.py)
 SIZES = {"ci": Section4Sizes(examples=40, steps=12, pe_steps=18, max_N=6),
          "thorough": Section4Sizes(examples=60, steps=24, pe_steps=36, max_N=8)}
 

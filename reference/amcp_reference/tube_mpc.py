@@ -66,7 +66,7 @@ ROW_CAPACITY_STEP = 8
 #: first tries needing a retry 50 -> 6; CPU per closed-loop step +3-5 % (Example 1) to +6-15 %
 #: (massera2017). docs/decisions.md, "The cvxpy plain form's unanswered QPs on massera2017".
 PLAIN_FORM_CLARABEL_OPTIONS = {"direct_solve_method": "faer", "max_threads": 1}
-#: The optimality check of the plain form's answer (session 10, :meth:`CvxpyTubeMPC._checked_optimal`):
+#: The optimality check of the plain form's answer (:meth:`CvxpyTubeMPC._checked_optimal`):
 #: its cost may exceed the vertex form's optimum of the same step by at most this many times the gap
 #: tolerance in effect (tol_gap_abs + tol_gap_rel·|cost|, for the errors of both solves). Why: on a
 #: generated problem (thorough profile; n = 1, p = 2, exact update (7), a Θ_k slab 1.3e-6 wide,
