@@ -1,7 +1,7 @@
 """The fixed-complexity update (9) solved exactly by basis enumeration, with its dual certificate.
 
 (9) is, row by row, the support of Θ_{k−1} ∩ Δ_k = {θ | H̃ θ <= h̃} (H̃ = [H_θ; H_data] (R, p),
-h̃ = [h_{k−1}; h_data]) in the directions of the rows of H_θ (spec §2.1):
+h̃ = [h_{k−1}; h_data]) in the directions of the rows of H_θ (docs/explanation/paper.md §2):
 
     [h_k]_i = max{[H_θ]_i θ | H̃ θ <= h̃}.
 

@@ -18,7 +18,7 @@ another feasible decision, passes them all. This claim closes that gap with the 
   c^s_i = max_j [H_x A_cl(θ^s) x^j]_i over the recorded vertices x^j of X0 (the rows of the other
   j are implied because α_l >= 0 is a row too);
 * terminal set H_T z_N + h_T α_N <= 1; α_l >= 0;
-* when the step enforced the PE constraint (spec §8): lo <= K x_k + v_0 <= hi, the recorded bounds
+* when the step enforced the PE constraint (docs/explanation/paper.md §8): lo <= K x_k + v_0 <= hi, the recorded bounds
   of the QP the controller chose (the claim is optimality for *that* QP; that the other branch was
   not cheaper is not checked).
 

@@ -24,7 +24,7 @@ loops (as ``timeit`` does). The closed loops are independent (each applies its o
 runs also report how far the formulations' inputs drift apart (``max_abs_dv_vs_plain``).
 
 Reference lines: the paper reports a median solver time of 68 ms for Example 1 (Yalmip, Intel
-Core i7 3.4 GHz; 50 ms min, 95 ms max), spec §9.
+Core i7 3.4 GHz; 50 ms min, 95 ms max), docs/explanation/paper.md §9.
 
 Output: :func:`run_benchmarks` returns a JSON-ready dict (format ``amcp-bench`` version 3, keys
 documented in benchmarks/README.md); :func:`write_outputs` writes it, a PNG (matplotlib Agg) and,
@@ -63,7 +63,7 @@ BENCH_FORMAT = "amcp-bench"
 #: ``issue16_cpu[].measured`` is the median over the repeats, ``per_run`` the value of each repeat,
 #: ``runs_met`` how many met the target, and ``met`` is true only when every repeat met it
 BENCH_VERSION = 4
-#: Spec §9: "Median solver time reported by Yalmip: 0.068 s (0.10 s with the PE constraint);
+#: The paper (Section 5): "Median solver time reported by Yalmip: 0.068 s (0.10 s with the PE constraint);
 #: maximum 0.095 s; minimum 0.05 s; Intel Core i7, 3.4 GHz".
 PAPER_MS = {"median_solver": 68.0, "max_solver": 95.0, "min_solver": 50.0}
 #: Wall-time target: a full step on Example 1 with an 8-facet X0 at a median of at most 7 ms (Drake backend),
@@ -138,7 +138,7 @@ def _design_or_reason(problem, options):
 
 
 def example_benchmark(settings: BenchSettings, progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
-    """Example 1 (spec §9) with X0 of each facet count, every backend and formulation."""
+    """Example 1 (docs/explanation/paper.md §9) with X0 of each facet count, every backend and formulation."""
     from amcp_drake.model.examples import lorenzen2019_spec
 
     spec = lorenzen2019_spec()

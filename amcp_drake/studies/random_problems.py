@@ -134,7 +134,7 @@ class ProblemShape:
     * ``coupled_Q``: Q = diag + L Lᵀ instead of diagonal.
     * ``theta_hat0_off_centre``: θ̂0 on a ray towards ∂Θ instead of 0.
     * ``input_uncertainty``: B_i drawn like A_i; False: B_i = 0, so D(x, u) = D(x).
-    * ``zero_centre``: the tube centre dynamics A_z of spec §5.1 is 0 instead of A_cl(θ̂0).
+    * ``zero_centre``: the tube centre dynamics A_z of docs/explanation/paper.md §5 is 0 instead of A_cl(θ̂0).
     * ``delta_range``: range of δ = p·‖[A_i B_i]‖₂ (the size of the parametric uncertainty).
     * ``scaled_states``: the problem is written in the state coordinates x̃ = T x, T = diag(10^s_i),
       s_i drawn from :data:`STATE_SCALE_EXPONENTS` (not all 0): the same system in badly scaled

@@ -1,5 +1,5 @@
 """Generators and numpy checks for the Section 4 options: the min-max cost (19),
-persistent excitation (spec §8) and time-varying parameters (Section 4.1), on random systems.
+persistent excitation (docs/explanation/paper.md §8) and time-varying parameters (Section 4.1), on random systems.
 
 The generators reuse :mod:`amcp_properties.strategies` (designed problems, θ*, boundary initial
 states, disturbances) and add the option: ``cost="minmax"``; ``pe_window``/``pe_level`` for m = 1
@@ -528,7 +528,7 @@ def without_pe(case: Section4Case) -> Section4Case:
 
 
 def same_inputs(traj, reference) -> CheckResult:
-    """Spec §8 fallback: a step where no input meets both (20) and the PE constraint solves (20) alone,
+    """docs/explanation/paper.md §8 fallback: a step where no input meets both (20) and the PE constraint solves (20) alone,
     so a run that never enforced PE applies the inputs of the run without PE."""
     if traj.stop_reason != reference.stop_reason or len(traj.u) != len(reference.u):
         return judge("PE fallback = (20) alone", "a run without enforced PE steps equals the run without PE",

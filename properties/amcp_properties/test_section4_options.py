@@ -1,5 +1,5 @@
 """Section 4 options on RANDOM systems, both backends: the min-max cost (19) (Remark 13),
-persistent excitation (spec §8) and time-varying parameters (Section 4.1, Proposition 19).
+persistent excitation (docs/explanation/paper.md §8) and time-varying parameters (Section 4.1, Proposition 19).
 
 Generators (:mod:`amcp_properties.section4`) reuse the suite's designed problems, θ* and
 boundary initial states; every check is numpy only against the recorded StepRecord contract.
@@ -11,7 +11,7 @@ boundary initial states; every check is numpy only against the recorded StepReco
   >= record.pe_level at "enforced" steps (dimension n + 1), Σ_window u_j² >= record.pe_level at
   "enforced_necessary" steps (and the pe_dim Gram at "enforced_partial"), u_k within record.pe_bounds;
   a run whose level is unattainable (every step "inactive" or "fallback") applies exactly the
-  inputs of the run without PE (spec §8: the fallback solves (20) alone).
+  inputs of the run without PE (docs/explanation/paper.md §8: the fallback solves (20) alone).
 * robust baseline (update "none", Θ_k ≡ Θ_0, θ̂_k ≡ θ̂0): every QP optimal, (x, u) ∈ Z, nothing
   updated; and what adaptation buys, as a claim: Θ_k ⊆ Θ_0 ⇒ 𝔻(x, Θ_0) ⊆ 𝔻(x, Θ_k), so wherever
   (20) on Θ_0 is feasible (probed at recorded x_k and along their rays to the robust feasible

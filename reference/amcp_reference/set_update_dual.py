@@ -1,6 +1,6 @@
 """The update (9) of the cvxpy backend solved exactly by enumerating *dual* bases.
 
-Row i of (9) is the LP (spec §2.1), with H̃ = [H_θ; H_data] (R, p) and h̃ = [h_{k−1}; h_data]:
+Row i of (9) is the LP (docs/explanation/paper.md §2), with H̃ = [H_θ; H_data] (R, p) and h̃ = [h_{k−1}; h_data]:
 
     [h_k]_i = max{[H_θ]_i θ | H̃ θ <= h̃}  =  min{λᵀ h̃ | λᵀ H̃ = [H_θ]_i, λ >= 0}   (LP duality).
 
