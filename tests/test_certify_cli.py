@@ -171,6 +171,7 @@ def test_claim_not_run_exits_1_and_never_says_pass(saved, tmp_path):
     data["problem"]["Theta"]["h"][0] *= 2.0
     data["problem"]["name"] = "example1-variant"
     data["mu_state_bound"] = None
+    data["design"]["mu_state_bound"] = None  # the design records its μ box too
     path = write_trajectory(data, tmp_path / "variant.json")
     out = tmp_path / "out"
     result = invoke("--trajectory", path, "--out", out)

@@ -250,7 +250,8 @@ def robust_beside(traj) -> dict:
     * ``rays``: per direction, the feasible radius of the QP (20) at Θ (robust) and at the adaptive run's
       final Θ_T; Θ_T ⊆ Θ (Lemma 3) makes the adaptive radius at least the robust one.
 
-    Not a claim of the paper and not part of the verdict: what adaptation bought on this run."""
+    Not a claim of the paper and not part of the verdict: what adaptation bought on this run. A run that
+    applied no input gives ``{"error": reason}``."""
     from dataclasses import replace
 
     problem, design = traj.problem, traj.design
@@ -258,6 +259,8 @@ def robust_beside(traj) -> dict:
     ctrl = AdaptiveMPC(problem, design, backend=traj.backend, options=options,
                        formulation=traj.meta.get("formulation", "plain"))
     T = len(traj.u)
+    if T == 0:
+        return {"error": f"the run applied no input ({traj.stop_reason}): there is no disturbance sequence to rerun"}
     theta_star = np.asarray(traj.theta_star, float)
     stop = None
     try:
