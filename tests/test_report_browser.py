@@ -162,8 +162,8 @@ def test_every_plot_is_an_inline_png(bundle):
 def test_failed_and_not_run_claims_are_marked(bundle):
     """A certificate with a failed claim and a claim not run: rows carry the status, the verdict says fail."""
     traj = Trajectory.from_dict(json.loads(json.dumps(bundle["traj"].to_dict())))
-    traj.mu_state_bound = None  # (11) cannot run without the box (recorded by the run and by its design)
-    traj.design = dataclasses.replace(traj.design, mu_state_bound=None)
+    traj.mu_state_bound = None  # (11) cannot run without the box
+    traj.design = dataclasses.replace(traj.design, mu_state_bound=None)  # which the design records too
     lam = traj.records[2].Lambda.copy()
     lam[0, 0, 0, 0] = -1.0
     traj.records[2].Lambda = lam
