@@ -10,7 +10,8 @@ Sources (:func:`example_sources`, :func:`hard_case_sources`):
   1e-10 (``lockstep-vertex-ladder``, step 4), the plain step where cvxpy's Clarabel ended 8.2e-9 above
   the optimum (``lockstep-plain-suboptimal``, step 8), the massera2017 plain step on a 1e-4-wide Θ_k,
   the generated gain LMI that ended AlmostSolved, and the gain LMI of x⁺ = 1.5x + 0·u at margin 1e-8
-  (infeasible; Clarabel panicked on it), recorded without solving; two recorded projections (12) onto
+  (infeasible; Clarabel panicked on it), recorded without solving (left out of the corpus: infeasible
+  by less than the verdicts resolve, see :data:`.reference.REFERENCE_FEAS_TOL`); two recorded projections (12) onto
   degenerate sets and the support LPs of a window update on a sliver Θ_k;
 * the cvxpy backend's own problems (:mod:`.cvxpy_export`): Example 1 (design and the plain form with
   (9)), the plain step 8 of ``lockstep-plain-suboptimal`` and the unstabilisable gain LMI as cvxpy
