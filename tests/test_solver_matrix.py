@@ -281,11 +281,14 @@ def test_reproducer_scripts_say_whether_the_defect_reproduces(tmp_path):
 
     for p in (fine, lying):
         (tmp_path / f"{p.id}.py").write_text(script_text(p, "cvxpy:CLARABEL", "default", "wrong", "stub"))
+    # a crash's script reproduces only by an exception or an abort, not by the wrong answer it may return
+    (tmp_path / "crash-check.py").write_text(script_text(lying, "cvxpy:CLARABEL", "default", "crash", "stub"))
     (tmp_path / "aborts.py").write_text("import os\nos.abort()\n")
     results = {r.script: r for r in recheck(tmp_path)}
     assert results["x-geq-1.py"].outcome == "no longer reproduces"
     assert results["x-geq-1-lying.py"].outcome == "reproduces" and "suboptimal" in results["x-geq-1-lying.py"].last_line
     assert results["aborts.py"].outcome == "reproduces" and "signal 6" in results["aborts.py"].last_line
+    assert results["crash-check.py"].outcome == "no longer reproduces" and "without an exception" in results["crash-check.py"].last_line
     imports = [ln for ln in (tmp_path / "x-geq-1.py").read_text().splitlines() if ln.lstrip().startswith(("import ", "from "))]
     assert imports and not any("amcp" in ln for ln in imports)   # nothing imported from this project
 

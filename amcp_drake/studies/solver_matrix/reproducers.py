@@ -5,7 +5,8 @@ problem that shows it (:attr:`.corpus.CorpusProblem.size`) is written out as one
 script: pure pydrake or pure cvxpy with numpy/scipy, the problem's data inline, nothing from this
 project. It prints the installed versions and what is wrong, and exits 1 when the defect reproduces,
 0 when it does not, 3 when a package it needs is missing (an abort or a panic ends it by a signal or an
-uncaught exception, which :func:`recheck` counts as reproduced).
+uncaught exception, which :func:`recheck` counts as reproduced). A crash's script reproduces only by
+an exception or an abort; a status returned is "does not reproduce", whatever the answer.
 
 :func:`recheck` runs every ``*.py`` of a folder in a child process with a time limit and says which
 still reproduce on the installed versions.
@@ -66,6 +67,9 @@ def violation(x):
 def judge(success, status, x):
     ref = DATA["reference"]
     print(f"solver status: {status} (success reported: {success})")
+    if CRASH_ONLY:
+        print("does not reproduce: the solve returned a status, without an exception or an abort")
+        sys.exit(0)
     if ref["status"] == "infeasible":
         if success:
             print(f"REPRODUCES: success reported on a problem with a verified infeasibility certificate")
@@ -212,7 +216,8 @@ def script_text(pr: CorpusProblem, solver: str, settings: str, verdict: str, det
            '"""\n')
     payload = json.dumps(data, separators=(",", ":"), allow_nan=False)
     return (f"#!/usr/bin/env python3\n{doc}import json\n\nDATA = json.loads(r'''{payload}''')\n"
-            f"FEAS_TOL, OPT_TOL = {tol['feas']!r}, {tol['opt']!r}\n{head}{_COMMON}{body}")
+            f"FEAS_TOL, OPT_TOL = {tol['feas']!r}, {tol['opt']!r}\nCRASH_ONLY = {verdict == 'crash'!r}\n"
+            f"{head}{_COMMON}{body}")
 
 
 def write_reproducers(run: MatrixRun, out_dir: Path) -> list[Reproducer]:
