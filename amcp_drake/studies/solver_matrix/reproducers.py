@@ -68,7 +68,7 @@ def judge(success, status, x):
     ref = DATA["reference"]
     print(f"solver status: {status} (success reported: {success})")
     if CRASH_ONLY:
-        print("does not reproduce: the solve returned a status, without an exception or an abort")
+        print(f"does not reproduce: the solve returned the status {status}, without an exception or an abort")
         sys.exit(0)
     if ref["status"] == "infeasible":
         if success:
@@ -208,10 +208,11 @@ def script_text(pr: CorpusProblem, solver: str, settings: str, verdict: str, det
            f"Problem {pr.id}: {pr.kind} {pr.equation}, {pr.problem_class.upper()}, {pr.n} variables, {pr.A.shape[0]} rows"
            f"{', ' + str(len(pr.lmis)) + ' LMI block(s)' if pr.lmis else ''}:\n"
            "    minimise 1/2 x'Px + q'x + r  s.t.  lower <= A x <= upper,  lb <= x <= ub,  mat(g0 + G x) PSD\n"
-           f"Seen in the matrix: {detail[:300]}\n"
-           "The reference answer is verified (KKT residuals below 1e-7; an LP's optimal basis in exact rational\n"
-           "arithmetic; an infeasible problem by a Farkas certificate).\n"
-           "Exit 1: reproduces; 0: does not; 3: a package is missing. Needs numpy, scipy and "
+           f"Seen: {detail[:300]}\n"
+           + ("Only a crash counts (an exception or an abort); the answer returned is not judged.\n" if verdict == "crash" else
+              "The reference answer is verified (KKT residuals below 1e-7; an LP's optimal basis in exact rational\n"
+              "arithmetic; an infeasible problem by a Farkas certificate).\n")
+           + "Exit 1: reproduces; 0: does not; 3: a package is missing. Needs numpy, scipy and "
            f"{'pydrake' if stack == 'drake' else 'cvxpy'} only.\n"
            '"""\n')
     payload = json.dumps(data, separators=(",", ":"), allow_nan=False)
