@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import gzip
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -124,7 +125,11 @@ def test_the_cli_survives_aborting_raising_and_hanging_solvers(tmp_path):
     assert verdicts == {"correct": "correct", "wrong": "wrong", "aborts": "crash", "raises": "crash", "hangs": "timeout"}
     assert data["summary"]["py:tests.solver_stubs:correct"]["counts"]["correct"] == 1
     assert "<table id='matrix'>" in (out / "solvers.html").read_text()
-    assert not list(out.glob(".*.tmp"))
+    assert not list(out.glob(".*"))   # no temporary file left
+    umask = os.umask(0)
+    os.umask(umask)
+    written = [out / "solvers.json", out / "solvers.html"]
+    assert {oct(p.stat().st_mode & 0o777) for p in written} == {oct(0o666 & ~umask)}
 
 
 @pytest.mark.parametrize("args", [["--corpus", "/nonexistent/corpus"], ["--solvers", "clarabel"], ["--kind", "nope"],

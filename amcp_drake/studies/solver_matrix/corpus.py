@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -235,17 +234,11 @@ def write_json_atomic(path: str | os.PathLike, data: Any, indent: int | None = N
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    """Write ``text`` to ``path`` atomically, as readable as any file the user creates (the umask's
+    permissions, not the 0600 of a temporary file): :func:`amcp_drake.model.problem_io.write_text_atomic`."""
+    from amcp_drake.model.problem_io import write_text_atomic as write
+
+    return write(text, path)
 
 
 def load_problem(path: str | os.PathLike) -> CorpusProblem:
