@@ -104,9 +104,10 @@ def _recheck(folder: Path):
 
 
 def _export(folder: Path, steps: int, hard_cases: Path):
-    from amcp_drake.studies.solver_matrix.export import example_sources, export_corpus, hard_case_sources
+    from amcp_drake.studies.solver_matrix.export import example_sources, export_corpus, hard_case_sources, projection_sources
 
     sources = list(example_sources(steps=steps)) + list(example_sources(("lorenzen2019",), steps, backend="cvxpy"))
+    sources += list(projection_sources())
     if hard_cases.is_dir():
         sources += list(hard_case_sources(hard_cases))
     index = export_corpus(folder, sources, progress=lambda msg: click.echo(msg, err=True))
