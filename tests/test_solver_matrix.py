@@ -370,3 +370,16 @@ def test_markdown_tables_count_what_the_cells_say():
     text = markdown(to_json(MatrixRun("default", 5.0, ["s"], [a, b], cells)))
     assert "| s | 1 | 0 | 1 | 0 | 0 | 0 | 2.0 | 1.0 |" in text
     assert "| s | 1/2 1W |" in text
+
+
+def test_generated_projections_are_of_points_outside_theta_and_verified(tmp_path):
+    """Each generated projection (12) is of a point outside Θ: its verified optimal distance is positive."""
+    from amcp_drake.studies.solver_matrix.export import export_corpus, projection_sources
+
+    index = export_corpus(tmp_path, list(projection_sources(("lorenzen2019",), points=2, seed=0)))
+    assert [p["kind"] for p in index["problems"]] == ["projection_qp", "projection_qp"] and index["left_out"] == []
+    for pr in load_corpus(tmp_path):
+        assert pr.reference["status"] == "optimal"
+        # the problem is in the scaled coordinates y = (θ - point) / s of backends/projection_form.py: y = 0 is the point
+        assert pr.violation(np.zeros(pr.n)) > 1e-3
+        assert pr.objective(pr.reference_x()) > pr.objective(np.zeros(pr.n)) + 1e-3
