@@ -1,19 +1,19 @@
 #!/usr/bin/env python3
-"""drake:scs (default settings) on one problem of the amcp-drake solver corpus: wrong.
+"""cvxpy:SCS (default settings) on one problem of the amcp-drake solver corpus: wrong.
 
-Problem parsi2020_mimo-support_lp-2: support_lp (14), A.1, LP, 2 variables, 5 rows:
+Problem kothare1996-projection-projection_qp-1: projection_qp (12), QP, 1 variables, 2 rows:
     minimise 1/2 x'Px + q'x + r  s.t.  lower <= A x <= upper,  lb <= x <= ub,  mat(g0 + G x) PSD
-Seen: success reported but infeasible by 1.35e-06 (tol 1e-06)
+Seen: success reported but infeasible by 3.41e-06 (tol 1e-06)
 The reference answer is verified (KKT residuals below 1e-7; an LP's optimal basis in exact rational
 arithmetic; an infeasible problem by a Farkas certificate).
-Exit 1: reproduces; 0: does not; 3: a package is missing. Needs numpy, scipy and pydrake only.
+Exit 1: reproduces; 0: does not; 3: a package is missing. Needs numpy, scipy and cvxpy only.
 """
 import json
 
-DATA = json.loads(r'''{"format":"amcp-solver-corpus","version":1,"id":"parsi2020_mimo-support_lp-2","kind":"support_lp","equation":"(14), A.1","class":"lp","n":2,"objective":{"P":null,"q":[0.6202340609938721,-0.7844167958318139],"r":0.0},"linear":{"A":{"shape":[5,2],"row":[0,1,2,2,3,3,4,4],"col":[0,0,0,1,0,1,0,1],"val":[1.0,-1.0,-0.2907895689536738,0.9567870330369954,0.3551391190902019,-0.9348134605854984,0.25697460742937583,-0.9664181554257547]},"lower":[null,null,null,null,null],"upper":[0.9999999999993979,0.999999999999398,0.061963994971864354,0.3519628652903098,0.45169276706137174]},"bounds":{"lower":[null,null],"upper":[null,null]},"lmi":[],"reference":{"status":"optimal","objective":-0.4326326226908656,"x":[-0.999999999999398,-0.2391604046464816]}}''')
+DATA = json.loads(r'''{"format":"amcp-solver-corpus","version":1,"id":"kothare1996-projection-projection_qp-1","kind":"projection_qp","equation":"(12)","class":"qp","n":1,"objective":{"P":{"shape":[1,1],"row":[0],"col":[0],"val":[2.0]},"q":[0.0],"r":0.0},"linear":{"A":{"shape":[2,1],"row":[0,1],"col":[0,0],"val":[1.0,-1.0]},"lower":[null,null],"upper":[200.99999999999815,-1.0]},"bounds":{"lower":[null],"upper":[null]},"lmi":[],"reference":{"status":"optimal","objective":1.000000000004007,"x":[1.0000000000020035]}}''')
 FEAS_TOL, OPT_TOL = 1e-06, 1e-06
 CRASH_ONLY = False
-SOLVER_CLASS = 'ScsSolver'
+SOLVER = 'SCS'
 OPTIONS = {}
 
 import json, sys
@@ -81,39 +81,42 @@ def judge(success, status, x):
     sys.exit(0)
 
 try:
-    import pydrake
-    from pydrake.solvers import MathematicalProgram, SolverOptions
-    import pydrake.solvers as ds
+    import cvxpy as cp
 except ImportError as exc:
     print(f"cannot run: {exc}")
     sys.exit(3)
-from importlib.metadata import version
-print(f"drake {version('drake')}, numpy {np.__version__}, python {sys.version.split()[0]}")
-for arr in (q, A.data, *(G.data for _, G, _ in LMIS)):
-    assert np.all(np.isfinite(arr)), "Drake aborts the process on a non-finite coefficient"
-prog = MathematicalProgram()
-x = prog.NewContinuousVariables(n, "x")
-if P is not None and P.nnz:
-    prog.AddQuadraticCost(P.toarray(), q, r, x, is_convex=True)
-else:
-    prog.AddLinearCost(q, r, x)
-if A.shape[0]:
-    prog.AddLinearConstraint(sp.csc_matrix(A), lower, upper, x)
-if np.isfinite(lb).any() or np.isfinite(ub).any():
-    prog.AddBoundingBoxConstraint(lb, ub, x)
+from importlib.metadata import PackageNotFoundError, version
+vs = []
+for pkg in ("cvxpy", "clarabel", "osqp", "scs", "ecos", "daqp", "piqp", "highspy", "proxsuite"):
+    try:
+        vs.append(f"{pkg} {version(pkg)}")
+    except PackageNotFoundError:
+        pass
+print(", ".join(vs) + f", numpy {np.__version__}, python {sys.version.split()[0]}")
+if SOLVER not in cp.installed_solvers():
+    print(f"cannot run: cvxpy solver {SOLVER} not installed")
+    sys.exit(3)
+x = cp.Variable(n)
+obj = q @ x + r + (0 if P is None or not P.nnz else 0.5 * cp.quad_form(x, cp.psd_wrap(P)))
+cons = []
+for M, lo, up in ((A, lower, upper), (None, lb, ub)):
+    if M is not None and M.shape[0] == 0:
+        continue
+    eq = np.isfinite(lo) & np.isfinite(up) & (lo == up)
+    for mask, bnd, op in ((eq, up, "=="), (np.isfinite(up) & ~eq, up, "<="), (np.isfinite(lo) & ~eq, lo, ">=")):
+        idx = np.flatnonzero(mask)
+        if idx.size:
+            e = M[idx] @ x if M is not None else x[idx]
+            cons.append(e == bnd[idx] if op == "==" else (e <= bnd[idx] if op == "<=" else e >= bnd[idx]))
 for s, G, g0 in LMIS:
-    cols = np.unique(G.nonzero()[1])
-    F = [g0.reshape(s, s, order="F")] + [G.tocsc()[:, j].toarray().reshape(s, s, order="F") for j in cols]
-    prog.AddLinearMatrixInequalityConstraint([0.5 * (M + M.T) for M in F], x[cols])
-solver = getattr(ds, SOLVER_CLASS)()
-options = SolverOptions()
-for key, value in OPTIONS.items():
-    options.SetOption(solver.solver_id(), key, value)
+    Mx = cp.reshape(G @ x + g0, (s, s), order="F")
+    cons.append(0.5 * (Mx + Mx.T) >> 0)
+prob = cp.Problem(cp.Minimize(obj), cons)
 try:
-    result = solver.Solve(prog, None, options)
+    prob.solve(solver=SOLVER, **OPTIONS)
+except cp.error.SolverError as exc:
+    judge(False, f"SolverError: {exc}", None)
 except BaseException as exc:
     print(f"REPRODUCES: the solve raised {type(exc).__name__}: {exc}")
     sys.exit(1)
-status = str(result.get_solution_result())
-details = getattr(result.get_solver_details(), "status", None)
-judge(result.is_success(), status + ("" if details is None else f" ({details})"), result.GetSolution(x))
+judge(prob.status == "optimal", prob.status, x.value)
