@@ -383,3 +383,13 @@ def test_generated_projections_are_of_points_outside_theta_and_verified(tmp_path
         # the problem is in the scaled coordinates y = (θ - point) / s of backends/projection_form.py: y = 0 is the point
         assert pr.violation(np.zeros(pr.n)) > 1e-3
         assert pr.objective(pr.reference_x()) > pr.objective(np.zeros(pr.n)) + 1e-3
+
+
+def test_the_corpus_table_of_the_docs_counts_the_shipped_corpus():
+    import re
+    from collections import Counter
+
+    counts = Counter(p.kind for p in load_corpus(shipped_corpus_dir()))
+    text = (ROOT / "docs" / "choosing-a-solver.md").read_text(encoding="utf-8")
+    table = {m.group(1): int(m.group(2)) for m in re.finditer(r"^\| `(\w+)` \|[^|]*\| (\d+) \|$", text, flags=re.M)}
+    assert table == dict(counts)
