@@ -59,16 +59,19 @@ def summary_text(store) -> str:
 def answer_lines(rows: list[tuple[str, str, float, int, int]]) -> list[str]:
     """Fallback and re-solve rates per backend and kind: of the backend's answers of each problem, the share
     that was not its first answer, and the problems with at least one such step."""
-    totals = {(backend, key[: -len("_answers")]): total for key, backend, total, _, _ in rows if key.endswith("_answers")}
+    # per (backend, problem): its answers over the campaign and the problems that recorded any (a kind's own
+    # key is stored only where it occurred, so its row counts only those problems)
+    totals = {(backend, key[: -len("_answers")]): (total, problems) for key, backend, total, _, problems in rows
+              if key.endswith("_answers")}
     lines = [f"{'solver answers':44s} {'backend':8s} {'steps':>7s} {'rate':>9s} {'problems':>9s}"]
     for key, backend, total, with_any, problems in rows:
         for outcome in ("resolved", "fallback", "not_solved"):
             head, sep, kind = key.partition(f"_{outcome}")
             if sep and (kind == "" or kind.startswith("_")) and head.startswith("answers_"):
-                answered = totals.get((backend, head), 0.0)
-                rate = total / answered if answered else float("nan")
+                answered, of_problems = totals.get((backend, head), (0.0, problems))
+                rate = f"{total / answered:9.2%}" if answered else f"{'-':>9s}"
                 label = f"{head[len('answers_'):]} {outcome}{(' ' + kind[1:]) if kind else ''}"
-                lines.append(f"{label:44s} {backend:8s} {int(total):7d} {rate:9.2%} {int(with_any):5d}/{problems}")
+                lines.append(f"{label:44s} {backend:8s} {int(total):7d} {rate} {int(with_any):5d}/{of_problems}")
                 break
     if len(lines) == 1:
         lines.append("(no solver answers recorded)")
