@@ -146,6 +146,7 @@ def test_claim_not_run_exits_1_and_never_says_pass(saved, tmp_path):
     data["problem"]["Theta"]["h"][0] *= 2.0
     data["problem"]["name"] = "example1-variant"
     data["mu_state_bound"] = None
+    data["design"]["mu_state_bound"] = None  # the design records its μ box too
     path = write_trajectory(data, tmp_path / "variant.json")
     out = tmp_path / "out"
     result = invoke("--trajectory", path, "--out", out)
@@ -176,6 +177,21 @@ def test_an_infeasible_scenario_exits_3_premise_not_met(tmp_path):
     assert "PREMISE NOT MET: initial feasibility" in result.stdout and f"margin {premise['margin']:.3e}" in result.stdout
     assert "amcp coverage" in result.stdout
     assert "NOT CERTIFIED (premise not met)" in result.stdout and "claim(s) failed" not in result.stdout
+
+
+def test_a_given_gain_breaking_assumption_8_exits_3_premise_not_met(tmp_path):
+    """design.K = (0, −3) with some P in the problem file: A(θ) + B(θ)K has spectral radius 1.12 at a vertex of Θ.
+    The design cannot be made and nothing is run: a premise the user's design breaks (exit 3), not a failed claim."""
+    spec = lorenzen2019_spec()
+    data = spec_to_dict(spec)
+    data["design"]["K"], data["design"]["P"] = [[0.0, -3.0]], [[1.0, 0.0], [0.0, 1.0]]
+    problem = tmp_path / "bad_gain.json"
+    problem.write_text(json.dumps(data))
+    out = tmp_path / "out"
+    result = invoke(problem, "--steps", 3, "--out", out)
+    assert result.exit_code == 3, result.output
+    assert "PREMISE NOT MET: Assumption 8" in result.stdout and "spectral radius" in result.stdout
+    assert "1.1199" in result.stdout and not out.exists()
 
 
 # -- exit 2 ------------------------------------------------------------------------------------------

@@ -70,10 +70,11 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
     could not be checked, or a check rejected a backend answer (backend conformance failed; the bundle
     is still written); 2: bad input (nothing is written); 3: a premise of the paper's results does not
     hold (x0 outside the feasible region of (20), Assumption 8 or (11) broken by the design): nothing is
-    claimed for the run (the bundle is written). See docs/certificate.md."""
+    claimed for the run (the bundle is written; when a gain design.K of the problem file breaks Assumption 8
+    nothing is run). See docs/certificate.md."""
     from amcp_drake.certificate.certify import VERDICT_PREMISE_NOT_MET, certify
     from amcp_drake.certificate.report import check_out_dir, remove_stale_staging, write_outputs
-    from amcp_drake.model.errors import ProblemError
+    from amcp_drake.model.errors import DesignError, ProblemError
 
     remove_stale_staging(check_out_dir(out_dir))
     if trajectory_file is not None:
@@ -92,8 +93,20 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
                                            "a scenario (x0, theta_star, ...) in the problem file to run",
                                            "Add a \"scenario\" object, or pass --trajectory.")
         seed = spec.scenario.seed if seed is None else seed
-        traj = _run(spec, backend, steps, seed, formulation, options, design_backend,
-                    design_budget(max_memory, candidate_budget))
+        try:
+            traj = _run(spec, backend, steps, seed, formulation, options, design_backend,
+                        design_budget(max_memory, candidate_budget))
+        except DesignError as exc:
+            broken = _assumption_8_broken_by_the_given_gain(exc, spec)
+            if broken is None:
+                raise
+            from amcp_drake.certificate.premises import DESIGN_HINT
+
+            click.echo(f"PREMISE NOT MET: Assumption 8 (A_cl(θ) = A(θ) + B(θ)K Schur stable at every vertex of Θ): the "
+                       f"gain design.K of the problem file breaks it ({broken}); nothing was run or written, nothing is "
+                       "claimed")
+            click.echo(f"                 next: {DESIGN_HINT}")
+            sys.exit(EXIT_PREMISE_NOT_MET)
         if traj.stop_reason.startswith("inconsistent"):
             click.echo(f"warning: the run stopped: {traj.stop_reason}; certifying the partial trajectory", err=True)
     cert = certify(traj, spec)
@@ -115,6 +128,19 @@ def _run(spec, backend: str, steps: int, seed: int, formulation: str = "plain", 
 
     return run_scenario(spec, backend, design_backend=design_backend, formulation=formulation, steps=steps,
                         seed=seed, options=options, progress=True, design_budget=budget)
+
+
+def _assumption_8_broken_by_the_given_gain(exc: Exception, spec) -> str | None:
+    """The design's reason when the problem file gives K (design.K) and every design attempt failed on
+    Assumption 8 with it (a premise the user's design breaks, not a defect of the design); else None."""
+    if getattr(spec.design, "K", None) is None:
+        return None
+    attempts = getattr(exc, "attempts", None)
+    reasons = [a.reason for a in attempts if a.outcome == "design failed"] if attempts else [str(exc)]
+    prefix = "Assumption 8 fails: "
+    if reasons and all(r.startswith(prefix) for r in reasons):
+        return reasons[0][len(prefix):]
+    return None
 
 
 def _load_trajectory(path: str, problem_file, example):
