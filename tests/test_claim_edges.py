@@ -514,3 +514,69 @@ def test_mu_condition_11_at_its_edge(recorded, example_spec, margin, status):
     out = next(c for c in verify_design(tr.problem, design, bound) if c.name == "mu condition (11)")
     assert out.tolerance == 0.0 and out.margin == pytest.approx(margin, rel=1e-5)
     assert out.status == status
+
+
+# -- design checks on a scalar system: x+ = (0.5 + 0.2θ)x + u + w, θ ∈ [−1, 1], |w| <= 0.1 (tests/conftest.py) ---------
+# With one state, X0 = {|c x| <= 1} and A_cl(θ) = 0.5 + 0.2θ + K, every quantity of these checks is a number:
+# spectral radius = λ̄ = max |0.5 ± 0.2 + K|, w̄ = 0.1 c, and (16) reads (a² − 1) P + Q + K R K <= 0 at both vertices.
+EIG_TOL_REL = 1e-12       # (16), relative to the size of its terms
+
+
+@pytest.fixture(scope="module")
+def scalar():
+    from amcp_drake.offline.design import design
+    from tests.conftest import scalar_problem
+
+    problem = scalar_problem()
+    offline = design(problem, backend="drake")
+    assert np.asarray(offline.H_x).shape == (2, 1)
+    return problem, offline
+
+
+def _design_check(problem, offline, name, **changes):
+    from amcp_drake.offline.checks import verify_design
+
+    return next(c for c in verify_design(problem, dataclasses.replace(offline, **changes)) if c.name == name)
+
+
+@pytest.mark.parametrize("delta, status", [(1e-9, "fail"), (-1e-9, "pass")])
+def test_assumption_8_at_its_edge(scalar, delta, status):
+    """Tolerance 0: K = 0.3 + δ puts the vertex θ = 1 at a = 1 + δ (spectral radius 1 + δ)."""
+    problem, offline = scalar
+    out = _design_check(problem, offline, "Assumption 8", K=np.array([[0.3 + delta]]))
+    assert out.tolerance == 0.0 and out.margin == pytest.approx(-delta, rel=1e-6)
+    assert out.status == status
+
+
+@pytest.mark.parametrize("factor, status", EDGES)
+def test_x0_contractive_at_its_edge(scalar, factor, status):
+    """λ̄ = max |a| = 1 + factor × tol with K = 0.3 + factor × tol."""
+    problem, offline = scalar
+    out = _design_check(problem, offline, "X0 contractive", K=np.array([[0.3 + factor * VERTEX_TOL]]))
+    _assert_edge(out, -factor * VERTEX_TOL, factor, VERTEX_TOL, status, rel=1e-6)
+
+
+@pytest.mark.parametrize("factor, status", EDGES)
+def test_x0_robustly_invariant_at_its_edge(scalar, factor, status):
+    """max |a| + w̄ = 1 + factor × tol, w̄ = 0.1 c from X0 = {|c x| <= 1}."""
+    problem, offline = scalar
+    c = float(np.max(np.abs(offline.H_x)))
+    K = 1.0 - 0.1 * c + factor * VERTEX_TOL - 0.7            # the vertex θ = 1: a = 0.7 + K
+    out = _design_check(problem, offline, "X0 robustly invariant", K=np.array([[K]]))
+    _assert_edge(out, -factor * VERTEX_TOL, factor, VERTEX_TOL, status, rel=1e-5)
+
+
+@pytest.mark.parametrize("factor, status", EDGES)
+def test_terminal_cost_16_at_its_edge(scalar, factor, status):
+    """P = S / (1 − a² + factor·ε) with S = Q + K R K, a the larger |A_cl| and ε = EIG_TOL_REL: the largest
+    eigenvalue of (16), S − (1 − a²) P, is then factor·ε·P, and P is the largest term (relative tolerance ε·P)."""
+    problem, offline = scalar
+    K = float(np.asarray(offline.K)[0, 0])
+    a = max(abs(0.7 + K), abs(0.3 + K))
+    S = 1.0 + K * K
+    P = S / (1.0 - a * a + factor * EIG_TOL_REL)
+    out = _design_check(problem, offline, "terminal cost (16)", P=np.array([[P]]))
+    tol = EIG_TOL_REL * P
+    assert out.tolerance == pytest.approx(tol, rel=1e-12)
+    assert out.margin == pytest.approx(-factor * tol, rel=1e-3)
+    assert out.status == status
