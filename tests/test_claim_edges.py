@@ -475,6 +475,33 @@ def test_cost_value_at_its_edge(recorded, factor, status):
     _assert_edge(out, -factor * COST_REL_TOL, factor, COST_REL_TOL, status, rel=1e-9)
 
 
+OPTIMALITY_TOL = 1e-5     # KKT residuals of (20); primal infeasibility on rows of unit norm
+
+
+@pytest.mark.parametrize("factor, status", EDGES)
+def test_qp_optimality_at_its_edge(recorded, factor, status):
+    """α_N of step T raised until the terminal set, on rows [H_T | h_T] of unit norm, is violated by factor × tol:
+    the rebuilt QP (20)'s primal infeasibility at the recorded plan (α is not in the cost, so its stationarity
+    residual, ~1e-9, does not move)."""
+    from amcp_drake.certificate.optimality import qp_optimality
+
+    tr = _fresh(recorded)
+    r = tr.records[STEPS]
+    H_T, h_T = np.asarray(tr.design.H_T, float), np.asarray(tr.design.h_T, float)
+    n = np.linalg.norm(np.hstack([H_T, h_T[:, None]]), axis=1)
+    base = float(r.alpha[-1])
+
+    def violation(t):
+        return float(np.max(-(1.0 - H_T @ r.z[-1] - h_T * (base + t)) / n))
+
+    t = _bisect(violation, factor * OPTIMALITY_TOL, hi=10.0)
+    r.alpha = np.array(r.alpha, float)
+    r.alpha[-1] = base + t
+    out = qp_optimality(_view(tr))
+    assert out.data["worst_step"] == STEPS
+    _assert_edge(out, -violation(t), factor, OPTIMALITY_TOL, status, rel=1e-6)
+
+
 @pytest.mark.parametrize("factor, status", EDGES)
 def test_x0_vertex_list_at_its_edge(recorded, factor, status):
     """One recorded vertex of X0 moved by factor × tol × max(1, largest coordinate) (relative tolerance)."""
