@@ -607,3 +607,34 @@ def test_terminal_cost_16_at_its_edge(scalar, factor, status):
     assert out.tolerance == pytest.approx(tol, rel=1e-12)
     assert out.margin == pytest.approx(-factor * tol, rel=1e-3)
     assert out.status == status
+
+
+@pytest.mark.parametrize("factor, status", EDGES)
+def test_x_f_non_empty_at_its_edge(scalar, factor, status):
+    """h_T scaled until the tube's steady state (0, α_∞), α_∞ = w̄ / (1 − λ̄) = 0.1 c / (1 − max |a|), meets
+    max h_T α_∞ = 1 + factor × tol."""
+    problem, offline = scalar
+    c = float(np.max(np.abs(offline.H_x)))
+    K = float(np.asarray(offline.K)[0, 0])
+    alpha_inf = 0.1 * c / (1.0 - max(abs(0.7 + K), abs(0.3 + K)))
+    h_T = np.asarray(offline.h_T, float)
+    h_T = h_T * (1.0 + factor * VERTEX_TOL) / (float(np.max(h_T)) * alpha_inf)
+    out = _design_check(problem, offline, "X_f non-empty", h_T=h_T)
+    _assert_edge(out, -factor * VERTEX_TOL, factor, VERTEX_TOL, status, rel=1e-5)
+
+
+@pytest.mark.parametrize("factor, status", EDGES)
+def test_x_f_in_z_at_its_edge(scalar, factor, status):
+    """X_f = {H_T z + h_T α <= 1, α >= 0} is a cone cut at 1: its rows divided by 1 + s scale it by 1 + s, and
+    the largest (F + G K)(z + α x^j) over its vertices with this file's enumeration, M, by 1 + s as well. s is
+    chosen so that (1 + s) M = 1 + factor × tol."""
+    problem, offline = scalar
+    H_T, h_T = np.asarray(offline.H_T, float), np.asarray(offline.h_T, float)
+    verts = _vertices(np.vstack([np.column_stack([H_T, h_T]), [[0.0, -1.0]]]), np.r_[np.ones(len(H_T)), 0.0])
+    FGK = np.asarray(problem.F, float) + np.asarray(problem.G, float) @ np.asarray(offline.K, float)
+    X0 = np.asarray(offline.X0_vertices, float)
+    M = max(float(np.max(FGK @ (v[:1] + v[1] * x))) for v in verts for x in X0)
+    assert 0.5 < M <= 1.0 + 1e-9
+    scale = (1.0 + factor * VERTEX_TOL) / M
+    out = _design_check(problem, offline, "X_f in Z", H_T=H_T / scale, h_T=h_T / scale)
+    _assert_edge(out, -factor * VERTEX_TOL, factor, VERTEX_TOL, status, rel=1e-4)
