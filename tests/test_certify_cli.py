@@ -177,6 +177,9 @@ def test_an_infeasible_scenario_exits_3_premise_not_met(tmp_path):
     assert "PREMISE NOT MET: initial feasibility" in result.stdout and f"margin {premise['margin']:.3e}" in result.stdout
     assert "amcp coverage" in result.stdout
     assert "NOT CERTIFIED (premise not met)" in result.stdout and "claim(s) failed" not in result.stdout
+    report = (out / "report.html").read_text()
+    assert 'id="premise-initial_feasibility" class="fail" data-status="not_met"' in report
+    assert 'class="verdict premise_not_met">premise_not_met<' in report
 
 
 def test_a_given_gain_breaking_assumption_8_exits_3_premise_not_met(tmp_path):

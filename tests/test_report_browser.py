@@ -8,6 +8,7 @@ built. It is skipped, with the reason shown by ``pytest -ra``, when Chromium is 
 from __future__ import annotations
 
 import base64
+import dataclasses
 import json
 import shutil
 import struct
@@ -110,6 +111,7 @@ def test_failed_and_not_run_claims_are_marked(bundle):
     """A certificate with a failed claim and a claim not run: rows carry the status, the verdict says fail."""
     traj = Trajectory.from_dict(json.loads(json.dumps(bundle["traj"].to_dict())))
     traj.mu_state_bound = None  # (11) cannot run without the box
+    traj.design = dataclasses.replace(traj.design, mu_state_bound=None)  # which the design records too
     lam = traj.records[2].Lambda.copy()
     lam[0, 0, 0, 0] = -1.0
     traj.records[2].Lambda = lam
