@@ -638,3 +638,78 @@ def test_x_f_in_z_at_its_edge(scalar, factor, status):
     scale = (1.0 + factor * VERTEX_TOL) / M
     out = _design_check(problem, offline, "X_f in Z", H_T=H_T / scale, h_T=h_T / scale)
     _assert_edge(out, -factor * VERTEX_TOL, factor, VERTEX_TOL, status, rel=1e-4)
+
+
+# -- Section 4.2: persistent excitation (Example 1 with a PE window of 5 and level 0.2, 25 steps) ---------------------
+PE_LEVEL_TOL = 1e-6       # relative to max(1, pe_level)
+PE_BOUND_TOL = 1e-7       # relative to max(1, |bound|)
+PE_WINDOW = 5
+
+
+@pytest.fixture(scope="module")
+def pe_recorded(example_spec, example_design) -> dict:
+    from amcp_drake.model.options import OnlineOptions
+    from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_drake.online.simulate import simulate
+
+    sc = example_spec.scenario
+    ctrl = AdaptiveMPC(example_spec.problem, example_design,
+                       options=OnlineOptions(update="fixed", pe_window=PE_WINDOW, pe_level=0.2))
+    traj = simulate(ctrl, sc.x0, sc.theta_star, 25, "uniform", seed=2, mu_state_bound=example_spec.design.mu_state_bound)
+    assert traj.stop_reason == "completed"
+    return json.loads(json.dumps(traj.to_dict()))
+
+
+def _gram(u: np.ndarray, k: int, dim: int) -> np.ndarray:
+    """Σ_{j=k−P+1}^{k} ū_j ū_jᵀ with ū_j = (u_j, u_(j−1), …, u_(j−dim+1)) (this file's own indexing)."""
+    rows = [u[j - dim + 1:j + 1][::-1] for j in range(k - PE_WINDOW + 1, k + 1)]
+    return sum(np.outer(r, r) for r in rows)
+
+
+def _pe_margins(tr) -> dict[int, float]:
+    u = np.asarray(tr.u, float)[:, 0]
+    return {r.k: (float(np.linalg.eigvalsh(_gram(u, r.k, r.pe_dim))[0]) - r.pe_level) / max(1.0, abs(r.pe_level))
+            for r in tr.records[:-1] if r.pe_status.startswith("enforced")}
+
+
+def _relative_bound(value: float, factor: float, tol: float, above: bool) -> float:
+    """The bound b with (b − value)/max(1, |b|) = −factor·tol (above: b below value, an upper bound violated) or
+    (value − b)/max(1, |b|) = −factor·tol (a lower bound above value)."""
+    t = factor * tol
+    candidate = value - t if above else value + t
+    if abs(candidate) <= 1.0:
+        return candidate
+    return value / (1.0 + t) if (value > 0) == above else value / (1.0 - t)
+
+
+@pytest.mark.parametrize("factor, status", EDGES)
+def test_pe_level_at_its_edge(pe_recorded, factor, status):
+    from amcp_drake.certificate.section4 import pe_level
+
+    tr = _fresh(pe_recorded)
+    margins = _pe_margins(tr)
+    assert len(margins) > 5 and min(margins.values()) > -0.25 * PE_LEVEL_TOL
+    k = max(margins)
+    r = tr.records[k]
+    lam = float(np.linalg.eigvalsh(_gram(np.asarray(tr.u, float)[:, 0], k, r.pe_dim))[0])
+    r.pe_level = _relative_bound(lam, factor, PE_LEVEL_TOL, above=False)   # a level above λ_min
+    margin = _pe_margins(tr)[k]
+    out = pe_level(_view(tr))
+    assert out.data["worst_step"] == k
+    _assert_edge(out, margin, factor, PE_LEVEL_TOL, status, rel=1e-6)
+
+
+@pytest.mark.parametrize("factor, status", EDGES)
+def test_pe_bounds_at_their_edge(pe_recorded, factor, status):
+    from amcp_drake.certificate.section4 import pe_bounds
+
+    tr = _fresh(pe_recorded)
+    k = max(r.k for r in tr.records[:-1] if r.pe_bounds is not None and np.isfinite(r.pe_bounds[1]))
+    uk = float(tr.u[k][0])
+    r = tr.records[k]
+    hi = _relative_bound(uk, factor, PE_BOUND_TOL, above=True)
+    r.pe_bounds = (min(float(r.pe_bounds[0]), hi), hi)
+    margin = (hi - uk) / max(1.0, abs(hi))
+    out = pe_bounds(_view(tr))
+    assert out.data["worst_step"] == k
+    _assert_edge(out, margin, factor, PE_BOUND_TOL, status, rel=1e-6)
