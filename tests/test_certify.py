@@ -413,6 +413,29 @@ def test_an_unsolved_first_step_from_a_feasible_start_fails_theorem_14(recorded,
     assert first["status"] == "met" and first["margin"] > 0
 
 
+@pytest.mark.parametrize("factor, verdict", [(2.0, "premise_not_met"), (0.5, "fail")])
+def test_the_initial_feasibility_premise_at_its_edge(recorded, spec, monkeypatch, factor, verdict):
+    """The premise's threshold alone: step 0 recorded unsolved and the independent LP's slack stubbed to
+    −factor × 1e-6 (the LP itself is checked against the QP on whole regions by tests/test_coverage.py). Outside
+    the tolerance the premise is not met; inside it the start counts as feasible and the unsolved step is a failed
+    Theorem 14 (i)."""
+    from amcp_drake.certificate.feasible_region import TubeLP
+
+    monkeypatch.setattr(TubeLP, "margin", lambda self, x0: -factor * 1e-6)
+    tr = fresh(recorded)
+    tr.records = tr.records[:1]
+    rec = tr.records[0]
+    rec.status = SolveStatus.INFEASIBLE
+    rec.u = rec.v = rec.z = rec.alpha = rec.Lambda = rec.cost = None
+    tr.x, tr.u, tr.w = tr.x[:1], tr.u[:0], tr.w[:0]
+    tr.stop_reason = "step 0: status infeasible"
+    cert = certify(tr, spec)
+    first = {p["id"]: p for p in cert.premises}["initial_feasibility"]
+    assert first["tolerance"] == 1e-6 and first["margin"] == -factor * 1e-6
+    assert first["status"] == ("not_met" if verdict == "premise_not_met" else "met")
+    assert cert.verdict == verdict
+
+
 def test_a_design_breaking_11_is_a_premise_not_met(recorded, spec, baseline):
     """The recorded design's μ raised until 1 − μ sup‖D‖² = −0.1 (a user's design breaking (11)): the verdict is
     premise_not_met, the (11) check is a premise with that margin, and the run claims it breaks (Lemma 5,
