@@ -348,7 +348,10 @@ class AdaptiveMPC:
 
     @staticmethod
     def _answer(record: StepRecord, problem: str, outcome: str, kind: str = "", check: str = "") -> None:
-        """Record how the step's answer of ``problem`` was obtained (:mod:`amcp_drake.online.answers`)."""
+        """Record how the step's answer of ``problem`` was obtained (:mod:`amcp_drake.online.answers`); a record
+        made without a provenance list gets one."""
+        if record.answers is None:
+            record.answers = []
         record.answers.append(answers.entry(problem, outcome, kind, check))
 
     def _dilate(self, h: np.ndarray, l: int) -> np.ndarray:
