@@ -365,14 +365,27 @@ def test_answers_field_of_a_record_is_accepted_with_its_documented_shape(tmp_pat
 
     with gzip.open(TRAJECTORY_DATA, "rt") as handle:
         data = json.load(handle)
-    data["records"][3]["answers"] = [{"problem": "qp", "outcome": "resolved", "kind": "plain", "check": "kkt"}]
+    data["records"][3]["answers"] = [{"problem": "tube_qp", "outcome": "resolved", "kind": "plain", "check": "kkt"}]
+    data["records"][4]["answers"] = None  # provenance unknown (what amcp writes for a record without it)
     path = tmp_path / "t.json"
     path.write_text(json.dumps(data))
-    assert Trajectory.load(path).records
-    data["records"][3]["answers"][0]["outcome"] = "maybe"
-    path.write_text(json.dumps(data))
-    with pytest.raises(TrajectoryError, match=r"records\[3\]\.answers\[0\]\.outcome: expected one of"):
-        Trajectory.load(path)
+    loaded = Trajectory.load(path)
+    assert loaded.records[3].answers == data["records"][3]["answers"] and loaded.records[4].answers is None
+    for key, value in (("outcome", "maybe"), ("problem", "qp")):
+        data["records"][3]["answers"][0] = {"problem": "tube_qp", "outcome": "resolved", "kind": "", "check": "",
+                                            key: value}
+        path.write_text(json.dumps(data))
+        with pytest.raises(TrajectoryError, match=rf"records\[3\]\.answers\[0\]\.{key}: expected one of"):
+            Trajectory.load(path)
+
+
+def test_the_schema_lists_the_answer_problems_and_outcomes_the_controller_writes():
+    from amcp_drake.model.trajectory_schema import trajectory_schema
+    from amcp_drake.online import answers
+
+    entry = trajectory_schema()["$defs"]["answer"]["properties"]
+    assert tuple(entry["problem"]["enum"]) == answers.PROBLEMS
+    assert tuple(entry["outcome"]["enum"]) == answers.OUTCOMES
 
 
 def test_problem_example_file_unchanged_by_row_scaling():
@@ -425,7 +438,9 @@ def test_the_compiled_schema_check_accepts_what_amcp_writes_and_agrees_with_json
     assert fast(good) and reference.is_valid(good)
     for path, value in (("records.3.k", -1), ("records.3.status", "fine"), ("theta_star.1", "0.2"),
                         ("records.3.Lambda.0.0.0.0", True), ("design.mu", 2e15), ("records.3.pe_bounds", [1.0]),
-                        ("options.window", 0), ("stop_reason", "done"), ("records.3.times.total", "1")):
+                        ("options.window", 0), ("stop_reason", "done"), ("records.3.times.total", "1"),
+                        ("records.3.answers", [{"problem": "qp", "outcome": "first", "kind": "", "check": ""}]),
+                        ("records.3.answers", {})):
         data = json.loads(json.dumps(good))
         set_(path, value)(data)
         assert not reference.is_valid(data), path
