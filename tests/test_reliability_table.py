@@ -445,3 +445,30 @@ def test_the_compiled_schema_check_accepts_what_amcp_writes_and_agrees_with_json
         set_(path, value)(data)
         assert not reference.is_valid(data), path
         assert not fast(data), path
+
+
+def test_an_endless_pipe_under_a_memory_limit_exits_2_naming_the_file(tmp_path):
+    """``amcp certify --trajectory /dev/stdin`` fed by ``yes`` (text without end) in a process whose address
+    space is limited to 1.5 GB: exit 2 naming the file (the size limit, or memory running out before it),
+    no traceback, nothing written."""
+    import resource
+
+    def limit_memory() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (1536 * 2**20, 1536 * 2**20))
+
+    out = tmp_path / "D"
+    source = subprocess.Popen(["yes"], stdout=subprocess.PIPE)
+    try:
+        proc = subprocess.Popen([sys.executable, "-m", "amcp_drake", "certify", "--trajectory", "/dev/stdin", "--out",
+                                 str(out)], env=_env(), stdin=source.stdout, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, start_new_session=True, preexec_fn=limit_memory)
+        source.stdout.close()
+        code, stdout, stderr = _finish(proc, 120)
+    finally:
+        source.kill()
+        source.wait()
+    assert code == 2, (code, stderr)
+    assert "Traceback" not in stderr and "MemoryError\n" not in stderr
+    assert re.search(r"^error: file: expected (at most 2,147,483,648 bytes|a trajectory file that fits in the memory "
+                     r"available).*/dev/stdin", stderr, re.MULTILINE), stderr
+    assert not out.exists()
