@@ -15,6 +15,7 @@ during a campaign) follow the table.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import os
@@ -472,3 +473,168 @@ def test_an_endless_pipe_under_a_memory_limit_exits_2_naming_the_file(tmp_path):
     assert re.search(r"^error: file: expected (at most 2,147,483,648 bytes|a trajectory file that fits in the memory "
                      r"available).*/dev/stdin", stderr, re.MULTILINE), stderr
     assert not out.exists()
+
+
+# -- full disks: a real tmpfs (needs root, as CI runs), and a file-size limit (any user) ----------------
+@contextlib.contextmanager
+def _tmpfs(folder: Path, size: str):
+    """A tmpfs of ``size`` mounted at ``folder`` for the block (root only: CI runs as root; elsewhere the
+    test is skipped visibly, and the RLIMIT_FSIZE tests below still run)."""
+    if os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs needs root (CI runs as root); test_*_file_size_limit simulate a full disk")
+    folder.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(folder)],
+                             capture_output=True, text=True)
+    assert mounted.returncode == 0, f"root could not mount a tmpfs: {mounted.stderr}"
+    try:
+        yield folder
+    finally:
+        subprocess.run(["umount", "-l", str(folder)], check=True)
+
+
+def _fill(folder: Path) -> Path:
+    """Write zeros into ``folder`` until its file system is full (ENOSPC); returns the file."""
+    path = folder / "fill"
+    with open(path, "wb", buffering=0) as handle:
+        try:
+            while True:
+                handle.write(b"\0" * 4096)
+        except OSError as exc:
+            assert exc.errno == errno.ENOSPC, exc
+    return path
+
+
+def test_certify_out_on_a_full_tmpfs_exits_2_naming_out_and_writes_nothing(tmp_path):
+    """``amcp certify --out`` on a 200 KB tmpfs (the bundle needs about 430 KB): exit 2 naming --out and
+    ENOSPC, no traceback, nothing left on the file system (the staging folder is removed)."""
+    with _tmpfs(tmp_path / "disk", "200k") as disk:
+        code, stdout, stderr = _finish(_amcp("certify", "--trajectory", str(TRAJECTORY_DATA), "--out",
+                                             str(disk / "D")), 120)
+        left = sorted(str(p.relative_to(disk)) for p in disk.rglob("*"))
+    assert code == 2, (code, stderr)
+    assert "Traceback" not in stderr
+    assert re.search(r"^error: --out: .*No space left on device \(ENOSPC\); nothing was written", stderr,
+                     re.MULTILINE), stderr
+    assert left == []
+
+
+def test_campaign_on_a_disk_that_fills_up_exits_2_and_resumes_without_running_a_problem_twice(tmp_path):
+    """A campaign whose tmpfs is filled to the brim after its first problem is stored: exit 2 naming
+    --store (no traceback, whole problems only in the store); ``--report`` onto that full disk: exit 2
+    naming --report, nothing written; once space is freed, ``--resume`` completes every problem exactly once."""
+    with _tmpfs(tmp_path / "disk", "2m") as disk:
+        store_path = disk / "c.sqlite"
+        args = ("campaign", "--systems", "6", "--backends", "drake", "--steps", "2", "--workers", "1", "--store",
+                str(store_path))
+
+        def stored() -> bool:
+            try:
+                return bool(_completions(store_path))
+            except sqlite3.Error:
+                return False
+
+        proc = _amcp(*args, cwd=tmp_path)
+        try:
+            _wait_for(stored, proc, 180)
+            fill = _fill(disk)
+            code, stdout, stderr = _finish(proc, 120)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+        assert code == 2, (code, stderr)
+        assert "Traceback" not in stderr
+        assert re.search(r"^error: --store: .*(database or disk is full|disk I/O error).*--resume", stderr,
+                         re.MULTILINE), stderr
+        first = _completions(store_path)
+        assert 1 <= len(first) < 6 and len(set(first)) == len(first)
+        code, stdout, stderr = _finish(_amcp("campaign", "--store", str(store_path), "--report",
+                                             str(disk / "r.html"), cwd=tmp_path), 60)
+        assert code == 2 and "Traceback" not in stderr, (code, stderr)
+        assert re.search(r"^error: --report: .*No space left on device.*nothing was written", stderr, re.MULTILINE)
+        assert sorted(p.name for p in disk.iterdir() if not p.name.startswith("c.sqlite")) == ["fill"]
+        fill.unlink()
+        code, stdout, stderr = _finish(_amcp(*args, "--resume", cwd=tmp_path), 240)
+        assert code in (0, 1), stderr
+        assert _completions(store_path) == [(0, i) for i in range(6)]
+
+
+def _file_size_limit(limit: int):
+    def apply() -> None:
+        import resource
+
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    return apply
+
+
+def test_certify_out_under_a_file_size_limit_exits_2_naming_out_and_writes_nothing(tmp_path):
+    """A full disk simulated without root: RLIMIT_FSIZE of 200 KB in the child (a write beyond it fails
+    with EFBIG, "File too large", where a full disk gives ENOSPC; Python ignores SIGXFSZ): exit 2 naming
+    --out and the cause, nothing left in the folder."""
+    out = tmp_path / "D"
+    proc = subprocess.Popen([sys.executable, "-m", "amcp_drake", "certify", "--trajectory", str(TRAJECTORY_DATA),
+                             "--out", str(out)], env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, preexec_fn=_file_size_limit(200 * 1024))
+    code, stdout, stderr = _finish(proc, 120)
+    assert code == 2, (code, stderr)
+    assert "Traceback" not in stderr
+    assert re.search(r"^error: --out: .*File too large \(EFBIG\); nothing was written", stderr, re.MULTILINE), stderr
+    assert not out.exists() or not list(out.rglob("*"))
+
+
+def test_a_store_whose_checkpoint_a_full_disk_stopped_is_resumable(tmp_path):
+    """What a full disk leaves of a store in WAL mode: the checkpoint rewrote page 1 (which records the
+    whole database size) but could not extend the file, so the pages past its end are only in the
+    write-ahead log. SQLite reads them from there; the store is accepted, every problem is read back,
+    quick_check passes, and a writer finishes the checkpoint."""
+    import shutil
+
+    from amcp_drake.studies.campaign import campaign_settings
+    from amcp_drake.studies.campaign_store import CampaignStore, inspect_store
+
+    original = tmp_path / "a.sqlite"
+    store = CampaignStore(original)
+    store.record_settings(campaign_settings(0, 3, ("drake",), 2))
+    store.db.execute("PRAGMA wal_autocheckpoint = 0")
+    for i in range(3):
+        store.add({"campaign_seed": 0, "idx": i, "status": "pass",
+                   "claims": {"drake": {f"claim{j}": {"status": "pass", "margin": 1.0} for j in range(40)}}})
+    left = tmp_path / "b.sqlite"
+    shutil.copyfile(original, left)
+    shutil.copyfile(tmp_path / "a.sqlite-wal", tmp_path / "b.sqlite-wal")
+    store.db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+    page_one = original.read_bytes()[:4096]
+    pages = int.from_bytes(page_one[28:32], "big")
+    store.close()
+    assert pages > 1
+    with open(left, "r+b") as handle:
+        handle.write(page_one)
+        handle.truncate(4096)
+    assert inspect_store(left).kind == "store"
+    resumed = CampaignStore(left, exclusive=True)
+    try:
+        assert resumed.done(0) == {0, 1, 2}
+        assert [r[0] for r in resumed.db.execute("PRAGMA quick_check")] == ["ok"]
+    finally:
+        resumed.close()
+    assert left.stat().st_size == pages * 4096
+
+
+def test_a_truncated_store_without_a_write_ahead_log_is_still_refused(tmp_path):
+    """The same truncated file with no write-ahead log beside it holds nothing past its end: refused."""
+    from amcp_drake.model.errors import CampaignStoreError
+    from amcp_drake.studies.campaign import campaign_settings
+    from amcp_drake.studies.campaign_store import CampaignStore, inspect_store
+
+    path = tmp_path / "c.sqlite"
+    store = CampaignStore(path)
+    store.record_settings(campaign_settings(0, 3, ("drake",), 2))
+    for i in range(3):
+        store.add({"campaign_seed": 0, "idx": i, "status": "pass",
+                   "claims": {"drake": {f"claim{j}": {"status": "pass", "margin": 1.0} for j in range(40)}}})
+    store.close()
+    assert not (tmp_path / "c.sqlite-wal").exists()
+    with open(path, "r+b") as handle:
+        handle.truncate(4096)
+    with pytest.raises(CampaignStoreError, match=r"truncated \(its header records \d+ pages"):
+        inspect_store(path)

@@ -404,10 +404,11 @@ def run_campaign(store_path: str | Path, systems: int, backends: Iterable[str] =
                 bar.update(1)
         if bar is not None:
             bar.close()
-    except KeyboardInterrupt as exc:
-        exc.stored = len(done) + stored
+    except BaseException as exc:
+        if isinstance(exc, KeyboardInterrupt):
+            exc.stored = len(done) + stored
         if bar is not None:
-            bar.close()  # ends the progress line, so that the CLI's last line stands alone
+            bar.close()  # ends the progress line, so that the CLI's message (interrupt, full disk) stands alone
         raise
     finally:
         _shut_down(client, cluster)
