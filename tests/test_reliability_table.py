@@ -25,6 +25,7 @@ import sqlite3
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -89,6 +90,33 @@ def a_store(folder: Path) -> Path:
     store.record_settings(campaign_settings(0, 1, ("drake",), 2))
     store.close()
     return path
+
+
+def chain_problem(n: int, design: dict) -> Callable[[Path], dict]:
+    """A problem file at dimension ``n`` with the given design section: a chain x_i⁺ = x_i + 0.2 x_(i+1)
+    with an input on every state, ‖w‖∞ <= 0.005, Θ a box on two entries (A[0,1], B[n-1,n-1]), 4 steps."""
+
+    def build(folder: Path) -> dict:
+        import numpy as np
+
+        eye, A1, B2 = np.eye(n), np.zeros((n, n)), np.zeros((n, n))
+        A1[0, 1], B2[-1, -1] = 0.2, 0.5
+        data = {"format": "amcp-problem", "version": 1, "name": f"chain{n}",
+                "system": {"A0": (eye + 0.2 * np.eye(n, k=1)).tolist(), "B0": (0.5 * eye).tolist(),
+                           "A": [A1.tolist(), np.zeros((n, n)).tolist()], "B": [np.zeros((n, n)).tolist(), B2.tolist()]},
+                "W": {"H": np.vstack([eye / 0.005, -eye / 0.005]).tolist()},
+                "Theta": {"H": [[1, 0], [-1, 0], [0, 1], [0, -1]], "h": [0.1] * 4},
+                "Z": {"F": np.vstack([eye / 5, -eye / 5, np.zeros((2 * n, n))]).tolist(),
+                      "G": np.vstack([np.zeros((2 * n, n)), eye, -eye]).tolist()},
+                "cost": {"Q": eye.tolist(), "R": eye.tolist(), "N": 5}, "theta_hat0": [0.0, 0.0],
+                "design": design,
+                "scenario": {"x0": [0.5] + [0.0] * (n - 1), "theta_star": [0.05, -0.05], "steps": 4,
+                             "disturbance": "uniform", "seed": 0}}
+        path = folder / "p.json"
+        path.write_text(json.dumps(data))
+        return {"file": path}
+
+    return build
 
 
 DEVICE_SECONDS = 5.0  # generous for a loaded machine; the read stops at the first 64 KiB
@@ -172,6 +200,9 @@ ROWS: list[tuple] = [
      r"--store: .*database or disk is full", {"patch": disk_full_in_sqlite}),
     ("campaign-report-disk-full", files(s=a_store), ["campaign", "--store", "{s}", "--report", "{folder}/r.html"], 2,
      r"--report: .*No space left on device.*nothing was written", {"patch": disk_full_on_report}),
+    # 18: the certificate of a run whose design sets x0_facets = 12 at n = 6 checks the design that ran
+    ("certify-n6-x0_facets-12", chain_problem(6, {"x0_facets": 12, "x0_template": "mrpi"}),
+     ["certify", "{file}", "--out", "{folder}/../D"], 0, r"design\.x0_vertices +pass.*CERTIFIED: all \d+ claims hold", {}),
 ]
 
 
@@ -638,3 +669,39 @@ def test_a_truncated_store_without_a_write_ahead_log_is_still_refused(tmp_path):
         handle.truncate(4096)
     with pytest.raises(CampaignStoreError, match=r"truncated \(its header records \d+ pages"):
         inspect_store(path)
+
+
+def test_a_long_design_prints_progress_while_it_runs(tmp_path):
+    """``amcp design`` of Example 1 with an mrpi template of 100 facets (about 10 s of work): progress
+    lines on stderr while it runs (at least two of the X0 template's iterations, before the result),
+    and no silence longer than 10 s from the start to the end (progress is due every
+    budget.PROGRESS_SECONDS = 3 s; 10 s leaves room for one slow iteration on a loaded machine)."""
+    import threading
+
+    from amcp_drake.offline.budget import PROGRESS_SECONDS
+
+    data = example()
+    data["design"].update({"x0_template": "mrpi", "x0_facets": 100})
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps(data))
+    start = time.monotonic()
+    proc = _amcp("design", str(path))
+    arrivals: list[tuple[float, str]] = []
+
+    def read() -> None:
+        for line in proc.stderr:
+            arrivals.append((time.monotonic(), line))
+
+    reader = threading.Thread(target=read)
+    reader.start()
+    code, stdout, _ = _finish(proc, 300)
+    reader.join()
+    end = time.monotonic()
+    assert code == 0, "".join(line for _, line in arrivals)
+    assert "all design checks pass" in stdout
+    template = [line for _, line in arrivals if re.match(r"\s*\.\.\. design: X0 template mrpi \(100 facets\), iteration",
+                                                         line)]
+    assert len(template) >= 2, arrivals
+    times = [start] + [t for t, _ in arrivals] + [end]
+    silences = [b - a for a, b in zip(times, times[1:])]
+    assert PROGRESS_SECONDS < 10.0 and max(silences) < 10.0, (max(silences), arrivals)
