@@ -705,3 +705,23 @@ def test_a_long_design_prints_progress_while_it_runs(tmp_path):
     times = [start] + [t for t, _ in arrivals] + [end]
     silences = [b - a for a, b in zip(times, times[1:])]
     assert PROGRESS_SECONDS < 10.0 and max(silences) < 10.0, (max(silences), arrivals)
+
+
+def test_a_campaign_beside_another_dask_process_prints_no_port_warning(tmp_path):
+    """Port 8787 (Dask's default HTTP port) held by another process: a campaign runs with nothing on
+    stderr but its progress bar (its scheduler listens on a free loopback port, no dashboard)."""
+    import socket
+
+    holder = socket.socket()
+    try:
+        holder.bind(("127.0.0.1", 8787))
+        holder.listen()
+    except OSError:
+        pass  # held by another process already: the same situation
+    try:
+        code, stdout, stderr = _finish(_amcp("campaign", "--systems", "1", "--backends", "drake", "--steps", "2",
+                                             "--workers", "1", "--store", str(tmp_path / "c.sqlite"), cwd=tmp_path), 180)
+    finally:
+        holder.close()
+    assert code in (0, 1), stderr
+    assert [line for line in stderr.replace("\r", "\n").splitlines() if line.strip() and "campaign:" not in line] == []
