@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import gzip
 import json
 import os
 import re
@@ -119,6 +120,18 @@ def chain_problem(n: int, design: dict) -> Callable[[Path], dict]:
     return build
 
 
+def sparse_file(name: str, size: int) -> Callable[[Path], Path]:
+    """A file of ``size`` bytes that takes no disk space (a hole)."""
+
+    def make(folder: Path) -> Path:
+        path = folder / name
+        with open(path, "wb") as handle:
+            handle.truncate(size)
+        return path
+
+    return make
+
+
 DEVICE_SECONDS = 5.0  # generous for a loaded machine; the read stops at the first 64 KiB
 
 #: (id, build, args, exit code, regex, extras)
@@ -177,6 +190,12 @@ ROWS: list[tuple] = [
      {"seconds": DEVICE_SECONDS}),
     ("problem-over-size-limit", text("p.json", " " * (64 * 2**20 + 1)), ["design", "{file}"], 2,
      r"file: expected at most 67,108,864 bytes", {"seconds": DEVICE_SECONDS}),
+    ("corpus-over-size-limit", files(c=sparse_file("c.json", 100 * 2**20)), ["solvers", "--corpus", "{c}"], 2,
+     r"file: expected at most 67,108,864 bytes \(the size limit of a corpus file.*104,857,600 bytes",
+     {"seconds": DEVICE_SECONDS}),
+    ("corpus-gzip-over-size-limit", text("c.json.gz", gzip.compress(b" " * (64 * 2**20 + 1))),
+     ["solvers", "--corpus", "{file}"], 2, r"c\.json\.gz: expected at most 67,108,864 bytes of JSON after decompression",
+     {"seconds": DEVICE_SECONDS}),
     # 11: --max-memory that would disable the limit
     ("run-max-memory-nan", problem(lambda d: None), ["run", "{file}", "--max-memory", "nan"], 2,
      r"'--max-memory'.*nan", {}),
