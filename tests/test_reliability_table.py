@@ -744,3 +744,34 @@ def test_a_campaign_beside_another_dask_process_prints_no_port_warning(tmp_path)
         holder.close()
     assert code in (0, 1), stderr
     assert [line for line in stderr.replace("\r", "\n").splitlines() if line.strip() and "campaign:" not in line] == []
+
+
+@pytest.mark.parametrize("command", ["run", "coverage"])
+def test_sigterm_during_run_and_coverage_ends_with_one_line_and_writes_nothing(tmp_path, command):
+    """SIGTERM while ``amcp run --save`` steps through the closed loop, or while ``amcp coverage``
+    computes its first region: exit 143, the last line of stderr says what was (not) written, no
+    traceback, and neither the trajectory nor any coverage file exists."""
+    out = tmp_path / "out"
+    if command == "run":
+        proc = _amcp("run", "--save", str(out / "t.json"), cwd=tmp_path)
+        started = lambda: proc.stdout.readline().lstrip().startswith("1 ")  # noqa: E731 - step 1 printed
+    else:
+        proc = _amcp("coverage", "--out", str(out), cwd=tmp_path)
+        started = lambda: "robust Θ:" in proc.stderr.read(64)  # noqa: E731 - its progress bar
+    try:
+        deadline = time.monotonic() + 120
+        while not started():
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        proc.send_signal(signal.SIGTERM)
+        code, stdout, stderr = _finish(proc, 60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert code == 128 + signal.SIGTERM, (code, stderr)
+    assert "Traceback" not in stderr
+    last = [line for line in stderr.replace("\r", "\n").splitlines() if line.strip()][-1]
+    expected = {"run": r"interrupted \(SIGTERM\): the run stopped; nothing saved to .*t\.json; run the command again",
+                "coverage": r"interrupted \(SIGTERM\): nothing new written to .*out \(each file is written whole or "
+                            r"not at all\); run the command again"}[command]
+    assert re.fullmatch(expected, last), stderr
+    assert not out.exists() or not list(out.rglob("*"))

@@ -164,7 +164,6 @@ class Trajectory:
             del raw
             return cls.from_dict(loads_strict(text, str(path), TrajectoryError))
         except MemoryError:
-            raw = text = None
             raise TrajectoryError(f"file: expected a trajectory file that fits in the memory available; received "
                                   f"{path} ({size:,} bytes): memory ran out while reading it (MemoryError)") from None
 
