@@ -697,8 +697,6 @@ def test_a_long_design_prints_progress_while_it_runs(tmp_path):
     budget.PROGRESS_SECONDS = 3 s; 10 s leaves room for one slow iteration on a loaded machine)."""
     import threading
 
-    from amcp_drake.offline.budget import PROGRESS_SECONDS
-
     data = example()
     data["design"].update({"x0_template": "mrpi", "x0_facets": 100})
     path = tmp_path / "p.json"
@@ -723,7 +721,7 @@ def test_a_long_design_prints_progress_while_it_runs(tmp_path):
     assert len(template) >= 2, arrivals
     times = [start] + [t for t, _ in arrivals] + [end]
     silences = [b - a for a, b in zip(times, times[1:])]
-    assert PROGRESS_SECONDS < 10.0 and max(silences) < 10.0, (max(silences), arrivals)
+    assert max(silences) < 10.0, (max(silences), arrivals)
 
 
 def test_a_campaign_beside_another_dask_process_prints_no_port_warning(tmp_path):
