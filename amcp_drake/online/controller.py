@@ -349,6 +349,8 @@ class AdaptiveMPC:
     @staticmethod
     def _answer(record: StepRecord, problem: str, outcome: str, kind: str = "", check: str = "") -> None:
         """Record how the step's answer of ``problem`` was obtained (:mod:`amcp_drake.online.answers`)."""
+        if record.answers is None:  # a record built outside step(), e.g. by a replay of one update
+            record.answers = []
         record.answers.append(answers.entry(problem, outcome, kind, check))
 
     def _dilate(self, h: np.ndarray, l: int) -> np.ndarray:
