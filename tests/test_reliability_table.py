@@ -691,10 +691,11 @@ def test_a_truncated_store_without_a_write_ahead_log_is_still_refused(tmp_path):
 
 
 def test_a_long_design_prints_progress_while_it_runs(tmp_path):
-    """``amcp design`` of Example 1 with an mrpi template of 100 facets (about 10 s of work): progress
-    lines on stderr while it runs (at least two of the X0 template's iterations, before the result),
-    and no silence longer than 10 s from the start to the end (progress is due every
-    budget.PROGRESS_SECONDS = 3 s; 10 s leaves room for one slow iteration on a loaded machine)."""
+    """``amcp design`` of Example 1 with an mrpi template of 100 facets (about 10 s of work unloaded):
+    progress lines ("  ... design: <stage> (<t> s)") on stderr while it runs, at least two of them and
+    at least 2 s apart, and no silence longer than 3/4 of the command's wall time (a silent design prints
+    everything at its end: a silence of the whole run). Progress is due every 3 s at the design's loop
+    iterations (offline/budget.py); the bounds are relative, so a loaded machine slows both sides."""
     import threading
 
     data = example()
@@ -716,12 +717,11 @@ def test_a_long_design_prints_progress_while_it_runs(tmp_path):
     end = time.monotonic()
     assert code == 0, "".join(line for _, line in arrivals)
     assert "all design checks pass" in stdout
-    template = [line for _, line in arrivals if re.match(r"\s*\.\.\. design: X0 template mrpi \(100 facets\), iteration",
-                                                         line)]
-    assert len(template) >= 2, arrivals
+    progress = [t for t, line in arrivals if re.match(r"\s*\.\.\. design: .*\(\d+ s\)$", line.rstrip())]
+    assert len(progress) >= 2 and progress[-1] - progress[0] >= 2.0, arrivals
     times = [start] + [t for t, _ in arrivals] + [end]
     silences = [b - a for a, b in zip(times, times[1:])]
-    assert max(silences) < 10.0, (max(silences), arrivals)
+    assert max(silences) < 0.75 * (end - start), (max(silences), end - start, arrivals)
 
 
 def test_a_campaign_beside_another_dask_process_prints_no_port_warning(tmp_path):
