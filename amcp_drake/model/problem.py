@@ -350,7 +350,7 @@ class DesignOptions:
       sup ‖D(x,u)‖² in (11); required then. ``mu_fraction``: μ = fraction / sup ‖D‖² (< 1: strict).
     * ``centre_dynamics``: A_z, the centre dynamics z⁺ = A_z z of the terminal recursion (Appendix A.1): ``"nominal"`` = A_cl(θ̂0), ``"zero"`` = 0.
     * ``terminal_max_iter``: iteration cap of the terminal set recursion.
-    * ``terminal_set``: ``"recursion"`` (Appendix A.1, spec §5.1), ``"scaled"`` (the copy
+    * ``terminal_set``: ``"recursion"`` (Appendix A.1, docs/explanation/paper.md §5), ``"scaled"`` (the copy
       {H_x z + α1 <= ᾱ1} of offline/terminal.py, as many rows as X0, centre dynamics z⁺ = 0) or
       ``"auto"`` (default: the recursion up to n = 3, the scaled copy above).
     * ``theta_extra_directions``: extra facet normals (k, p) for the fixed-complexity shape H_θ of (9).
