@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import jsonschema
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -79,6 +80,18 @@ def test_default_run_certifies_example_1(tmp_path):
     assert "CERTIFIED: all 35 claims hold" in result.stdout
     for claim in data["claims"]:
         assert claim["id"] in result.stdout
+    # the robust baseline beside the run: recorded apart from the claims, its adaptive cost that of the
+    # saved trajectory (recomputed here), its robust run as long as the adaptive one
+    baseline = data["figures"]["robust_baseline"]
+    with gzip.open(out / "trajectory.json.gz", "rt") as handle:
+        traj = json.load(handle)
+    spec = lorenzen2019_spec()
+    x, u = traj["x"][:-1], traj["u"]
+    cost = sum(float(np.dot(xk, spec.problem.Q @ xk) + np.dot(uk, spec.problem.R @ uk)) for xk, uk in zip(x, u))
+    assert baseline["adaptive"]["cost"] == pytest.approx(cost, rel=1e-12)
+    assert baseline["robust"]["steps"] == baseline["adaptive"]["steps"] == 50
+    assert "robust baseline (not part of the verdict): cost" in result.stdout
+    assert not [c for c in data["claims"] if "baseline" in c["id"]]
     no_leftovers(tmp_path)
 
 
@@ -91,6 +104,18 @@ def test_saved_trajectory_is_rechecked_without_running(saved, tmp_path, monkeypa
     assert result.exit_code == 0, result.output
     data = written(out)
     assert data["run"]["steps"] == STEPS and data["verdict"] == "pass"
+    assert "robust_baseline" not in data["figures"]  # a re-check runs nothing, not even the baseline
+
+
+def test_a_robust_run_has_no_baseline_beside_it(tmp_path):
+    """--update none is the robust baseline itself: nothing to compare, and the report says so."""
+    out = tmp_path / "out"
+    result = invoke("--update", "none", "--steps", 3, "--out", out)
+    assert result.exit_code == 0, result.output
+    data = written(out)
+    assert data["run"]["update"] == "none" and "robust_baseline" not in data["figures"]
+    assert "robust baseline itself" in (out / "report.html").read_text()
+    assert "robust baseline (not part of the verdict)" not in result.stdout
 
 
 def test_second_run_replaces_the_bundle(saved, tmp_path):

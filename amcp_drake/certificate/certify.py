@@ -13,7 +13,7 @@ backend that ran the loop):
 * Proposition 9 at every solved step: tube containment by vertex enumeration, (5c), α >= 0,
   the terminal set, and the multipliers Λ as dual certificates (Λ >= 0, (15c), (15d));
 * the recorded cost against (17) or (19) and, when the run enforces persistent excitation, the
-  PE window level and input bounds of spec §8 (:mod:`amcp_drake.certificate.section4`);
+  PE window level and input bounds of docs/explanation/paper.md §8 (:mod:`amcp_drake.certificate.section4`);
 * the optimality of the recorded (z, α, v) for the QP (20) rebuilt from the record, by KKT
   residuals (:mod:`amcp_drake.certificate.optimality`).
 

@@ -110,6 +110,8 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
         if traj.stop_reason.startswith("inconsistent"):
             click.echo(f"warning: the run stopped: {traj.stop_reason}; certifying the partial trajectory", err=True)
     cert = certify(traj, spec)
+    if trajectory_file is None and traj.options.update != "none":
+        cert = _with_robust_baseline(traj, cert)
     try:
         out = write_outputs(out_dir, traj, cert)
     except OSError as exc:  # a full disk or a failing medium: write_outputs removed what it had staged
@@ -118,6 +120,23 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
     if cert.verdict == VERDICT_PREMISE_NOT_MET and cert.conformance != "fail":
         sys.exit(EXIT_PREMISE_NOT_MET)
     exit_verdict(cert.passed and cert.conformance != "fail")
+
+
+def _with_robust_baseline(traj, cert):
+    """The certificate with ``figures.robust_baseline``: the robust baseline (``--update none``) run beside
+    ``traj`` on its recorded disturbance (:func:`amcp_drake.studies.baseline.robust_beside`). A measurement
+    shown apart from the verdict; a failure to run it is reported there, never as a failed claim."""
+    from dataclasses import replace
+
+    from amcp_drake.studies.baseline import robust_beside
+
+    click.echo("robust baseline (--update none) on the same disturbance ...", err=True)
+    try:
+        baseline = robust_beside(traj)
+    except Exception as exc:  # noqa: BLE001 - any failure is shown in the report; the verdict stands
+        click.echo(f"warning: the robust baseline could not be run: {type(exc).__name__}: {exc}", err=True)
+        baseline = {"error": f"{type(exc).__name__}: {exc}"}
+    return replace(cert, figures={**cert.figures, "robust_baseline": baseline})
 
 
 def _run(spec, backend: str, steps: int, seed: int, formulation: str = "plain", options=None,
@@ -206,7 +225,16 @@ def _print(cert, out) -> None:
         click.echo(f"backend conformance: pass ({answers['backend']} answered every problem itself)")
     else:
         click.echo("backend conformance: unknown (the trajectory has no record of how its solver answers were obtained)")
+    baseline = cert.figures.get("robust_baseline") or {}
+    if "adaptive" in baseline:
+        a, r = baseline["adaptive"], baseline["robust"]
+        click.echo(f"robust baseline (not part of the verdict): cost {_g(a['cost'])} adaptive vs {_g(r['cost'])} robust; "
+                   f"mean one-step tube {_g(a['mean_one_step_tube'])} vs {_g(r['mean_one_step_tube'])} (report.html)")
     click.echo(f"wrote {out}/certificate.json, {out}/report.html, {out}/trajectory.json.gz")
+
+
+def _g(value) -> str:
+    return "n/a" if value is None else f"{value:.4g}"
 
 
 def _steps(steps: list[int]) -> str:

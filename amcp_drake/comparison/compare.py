@@ -12,7 +12,7 @@ not unique (the cost (17) depends on v only), so they are reported but never cou
 v is unique because the cost is strictly convex in v (R ≻ 0). Under the min–max cost (19) the
 objective is not strictly convex in v in general, so v and u agree only to the QP's accuracy
 (measured on Example 2, 30 steps: 2e-6 in v, 1.6e-8 in the cost; the same tolerances apply).
-With persistent excitation (spec §8) the PE status and dimension must match exactly and the
+With persistent excitation (Section 4.2 of the paper) the PE status and dimension must match exactly and the
 enforced level to ``pe_level``'s tolerance.
 
 How each answer was obtained counts too (``StepRecord.answers``, :mod:`amcp_drake.online.answers`):
@@ -53,8 +53,10 @@ TOLERANCES: dict[str, tuple[float, float]] = {
     "cost": (1e-5, 1e-6),
     "h_theta": (1e-6, 1e-6),
     "theta_hat": (1e-6, 1e-6),
-    # PE level enforced (spec §8): computed from the applied inputs, which agree to the u tolerance
+    # PE level enforced (Section 4.2 of the paper): computed from the applied inputs, which agree to the u tolerance
     "pe_level": (1e-5, 1e-5),
+    # the PE status and dimension of a step are discrete: they must match exactly
+    "pe_status": (0.0, 0.0),
     # K, P solve an SDP whose objective trace(P⁻¹) is flat near the optimum: Clarabel at its default
     # tolerances fixes K to ~2e-5 in either stack (measured: 1.6e-5 between Drake and cvxpy on Example 1;
     # tighter Clarabel tolerances end in AlmostSolved). The rest of the design is compared with the
@@ -266,7 +268,7 @@ def _compare_answers(comp: Comparison, k: int, ra, rb) -> None:
 
 
 def _pe_diffs(k: int, ra, rb) -> list[Difference]:
-    """PE at step k (spec §8): the same status (which QP, which rung of the ladder) and level."""
+    """PE at step k (docs/explanation/paper.md §8): the same status (which QP, which rung of the ladder) and level."""
     same = ra.pe_status == rb.pe_status and ra.pe_dim == rb.pe_dim
     out = [Difference("pe_status", k, 0.0 if same else 1.0, 0.0, 0.0, same)]
     if ra.pe_level is not None or rb.pe_level is not None:
