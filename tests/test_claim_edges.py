@@ -713,3 +713,41 @@ def test_pe_bounds_at_their_edge(pe_recorded, factor, status):
     out = pe_bounds(_view(tr))
     assert out.data["worst_step"] == k
     _assert_edge(out, margin, factor, PE_BOUND_TOL, status, rel=1e-6)
+
+
+def _x_f_invariance_margin(offline) -> float:
+    """min over the vertices (z, α) of X_f of: 1 − max(H_T z⁺ + h_T α⁺), α⁺, and α⁺ − max_(θ, x^j, w) H_x(A_cl(θ)(z + α x^j)
+    + w − z⁺), with z⁺ = A_z z and α⁺ = φ(z, α) = max_(θ, i) [H_x (A_cl(θ) − A_z) z]_i + h̄_i(θ) α + w̄_i (this file's
+    enumeration of X_f, of the two vertices of Θ and of W = [−0.1, 0.1])."""
+    K = float(np.asarray(offline.K)[0, 0])
+    A_z = np.asarray(offline.A_z, float)
+    H_x, X0 = np.asarray(offline.H_x, float), np.asarray(offline.X0_vertices, float)
+    W = np.array([[0.1], [-0.1]])
+    A = [np.array([[0.5 + s * 0.2 + K]]) for s in (1.0, -1.0)]
+    w_bar = np.max(H_x @ W.T, axis=1)
+    H_T, h_T = np.asarray(offline.H_T, float), np.asarray(offline.h_T, float)
+    worst = np.inf
+    for v in _vertices(np.vstack([np.column_stack([H_T, h_T]), [[0.0, -1.0]]]), np.r_[np.ones(len(H_T)), 0.0]):
+        z, a = v[:1], v[1]
+        a_next = max(float(np.max(H_x @ (Ak - A_z) @ z + np.max(H_x @ Ak @ X0.T, axis=1) * a + w_bar)) for Ak in A)
+        z_next = A_z @ z
+        member = min(1.0 - float(np.max(H_T @ z_next + h_T * a_next)), a_next)
+        inclusion = a_next - max(float(np.max(H_x @ (Ak @ (z + a * x) + w - z_next))) for Ak in A for x in X0 for w in W)
+        worst = min(worst, member, inclusion)
+    return worst
+
+
+@pytest.mark.parametrize("factor, status", EDGES)
+def test_x_f_invariant_at_its_edge(scalar, factor, status):
+    """The terminal dynamics A_z of the design raised until z⁺ = A_z z carries a vertex of X_f out of it by
+    factor × tol (the inclusion part is 0 by the definition of φ; the membership part moves with A_z)."""
+    problem, offline = scalar
+    base = float(np.asarray(offline.A_z)[0, 0])
+    assert _x_f_invariance_margin(offline) > -1e-12
+
+    def violation(s):
+        return -_x_f_invariance_margin(dataclasses.replace(offline, A_z=np.array([[base + s]])))
+
+    s = _bisect(violation, factor * VERTEX_TOL, hi=1.0)
+    out = _design_check(problem, offline, "X_f invariant", A_z=np.array([[base + s]]))
+    _assert_edge(out, -violation(s), factor, VERTEX_TOL, status, rel=1e-6)
