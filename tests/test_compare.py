@@ -89,6 +89,28 @@ def test_cli_compare_exits_0_and_writes_every_difference(tmp_path):
     assert data["tolerances"]["v"] == {"abs": TOLERANCES["v"][0], "rel": TOLERANCES["v"][1]}
 
 
+def test_cli_compare_shows_non_unique_quantities_as_information_never_with_a_tolerance(tmp_path):
+    """z and α of (20) are not unique: their (large) differences are marked as information in the per-step table and
+    the summary, have no tolerance and no verdict in compare.json, and nothing prints a NaN tolerance."""
+    from amcp_drake.cli import main
+
+    out = tmp_path / "cmp.json"
+    result = CliRunner().invoke(main, ["compare", "--steps", "3", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "nan" not in result.output.lower()
+    header = next(line for line in result.output.splitlines() if line.lstrip().startswith("k "))
+    assert header.split()[-2:] == ["z*", "alpha*"]
+    assert "* information only, never compared" in result.output
+    assert "information only, no tolerance, never a disagreement" in result.output
+    summary = result.output[result.output.index("quantity"):]
+    assert not any(line.split()[:1] in (["z"], ["alpha"]) for line in summary.splitlines())
+    data = json.loads(out.read_text())
+    info = data["informational"]
+    assert {d["quantity"] for d in info} == {"z", "alpha"} and max(d["difference"] for d in info) > 1e-3
+    assert all(d["tolerance"] is None and d["agree"] is None and d["information_only"] for d in info)
+    assert data["agree"] is True
+
+
 def test_cli_compare_with_a_loose_solver_exits_1_and_names_quantity_and_step(tmp_path):
     from amcp_drake.cli import main
 

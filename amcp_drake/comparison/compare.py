@@ -85,6 +85,10 @@ class Difference:
     agree: bool
 
     def to_dict(self) -> dict[str, Any]:
+        """As in compare.json; a quantity of :data:`INFORMATIONAL` has no tolerance and no verdict (null)."""
+        if self.quantity in INFORMATIONAL:
+            return {"quantity": self.quantity, "step": self.step, "difference": self.difference, "scale": self.scale,
+                    "tolerance": None, "agree": None, "information_only": True}
         return {"quantity": self.quantity, "step": self.step, "difference": self.difference,
                 "scale": self.scale, "tolerance": self.tolerance, "agree": self.agree}
 
@@ -129,11 +133,12 @@ class Comparison:
             per[e["outcome"]] += 1
 
     def worst(self) -> dict[str, Difference]:
-        """The largest difference (relative to its tolerance) per quantity."""
+        """The largest difference per quantity (relative to its tolerance; the informational quantities,
+        which have none, by the difference itself)."""
         out: dict[str, Difference] = {}
         for d in self.differences + self.informational:
             cur = out.get(d.quantity)
-            if cur is None or d.difference / max(d.tolerance, 1e-300) > cur.difference / max(cur.tolerance, 1e-300):
+            if cur is None or _ratio(d) > _ratio(cur):
                 out[d.quantity] = d
         return out
 
@@ -158,6 +163,10 @@ class Comparison:
                 "drift": self.drift, "notes": self.notes, "flat_optimum_steps": self.flat_optimum_steps(),
                 "answer_mismatches": self.answer_mismatches, "answer_counts": self.answer_counts,
                 "allow_fallbacks": self.allow_fallbacks}
+
+
+def _ratio(d: Difference) -> float:
+    return d.difference if d.quantity in INFORMATIONAL else d.difference / max(d.tolerance, 1e-300)
 
 
 def _diff(quantity: str, step: int | None, a, b) -> Difference:

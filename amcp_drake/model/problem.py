@@ -85,6 +85,11 @@ class Problem:
         _require_bounded("W.H", H_w, np.ones(H_w.shape[0]), "W = {w | H_w w <= 1}")
         H_theta = as_matrix("Theta.H", self.H_theta, cols=p)
         h_theta = as_vector("Theta.h", self.h_theta, size=H_theta.shape[0])
+        empty = np.all(H_theta == 0, axis=1) & (h_theta < 0)
+        if np.any(empty):
+            row = int(np.argmax(empty))
+            raise ProblemError(f"Theta.h[{row}]", f"a value >= 0 for the zero row Theta.H[{row}] (0 <= h)",
+                               f"{h_theta[row]:g}: Theta would be empty")
         _require_bounded("Theta.H", H_theta, h_theta, "Theta = {θ | H_θ θ <= h_θ}")
         F = as_matrix("Z.F", self.F, cols=n)
         G = as_matrix("Z.G", self.G, rows=F.shape[0], cols=m)

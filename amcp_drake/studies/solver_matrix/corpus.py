@@ -242,19 +242,25 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
 
 
 def load_problem(path: str | os.PathLike) -> CorpusProblem:
-    """One corpus file (``.json`` or gzip-compressed ``.json.gz``), read strictly."""
+    """One corpus file (``.json`` or gzip-compressed ``.json.gz``), read strictly, at most
+    :data:`~amcp_drake.model.json_strict.MAX_INPUT_BYTES` bytes on disk and after decompression."""
     import gzip
+    import io
 
-    from amcp_drake.model.json_strict import decode_utf8, loads_strict
+    from amcp_drake.model.json_strict import MAX_INPUT_BYTES, decode_utf8, loads_strict, read_bytes_limited
 
     path = Path(path)
+    raw = read_bytes_limited(path, MAX_INPUT_BYTES, ProblemFileError, "corpus file", gzip_ok=True)
     try:
-        raw = path.read_bytes()
         if path.name.endswith(".gz"):
-            raw = gzip.decompress(raw)
+            with gzip.GzipFile(fileobj=io.BytesIO(raw)) as handle:
+                raw = handle.read(MAX_INPUT_BYTES + 1)
     except (OSError, EOFError, gzip.BadGzipFile) as exc:
         raise ProblemFileError(str(path), "a readable corpus file (JSON, optionally gzip-compressed)",
                                f"{type(exc).__name__}: {exc}") from None
+    if len(raw) > MAX_INPUT_BYTES:
+        raise ProblemFileError(str(path), f"at most {MAX_INPUT_BYTES:,} bytes of JSON after decompression (the size "
+                               "limit of a corpus file; docs/decisions.md, 'Input size limits')", "more")
     data = loads_strict(decode_utf8(raw, str(path)), str(path))
     return CorpusProblem.from_dict(data, source=str(path))
 
