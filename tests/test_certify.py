@@ -1,4 +1,4 @@
-"""Certificates (issue 6): an honest run passes every claim; each tampering fails exactly the claims
+"""Certificates: an honest run passes every claim; each tampering fails exactly the claims
 that logically depend on the tampered quantity, and every other claim still passes.
 
 The claims are not independent: Theorem 14 (iii) (x_k, u_k) ∈ Z, for instance, *follows* from the
@@ -333,9 +333,9 @@ def test_a_recorded_x0_vertex_off_the_vertex_fails_the_vertex_list(recorded, spe
 @pytest.mark.parametrize("t", [1e-4, 1e8])
 def test_a_run_in_micro_or_mega_units_passes_every_claim(t):
     """Example 1 written in states x̃ = t x (x0, the disturbances and design.mu_state_bound with it):
-    the design in those units, an 8-step run and its certificate, which passes every claim. Before
-    session 9 the X0 vertex-list claim failed at t = 1e8 (its tolerance was 1e-8 absolute on vertices of
-    size 3e7) and the design was another one (t = 1e-4) or none (t = 1e8)."""
+    the design in those units, an 8-step run and its certificate, which passes every claim. An
+    absolute tolerance of 1e-8 on the X0 vertex-list claim fails at t = 1e8 (vertices of size 3e7), and a
+    design that is not unit-free gives another design (t = 1e-4) or none (t = 1e8)."""
     from dataclasses import replace
 
     from amcp_drake.model.state_units import scale_states

@@ -1,4 +1,4 @@
-"""Performance harness (issues 8 and 16): per-step times of the online loop, both backends, the
+"""Performance harness: per-step times of the online loop, both backends, the
 plain (15) and vertex forms of the tube MPC QP (20) and the DAQP fast path ("fast", Drake only), on
 Example 1 and on size sweeps (:mod:`amcp_drake.studies.bench_scaling`).
 
