@@ -86,6 +86,23 @@ def tranos2022_spec() -> ProblemSpec:
     return _data_spec("tranos2022")
 
 
+def mass_chain3_spec() -> ProblemSpec:
+    """A chain of 3 unit masses on a line (reconstruction; the structure of the mass-spring chain in the public
+    code of Köhler's certainty-equivalent adaptive MPC study, KohlerJohannes/Adaptive @ 1bad2fd): the first
+    mass tied to the wall by a known spring (1 N/m), the 2 springs between masses unknown in [0.5, 1.5] N/m
+    (θ, p = 2), a force on every mass (m = 3), forward Euler with h = 0.1 s (A affine in θ), so n = 6;
+    |p_i| <= 1, |v_i| <= 1, |u_i| <= 3, |w_p| <= 1e-4, |w_v| <= 1e-3, Q = I, R = I, N = 10, θ̂0 = [1, 1],
+    θ* = [0.7, 1.3], x0 = [0.2, 0, 0, 0, −0.2, 0], 50 steps. No design section (automatic design).
+    Choices: docs/decisions.md."""
+    return _data_spec("mass_chain3")
+
+
+def mass_chain4_spec() -> ProblemSpec:
+    """The chain of :func:`mass_chain3_spec` with 4 masses: n = 8, m = 4, p = 3 (the 3 springs between
+    masses), N = 6, θ̂0 = [1, 1, 1], θ* = [0.7, 1.3, 1.0], x0 = [0.2, 0, 0, 0, 0, 0, −0.2, 0], 50 steps."""
+    return _data_spec("mass_chain4")
+
+
 def lorenzen2019() -> Problem:
     """Example 1 of Lorenzen, Cannon & Allgöwer (2019), spec §9."""
     return lorenzen2019_spec().problem
@@ -118,10 +135,11 @@ EXAMPLES = {"lorenzen2019": lorenzen2019_spec, "lorenzen2019_ex2": lorenzen2019_
             "parsi2020_siso": parsi2020_siso_spec, "parsi2020_mimo": parsi2020_mimo_spec,
             "bujarbaruah2022": bujarbaruah2022_spec, "massera2017": massera2017_spec,
             "kothare1996": kothare1996_spec, "tranos2022": tranos2022_spec,
+            "mass_chain3": mass_chain3_spec, "mass_chain4": mass_chain4_spec,
             **{f"sls_mpc_2d_eps{e:g}": (lambda e=e: sls_mpc_2d_spec(e)) for e in SLS_EPS_A_SWEEP}}
 #: The built-in systems taken from other publications than Lorenzen et al. (2019) (issue 14).
 LITERATURE_EXAMPLES = ("parsi2020_siso", "parsi2020_mimo", "bujarbaruah2022", "massera2017", "kothare1996",
-                       "tranos2022")
+                       "tranos2022", "mass_chain3", "mass_chain4")
 #: The SLS-MPC 2-D family (Chen et al. 2024; constructor amcp_drake.model.sls_mpc_2d) at the ε_A of
 #: issue 14's sweep; any ε_A through ``sls_mpc_2d_spec(eps_A)``.
 SLSMPC2D_EXAMPLES = tuple(f"sls_mpc_2d_eps{e:g}" for e in SLS_EPS_A_SWEEP)
