@@ -103,6 +103,18 @@ def mass_chain4_spec() -> ProblemSpec:
     return _data_spec("mass_chain4")
 
 
+def ji2022_quadrotor_spec() -> ProblemSpec:
+    """The quadrotor of Ji et al., robust MPC with set-membership state estimation, in its public code
+    (tianchenji/Robust-SM-MPC @ de286b9, sm_mpc_qr.py): of the 12-state linearised quadrotor (sampling time
+    0.2 s), the x-axis subsystem the code's A and B leave decoupled, states [x, pitch, ẋ, pitch rate]
+    (the code's indices 0, 4, 6, 10), input the pitch torque (index 2): n = 4, m = 1. Here θ = the
+    torque's effectiveness, B(θ) = θ B, θ ∈ [0.8, 1.2], p = 1 (the code has no parametric uncertainty);
+    |pitch| <= π/9 (the code's), |w_i| <= 0.03 (the box around the code's ellipsoid), N = 15 (the code's);
+    added: |x| <= 6, |ẋ| <= 3, |pitch rate| <= 1, |u| <= 0.5, Q = I, R = 1, θ̂0 = 1, θ* = 1.1,
+    x0 = [4, 0, 0, 0], 50 steps. No design section. Choices: docs/decisions.md."""
+    return _data_spec("ji2022_quadrotor")
+
+
 def lorenzen2019() -> Problem:
     """Example 1 of Lorenzen, Cannon & Allgöwer (2019), spec §9."""
     return lorenzen2019_spec().problem
@@ -135,11 +147,11 @@ EXAMPLES = {"lorenzen2019": lorenzen2019_spec, "lorenzen2019_ex2": lorenzen2019_
             "parsi2020_siso": parsi2020_siso_spec, "parsi2020_mimo": parsi2020_mimo_spec,
             "bujarbaruah2022": bujarbaruah2022_spec, "massera2017": massera2017_spec,
             "kothare1996": kothare1996_spec, "tranos2022": tranos2022_spec,
-            "mass_chain3": mass_chain3_spec, "mass_chain4": mass_chain4_spec,
+            "mass_chain3": mass_chain3_spec, "mass_chain4": mass_chain4_spec, "ji2022_quadrotor": ji2022_quadrotor_spec,
             **{f"sls_mpc_2d_eps{e:g}": (lambda e=e: sls_mpc_2d_spec(e)) for e in SLS_EPS_A_SWEEP}}
 #: The built-in systems taken from other publications than Lorenzen et al. (2019) (issue 14).
 LITERATURE_EXAMPLES = ("parsi2020_siso", "parsi2020_mimo", "bujarbaruah2022", "massera2017", "kothare1996",
-                       "tranos2022", "mass_chain3", "mass_chain4")
+                       "tranos2022", "mass_chain3", "mass_chain4", "ji2022_quadrotor")
 #: The SLS-MPC 2-D family (Chen et al. 2024; constructor amcp_drake.model.sls_mpc_2d) at the ε_A of
 #: issue 14's sweep; any ε_A through ``sls_mpc_2d_spec(eps_A)``.
 SLSMPC2D_EXAMPLES = tuple(f"sls_mpc_2d_eps{e:g}" for e in SLS_EPS_A_SWEEP)
