@@ -155,8 +155,8 @@ LITERATURE_EXAMPLES = ("parsi2020_siso", "parsi2020_mimo", "bujarbaruah2022", "m
 #: Built-in systems measured in docs/results.md ("Literature systems of four to eight states") and left out
 #: of the suite's per-example backend runs (properties/amcp_properties/test_shipped_answers.py): one backend's
 #: plain form answers an early step of mass_chain3 "optimal_inaccurate" (a fallback answers, every claim holds),
-#: mass_chain4 needs ~1 GiB and ~0.6 s per step, and the quadrotor's 102-facet X0 needs ~45 s CPU and 3 GiB
-#: per cvxpy step. Their data, designs and (mass_chain3) claims are tested in tests/test_literature_examples.py.
+#: mass_chain4 needs ~1 GiB and ~0.6 s per step, and the quadrotor's 102-facet X0 needs ~45 s CPU per cvxpy
+#: step and 3-6 GiB. Their data, designs and (mass_chain3) claims are tested in tests/test_literature_examples.py.
 MEASURED_EXAMPLES = ("mass_chain3", "mass_chain4", "ji2022_quadrotor")
 #: The SLS-MPC 2-D family (Chen et al. 2024; constructor amcp_drake.model.sls_mpc_2d) at the ε_A of
 #: issue 14's sweep; any ε_A through ``sls_mpc_2d_spec(eps_A)``.
