@@ -86,6 +86,35 @@ def tranos2022_spec() -> ProblemSpec:
     return _data_spec("tranos2022")
 
 
+def mass_chain3_spec() -> ProblemSpec:
+    """A chain of 3 unit masses on a line (reconstruction; the structure of the mass-spring chain in the public
+    code of Köhler's certainty-equivalent adaptive MPC study, KohlerJohannes/Adaptive @ 1bad2fd): the first
+    mass tied to the wall by a known spring (1 N/m), the 2 springs between masses unknown in [0.5, 1.5] N/m
+    (θ, p = 2), a force on every mass (m = 3), forward Euler with h = 0.1 s (A affine in θ), so n = 6;
+    |p_i| <= 1, |v_i| <= 1, |u_i| <= 3, |w_p| <= 1e-4, |w_v| <= 1e-3, Q = I, R = I, N = 10, θ̂0 = [1, 1],
+    θ* = [0.7, 1.3], x0 = [0.2, 0, 0, 0, −0.2, 0], 50 steps. No design section (automatic design).
+    Choices: docs/decisions.md."""
+    return _data_spec("mass_chain3")
+
+
+def mass_chain4_spec() -> ProblemSpec:
+    """The chain of :func:`mass_chain3_spec` with 4 masses: n = 8, m = 4, p = 3 (the 3 springs between
+    masses), N = 6, θ̂0 = [1, 1, 1], θ* = [0.7, 1.3, 1.0], x0 = [0.2, 0, 0, 0, 0, 0, −0.2, 0], 50 steps."""
+    return _data_spec("mass_chain4")
+
+
+def ji2022_quadrotor_spec() -> ProblemSpec:
+    """The quadrotor of Ji et al., robust MPC with set-membership state estimation, in its public code
+    (tianchenji/Robust-SM-MPC @ de286b9, sm_mpc_qr.py): of the 12-state linearised quadrotor (sampling time
+    0.2 s), the x-axis subsystem the code's A and B leave decoupled, states [x, pitch, ẋ, pitch rate]
+    (the code's indices 0, 4, 6, 10), input the pitch torque (index 2): n = 4, m = 1. Here θ = the
+    torque's effectiveness, B(θ) = θ B, θ ∈ [0.8, 1.2], p = 1 (the code has no parametric uncertainty);
+    |pitch| <= π/9 (the code's), |w_i| <= 0.03 (the box around the code's ellipsoid), N = 15 (the code's);
+    added: |x| <= 6, |ẋ| <= 3, |pitch rate| <= 1, |u| <= 0.5, Q = I, R = 1, θ̂0 = 1, θ* = 1.1,
+    x0 = [4, 0, 0, 0], 50 steps. No design section. Choices: docs/decisions.md."""
+    return _data_spec("ji2022_quadrotor")
+
+
 def lorenzen2019() -> Problem:
     """Example 1 of Lorenzen, Cannon & Allgöwer (2019), docs/explanation/paper.md §9."""
     return lorenzen2019_spec().problem
@@ -118,10 +147,17 @@ EXAMPLES = {"lorenzen2019": lorenzen2019_spec, "lorenzen2019_ex2": lorenzen2019_
             "parsi2020_siso": parsi2020_siso_spec, "parsi2020_mimo": parsi2020_mimo_spec,
             "bujarbaruah2022": bujarbaruah2022_spec, "massera2017": massera2017_spec,
             "kothare1996": kothare1996_spec, "tranos2022": tranos2022_spec,
+            "mass_chain3": mass_chain3_spec, "mass_chain4": mass_chain4_spec, "ji2022_quadrotor": ji2022_quadrotor_spec,
             **{f"sls_mpc_2d_eps{e:g}": (lambda e=e: sls_mpc_2d_spec(e)) for e in SLS_EPS_A_SWEEP}}
 #: The built-in systems taken from other publications than Lorenzen et al. (2019).
 LITERATURE_EXAMPLES = ("parsi2020_siso", "parsi2020_mimo", "bujarbaruah2022", "massera2017", "kothare1996",
-                       "tranos2022")
+                       "tranos2022", "mass_chain3", "mass_chain4", "ji2022_quadrotor")
+#: Built-in systems measured in docs/results.md ("Literature systems of four to eight states") and left out
+#: of the suite's per-example backend runs (properties/amcp_properties/test_shipped_answers.py): one backend's
+#: plain form answers an early step of mass_chain3 "optimal_inaccurate" (a fallback answers, every claim holds),
+#: mass_chain4 needs ~1 GiB and ~0.6 s per step, and the quadrotor's 102-facet X0 needs ~45 s CPU per cvxpy
+#: step and 3-6 GiB. Their data, designs and (mass_chain3) claims are tested in tests/test_literature_examples.py.
+MEASURED_EXAMPLES = ("mass_chain3", "mass_chain4", "ji2022_quadrotor")
 #: The SLS-MPC 2-D family (Chen et al. 2024; constructor amcp_drake.model.sls_mpc_2d) at the ε_A of
 #: the sweep SLS_EPS_A_SWEEP; any ε_A through ``sls_mpc_2d_spec(eps_A)``.
 SLSMPC2D_EXAMPLES = tuple(f"sls_mpc_2d_eps{e:g}" for e in SLS_EPS_A_SWEEP)

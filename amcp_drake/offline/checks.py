@@ -84,7 +84,9 @@ def _terminal_set(problem, design, A_cl, X0_v, W_v, w_bar, h_bar) -> list[CheckR
     member_margin = np.inf
     A_cl = np.asarray(A_cl, float)
     X0_v, W_v = np.asarray(X0_v, float), np.asarray(W_v, float)
-    HW = W_v @ design.H_x.T                                   # (w, rows): H_x w for every vertex of W
+    # max over the vertices w of W of [H_x]_i w, per row i: the worst case of row i over (A_k, x_j, w) is
+    # max_{k,j} [H_x]_i (A_k (z + α x_j) − z⁺) + max_w [H_x]_i w (the sum separates row by row)
+    HW_max = np.max(W_v @ design.H_x.T, axis=0)               # (rows,)
     for vert in verts:
         z, alpha = vert[:n], vert[n]
         alpha_next = float(np.max(E @ z + h_bar * alpha + w_bar))  # φ(z, α)
@@ -94,7 +96,7 @@ def _terminal_set(problem, design, A_cl, X0_v, W_v, w_bar, h_bar) -> list[CheckR
         # H_x (A_k (z + α x_j) + w − z⁺) for every vertex A_k of A_cl(Θ), x_j of X0 and w of W at once
         images = np.einsum("aij,vj->avi", A_cl, z + alpha * X0_v) - z_next    # (a, v, n)
         rows = images @ design.H_x.T                                          # (a, v, rows)
-        worst = float(np.max(rows[:, :, None, :] + HW[None, None, :, :]))
+        worst = float(np.max(np.max(rows, axis=(0, 1)) + HW_max))
         inclusion_margin = min(inclusion_margin, alpha_next - worst)
     FGK = problem.F + problem.G @ design.K
     con_margin = min(1.0 - float(np.max(FGK @ (vert[:n] + vert[n] * xj))) for vert in verts for xj in X0_v)

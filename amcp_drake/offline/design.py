@@ -153,19 +153,23 @@ def _design_as_written(problem: Problem, options: DesignOptions, backend="drake"
     budget.require_vertices("X0 vertices", len(H_x), problem.n)
     X0_vertices = polytope.vertices(H_x, np.ones(len(H_x)))
     budget.tick("w_bar, f_bar, h_bar")
-    w_bar = be.support(problem.H_w, np.ones(len(problem.H_w)), H_x)
-    f_bar = be.support(H_x, np.ones(len(H_x)), FGK)
-    h_bar = np.array([be.support(H_x, np.ones(len(H_x)), H_x @ Ak) for Ak in A_cl])
+    w_lp = be.support(problem.H_w, np.ones(len(problem.H_w)), H_x)
+    f_lp = be.support(H_x, np.ones(len(H_x)), FGK)
+    h_lp = np.array([be.support(H_x, np.ones(len(H_x)), H_x @ Ak) for Ak in A_cl])
+    # The LP values are upper bounds only up to the solver's tolerance; the maxima over the vertices
+    # of W and X0 are exact, so the larger of the two is a valid bound for either backend (found on
+    # parsi2020_siso: the cvxpy backend's f̄ was 1.5e-9 too small and X_f left Z by 2e-8). An LP that
+    # fails (NaN) leaves the exact vertex maximum; the count is recorded in info["support_lp_failures"].
+    # An unbounded LP (inf) means X0 is unbounded: that stays an error.
+    budget.require_vertices("w_bar: the vertices of W", len(problem.H_w), problem.n)
+    w_vx = chunked_row_maxima(H_x, problem.w_vertices(), budget, "w_bar")
+    f_vx = chunked_row_maxima(FGK, X0_vertices, budget, "f_bar")
+    h_vx = np.array([chunked_row_maxima(H_x @ Ak, X0_vertices, budget, "h_bar") for Ak in A_cl])
+    lp_failures = int(sum(np.count_nonzero(np.isnan(v)) for v in (w_lp, f_lp, h_lp)))
+    w_bar, f_bar, h_bar = np.fmax(w_lp, w_vx), np.fmax(f_lp, f_vx), np.fmax(h_lp, h_vx)
     _require_finite_support("w_bar", w_bar)
     _require_finite_support("f_bar", f_bar)
     _require_finite_support("h_bar", h_bar)
-    # The LP values are upper bounds only up to the solver's tolerance; the maxima over the vertices
-    # of W and X0 are exact, so the larger of the two is a valid bound for either backend (found on
-    # parsi2020_siso: the cvxpy backend's f̄ was 1.5e-9 too small and X_f left Z by 2e-8).
-    budget.require_vertices("w_bar: the vertices of W", len(problem.H_w), problem.n)
-    w_bar = np.maximum(w_bar, chunked_row_maxima(H_x, problem.w_vertices(), budget, "w_bar"))
-    f_bar = np.maximum(f_bar, chunked_row_maxima(FGK, X0_vertices, budget, "f_bar"))
-    h_bar = np.maximum(h_bar, np.array([chunked_row_maxima(H_x @ Ak, X0_vertices, budget, "h_bar") for Ak in A_cl]))
     lambda_bar = float(np.max(h_bar))
     if lambda_bar >= 1.0:
         raise DesignError(f"X0 is not contractive: lambda_bar = {lambda_bar:.4f} >= 1 (spec §5.1 conditions); "
@@ -194,6 +198,8 @@ def _design_as_written(problem: Problem, options: DesignOptions, backend="drake"
     _require_finite_support("h_theta0", h_theta0)
 
     info = {"x0_template": template_label(options, len(H_x), dimension=problem.n), "terminal_set": terminal_kind}
+    if lp_failures:
+        info["support_lp_failures"] = lp_failures
     return OfflineDesign(K=K, P=P, H_x=H_x, X0_vertices=X0_vertices, w_bar=w_bar, f_bar=f_bar, h_bar=h_bar,
                          lambda_bar=lambda_bar, A_z=A_z, H_T=H_T, h_T=h_T, mu=float(mu), mu_sup=float(mu_sup),
                          mu_region=region, H_theta=H_theta_n, h_theta0=h_theta0, theta_vertices=theta_vertices,

@@ -7,21 +7,37 @@ needs hundreds of rows from n = 4 on, the mrpi template's fixed directions rarel
 Construction (polyhedral Lyapunov functions, Blanchini & Miani, "Set-theoretic methods in control",
 Ch. 4-5: the set {‖T x‖∞ <= 1}, T invertible, is λ-contractive for x⁺ = A x iff ‖T A T⁻¹‖∞ <= λ):
 
-1. K₀: the gain of the LMI (16) (:func:`~amcp_drake.offline.design.robust_gain`).
-2. For a few rounds (:data:`ROUNDS`): T = V⁻¹ with V the real eigenbasis of the nominal closed loop
-   A_cl(θ̂0) (real and imaginary parts of complex eigenvectors, columns normalised); rows of T scaled by
-   the Perron vector of max_k |T A_cl(θ^k) T⁻¹| (which brings the ∞-norm down to that matrix's spectral
-   radius); then the linear program
+1. Starting gains: K₀ of the LMI (16) (:func:`~amcp_drake.offline.design.robust_gain`) and, when the
+   nominal pair (A(θ̂0), B(θ̂0)) allows it, a gain placing the nominal closed-loop poles at n distinct
+   real values in [:data:`PLACED_POLES`] (scipy's ``place_poles``): a real-eigenvalue closed loop has a
+   real eigenbasis in which the ∞-norm is close to the spectral radius, whereas a complex pair r e^{±iφ}
+   costs r (|cos φ| + |sin φ|) in any real 2-D block.
+2. For a few rounds (:data:`ROUNDS`) from each start: T = V⁻¹ with V the real eigenbasis of the nominal
+   closed loop A_cl(θ̂0) (real and imaginary parts of complex eigenvectors, columns normalised); rows of
+   T scaled by the Perron vector of max_k |T A_cl(θ^k) T⁻¹| (which brings the ∞-norm down to that
+   matrix's spectral radius); then, for each λ of :data:`LAMBDA_GRID`, the linear program (in K, γ and
+   slack variables for the absolute values, scipy's HiGHS)
 
-       min λ  s.t.  Σ_l |[T (A(θ^k) + B(θ^k) K) T⁻¹]_il| <= λ  for every row i and vertex θ^k of Θ
+       min γ  s.t.  Σ_l |[T (A(θ^k) + B(θ^k) K) T⁻¹]_il| <= λ   for every row i and vertex θ^k of Θ,
+                    Σ_l |[(F + G K) T⁻¹]_jl| <= γ               for every row j of Z,
 
-   over K and λ (T(A + BK)T⁻¹ is affine in K; the absolute values by slack variables), solved with
-   scipy's HiGHS. The best (T, K) of all rounds is kept.
+   and the minimal-λ program of the same constraints without the rows of Z. Each answer is rated by
+   r = γ̄ σ̄_W / (1 − λ̄), recomputed from (T, K): λ̄ = max_k ‖T A_cl(θ^k) T⁻¹‖∞, γ̄ = max_j ‖(F+GK)_j T⁻¹‖₁
+   (the support of X = {‖T x‖∞ <= 1} in the direction (F+GK)_j) and σ̄_W = max_i σ_W(T_i). The tube scaled
+   to robust invariance, s X with s = σ̄_W / (1 − λ̄), has max f̄ = s γ̄ = r, and the scaled terminal set
+   of offline/terminal.py exists iff α_∞ max f̄ < 1 with α_∞ = 1 here: r < 1 is the condition for a
+   design, and the smaller r, the more room the constraints leave around the tube. The (T, K) of least
+   r is kept (λ̄ < 1 required).
 3. λ̄ < 1 is required (TemplateError "not contractive" otherwise). X0 = {‖T x‖∞ <= 1} is then scaled
    to robust invariance, h̄^k + w̄ <= 1 (:func:`~amcp_drake.offline.templates.scale_to_robust_invariance`).
 4. P for (16) with this K: the LMI (16) of the design backend solved on the closed-loop vertices
    A_cl(θ^k) with the stage cost Q + KᵀRK and no input (B = 0): its P satisfies
    A_cl(θ^k)ᵀ P A_cl(θ^k) − P + Q + KᵀRK ⪯ 0 at every vertex, i.e. (16) for K.
+
+The constraint rows in the linear program follow the literature's implementations of this scheme,
+which design K together with the constraints it must respect (the gain of a λ-contractive tube is
+chosen with the constraint-satisfaction conditions, not for contraction alone): a gain that only
+minimises λ̄ reached ‖K‖ ≈ 100 on a 3-mass chain with |u| <= 3, where no tube fits in Z.
 
 Nothing of this is trusted: the design re-checks (16) by eigenvalues and the automatic mode accepts the
 design only when every independent check of offline/checks.py passes (contractivity and invariance of
@@ -37,8 +53,13 @@ from amcp_drake.model.errors import DesignError
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.offline.budget import DesignBudget, unbounded
 
-#: Rounds of (basis, Perron scaling, LP for K); measured on the 3-mass chain: 0.924 after 3 rounds.
+#: Rounds of (basis, Perron scaling, LPs for K) from each starting gain.
 ROUNDS = 4
+#: Contraction factors λ of the constraint-aware linear program (step 2); the minimal-λ program is
+#: solved as well, so a system that admits only λ̄ close to 1 still gets its best parallelotope.
+LAMBDA_GRID = (0.6, 0.75, 0.85, 0.9, 0.94, 0.97)
+#: Range of the distinct real nominal poles of the placed starting gain (step 1).
+PLACED_POLES = (0.5, 0.9)
 #: An eigenbasis whose condition number exceeds this is not used (its T would amplify round-off).
 MAX_CONDITION = 1e8
 #: Added to every entry of max_k |T A_cl T⁻¹| before its Perron vector is taken (irreducibility).
@@ -82,33 +103,47 @@ def perron_scaled(T: np.ndarray, A_cl: np.ndarray) -> np.ndarray:
     return T / v[:, None]
 
 
-def lp_gain(T: np.ndarray, A_v: np.ndarray, B_v: np.ndarray) -> tuple[np.ndarray, float] | None:
-    """argmin over K of max_k ‖T (A_k + B_k K) T⁻¹‖∞ (module docstring, step 2) and its value; None
-    when the LP fails."""
+def lp_gain(T: np.ndarray, A_v: np.ndarray, B_v: np.ndarray, F: np.ndarray | None = None,
+            G: np.ndarray | None = None, lam: float | None = None) -> tuple[np.ndarray, float] | None:
+    """The linear programs of step 2 (module docstring) for a fixed T; None when the LP fails.
+
+    Without ``lam``: argmin over K of max_k ‖T (A_k + B_k K) T⁻¹‖∞ and that value. With ``lam`` and the
+    rows (F, G) of Z: argmin over K of max_j ‖(F_j + G_j K) T⁻¹‖₁ subject to ‖T (A_k + B_k K) T⁻¹‖∞ <= λ
+    for every k, and that minimum γ."""
     n, m = B_v.shape[1], B_v.shape[2]
     T_inv = np.linalg.inv(T)
     v = len(A_v)
     nk, nn = m * n, n * n
-    nvar = nk + v * nn + 1
+    with_z = lam is not None
+    nc = len(F) if with_z else 0
+    nvar = nk + v * nn + nc * n + 1
     rows, rhs = [], []
     for k in range(v):
         M0 = (T @ A_v[k] @ T_inv).reshape(nn)
         dM = np.einsum("ia,bj->ijab", T @ B_v[k], T_inv).reshape(nn, nk)  # d[T B K T⁻¹]_ij / dK_ab
         base = nk + k * nn
-        slack = np.zeros((nn, nvar))
-        slack[:, base:base + nn] = -np.eye(nn)
-        upper = slack.copy()
-        upper[:, :nk] = dM
-        lower = slack.copy()
-        lower[:, :nk] = -dM
-        rows += [upper, lower]  # ±[T (A_k + B_k K) T⁻¹]_ij <= s_ij
-        rhs += [-M0, M0]
+        _abs_rows(rows, rhs, dM, M0, base, nvar)  # ±[T (A_k + B_k K) T⁻¹]_ij <= s_ij
         sums = np.zeros((n, nvar))
         for i in range(n):
             sums[i, base + i * n: base + (i + 1) * n] = 1.0
-        sums[:, -1] = -1.0  # Σ_j s_ij <= λ
+        if with_z:
+            rows.append(sums)
+            rhs.append(np.full(n, float(lam)))  # Σ_j s_ij <= λ
+        else:
+            sums[:, -1] = -1.0  # Σ_j s_ij <= t, t minimised
+            rows.append(sums)
+            rhs.append(np.zeros(n))
+    if with_z:
+        base = nk + v * nn
+        C0 = (np.asarray(F, float) @ T_inv).reshape(nc * n)
+        dC = np.einsum("ja,bl->jlab", np.asarray(G, float), T_inv).reshape(nc * n, nk)  # d[G K T⁻¹]_jl / dK_ab
+        _abs_rows(rows, rhs, dC, C0, base, nvar)
+        sums = np.zeros((nc, nvar))
+        for j in range(nc):
+            sums[j, base + j * n: base + (j + 1) * n] = 1.0
+        sums[:, -1] = -1.0  # Σ_l |[(F + GK) T⁻¹]_jl| <= γ
         rows.append(sums)
-        rhs.append(np.zeros(n))
+        rhs.append(np.zeros(nc))
     c = np.zeros(nvar)
     c[-1] = 1.0
     res = linprog(c, A_ub=np.vstack(rows), b_ub=np.concatenate(rhs),
@@ -118,35 +153,83 @@ def lp_gain(T: np.ndarray, A_v: np.ndarray, B_v: np.ndarray) -> tuple[np.ndarray
     return np.asarray(res.x[:nk]).reshape(m, n), float(res.x[-1])
 
 
+def _abs_rows(rows: list, rhs: list, dM: np.ndarray, M0: np.ndarray, base: int, nvar: int) -> None:
+    """Append ±(M0 + dM·vec K) <= s (slacks s at ``base``) to the LP rows."""
+    size = len(M0)
+    slack = np.zeros((size, nvar))
+    slack[:, base:base + size] = -np.eye(size)
+    upper = slack.copy()
+    upper[:, :dM.shape[1]] = dM
+    lower = slack.copy()
+    lower[:, :dM.shape[1]] = -dM
+    rows += [upper, lower]
+    rhs += [-M0, M0]
+
+
+def rating(T: np.ndarray, K: np.ndarray, A_v: np.ndarray, B_v: np.ndarray, F: np.ndarray, G: np.ndarray,
+           W_vertices: np.ndarray) -> tuple[float, float]:
+    """(r, λ̄) of step 2, recomputed from T and K: λ̄ = max_k ‖T A_cl(θ^k) T⁻¹‖∞ and
+    r = γ̄ σ̄_W / (1 − λ̄) (inf when λ̄ >= 1)."""
+    lam = inf_norm(T, A_v + B_v @ K)
+    if not lam < 1.0:
+        return float("inf"), lam
+    gamma = float(np.max(np.sum(np.abs((F + G @ K) @ np.linalg.inv(T)), axis=1)))
+    sigma_w = float(np.max(np.abs(W_vertices @ T.T)))
+    return gamma * sigma_w / (1.0 - lam), lam
+
+
+def placed_gain(A0: np.ndarray, B0: np.ndarray) -> np.ndarray | None:
+    """A gain placing the poles of A0 + B0 K at n distinct real values in :data:`PLACED_POLES`
+    (step 1); None when scipy cannot place them (uncontrollable pair, too few inputs)."""
+    from scipy.signal import place_poles
+
+    n = A0.shape[0]
+    poles = np.linspace(PLACED_POLES[0], PLACED_POLES[1], n)
+    try:
+        return -np.asarray(place_poles(A0, B0, poles).gain_matrix, float)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+
+
 def parallelotope_gain(problem, K0: np.ndarray, budget: DesignBudget | None = None) -> tuple[np.ndarray, np.ndarray, float]:
-    """(K, T, λ̄) of steps 1-2 of the module docstring, starting from ``K0``; the best round."""
+    """(K, T, λ̄) of steps 1-2 of the module docstring, starting from ``K0`` (and the placed gain): the
+    (T, K) of least rating r over all rounds and λ."""
     budget = budget or unbounded()
     theta_v = problem.theta_vertices()
     A_v = np.array([problem.A_of(t) for t in theta_v])
     B_v = np.array([problem.B_of(t) for t in theta_v])
     A0, B0 = problem.A_of(problem.theta_hat0), problem.B_of(problem.theta_hat0)
-    K = np.asarray(K0, float)
-    best: tuple[np.ndarray, np.ndarray, float] | None = None
-    for round_ in range(1, ROUNDS + 1):
-        budget.tick(f"X0 template parallelotope, round {round_}")
-        basis = real_eigenbasis(A0 + B0 @ K)
-        if not np.isfinite(np.linalg.cond(basis)) or np.linalg.cond(basis) > MAX_CONDITION:
-            break
-        T = np.linalg.inv(basis)
-        A_cl = A_v + B_v @ K
-        T = perron_scaled(T, A_cl)
-        found = lp_gain(T, A_v, B_v)
-        if found is None:
-            break
-        K_new, _ = found
-        lam = inf_norm(T, A_v + B_v @ K_new)  # recomputed, not the LP's value
-        if best is None or lam < best[2]:
-            best = (K_new, T, lam)
-        K = K_new
+    F, G = np.asarray(problem.F, float), np.asarray(problem.G, float)
+    W_v = problem.w_vertices()
+    starts = [np.asarray(K0, float)]
+    placed = placed_gain(A0, B0)
+    if placed is not None:
+        starts.append(placed)
+    best: tuple[float, np.ndarray, np.ndarray, float] | None = None
+    for number, K in enumerate(starts, start=1):
+        for round_ in range(1, ROUNDS + 1):
+            budget.tick(f"X0 template parallelotope, start {number}, round {round_}")
+            basis = real_eigenbasis(A0 + B0 @ K)
+            if not np.isfinite(np.linalg.cond(basis)) or np.linalg.cond(basis) > MAX_CONDITION:
+                break
+            T = perron_scaled(np.linalg.inv(basis), A_v + B_v @ K)
+            round_best: tuple[float, np.ndarray, np.ndarray, float] | None = None
+            for lam in (None, *LAMBDA_GRID):
+                found = lp_gain(T, A_v, B_v) if lam is None else lp_gain(T, A_v, B_v, F, G, lam)
+                if found is None:
+                    continue
+                r, lam_bar = rating(T, found[0], A_v, B_v, F, G, W_v)  # recomputed, not the LP's values
+                if lam_bar < 1.0 and (round_best is None or (r, lam_bar) < (round_best[0], round_best[3])):
+                    round_best = (r, found[0], T, lam_bar)
+            if round_best is None:
+                break
+            if best is None or (round_best[0], round_best[3]) < (best[0], best[3]):
+                best = round_best
+            K = round_best[1]
     if best is None:
-        raise DesignError("X0 template parallelotope: no eigenbasis or LP solution for the gain (module "
-                          "offline/parallelotope.py)")
-    return best
+        raise DesignError("X0 template parallelotope: no eigenbasis or LP solution for the gain with "
+                          "lambda_bar < 1 (module offline/parallelotope.py)")
+    return best[1], best[2], best[3]
 
 
 def fixed_gain_terminal_weight(problem, K: np.ndarray, be, margin: float) -> np.ndarray:
@@ -160,5 +243,5 @@ def fixed_gain_terminal_weight(problem, K: np.ndarray, be, margin: float) -> np.
     return np.asarray(gain.P, float)
 
 
-__all__ = ["ROUNDS", "fixed_gain_terminal_weight", "inf_norm", "lp_gain", "parallelotope_gain", "perron_scaled",
-           "real_eigenbasis"]
+__all__ = ["LAMBDA_GRID", "PLACED_POLES", "ROUNDS", "fixed_gain_terminal_weight", "inf_norm", "lp_gain",
+           "parallelotope_gain", "perron_scaled", "placed_gain", "rating", "real_eigenbasis"]
