@@ -24,10 +24,9 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 DOC_FILES = sorted([ROOT / "README.md", ROOT / "benchmarks" / "README.md", *(ROOT / "docs").rglob("*.md")])
 CLI_FILES = sorted((ROOT / "amcp_drake" / "cli").glob("*.py"))
-#: The Python sources (comments, docstrings, messages) name no "session N" or "issue N" either. The
-#: package amcp_drake/offline is not in this list yet: its module docstrings still carry such names.
+#: The Python sources (comments, docstrings, messages) name no "session N" or "issue N" either.
 SOURCE_FILES = sorted(path for root in ("amcp_drake", "reference", "properties") for path in (ROOT / root).rglob("*.py")
-                      if "offline" not in path.relative_to(ROOT).parts[:2] and path not in CLI_FILES)
+                      if path not in CLI_FILES)
 #: Nor do the tests (their data files under tests/data are recorded data, not text) and the benchmarks'
 #: scripts and recorded results (the JSON and images excepted).
 TEST_FILES = sorted((ROOT / "tests").glob("*.py"))

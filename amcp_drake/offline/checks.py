@@ -109,7 +109,7 @@ def _terminal_set(problem, design, A_cl, X0_v, W_v, w_bar, h_bar) -> list[CheckR
 
 
 def _steady_tube_in_terminal_set(design: OfflineDesign, w_bar: np.ndarray, h_bar: np.ndarray) -> CheckResult:
-    """X_f ≠ ∅ in the sense that matters (spec §5.1): X_f = {H_T z + h_T α <= 1, α >= 0} always holds
+    """X_f ≠ ∅ in the sense that matters (Appendix A.1): X_f = {H_T z + h_T α <= 1, α >= 0} always holds
     (0, 0), so emptiness as a set is never the question; a terminal set is of use only if it holds the
     steady state of the tube dynamics at z = 0, (0, α_∞), where α_∞ = max_{k,i} w̄_i / (1 − h̄^k_i) is
     the least fixed point of α ↦ φ(0, α) = max_{k,i} h̄^k_i α + w̄_i (finite when λ̄ < 1). Margin:

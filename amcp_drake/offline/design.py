@@ -1,4 +1,4 @@
-"""Offline design (spec §4-§6 and §5.1): K, P, X0, w̄, f̄, h̄^k, X_f, μ, and the shape H_θ of (9).
+"""Offline design (docs/explanation/paper.md §4-§6, Appendix A.1): K, P, X0, w̄, f̄, h̄^k, X_f, μ, and the shape H_θ of (9).
 
 Every optimisation problem is formulated by the chosen backend (gain LMI, support LPs); this
 module only orchestrates. Choices where the paper is silent ([REC] in the spec) are documented
@@ -125,7 +125,7 @@ def design_fixed(problem: Problem, options: DesignOptions, backend="drake", gain
 def _design_as_written(problem: Problem, options: DesignOptions, backend="drake", gain=None,
                        budget: DesignBudget | None = None) -> OfflineDesign:
     """The design of :func:`design_fixed` in the units ``problem`` is written in (no normalisation):
-    the template design of spec §4-§6; the automatic mode runs it on the normalised problem. Every
+    the template design of docs/explanation/paper.md §4-§6; the automatic mode runs it on the normalised problem. Every
     stage is sized against ``budget`` before it allocates (module offline/budget.py)."""
     options = options.validate_for(problem)
     budget = budget or unbounded()
@@ -172,10 +172,10 @@ def _design_as_written(problem: Problem, options: DesignOptions, backend="drake"
     _require_finite_support("h_bar", h_bar)
     lambda_bar = float(np.max(h_bar))
     if lambda_bar >= 1.0:
-        raise DesignError(f"X0 is not contractive: lambda_bar = {lambda_bar:.4f} >= 1 (spec §5.1 conditions); "
+        raise DesignError(f"X0 is not contractive: lambda_bar = {lambda_bar:.4f} >= 1 (Appendix A.1 conditions); "
                           "try more facets (design.x0_facets) or x0_template = 'contractive'")
 
-    # terminal set X_f, spec §5.1 (the recursion) or the scaled copy of X0 (offline/terminal.py)
+    # terminal set X_f, Appendix A.1 (the recursion) or the scaled copy of X0 (offline/terminal.py)
     terminal_kind = terminal_set_kind(options, problem.n)
     if terminal_kind == "scaled":
         A_z = np.zeros((problem.n, problem.n))  # the witness of the scaled copy is z⁺ = 0
@@ -266,7 +266,7 @@ def _x0(problem: Problem, A_cl: np.ndarray, FGK: np.ndarray, be, options: Design
 
 
 def terminal_set(FGK, f_bar, H_x, A_cl, A_z, w_bar, h_bar, be, max_iter: int, budget: DesignBudget | None = None):
-    """X_f by the (z, α) recursion of spec §5.1 (Assumption 11, Appendix A.1).
+    """X_f by the (z, α) recursion of Appendix A.1 (Assumption 11).
 
     X^0 = {(F+GK) z + f̄ α <= 1, α >= 0};  X^{i+1} = X^i ∩ Pre(X^i) with the map
     (z, α) ↦ (A_z z, φ(z, α)), φ = max_{k,i'} [E^k]_{i'} z + [h̄^k]_{i'} α + [w̄]_{i'},
@@ -300,7 +300,7 @@ def terminal_set(FGK, f_bar, H_x, A_cl, A_z, w_bar, h_bar, be, max_iter: int, bu
                 raise TerminalSetError(
                     f"terminal set X_f is empty (iteration {iteration}): a constraint row needs alpha <= "
                     f"{1.0 / max(b, 1e-300):.4g} but the disturbance alone forces alpha >= {np.max(w_bar):.4g} "
-                    "(spec §5.1: alpha_inf f_bar < 1 fails). Choose a smaller X0 (more facets) or relax Z.")
+                    "(Appendix A.1: alpha_inf f_bar < 1 fails). Choose a smaller X0 (more facets) or relax Z.")
             for k in range(len(A_cl)):
                 lhs_z = a @ A_z + b * E[k]          # (u, n)
                 lhs_a = b * h_bar[k]                 # (u,)
@@ -321,7 +321,7 @@ def terminal_set(FGK, f_bar, H_x, A_cl, A_z, w_bar, h_bar, be, max_iter: int, bu
     raise TerminalSetError(
         f"terminal set recursion did not converge in {max_iter} iterations; finite termination needs "
         "A_z Schur, lambda_bar < 1, X_f^0 bounded and the fixed point (0, alpha_inf) strictly inside X_f^0 "
-        "(spec §5.1). Check that Z bounds the state in every direction reachable by (F+GK).")
+        "(Appendix A.1). Check that Z bounds the state in every direction reachable by (F+GK).")
 
 
 def _with_alpha_nonneg(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,4 +1,4 @@
-"""Cross-section templates X0 = {x | H_x x <= 1} of the homothetic tube (14) (spec §4, §5 "Choice of X0").
+"""Cross-section templates X0 = {x | H_x x <= 1} of the homothetic tube (14) (docs/explanation/paper.md §4, "Choice of X0").
 
 The paper needs X0 to be λ-contractive for every A_cl(θ^k) (λ̄ < 1, Appendix A.1) and, for the
 design checks of this project, robustly invariant: A_cl(θ)X0 ⊕ W ⊆ X0 (h̄^k + w̄ <= 1). Three
@@ -38,7 +38,8 @@ MRPI_RESIDUAL_FRACTION = 1e-3
 X0_INFLATION = 1.01
 #: The minimal-RPI iteration is declared divergent when h exceeds this multiple of max σ_W where Z
 #: does not bound the state: a converging iteration stays of the order of w̄/(1 - λ); values near
-#: 1e8 (seen on the SLS-MPC family at ε_A = 0.25, main before issue 14) are far past any useful tube.
+#: 1e8 (seen on the SLS-MPC family at ε_A = 0.25 before the iteration stopped at this factor) are far
+#: past any useful tube.
 MRPI_DIVERGENCE_FACTOR = 1e6
 #: ... or when h_i exceeds this multiple of the state extent of Z in direction d_i (Z bounded in x):
 #: a cross-section 10 times larger than the constraint set can never give a non-empty terminal set.
@@ -181,7 +182,7 @@ def contractive_template(FGK: np.ndarray, H_w: np.ndarray, A_cl: np.ndarray, be,
     :data:`CONTRACTIVE_REDUNDANCY_TOL` on Ω_j, i.e. Ω_{j+1} = Ω_j (Gilbert & Tan finite
     determination). Ω then satisfies h̄^k + w̄ <= λ: it is λ-contractive (λ̄ <= λ) and robustly
     invariant at once, and Ω ⊆ C gives f̄ <= 1 and α_∞ f̄ < 1 (a non-empty terminal set,
-    spec §5.1). Both properties are verified at the vertices before returning.
+    Appendix A.1). Both properties are verified at the vertices before returning.
 
     Complexity: at most ``max_rows`` rows (:func:`contractive_max_rows`), checked after each
     iteration, and every vertex enumeration sized against ``budget`` before Qhull runs.

@@ -1,9 +1,9 @@
-"""The offline design in state units normalised by W (session 8; replaces session 7's fallback).
+"""The offline design in state units normalised by W.
 
 Every claim of the paper is invariant under a change of state units x̃ = T x, T = diag(t_i) > 0, but
 the design as written is not: the X0 template directions are fixed unit vectors in x
 (:func:`~amcp_drake.offline.templates.template_directions`) and the objective trace(P⁻¹) of the gain
-LMI (16) is another objective after a non-uniform T. Measured on session 7's main: Example 1 in units
+LMI (16) is another objective after a non-uniform T. Measured with a design in the file's units: Example 1 in units
 diag(100, 0.01) designed at its first candidate with K·T⁻¹ = [−0.051, −0.478] instead of
 [0.018, −0.415]; ``massera2017`` in diag(100, 0.01, 0.01) failed all 15 candidates.
 
@@ -25,17 +25,17 @@ Why this S:
 * W transforms with the units (T W) and is bounded with 0 inside (Assumption 1), so e_i > 0 always
   and, for the same system in units T, S̃ T = c S with c = max_j(t_j e_j) / max_j e_j: the normalised
   problems of all diagonal units differ by the common factor c only, for which the design is
-  unit-free (the gain LMI since session 7, ``backends/gain_scaling.py``; the templates, X_f and every
+  unit-free (the gain LMI, ``backends/gain_scaling.py``; the templates, X_f and every
   check work on rows with right-hand side 1). Z is not used: it may leave states unbounded.
 * s_i = max e / e_i (not 1 / e_i): S = I exactly when W's extents are equal, and then the design is
   the one as written, bit for bit (every file in ``examples/`` has equal extents). Extents equal up
   to :data:`EXTENT_RTOL` count as equal (vertex enumeration's round-off must not move a design).
-* The common factor (session 9): the design is unit-free under a common factor only while the sets
+* The common factor: the design is unit-free under a common factor only while the sets
   are of moderate size (absolute tolerances on vertices and row entries), so a W whose largest
   extent lies outside :data:`EXTENT_BAND` is brought to [0.01, 0.1) by a power of ten,
   c = :func:`common_factor`; inside the band c = 1 and the design is as before, bit for bit.
-  Example 1 in x̃ = 1e-4 x, 1e6 x, 1e8 x designed a 12-facet, a 20-facet X0 and nothing before; now
-  the mapped 8-facet design (tests/test_units.py).
+  Example 1 in x̃ = 1e-4 x, 1e6 x, 1e8 x designs a 12-facet, a 20-facet X0 and nothing without the
+  common factor; with it, the mapped 8-facet design (tests/test_units.py).
 
 Acceptance in the user's units. The automatic mode judges every candidate by
 :func:`~amcp_drake.offline.checks.verify_design` on the design *mapped back to x*, so the design it
@@ -46,25 +46,25 @@ the change of units could break: a check that passes in ξ and fails on the mapp
 :class:`UnitsMappingError` naming it; a check failing in both is the template's own result and is
 returned as a design with a balanced W would be.
 
-Measured (session 8; tests/test_units.py, benchmarks/units_twins.py, docs/decisions.md): every file in
+Measured (tests/test_units.py, benchmarks/units_twins.py, docs/decisions.md): every file in
 ``examples/`` designs bit for bit as before on both backends; Example 1 in diag(100, 0.01) gets
 K̃T = K to 1e-11 (relative), massera2017 in diag(0.01, 100, 100) to 2e-9; of 400 generated draws (Drake) in units
-10^e the design rejected 17 where their unscaled twins rejected 3, now 3 and 3, every draw with its
-twin's outcome and K̃T = K to 3.5e-7; of 150 on cvxpy 9 where the twins rejected 2, now 2 and 2, every
+10^e a design in the file's units rejected 17 where their unscaled twins rejected 3, this design 3 and 3, every draw with its
+twin's outcome and K̃T = K to 3.5e-7; of 150 on cvxpy 9 where the twins rejected 2, this design 2 and 2, every
 draw with its twin's outcome (K̃T = K to 3.5e-4: the cvxpy gain LMI is less accurate under a common
-factor than Drake's). The Drake figure 3.5e-7 was measured before the gain LMI's tight first try
-(session 8): since then twins differ by up to 4.2e-4 on Drake and 6.3e-4 on cvxpy (session 9,
-``benchmarks/gain_twins.py``), because round-off (3e-16) decides whether the 1e-10 first try ends
+factor than Drake's). The Drake figure 3.5e-7 holds for a gain LMI solved at its default tolerances;
+with the tight first try twins differ by up to 4.2e-4 on Drake and 6.3e-4 on cvxpy
+(``benchmarks/gain_twins.py``), because round-off (3e-16) decides whether the 1e-10 first try ends
 Solved or stalls and is settled at 1e-8, where the flat optimum of trace(S) fixes K only to ~√1e-8
 (docs/decisions.md, "The cvxpy gain LMI in Drake's form"); outcomes still agree draw by draw.
 
-Opting out: ``design.state_units = "as written"`` designs in the units of the file (the design of
-sessions 1-7). The recorded regression problems of tests/data that pin an online defect on the design
-they were found with carry it; a user may want it to reproduce a design made in given units.
+Opting out: ``design.state_units = "as written"`` designs in the units of the file. The recorded
+regression problems of tests/data that pin an online defect on the design they were found with carry
+it; a user may want it to reproduce a design made in given units.
 
-This replaces session 7's fallback (redo the automatic design in ξ = diag(1/e) x only when every
-candidate failed in x and W's extents differed by 1.5× or more): that left the design of a problem
-that passed in x depending on its units. There is no fallback to the units as written: a design
+There is deliberately no partial rule such as redoing the automatic design in ξ = diag(1/e) x only
+when every candidate failed in x and W's extents differed by 1.5× or more: that would leave the
+design of a problem that passes in x depending on its units. There is no fallback to the units as written: a design
 found in x but not in ξ would make the outcome depend on the units again.
 """
 
@@ -88,7 +88,7 @@ EXTENT_RTOL = 1e-9
 #: row entries (rounding of duplicate rows at 1e-10, the LPs' feasibility tolerances), so it is
 #: unit-free only for sets of moderate size: Example 1 (largest extent 0.1) written in x̃ = t x
 #: designs to the mapped design for t = 1e-3 … 1e5 (largest extent 1e-4 … 1e4) and not for t = 1e-4 (a
-#: 12-facet X0 instead of 8) or t >= 1e6 (20 facets; no candidate passes from 1e7 on; session 9,
+#: 12-facet X0 instead of 8) or t >= 1e6 (20 facets; no candidate passes from 1e7 on;
 #: measured). The band [1e-4, 1e3] is that range (a decade inside it at the top) and contains every
 #: file of examples/ (1e-3 … 0.1) and every unscaled generated draw (0.005 … 0.06), whose designs are
 #: therefore unchanged.
