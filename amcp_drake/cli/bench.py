@@ -12,22 +12,8 @@ from amcp_drake.cli.common import (
     bad_input_exits_2,
     candidate_budget_option,
     max_memory_option,
+    parse_range,
 )
-
-
-def parse_range(option: str, text: str, low: int, high: int) -> tuple[int, ...]:
-    """"A-B" or "A" (integers, low <= A <= B <= high) as the tuple A..B; ProblemError naming ``option``."""
-    from amcp_drake.model.errors import ProblemError
-
-    expected = f"an integer or a range A-B of integers within {low}..{high}"
-    parts = text.strip().split("-")
-    try:
-        first, last = (int(parts[0]), int(parts[-1])) if len(parts) in (1, 2) else (None, None)
-    except ValueError:
-        first = last = None
-    if first is None or not low <= first <= last <= high:
-        raise ProblemError(option, expected, repr(text))
-    return tuple(range(first, last + 1))
 
 
 @click.command("bench")

@@ -68,13 +68,26 @@ def problem_seed(campaign_seed: int, idx: int) -> int:
     return (int(campaign_seed) * 1_000_003 + int(idx)) % (2**32)
 
 
-def draw_case(campaign_seed: int, idx: int, steps: int = CAMPAIGN_STEPS):
+def draw_case(campaign_seed: int, idx: int, steps: int = CAMPAIGN_STEPS, state_dims: tuple[int, int] | None = None,
+              max_memory_mb: float | None = None):
     """Problem ``idx`` of campaign ``campaign_seed``: the library's numpy generator
     (:func:`amcp_drake.studies.random_problems.random_case`, the one the property suite's strategies
-    build on) with the generator seeded by :func:`problem_seed` (reproducible per (seed, index))."""
-    from amcp_drake.studies.random_problems import random_case
+    build on) with the generator seeded by :func:`problem_seed` (reproducible per (seed, index)).
 
-    return random_case(np.random.default_rng(problem_seed(campaign_seed, idx)), steps)
+    ``state_dims`` = (min n, max n) (``--state-dims``; None: the generator's default 1 … 3, drawn as
+    always). With other dimensions every design of the draws runs under a budget (``max_memory_mb``
+    and :data:`~amcp_drake.offline.budget.DEFAULT_CANDIDATE_SECONDS` per candidate of the automatic
+    design), so that no draw can hold a worker for long."""
+    from amcp_drake.studies.random_problems import DEFAULT_STATE_DIMS, random_case
+
+    rng = np.random.default_rng(problem_seed(campaign_seed, idx))
+    if state_dims is None or tuple(state_dims) == DEFAULT_STATE_DIMS:
+        return random_case(rng, steps)
+    from amcp_drake.offline.budget import DEFAULT_CANDIDATE_SECONDS, DesignBudget
+
+    budget = DesignBudget(candidate_seconds=DEFAULT_CANDIDATE_SECONDS) if max_memory_mb is None else \
+        DesignBudget(max_memory_mb, DEFAULT_CANDIDATE_SECONDS)
+    return random_case(rng, steps, state_dims=tuple(state_dims), budget=budget)
 
 
 def library_versions() -> dict[str, str]:
@@ -90,13 +103,20 @@ def library_versions() -> dict[str, str]:
     return out
 
 
-def campaign_settings(seed: int, systems: int, backends: Iterable[str], steps: int) -> dict[str, Any]:
+def campaign_settings(seed: int, systems: int, backends: Iterable[str], steps: int,
+                      state_dims: tuple[int, int] | None = None) -> dict[str, Any]:
     """Everything that determines a campaign's results, as recorded in its store:
     a store made with other settings is never resumed (scheduler and workers do not change results
-    and are not recorded)."""
-    return {"seed": int(seed), "systems": int(systems), "backends": list(backends), "steps": int(steps),
-            "generator": GENERATOR_VERSION, "design_backend": DESIGN_BACKEND, "formulation": FORMULATION,
-            "versions": library_versions()}
+    and are not recorded). ``state_dims`` is recorded only when it is not the default (1, 3), so that
+    stores made before the option keep their settings."""
+    from amcp_drake.studies.random_problems import DEFAULT_STATE_DIMS
+
+    settings = {"seed": int(seed), "systems": int(systems), "backends": list(backends), "steps": int(steps),
+                "generator": GENERATOR_VERSION, "design_backend": DESIGN_BACKEND, "formulation": FORMULATION,
+                "versions": library_versions()}
+    if state_dims is not None and tuple(state_dims) != DEFAULT_STATE_DIMS:
+        settings["state_dims"] = [int(state_dims[0]), int(state_dims[1])]
+    return settings
 
 
 def replay_spec(case):
@@ -196,29 +216,34 @@ def _answer_counts(traj) -> dict[str, float]:
 
 def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure_dir: str,
                 steps: int = CAMPAIGN_STEPS, draw: Callable | None = None,
-                max_memory_mb: float | None = None) -> dict[str, Any]:
+                max_memory_mb: float | None = None, state_dims: tuple[int, int] | None = None) -> dict[str, Any]:
     """Draw, run and certify problem ``idx`` on each backend (a Dask task; also callable directly).
 
     ``draw(campaign_seed, idx, steps)`` returns the case (default :func:`draw_case`); the run is that
     of the case's complete problem file (:func:`replay_spec`, :func:`round_trip`), through the same
     :func:`~amcp_drake.online.replay.run_scenario` as ``amcp certify``. ``max_memory_mb``: the memory limit
     of the design's stages (``--max-memory``; None: the default limit); a problem above it is recorded as an
-    error naming the stage."""
+    error naming the stage. ``state_dims``: the state dimensions drawn (:func:`draw_case`)."""
     from amcp_drake.certificate.certify import certify
-    from amcp_drake.offline.budget import DesignBudget
+    from amcp_drake.offline.budget import DEFAULT_CANDIDATE_SECONDS, DesignBudget
     from amcp_drake.offline.design import design
     from amcp_drake.online.replay import run_scenario
-    from amcp_drake.studies.random_problems import built_scaled
+    from amcp_drake.studies.random_problems import DEFAULT_STATE_DIMS, built_scaled
 
     start = time.perf_counter()
     result: dict[str, Any] = {"campaign_seed": campaign_seed, "idx": idx, "claims": {}, "coverage": {},
                               "verdicts": {}}
     try:
-        case = (draw or draw_case)(campaign_seed, idx, steps)
+        if draw is not None:
+            case = draw(campaign_seed, idx, steps)
+        else:
+            case = draw_case(campaign_seed, idx, steps, state_dims, max_memory_mb)
         result["labels"] = {k: str(v) for k, v in getattr(case, "labels", {}).items()}
         spec, text = round_trip(replay_spec(case))
         result["digest"] = _digest(text)
         budget = DesignBudget() if max_memory_mb is None else DesignBudget(max_memory_mb)
+        if state_dims is not None and tuple(state_dims) != DEFAULT_STATE_DIMS:  # as the draw was designed
+            budget = DesignBudget(budget.max_memory_mb, DEFAULT_CANDIDATE_SECONDS)
         offline = design(spec.problem, spec.design, backend=DESIGN_BACKEND, budget=budget)
         trajs = {}
         for backend in backends:
@@ -347,7 +372,7 @@ def store_write_error(store_path: str | Path, exc: BaseException):
 def run_campaign(store_path: str | Path, systems: int, backends: Iterable[str] = ("drake", "cvxpy"),
                  seed: int = 0, scheduler: str | None = None, workers: int = 2, resume: bool = False,
                  steps: int = CAMPAIGN_STEPS, progress: bool = True, failure_dir: str | Path | None = None,
-                 max_memory_mb: float | None = None) -> dict:
+                 max_memory_mb: float | None = None, state_dims: tuple[int, int] | None = None) -> dict:
     """Run (or resume) a campaign; returns counts {"submitted", "stored", "skipped"}.
 
     The store is held exclusively while the campaign runs (:class:`CampaignStore` ``exclusive``): a
@@ -355,7 +380,8 @@ def run_campaign(store_path: str | Path, systems: int, backends: Iterable[str] =
     twice. A bad ``scheduler`` is refused before the store is touched. An interrupt (KeyboardInterrupt,
     which the CLI raises on SIGTERM too) shuts the workers down and propagates with ``stored``: the
     number of problems of the campaign in the store. ``max_memory_mb``: the design's memory limit in
-    every problem (:func:`run_problem`)."""
+    every problem (:func:`run_problem`). ``state_dims``: (min n, max n) of the drawn problems (None: the
+    generator's default)."""
     import sqlite3
 
     from dask.distributed import as_completed
@@ -369,7 +395,7 @@ def run_campaign(store_path: str | Path, systems: int, backends: Iterable[str] =
     store = CampaignStore(store_path, exclusive=True)  # CampaignStoreError (exit 2): damaged, foreign or in use
     try:
         try:
-            store.require_settings(campaign_settings(seed, systems, backends, steps))
+            store.require_settings(campaign_settings(seed, systems, backends, steps, state_dims))
         except (sqlite3.OperationalError, OSError) as exc:
             raise store_write_error(store_path, exc) from None
         done = store.done(seed)
@@ -386,7 +412,8 @@ def run_campaign(store_path: str | Path, systems: int, backends: Iterable[str] =
     bar = None
     try:
         futures = [client.submit(run_problem, seed, i, backends, failure_dir, steps, key=f"amcp-{seed}-{i}",
-                                 retries=TASK_RETRIES, pure=False, max_memory_mb=max_memory_mb) for i in todo]
+                                 retries=TASK_RETRIES, pure=False, max_memory_mb=max_memory_mb,
+                                 state_dims=state_dims) for i in todo]
         if progress:
             from tqdm import tqdm
 
