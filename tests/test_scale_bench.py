@@ -145,12 +145,23 @@ def test_state_dims_are_recorded_only_when_not_the_default_and_a_resume_with_oth
     assert larger["state_dims"] == [4, 6]
     store = CampaignStore(tmp_path / "s.sqlite")
     store.require_settings(larger)
-    assert settings_differences(store.settings(), default) == ["--state-dims None (store: 4,6)"]
+    assert sorted(settings_differences(store.settings(), default)) == ["--state-dims None (store: 4,6)",
+                                                                       "formulation plain (store: auto)"]
     from amcp_drake.model.errors import CampaignStoreError
 
     with pytest.raises(CampaignStoreError, match="--state-dims"):
         store.require_settings(campaign_settings(0, 5, ("drake",), 6, (4, 5)))
     store.close()
+
+
+def test_campaigns_over_other_state_dimensions_run_and_replay_the_automatic_formulation(tmp_path):
+    from amcp_drake.studies.campaign import FORMULATION, campaign_formulation, campaign_settings, replay_command
+
+    assert campaign_formulation(None) == campaign_formulation((1, 3)) == FORMULATION == "plain"
+    assert campaign_formulation((4, 6)) == "auto"
+    assert campaign_settings(0, 5, ("drake",), 6, (4, 6))["formulation"] == "auto"
+    command = replay_command(tmp_path / "0-1", "cvxpy", campaign_formulation((4, 6)))
+    assert "--formulation auto" in command and "--backend cvxpy" in command
 
 
 def test_random_shape_draws_n_in_the_range_and_the_default_draws_are_unchanged():

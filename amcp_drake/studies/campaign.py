@@ -14,7 +14,8 @@ Replays. Each drawn case becomes a complete problem file first
 (:func:`replay_spec`: problem, design options, ``online`` options, x0, θ*, steps and the explicit
 disturbance array), which is serialised and parsed back; the campaign then runs *that* file through
 :func:`amcp_drake.online.replay.run_scenario`, the function ``amcp certify PROBLEM`` runs, with the offline
-design on :data:`DESIGN_BACKEND` and the formulation :data:`FORMULATION`. A failing problem is saved
+design on :data:`DESIGN_BACKEND` and the formulation :data:`FORMULATION` (:data:`LARGE_FORMULATION`,
+the automatic choice, for campaigns over other state dimensions). A failing problem is saved
 as that very file plus ``replay.json`` (the commands, settings, library versions and the recorded
 verdict and margins) and the trajectories; ``amcp certify D/problem.json --backend B
 --design-backend drake --formulation plain`` repeats the same computation and prints the same
@@ -57,6 +58,20 @@ GENERATOR_VERSION = "amcp_drake.studies.random_problems.random_case/5"
 DESIGN_BACKEND = "drake"
 #: The tube QP formulation of campaign runs (``--formulation`` of the replay command).
 FORMULATION = "plain"
+#: The formulation of campaigns over other state dimensions than the default (``--state-dims``): the one
+#: ``amcp certify`` chooses by default (:mod:`amcp_drake.online.formulation_choice`). The cvxpy plain form
+#: keeps every row of (15c) with its multipliers: on a generated problem of 6 states (X0 with 21 facets and
+#: 199 vertices, N = 10, p = 3) compiling it took more than 4 minutes of CPU and 1.6 GB before its first
+#: step, where the vertex form that "auto" chooses there takes seconds.
+LARGE_FORMULATION = "auto"
+
+
+def campaign_formulation(state_dims: tuple[int, int] | None) -> str:
+    """The formulation of a campaign's runs: :data:`FORMULATION` for the default state dimensions,
+    :data:`LARGE_FORMULATION` for any other range."""
+    from amcp_drake.studies.random_problems import DEFAULT_STATE_DIMS
+
+    return FORMULATION if state_dims is None or tuple(state_dims) == DEFAULT_STATE_DIMS else LARGE_FORMULATION
 #: Packages whose versions are recorded with a store and a replay (they determine the numbers).
 RESULT_PACKAGES = ("amcp-drake", "drake", "cvxpy", "clarabel", "numpy", "scipy", "hypothesis")
 #: The file format of the replay manifest written next to a failing problem's problem.json.
@@ -112,8 +127,8 @@ def campaign_settings(seed: int, systems: int, backends: Iterable[str], steps: i
     from amcp_drake.studies.random_problems import DEFAULT_STATE_DIMS
 
     settings = {"seed": int(seed), "systems": int(systems), "backends": list(backends), "steps": int(steps),
-                "generator": GENERATOR_VERSION, "design_backend": DESIGN_BACKEND, "formulation": FORMULATION,
-                "versions": library_versions()}
+                "generator": GENERATOR_VERSION, "design_backend": DESIGN_BACKEND,
+                "formulation": campaign_formulation(state_dims), "versions": library_versions()}
     if state_dims is not None and tuple(state_dims) != DEFAULT_STATE_DIMS:
         settings["state_dims"] = [int(state_dims[0]), int(state_dims[1])]
     return settings
@@ -138,14 +153,15 @@ def round_trip(spec) -> tuple[Any, str]:
     return spec_from_dict(json.loads(text)), text
 
 
-def replay_command(folder: str | Path, backend: str) -> str:
+def replay_command(folder: str | Path, backend: str, formulation: str = FORMULATION) -> str:
     """The shell command that replays ``backend``'s run of the failing problem saved in ``folder``."""
     folder = Path(folder)
     return shlex.join(["amcp", "certify", str(folder / "problem.json"), "--backend", backend, "--design-backend",
-                       DESIGN_BACKEND, "--formulation", FORMULATION, "--out", str(folder / f"replay-{backend}")])
+                       DESIGN_BACKEND, "--formulation", formulation, "--out", str(folder / f"replay-{backend}")])
 
 
-def save_replay(folder: str | Path, text: str, result: dict[str, Any], trajs: dict) -> list[str]:
+def save_replay(folder: str | Path, text: str, result: dict[str, Any], trajs: dict,
+                formulation: str = FORMULATION) -> list[str]:
     """Write a failing problem's replay into ``folder`` (problem.json, replay.json, one trajectory per
     backend), each file atomically; return the replay commands of the backends that did not pass."""
     from amcp_drake.model.problem_io import write_json_atomic, write_text_atomic
@@ -156,9 +172,9 @@ def save_replay(folder: str | Path, text: str, result: dict[str, Any], trajs: di
         traj.save(folder / f"trajectory-{backend}.json.gz")
     runs = {}
     for backend, claims in result["claims"].items():
-        runs[backend] = {"command": replay_command(folder, backend), "backend": backend,
-                         "design_backend": DESIGN_BACKEND, "formulation": FORMULATION,
-                         "backend_options": {"formulation": FORMULATION},
+        runs[backend] = {"command": replay_command(folder, backend, formulation), "backend": backend,
+                         "design_backend": DESIGN_BACKEND, "formulation": formulation,
+                         "backend_options": {"formulation": formulation},
                          "verdict": result["verdicts"][backend], "claims": claims}
     failing = [b for b, claims in result["claims"].items() if any(c["status"] != "pass" for c in claims.values())]
     manifest = {"format": REPLAY_FORMAT, "version": REPLAY_VERSION, "campaign_seed": result["campaign_seed"],
@@ -182,7 +198,7 @@ def _coverage(traj) -> dict[str, float]:
             "theta_star_near_boundary": float(closeness < 1e-2), **hard_case_coverage(traj)}
 
 
-def _resolve_counts(traj, backend: str) -> dict[str, float]:
+def _resolve_counts(traj, backend: str, formulation: str = FORMULATION) -> dict[str, float]:
     """How many steps of the run needed more than the first solve, per kind of
     :data:`amcp_drake.studies.resolves.RESOLVE_MARKS` that can occur in a campaign run: the vertex
     form's fall back to the plain form only with :data:`FORMULATION` "vertex", the reduced plain
@@ -192,15 +208,19 @@ def _resolve_counts(traj, backend: str) -> dict[str, float]:
     compiled route to ``Problem.solve`` only in the cvxpy vertex form, the optimality re-solve only in
     the cvxpy plain form. Keys ``resolve_<kind>``;
     the summary shows the fraction of problems with at least one such step (for every_row: how often
-    the campaign did not test the reduced program alone)."""
+    the campaign did not test the reduced program alone). With ``formulation`` "auto" the form the
+    controller chose (the trajectory's ``meta["formulation"]``) decides."""
     from amcp_drake.studies.resolves import count_resolves, step_notes
+
+    if formulation == "auto":
+        formulation = (getattr(traj, "meta", None) or {}).get("formulation", FORMULATION)
 
     counts = count_resolves([step_notes(r) for r in traj.records])
     minmax = getattr(getattr(traj, "options", None), "cost", "certainty_equivalence") == "minmax"
-    applies = {"plain_fallback": FORMULATION == "vertex", "every_row": FORMULATION == "plain" and backend == "drake",
+    applies = {"plain_fallback": formulation == "vertex", "every_row": formulation == "plain" and backend == "drake",
                "minmax_default_tolerances": minmax,
-               "compiled_route_fallback": FORMULATION == "vertex" and backend == "cvxpy",
-               "optimality_resolve": FORMULATION == "plain" and backend == "cvxpy"}
+               "compiled_route_fallback": formulation == "vertex" and backend == "cvxpy",
+               "optimality_resolve": formulation == "plain" and backend == "cvxpy"}
     return {f"resolve_{kind}": float(n) for kind, n in counts.items() if applies.get(kind, True)}
 
 
@@ -231,6 +251,7 @@ def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure
     from amcp_drake.studies.random_problems import DEFAULT_STATE_DIMS, built_scaled
 
     start = time.perf_counter()
+    formulation = campaign_formulation(state_dims)
     result: dict[str, Any] = {"campaign_seed": campaign_seed, "idx": idx, "claims": {}, "coverage": {},
                               "verdicts": {}}
     try:
@@ -247,20 +268,21 @@ def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure
         offline = design(spec.problem, spec.design, backend=DESIGN_BACKEND, budget=budget)
         trajs = {}
         for backend in backends:
-            traj = run_scenario(spec, backend, design_backend=DESIGN_BACKEND, formulation=FORMULATION,
+            traj = run_scenario(spec, backend, design_backend=DESIGN_BACKEND, formulation=formulation,
                                 offline=offline)
             trajs[backend] = traj
             cert = certify(traj, spec)
             result["claims"][backend] = {c.name: {"status": c.status, "margin": c.margin} for c in cert.claims}
             result["verdicts"][backend] = cert.verdict
-            result["coverage"][backend] = {**_coverage(traj), **_resolve_counts(traj, backend), **_answer_counts(traj),
+            result["coverage"][backend] = {**_coverage(traj), **_resolve_counts(traj, backend, formulation),
+                                           **_answer_counts(traj),
                                            # built, not reached: the generator's label is exact
                                            "scaled_units": float(bool(built_scaled(result["labels"])))}
         failed = any(c["status"] != "pass" for claims in result["claims"].values() for c in claims.values())
         result["status"] = "fail" if failed else "pass"
         if failed:
             folder = Path(failure_dir) / f"{campaign_seed}-{idx}"
-            result["replay"] = save_replay(folder, text, result, trajs)
+            result["replay"] = save_replay(folder, text, result, trajs, formulation)
             result["failure_dir"] = str(folder)
     except Exception as exc:  # noqa: BLE001 - any crash of one problem is a recorded result, not a lost one
         result["status"] = "error"
