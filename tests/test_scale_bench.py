@@ -100,6 +100,22 @@ def test_a_child_that_cannot_start_within_its_address_space_shows_the_limit(monk
     assert "address space limit 17 MiB" in result["status"] or "out of memory" in result["status"], result["status"]
 
 
+def test_bench_only_size_writes_the_table_and_the_json_and_no_plot(tmp_path):
+    problem = tmp_path / "chain3.json"
+    problem.write_text(json.dumps(actuated_chain(3)))
+    result = _invoke("bench", "--only", "size", "--no-chains", "--example", "lorenzen2019", "--problem", str(problem),
+                     "--scaling-steps", "2", "--out", str(tmp_path / "out"))
+    assert result.exit_code == 0, result.output
+    data = json.loads((tmp_path / "out" / "bench.json").read_text())
+    assert data["version"] == 5 and data["example"] is None and data["scaling"] is None
+    assert [(r["label"], r["source"], r["status"]) for r in data["size"]] == [
+        ("lorenzen2019", "example", "completed"), ("chain3", "file", "completed")]
+    table = (tmp_path / "out" / "size.md").read_text()
+    assert "| lorenzen2019 | 2 | 1 | 3 |" in table and "| chain3 | 3 | 3 | 2 |" in table
+    assert "size table (one row per system):" in result.output
+    assert not (tmp_path / "out" / "bench.png").exists()
+
+
 def test_faster_form_is_read_from_the_medians():
     def run(formulation, ms):
         return {"formulation": formulation, "status": "completed", "times_ms": {"cpu_total": {"median": ms}}}

@@ -26,9 +26,10 @@ runs also report how far the formulations' inputs drift apart (``max_abs_dv_vs_p
 Reference lines: the paper reports a median solver time of 68 ms for Example 1 (Yalmip, Intel
 Core i7 3.4 GHz; 50 ms min, 95 ms max), spec §9.
 
-Output: :func:`run_benchmarks` returns a JSON-ready dict (format ``amcp-bench`` version 3, keys
+Output: :func:`run_benchmarks` returns a JSON-ready dict (format ``amcp-bench`` version 5, keys
 documented in benchmarks/README.md); :func:`write_outputs` writes it, a PNG (matplotlib Agg) and,
-with sweeps, ``scaling.md``.
+with sweeps, ``scaling.md``; with ``only="size"`` the size table ``size.md``
+(:mod:`amcp_drake.studies.bench_size`) and no PNG.
 """
 
 from __future__ import annotations
@@ -65,7 +66,8 @@ BENCH_FORMAT = "amcp-bench"
 #: version 4 (session 6): the target runs are repeated (:data:`TARGET_REPEATS`; ``target_runs[].repeat``);
 #: ``issue16_cpu[].measured`` is the median over the repeats, ``per_run`` the value of each repeat,
 #: ``runs_met`` how many met the target, and ``met`` is true only when every repeat met it
-BENCH_VERSION = 4
+#: version 5: ``size``, the size table of ``only="size"`` (:mod:`amcp_drake.studies.bench_size`; None otherwise)
+BENCH_VERSION = 5
 #: Spec §9: "Median solver time reported by Yalmip: 0.068 s (0.10 s with the PE constraint);
 #: maximum 0.095 s; minimum 0.05 s; Intel Core i7, 3.4 GHz".
 PAPER_MS = {"median_solver": 68.0, "max_solver": 95.0, "min_solver": 50.0}
