@@ -112,8 +112,17 @@ def test_bench_only_size_writes_the_table_and_the_json_and_no_plot(tmp_path):
         ("lorenzen2019", "example", "completed"), ("chain3", "file", "completed")]
     table = (tmp_path / "out" / "size.md").read_text()
     assert "| lorenzen2019 | 2 | 1 | 3 |" in table and "| chain3 | 3 | 3 | 2 |" in table
+    assert "| 1: 1 pass |" in table  # the first candidate of both passed
     assert "size table (one row per system):" in result.output
     assert not (tmp_path / "out" / "bench.png").exists()
+
+
+def test_candidates_are_counted_by_outcome():
+    from amcp_drake.studies.bench_size import candidates_text
+
+    attempts = [{"outcome": "time budget"}, {"outcome": "too large"}, {"outcome": "time budget"}, {"outcome": "pass"}]
+    assert candidates_text(attempts) == "4: 2 time budget, 1 too large, 1 pass"
+    assert candidates_text([]) == candidates_text(None) == "-"
 
 
 def test_faster_form_is_read_from_the_medians():
@@ -277,3 +286,23 @@ def test_the_dimension_line_counts_draws_accepted_and_runs_per_n():
     assert stats.by_dimension() == {2: (2, 1), 4: (1, 0), 5: (1, 1)}
     assert dimension_line(stats.by_dimension(), summary) == \
         "state dimension n: draws (accepted) / runs of all tests: n=2: 2 (1) / 3, n=4: 1 (0) / 0, n=5: 1 (1) / 3"
+
+
+# -- the generator's boundary LP with the row maxima over X0's vertices ----------------------------------
+def test_the_ray_length_with_row_maxima_equals_the_one_with_every_vertex(example_spec, example_design):
+    """Two formulations of the same set (tube_feasibility's module docstring), solved by HiGHS: equal to
+    its tolerances along every direction; the row-maxima LP has q times fewer rows of (5b)."""
+    from amcp_drake.studies.tube_feasibility import TubeGeometry, _rows, max_ray_length
+
+    pr = example_spec.problem
+    geo = TubeGeometry.build(pr, example_design, pr.theta_vertices())
+    for angle in np.linspace(0.0, 2 * np.pi, 9)[:-1]:
+        d = np.array([np.cos(angle), np.sin(angle)])
+        full, reduced = max_ray_length(geo, d), max_ray_length(geo, d, row_maxima=True)
+        assert np.isfinite(full) and full > 0
+        assert abs(full - reduced) <= 1e-7 * max(1.0, full), (angle, full, reduced)
+    q = len(geo.X0_vertices)
+    rows_full = _rows(geo, np.array([1.0, 0.0]), None)[0].shape[0]
+    rows_reduced = _rows(geo, np.array([1.0, 0.0]), None, row_maxima=True)[0].shape[0]
+    per_block = pr.N * len(geo.A_cl) * len(geo.H_x)
+    assert rows_full - rows_reduced == per_block * (q - 1)

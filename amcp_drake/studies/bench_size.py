@@ -280,13 +280,24 @@ def faster_form(result: dict[str, Any]) -> str | None:
     return "plain" if plain < vertex else "vertex"
 
 
+def candidates_text(attempts: list[dict[str, Any]] | None) -> str:
+    """The automatic design's candidates of a row by outcome ("3: 1 pass, 2 time budget"); '-' when
+    the row has no record of them (a fixed template, or killed before the design ended)."""
+    if not attempts:
+        return "-"
+    outcomes: dict[str, int] = {}
+    for a in attempts:
+        outcomes[a["outcome"]] = outcomes.get(a["outcome"], 0) + 1
+    return f"{len(attempts)}: " + ", ".join(f"{count} {outcome}" for outcome, count in outcomes.items())
+
+
 def size_markdown(rows: list[dict[str, Any]]) -> str:
     """The size table: one line per row (CPU medians, ms per full step; seconds of design CPU with
     wall time in brackets; peak resident memory of the row's process)."""
-    lines = ["| system | n | m | p | design CPU s (wall) | template | X0 facets / vertices | X_f rows "
-             "| step CPU ms: plain | vertex | fast path (DAQP / fallbacks) | auto chooses (faster) "
+    lines = ["| system | n | m | p | design CPU s (wall) | template | design candidates | X0 facets / vertices "
+             "| X_f rows | step CPU ms: plain | vertex | fast path (DAQP / fallbacks) | auto chooses (faster) "
              "| peak memory MiB | row CPU s (wall) | status |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         runs = {x["formulation"]: x for x in r.get("runs", [])}
         fast = runs.get("fast")
@@ -307,7 +318,7 @@ def size_markdown(rows: list[dict[str, Any]]) -> str:
         status = str(r.get("status", "")).replace("|", "/")
         lines.append(
             f"| {r['label']}{scaled} | {r.get('n', '-')} | {r.get('m', '-')} | {r.get('p', '-')} | {design} "
-            f"| {r.get('template', '-')} | {x0} | {r.get('xf_rows', '-')} "
+            f"| {r.get('template', '-')} | {candidates_text(r.get('attempts'))} | {x0} | {r.get('xf_rows', '-')} "
             f"| {_fmt(_median(runs.get('plain')))} | {_fmt(_median(runs.get('vertex')))} | {fast_text} "
             f"| {auto_text} | {r['peak_rss_mib']:.0f} | {r['cpu_s']:.1f} ({r['wall_s']:.1f}) | {status} |")
     return "\n".join(lines) + "\n"
@@ -347,4 +358,4 @@ if __name__ == "__main__":
 
 
 __all__ = ["ADDRESS_SPACE_OVERHEAD_MB", "DEFAULT_ROW_SECONDS", "MIN_EXAMPLE_N", "SIZE_CONFIGS", "SizeRow",
-           "default_rows", "faster_form", "measure_row", "run_row", "size_benchmark", "size_markdown"]
+           "candidates_text", "default_rows", "faster_form", "measure_row", "run_row", "size_benchmark", "size_markdown"]

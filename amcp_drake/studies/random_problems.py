@@ -341,7 +341,9 @@ def random_initial_state(rng: np.random.Generator, problem: Problem, offline: Of
         raise ProblemError("x0 kind", f"one of {INITIAL_STATE_KINDS}", repr(kind))
     d = unit_vector(rng, problem.n)
     geo = TubeGeometry.build(problem, offline, offline.theta_vertices)
-    s_max = max_ray_length(geo, d)
+    # from n = AUTO_TEMPLATE_N on with the exact row maxima over X0's vertices (tube_feasibility): the
+    # rows at every vertex do not fit in memory there; below, the LP as it always was (the same draws)
+    s_max = max_ray_length(geo, d, row_maxima=problem.n >= AUTO_TEMPLATE_N)
     if not np.isfinite(s_max) or s_max <= 0.0:
         raise GenerationError(f"boundary LP along {d} returned {s_max}")
     fraction = {"boundary": lambda: 1.0 - BOUNDARY_BACKOFF, "near boundary": lambda: grid(rng, 0.9, 0.995, 0.005),
