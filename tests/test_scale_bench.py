@@ -76,12 +76,20 @@ def test_a_row_runs_in_its_own_process_and_reports_every_column():
     assert "| actuated chain n=2 | 2 | 2 | 2 |" in table and "completed" in table
 
 
-def test_a_row_over_its_time_limit_is_killed_and_says_so():
+def test_a_row_over_its_cpu_limit_is_killed_and_says_so():
     row = SizeRow("actuated chain n=4", "chain", actuated_chain(4))
     result = run_row(row, steps=30, seed=0, max_memory_mb=2048, candidate_seconds=60, row_seconds=1.0)
-    assert result["status"] == "killed after the row's time limit of 1 s (wall)"
-    assert result["wall_s"] < 60
+    assert result["status"] == "killed after the row's CPU-time limit of 1 s"
+    assert 1.0 <= result["cpu_s"] < 5.0
     assert "killed after" in size_markdown([result])
+
+
+def test_a_row_over_its_wall_limit_is_killed_and_says_so(monkeypatch):
+    monkeypatch.setattr(bench_size, "WALL_FACTOR", 0.5)  # wall limit 0.5 s: before the child has used its 1 s of CPU
+    row = SizeRow("actuated chain n=4", "chain", actuated_chain(4))
+    result = run_row(row, steps=30, seed=0, max_memory_mb=2048, candidate_seconds=60, row_seconds=1.0)
+    assert result["status"] == "killed after 0.5 s of wall time (0.5 x the CPU limit)"
+    assert result["wall_s"] < 30
 
 
 def test_a_design_over_the_memory_limit_is_a_row_with_the_stage_named():

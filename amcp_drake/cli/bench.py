@@ -39,8 +39,8 @@ from amcp_drake.cli.common import (
 @max_memory_option
 @candidate_budget_option
 @click.option("--row-limit", "row_limit", type=click.FloatRange(min=1.0), default=None,
-              help="Size table: wall-time limit in seconds of one row (design and runs); a row over it is killed "
-                   "and shows the reason (default 900).")
+              help="Size table: CPU-time limit in seconds of one row (design and runs; 10 times as much wall time "
+                   "at most); a row over it is killed and shows the reason (default 600).")
 @click.option("--backend", "backends", type=click.Choice(["drake", "cvxpy"]), multiple=True,
               help="Backend(s) to time (repeatable; default both for Example 1, Drake for the sweeps).")
 @click.option("--formulation", "formulations", type=click.Choice(["plain", "vertex", "fast"]), multiple=True,

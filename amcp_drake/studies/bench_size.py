@@ -19,9 +19,10 @@ given (``--problem``). Each row runs in a child process of its own
 
 Bounds. The child's address space is limited to ``--max-memory`` plus
 :data:`ADDRESS_SPACE_OVERHEAD_MB` (the libraries' own mappings: Drake, BLAS and Python take about
-1.5 GiB of address space before any work), so no row can exhaust the machine; a row that runs longer
-than ``row_seconds`` (wall) is killed. Either way the row shows the reason and what was measured
-before it (the child writes its result after the design and again after the runs). Peak memory is
+1.5 GiB of address space before any work), so no row can exhaust the machine; a row that uses more
+than ``row_seconds`` of CPU time (``RLIMIT_CPU``: on a shared machine wall time was 5–18× CPU time,
+so a wall-time limit would measure the machine's load) or more than :data:`WALL_FACTOR` times that in
+wall time is killed. Either way the row shows the reason and what was measured before it (the child writes its result after the design and again after the runs). Peak memory is
 the child's peak resident set (``ru_maxrss`` from ``wait4``), CPU time the child's user + system time.
 
 The table (:func:`size_markdown`) is ``size.md`` next to ``bench.json`` (key ``size``).
@@ -51,8 +52,10 @@ MIN_EXAMPLE_N = 4
 #: Address space (MiB) allowed to a row's child on top of ``--max-memory``: importing Drake, numpy's
 #: BLAS and the solvers maps about 1.5 GiB before any work (measured with ``ulimit -v``).
 ADDRESS_SPACE_OVERHEAD_MB = 2048
-#: Default wall-time limit of one row (design and runs), seconds.
-DEFAULT_ROW_SECONDS = 900.0
+#: Default CPU-time limit of one row (design and runs), seconds.
+DEFAULT_ROW_SECONDS = 600.0
+#: A row is also killed after this many times its CPU-time limit in wall time.
+WALL_FACTOR = 10.0
 #: Configurations timed per row (bench_run.FORMULATION_OPTIONS).
 SIZE_CONFIGS = (("drake", "plain"), ("drake", "vertex"), ("drake", "fast"))
 #: How often the parent looks at a running child (seconds).
@@ -105,7 +108,7 @@ def run_row(row: SizeRow, steps: int, seed: int, max_memory_mb: float, candidate
         started = time.perf_counter()
         proc = subprocess.Popen([sys.executable, "-m", "amcp_drake.studies.bench_size", str(job), str(out)],
                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                                text=True, preexec_fn=lambda: _limit_address_space(limit_mb))
+                                text=True, preexec_fn=lambda: _limit_child(limit_mb, row_seconds))
         tail: deque[str] = deque(maxlen=6)
         reader = threading.Thread(target=_relay, args=(proc.stderr, row.label, progress, tail), daemon=True)
         reader.start()
@@ -114,9 +117,9 @@ def run_row(row: SizeRow, steps: int, seed: int, max_memory_mb: float, candidate
             pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
             if pid:
                 break
-            if time.perf_counter() - started > row_seconds:
+            if time.perf_counter() - started > WALL_FACTOR * row_seconds:
                 proc.kill()
-                killed = f"killed after the row's time limit of {row_seconds:g} s (wall)"
+                killed = f"killed after {WALL_FACTOR * row_seconds:g} s of wall time ({WALL_FACTOR:g} x the CPU limit)"
                 pid, status, usage = os.wait4(proc.pid, 0)
                 break
             time.sleep(POLL_SECONDS)
@@ -127,6 +130,9 @@ def run_row(row: SizeRow, steps: int, seed: int, max_memory_mb: float, candidate
                   peak_rss_mib=usage.ru_maxrss / 1024.0, address_space_limit_mib=limit_mb)
     if killed:
         result["status"] = killed
+    elif proc.returncode == -signal.SIGXCPU or (proc.returncode == -signal.SIGKILL
+                                                   and usage.ru_utime + usage.ru_stime >= row_seconds):
+        result["status"] = f"killed after the row's CPU-time limit of {row_seconds:g} s"
     elif proc.returncode != 0 and result.get("status") in (None, "running"):
         how = (f"killed by {signal.Signals(-proc.returncode).name}" if proc.returncode < 0
                else f"exit code {proc.returncode}")
@@ -134,10 +140,13 @@ def run_row(row: SizeRow, steps: int, seed: int, max_memory_mb: float, candidate
     return result
 
 
-def _limit_address_space(limit_mb: float) -> None:
-    """In the child, before exec: RLIMIT_AS = ``limit_mb`` MiB."""
+def _limit_child(limit_mb: float, cpu_seconds: float) -> None:
+    """In the child, before exec: RLIMIT_AS = ``limit_mb`` MiB, RLIMIT_CPU = ``cpu_seconds`` (SIGXCPU;
+    SIGKILL one second later)."""
     limit = int(limit_mb * 2**20)
     resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    cpu = max(1, int(np.ceil(cpu_seconds)))
+    resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu + 1))
 
 
 def _relay(stream, label: str, progress: Callable[[str], None], tail: deque) -> None:
