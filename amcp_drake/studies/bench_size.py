@@ -279,6 +279,13 @@ def _fmt(value: float | None, digits: int = 2) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
 
 
+def _step(row: dict[str, Any] | None) -> str:
+    """"CPU (wall)" medians of a run's full step, ms."""
+    if row is None:
+        return "-"
+    return f"{_fmt(_median(row))} ({_fmt(_median(row, 'total'))})"
+
+
 def faster_form(result: dict[str, Any]) -> str | None:
     """"plain" or "vertex": the form with the smaller median step CPU time in the row (None when
     either did not run)."""
@@ -301,10 +308,10 @@ def candidates_text(attempts: list[dict[str, Any]] | None) -> str:
 
 
 def size_markdown(rows: list[dict[str, Any]]) -> str:
-    """The size table: one line per row (CPU medians, ms per full step; seconds of design CPU with
-    wall time in brackets; peak resident memory of the row's process)."""
+    """The size table: one line per row (medians of the full step in ms, CPU with wall in brackets;
+    seconds of design CPU with wall time in brackets; peak resident memory of the row's process)."""
     lines = ["| system | n | m | p | design CPU s (wall) | template | design candidates | X0 facets / vertices "
-             "| X_f rows | step CPU ms: plain | vertex | fast path (DAQP / fallbacks) | auto chooses (faster) "
+             "| X_f rows | step ms CPU (wall): plain | vertex | fast path (DAQP / fallbacks) | auto chooses (faster) "
              "| peak memory MiB | row CPU s (wall) | status |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
@@ -312,7 +319,7 @@ def size_markdown(rows: list[dict[str, Any]]) -> str:
         fast = runs.get("fast")
         fast_text = "-"
         if fast is not None:
-            fast_text = _fmt(_median(fast))
+            fast_text = _step(fast)
             counts = fast.get("fast_path") or {}
             if counts:
                 fast_text += f" ({counts.get('daqp', 0)} / {counts.get('fallback', 0)})"
@@ -328,7 +335,7 @@ def size_markdown(rows: list[dict[str, Any]]) -> str:
         lines.append(
             f"| {r['label']}{scaled} | {r.get('n', '-')} | {r.get('m', '-')} | {r.get('p', '-')} | {design} "
             f"| {r.get('template', '-')} | {candidates_text(r.get('attempts'))} | {x0} | {r.get('xf_rows', '-')} "
-            f"| {_fmt(_median(runs.get('plain')))} | {_fmt(_median(runs.get('vertex')))} | {fast_text} "
+            f"| {_step(runs.get('plain'))} | {_step(runs.get('vertex'))} | {fast_text} "
             f"| {auto_text} | {r['peak_rss_mib']:.0f} | {r['cpu_s']:.1f} ({r['wall_s']:.1f}) | {status} |")
     return "\n".join(lines) + "\n"
 
