@@ -128,11 +128,12 @@ def run_row(row: SizeRow, steps: int, seed: int, max_memory_mb: float, candidate
         result = json.loads(out.read_text()) if out.exists() else {"label": row.label, "source": row.source}
     result.update(wall_s=time.perf_counter() - started, cpu_s=usage.ru_utime + usage.ru_stime,
                   peak_rss_mib=usage.ru_maxrss / 1024.0, address_space_limit_mib=limit_mb)
+    last = f"; last output: {tail[-1]}" if tail else ""
     if killed:
-        result["status"] = killed
+        result["status"] = killed + last
     elif proc.returncode == -signal.SIGXCPU or (proc.returncode == -signal.SIGKILL
                                                    and usage.ru_utime + usage.ru_stime >= row_seconds):
-        result["status"] = f"killed after the row's CPU-time limit of {row_seconds:g} s"
+        result["status"] = f"killed after the row's CPU-time limit of {row_seconds:g} s" + last
     elif proc.returncode != 0 and result.get("status") in (None, "running"):
         how = (f"killed by {signal.Signals(-proc.returncode).name}" if proc.returncode < 0
                else f"exit code {proc.returncode}")
@@ -199,9 +200,11 @@ def measure_row(job: dict[str, Any], out_path: str | Path, log: Callable[[str], 
     try:
         d = design(pr, spec.design, backend="drake", budget=budget)
     except AmcpError as exc:
+        attempts = [a.to_dict() for a in getattr(exc, "attempts", [])]
+        status = ("no design candidate passed; the first: " + _attempt_text(attempts[0]) if attempts
+                  else "design refused or failed: " + _first_lines(exc))
         result.update(design_cpu_s=time.process_time() - cpu, design_s=time.perf_counter() - wall,
-                      design_peak_rss_mib=_peak_mib(), status="design refused or failed: " + _first_lines(exc),
-                      attempts=[a.to_dict() for a in getattr(exc, "attempts", [])])
+                      design_peak_rss_mib=_peak_mib(), status=status, attempts=attempts)
         save()
         return result
     result.update(design_cpu_s=time.process_time() - cpu, design_s=time.perf_counter() - wall,
@@ -253,6 +256,13 @@ def _scenario(spec) -> tuple[np.ndarray, np.ndarray]:
         return x0, np.asarray(pr.theta_hat0, float)
     theta = np.asarray(sc.theta_star, float)
     return np.asarray(sc.x0, float), theta[0] if theta.ndim == 2 else theta
+
+
+def _attempt_text(attempt: dict[str, Any], chars: int = 160) -> str:
+    """"label: outcome (reason)" of one recorded design candidate, the reason cut to ``chars``."""
+    reason = attempt.get("reason", "")
+    reason = reason if len(reason) <= chars else reason[: chars - 3] + "..."
+    return f"{attempt['label']}: {attempt['outcome']} ({reason})"
 
 
 def _peak_mib() -> float:
