@@ -7,7 +7,8 @@
 ``OfflineDesign.to_dict()`` (or the error). ``compare`` prints, per (example, backend), "identical"
 when every array is bit for bit equal (``np.array_equal``) and every other field equal, the attempts'
 labels, outcomes and reasons included (their seconds excluded), else the fields that differ.
-Session 8 (offline/units.py): every example identical before/after on Drake and cvxpy.
+Used for the design in units normalised by W (offline/units.py): every example identical before/after on
+Drake and cvxpy.
 """
 
 from __future__ import annotations

@@ -15,8 +15,8 @@ from the twin, and the largest and median relative difference.
 
     PYTHONPATH=.:reference:properties python benchmarks/gain_twins.py SEED START COUNT [BACKENDS] > out.txt
 
-Seconds per draw, against ~1 s for a design (no templates, no terminal set). Session 9 (docs/decisions.md,
-"The cvxpy gain LMI in Drake's form").
+Seconds per draw, against ~1 s for a design (no templates, no terminal set). Used for docs/decisions.md,
+"The cvxpy gain LMI in Drake's form".
 """
 
 from __future__ import annotations

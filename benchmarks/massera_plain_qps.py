@@ -1,7 +1,7 @@
 """The cvxpy plain form's tube QPs (20) on massera2017 with θ* = −1 and vertex disturbances.
 
-Rebuilds the session-7 measurement (docs/decisions.md, "The cvxpy plain form writes (15c) as
-c κ_l + Λ s_l"): 40-step closed loops (cvxpy backend, plain form, x_0 of the example's scenario) on
+Rebuilds the measurement of docs/decisions.md, "The cvxpy plain form on thin Θ_k": the plain form writes
+(15c) as c κ_l + Λ s_l: 40-step closed loops (cvxpy backend, plain form, x_0 of the example's scenario) on
 seeds 0-3 give 4 × 41 states (x_k, θ̂_k, Θ_k); at each state the QP is solved with six Θ_k:
 Θ = [−1, 1], [−1, −1 + w] for w = 1e-2, 1e-4, 1e-6, 0, and the recorded Θ_k (984 QPs). Each QP is
 one fresh Clarabel solve (a new solver, no warm start) with the backend's retry ladder

@@ -1,4 +1,5 @@
-"""Shared fixtures: Example 1 (spec §9), its design and a closed-loop run, computed once per session."""
+"""Shared fixtures: Example 1 (docs/explanation/paper.md §9), its design and a closed-loop run, computed once per
+session."""
 
 from __future__ import annotations
 

@@ -18,6 +18,12 @@ def wrong(pr, settings):
     return Outcome(True, "stub solved", [v - 10.0 for v in pr.reference["x"]])
 
 
+def suboptimal(pr, settings):
+    """Success reported with a feasible but worse point: every coordinate 1 above the reference (on the
+    tests' problem min x s.t. x >= 1: x = 2, objective 2 against 1)."""
+    return Outcome(True, "stub solved", [v + 1.0 for v in pr.reference["x"]])
+
+
 def honest(pr, settings):
     return Outcome(False, "stub iteration limit")
 

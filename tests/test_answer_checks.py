@@ -1,4 +1,4 @@
-"""Solver answers are verified before use (issue 13 item 1): each check of amcp_drake.online.answer_checks
+"""Solver answers are verified before use: each check of amcp_drake.online.answer_checks
 fires on a backend stub that returns a wrong "optimal", the step records status "inaccurate" with the
 failed check in its detail, and the fallback is taken and recorded. Plus the campaign 0-19 replay.
 
@@ -269,8 +269,8 @@ def test_exact_update_keeps_only_the_removed_rows_that_are_not_implied(example_s
     """(7): a support LP that calls every data row of Δ_k redundant (and answers the others truly):
     HiGHS finds the data rows that cut Θ_(k−1); exactly those are put back, the truly redundant ones
     stay removed, and the kept rows describe Θ_(k−1) ∩ Δ_k (every row of the intersection is implied
-    by them, scipy LPs here). Until session 6 one such row kept every row, and a backend LP 4e-8 off
-    grew Θ_k by ~7 rows a step (campaign seed 13 #6, generator 2)."""
+    by them, scipy LPs here). Were every row kept whenever one such row is found, a backend LP 4e-8
+    off would grow Θ_k by ~7 rows a step (campaign seed 13 #6, generator 2)."""
     from scipy.optimize import linprog
 
     from amcp_drake.model.options import OnlineOptions
@@ -365,7 +365,7 @@ def test_a_first_try_that_fails_the_checks_is_solved_again_with_iterative_refine
                                                                                      backend):
     """The plain form's first try runs without iterative refinement (speed); an answer of it that
     fails a check is solved again with refinement and, when that answer passes, applied as the
-    step's optimal answer with both noted (thorough profile: a first try 1.3e-6 outside (15c))."""
+    step's optimal answer with both noted (a generated case: a first try 1.3e-6 outside (15c))."""
     ctrl = _controller(example_spec, example_design, backend, options=None, formulation="plain")
     ctrl.mpc = UnrefinedTube(ctrl.mpc, _negate_lambda)
     traj = _run(ctrl, example_spec, 2)
@@ -527,7 +527,7 @@ def test_check_set_update_uses_the_dual_certificate():
 
 
 def test_set_update_check_reuses_only_what_is_unchanged():
-    """SetUpdateCheck (issue 16: the parts of check_set_update that depend only on the answer and Θ_(k−1)
+    """SetUpdateCheck (the parts of check_set_update that depend only on the answer and Θ_(k−1)
     reused while those are unchanged to the bit) gives the rows of check_set_update, names, verdicts and
     values to the bit, on a sequence that repeats one answer while Δ_k, h_(k−1), H_θ, h, the number of
     data rows and the finiteness of Λ and of the maximisers change one at a time (a part reused for a
@@ -591,7 +591,7 @@ def test_set_update_check_reuses_only_what_is_unchanged():
 
 @pytest.mark.parametrize("formulation", ["vertex", "plain"])
 def test_preassembled_tube_check_equals_check_tube(example_spec, example_design, formulation):
-    """TubeCheck (issue 16: the rows of check_tube preassembled, one product per block) gives the names,
+    """TubeCheck (the rows of check_tube preassembled, one product per block) gives the names,
     verdicts and values of check_tube on real and perturbed answers: vertex form for several Θ_k (random
     sub-boxes of Θ0: its (5b) rows are rebuilt, and reused for the next answer) and without Θ_k's vertices
     ("not run"); plain form with Λ perturbed too and per-stage offsets (26); and for non-finite answers."""
@@ -639,12 +639,12 @@ def test_preassembled_tube_check_equals_check_tube(example_spec, example_design,
 
 
 def test_a_plain_answer_outside_5b_at_the_vertices_is_solved_again_with_refinement():
-    """Found by the thorough profile (Proposition 9, x_0 on the boundary of the feasible set): the
-    plain form's first try met (15c) and (15d) to 1e-6 each, yet its tube left (5b) at a vertex of
-    Θ_k by 1.25e-6; the plain answer is now checked at Θ_k's vertices too (and one that fails is
-    solved again with iterative refinement: test_a_first_try_that_fails_the_checks_...). Since
-    issue 16's elimination of (15d) (backends/multiplier_basis.py) the first try on this data
-    passes; the recorded tube must satisfy Proposition 9 either way."""
+    """A generated case (Proposition 9, x_0 on the boundary of the feasible set): a plain-form
+    first try can meet (15c) and (15d) to 1e-6 each, yet its tube leave (5b) at a vertex of Θ_k
+    (here by 1.25e-6); so the plain answer is checked at Θ_k's vertices too (and one that fails is
+    solved again with iterative refinement: test_a_first_try_that_fails_the_checks_...). With (15d)
+    eliminated (backends/multiplier_basis.py) the first try on this data passes; the recorded tube
+    must satisfy Proposition 9 either way."""
     pytest.importorskip("amcp_properties")
     from amcp_drake.model.problem_io import load_spec
     from amcp_drake.online.replay import run_scenario

@@ -1,15 +1,16 @@
-"""Bad input, one table (issue 13 item 3, issue 17 items 1, 2, 5): every case exits 2 through the CLI
+"""Bad input, one table: every case exits 2 through the CLI
 entry point (in-process, click's CliRunner) with a message naming the field or option, and writes
 nothing (no new file anywhere below the test folder, which is also the working directory).
 
 Each row: (id, build, args, exit code, regex). ``build(folder)`` writes the inputs and returns a dict
 of names -> paths that ``args`` refer to as ``{name}``. Rows marked with ``after`` also check the
-folder afterwards (stale staging folders removed). Cases from the issues come first, then our own.
+folder afterwards (stale staging folders removed). The required cases come first (by kind of input),
+then at least 40 more (from "our own" on).
 
-Checked against main once (66b06a0, the layer move; the table run there with PYTHONPATH pointing at an
-export of that commit, memory limited by ulimit -v and pytest-timeout): every row fails there (a
-traceback, exit 0/1, a run that does not end, or a message that does not name the field); three rows
-that passed there (a top-level list, a missing cost.Q, pe-figure --out naming a file) were replaced.
+Every row fails on code without the input checks (run with memory limited by ulimit -v and
+pytest-timeout): a traceback, exit 0/1, a run that does not end, or a message that does not name the
+field. Cases that code already handled (a top-level list, a missing cost.Q, pe-figure --out naming a
+file) are not rows.
 """
 
 from __future__ import annotations
@@ -172,7 +173,7 @@ NESTED = "[" * 100_000 + "]" * 100_000
 
 #: (id, build, args, exit code, regex the output must match)
 ROWS: list[tuple] = [
-    # ---- issue 13, list 2 ------------------------------------------------------------------------
+    # ---- malformed files, extreme numbers, impossible options, paths and stores ---------------------
     ("binary-problem-file", text("p.json", bytes(range(256)) * 4), ["design", "{file}"], 2,
      r"file: expected UTF-8 .*p\.json contains NUL bytes \(binary data\)"),
     ("utf16-bom-problem-file", lambda f: text("p.json", json.dumps(example()).encode("utf-16"))(f),
@@ -197,13 +198,13 @@ ROWS: list[tuple] = [
      r"'--out'.*cannot create files in /proc"),
     ("campaign-store-is-a-directory", files(d=a_dir), ["campaign", "--systems", "1", "--store", "{d}"], 2,
      r"'--store'.*is a directory"),
-    # ---- issue 13, list 3 (not an error: the redundant rows are removed, with a note) ---------------
+    # ---- a large redundant input (not an error: the redundant rows are removed, with a note) --------
     ("W.H-5MB-redundant-rows", files(file=big_redundant_w), ["design", "{file}"], 0,
      r"note: W\.H: removed 220000 of 220004 rows implied by the others"),
-    # ---- issue 13 item 4: unknown trajectory versions ------------------------------------------------
+    # ---- unknown trajectory versions -----------------------------------------------------------------
     ("trajectory-version-99", traj(set_("version", 99)), ["certify", "--trajectory", "{file}", "--out",
                                                         "{folder}/out"], 2, r"version: expected one of \[1\].*99"),
-    # ---- issue 17 item 1 ------------------------------------------------------------------------------
+    # ---- misspelt keys, booleans as numbers, duplicate keys, sections of the wrong type ---------------
     ("typo-top-level-onlien", problem(set_("onlien", {"update": "none"})), ["run", "{file}"], 2,
      r"onlien: .*unknown key 'onlien'\. Did you mean 'online'\?"),
     ("typo-in-system", problem(set_("system.B1", [[0.0], [0.0]])), ["run", "{file}"], 2,
@@ -218,12 +219,12 @@ ROWS: list[tuple] = [
      r"cost\.N: expected each key once per JSON object"),
     ("design-is-5", problem(set_("design", 5)), ["run", "{file}"], 2,
      r"design: expected a JSON object or null; received 5"),
-    # ---- issue 17 item 2 ------------------------------------------------------------------------------
+    # ---- problems too large for memory ----------------------------------------------------------------
     ("cost.N-1000000", problem(set_("cost.N", 1_000_000)), ["run", "{file}"], 2,
      r"problem size.*cost\.N = 1000000.*estimated memory [\d,.]+ GiB.*--max-memory"),
     ("cost.N-1000000-certify", problem(set_("cost.N", 1_000_000)), ["certify", "{file}", "--out", "{folder}/out"],
      2, r"problem size.*cost\.N = 1000000.*estimated memory"),
-    # ---- issue 17 item 5 ------------------------------------------------------------------------------
+    # ---- zero or empty options, stale staging folders -------------------------------------------------
     ("run-steps-0", problem(lambda d: None), ["run", "{file}", "--steps", "0"], 2, r"'--steps'.*0 is not in the range"),
     ("certify-out-empty", files(t=good_traj), ["certify", "--trajectory", "{t}", "--out", ""], 2,
      r"'--out'.*empty string"),
@@ -384,7 +385,7 @@ def test_bad_input(row, tmp_path, monkeypatch):
 
 
 def test_table_size():
-    """The table holds the issues' cases and at least 40 more (issue 13 item 3)."""
+    """The table holds the required cases and at least 40 more (from utf16-no-bom on)."""
     ours = ROWS[[r[0] for r in ROWS].index("utf16-no-bom"):]
     assert len(ours) >= 40
 

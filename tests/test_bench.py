@@ -1,4 +1,4 @@
-"""``amcp bench`` (issue 8): runs in quick mode and writes valid JSON with the expected keys and a
+"""``amcp bench``: runs in quick mode and writes valid JSON with the expected keys and a
 PNG. No timing assertions: the machine is shared and noisy; only the shape of the output is tested."""
 
 from __future__ import annotations
@@ -293,7 +293,7 @@ def test_qp_time_counts_every_pe_solve():
 
 def test_the_bench_records_the_processors_model(tmp_path):
     """The model name is read from /proc/cpuinfo's first "model name" line (figures differ by
-    processor, session 10); without that file, platform's processor name."""
+    processor); without that file, platform's processor name."""
     from amcp_drake.studies.bench import cpu_model, machine_info
 
     info = tmp_path / "cpuinfo"

@@ -1,4 +1,4 @@
-"""Campaigns on Dask (issues 9 and 17): a LocalCluster run, kill + resume with nothing lost or run
+"""Campaigns on Dask: a LocalCluster run, kill + resume with nothing lost or run
 twice and resume with other settings refused, stores that are damaged or foreign refused and never
 written (--report says what it could read), and a scheduler and workers started as separate
 processes on loopback."""
@@ -50,7 +50,7 @@ def test_local_cluster_campaign_stores_every_problem_and_answers_the_summary(tmp
     assert table[("θ* ∈ Θ_k", "drake")][0] + table[("θ* ∈ Θ_k", "drake")][1] == 6
     text = summary_text(store)
     assert "problems stored: 6" in text and "coverage" in text
-    for key in ("theta_k_lower_dim", "theta_star_vertex", "theta_star_facet"):  # issue 13: hard-case coverage
+    for key in ("theta_k_lower_dim", "theta_star_vertex", "theta_star_facet"):  # hard-case coverage
         assert key in text, key
     for key in ("resolve_every_row", "resolve_clarabel_retry", "resolve_answer_check_fallback"):  # extra solves
         assert key in text, key
@@ -121,7 +121,7 @@ def test_killed_campaign_resumes_with_no_problem_lost_or_run_twice(tmp_path):
     store.close()
 
 
-# -- stores made with other settings, damaged stores, foreign files (issue 17, item 4) ----------------
+# -- stores made with other settings, damaged stores, foreign files -----------------------------------
 
 BASE_ARGS = ["--systems", "40", "--backends", "drake", "--seed", "0", "--steps", "6"]
 

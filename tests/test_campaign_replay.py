@@ -1,11 +1,11 @@
-"""Campaign failures are complete replays (issue 17, item 3).
+"""Campaign failures are complete replays.
 
 A deliberately failing run goes through the campaign's own code path (``run_problem`` with a stub
 drawing function): Example 1 with a state box for μ (eq. (11)) far smaller than the states the run
 visits, so μ is too large and the recorded μ‖D(x_k,u_k)‖² <= 1 and Lemma 5 claims fail — a real
 failure of the data, not of a tolerance. The printed replay command, run as a separate process,
 must give the same verdict, bit-identical margins and the same trajectory. The saved replay of
-campaign problem 0-19 (seed 0, issue 13) must be faithful to the run it records.
+campaign problem 0-19 (seed 0) must be faithful to the run it records.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ STEPS = 4
 #: and one interior point of Example 1's W = [-0.1, 0.1]².
 W_SEQUENCE = np.array([[0.1, -0.1], [-0.1, -0.1], [0.03, 0.07], [0.1, 0.1]])
 #: A recorded certificate's margin against the replay's, relative (absolute below 1): far below any
-#: change of a check's meaning (session 9 changed "X_f non-empty" from 87 to 0.85) and above the last
+#: change of a check's meaning (redefining "X_f non-empty" moved its margin from 87 to 0.85) and above the last
 #: bits that move with the installed numpy/scipy (1e-16 relative, measured 2026-11-24).
 REPLAY_MARGIN_TOL = 1e-12
 
@@ -144,12 +144,12 @@ def test_certify_refuses_more_steps_than_the_explicit_disturbance_has(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
-# -- the regression replay of campaign problem 0-19 (seed 0, issue 13) -------------------------------
+# -- the regression replay of campaign problem 0-19 (seed 0) ------------------------------------------
 
 def test_the_replay_of_campaign_problem_0_19_is_faithful_to_the_recorded_run():
     """problem.json of 0-19 holds what the recorded cvxpy run used (online options, x0, θ*, the
     explicit w, steps), and certifying the recorded run against it gives the recorded verdict and the
-    recorded margins, among them lms_update −0.5526 (issue 13: the projection onto Θ_k)."""
+    recorded margins, among them lms_update −0.5526 (the projection onto Θ_k)."""
     from amcp_drake.certificate.certify import certify
 
     spec = load_spec(DATA / "problem.json")

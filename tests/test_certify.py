@@ -1,4 +1,4 @@
-"""Certificates (issue 6): an honest run passes every claim; each tampering fails exactly the claims
+"""Certificates: an honest run passes every claim; each tampering fails exactly the claims
 that logically depend on the tampered quantity, and every other claim still passes.
 
 The claims are not independent: Theorem 14 (iii) (x_k, u_k) ∈ Z, for instance, *follows* from the
@@ -8,6 +8,7 @@ be as surgical as the mathematics allows, and its docstring says why each expect
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -332,9 +333,9 @@ def test_a_recorded_x0_vertex_off_the_vertex_fails_the_vertex_list(recorded, spe
 @pytest.mark.parametrize("t", [1e-4, 1e8])
 def test_a_run_in_micro_or_mega_units_passes_every_claim(t):
     """Example 1 written in states x̃ = t x (x0, the disturbances and design.mu_state_bound with it):
-    the design in those units, an 8-step run and its certificate, which passes every claim. Before
-    session 9 the X0 vertex-list claim failed at t = 1e8 (its tolerance was 1e-8 absolute on vertices of
-    size 3e7) and the design was another one (t = 1e-4) or none (t = 1e8)."""
+    the design in those units, an 8-step run and its certificate, which passes every claim. An
+    absolute tolerance of 1e-8 on the X0 vertex-list claim fails at t = 1e8 (vertices of size 3e7), and a
+    design that is not unit-free gives another design (t = 1e-4) or none (t = 1e8)."""
     from dataclasses import replace
 
     from amcp_drake.model.state_units import scale_states
@@ -373,25 +374,111 @@ def test_failed_qp_fails_recursive_feasibility(recorded, spec):
     assert feas.data["worst_step"] == k and feas.margin == -1.0
 
 
-def test_infeasible_start_fails_and_never_passes(spec, controller):
-    """A real run that is infeasible at k = 0 (x0 violates x2 >= −0.3): recursive feasibility fails, the
-    claims about steps that never happened are not run, and the verdict is fail."""
+def test_an_infeasible_start_is_a_premise_not_met_never_a_failed_theorem(spec, controller):
+    """A real run that is infeasible at k = 0 (x0 = (0, −1) violates x2 >= −0.3, so no tube around it fits in Z):
+    Theorem 14 assumes 𝔻(x_0, Θ_0) ≠ ∅, so the verdict is premise_not_met (not fail, not pass), the independent LP
+    margin is negative, recursive feasibility and the claims about steps that never happened are not claimed."""
     from amcp_drake.online.simulate import simulate
 
     traj = simulate(controller, [0.0, -1.0], spec.scenario.theta_star, 3, "uniform", seed=0,
                     mu_state_bound=spec.design.mu_state_bound)
     assert len(traj.records) == 1 and traj.records[0].status is not SolveStatus.OPTIMAL
     cert = certify(traj, spec)
-    assert cert.claim("recursive_feasibility").status == "fail"
-    assert {"w_in_W", "lemma5", "tube_propagation", "multipliers_15c"} <= set(cert.ids("not_run"))
-    assert cert.verdict == "fail" and not cert.passed
+    assert cert.verdict == "premise_not_met" and not cert.passed
+    assert cert.ids("fail") == [] and cert.ids("not_run") == []
+    [premise] = cert.premises_not_met
+    assert premise["id"] == "initial_feasibility" and premise["margin"] < -1e-3
+    assert "amcp coverage" in premise["hint"]
+    unclaimed = {c["id"]: c["reason"] for c in cert.not_claimed}
+    assert {"recursive_feasibility", "w_in_W", "lemma5", "tube_propagation", "multipliers_15c"} <= set(unclaimed)
+    assert unclaimed["recursive_feasibility"] == "premise not met: initial feasibility"
+    assert "recursive_feasibility" not in cert.ids()
+    jsonschema.validate(cert.to_dict(), schema())
+
+
+def test_an_unsolved_first_step_from_a_feasible_start_fails_theorem_14(recorded, spec):
+    """Step 0 recorded as infeasible although x0 = (2, 3) is inside the feasible region (the recorded run solved it):
+    the premise is met (the LP margin is positive) and recursive feasibility fails: a premise is never used to
+    excuse a QP that should have been solved."""
+    tr = fresh(recorded)
+    tr.records = tr.records[:1]
+    rec = tr.records[0]
+    rec.status = SolveStatus.INFEASIBLE
+    rec.u = rec.v = rec.z = rec.alpha = rec.Lambda = rec.cost = None
+    tr.x, tr.u, tr.w = tr.x[:1], tr.u[:0], tr.w[:0]
+    tr.stop_reason = "step 0: status infeasible"
+    cert = certify(tr, spec)
+    assert cert.verdict == "fail" and cert.claim("recursive_feasibility").status == "fail"
+    first = {p["id"]: p for p in cert.premises}["initial_feasibility"]
+    assert first["status"] == "met" and first["margin"] > 0
+
+
+@pytest.mark.parametrize("factor, verdict", [(2.0, "premise_not_met"), (0.5, "fail")])
+def test_the_initial_feasibility_premise_at_its_edge(recorded, spec, monkeypatch, factor, verdict):
+    """The premise's threshold alone: step 0 recorded unsolved and the independent LP's slack stubbed to
+    −factor × 1e-6 (the LP itself is checked against the QP on whole regions by tests/test_coverage.py). Outside
+    the tolerance the premise is not met; inside it the start counts as feasible and the unsolved step is a failed
+    Theorem 14 (i)."""
+    from amcp_drake.certificate.feasible_region import TubeLP
+
+    monkeypatch.setattr(TubeLP, "margin", lambda self, x0: -factor * 1e-6)
+    tr = fresh(recorded)
+    tr.records = tr.records[:1]
+    rec = tr.records[0]
+    rec.status = SolveStatus.INFEASIBLE
+    rec.u = rec.v = rec.z = rec.alpha = rec.Lambda = rec.cost = None
+    tr.x, tr.u, tr.w = tr.x[:1], tr.u[:0], tr.w[:0]
+    tr.stop_reason = "step 0: status infeasible"
+    cert = certify(tr, spec)
+    first = {p["id"]: p for p in cert.premises}["initial_feasibility"]
+    assert first["tolerance"] == 1e-6 and first["margin"] == -factor * 1e-6
+    assert first["status"] == ("not_met" if verdict == "premise_not_met" else "met")
+    assert cert.verdict == verdict
+
+
+def test_a_design_breaking_11_is_a_premise_not_met(recorded, spec, baseline):
+    """The recorded design's μ raised until 1 − μ sup‖D‖² = −0.1 (a user's design breaking (11)): the verdict is
+    premise_not_met, the (11) check is a premise with that margin, and the run claims it breaks (Lemma 5,
+    (12) with the recorded θ̂) are not claimed, never failed."""
+    data = json.loads(json.dumps(recorded))
+    margin = baseline.claim("design.mu_condition_11").margin
+    sup = (1.0 - margin) / data["design"]["mu"]          # from the passing run: 1 − μ sup = margin
+    data["design"]["mu"] = 1.1 / sup
+    cert = certify(Trajectory.from_dict(data), spec)
+    assert cert.verdict == "premise_not_met" and not cert.passed and cert.ids("fail") == []
+    [premise] = cert.premises_not_met
+    assert premise["id"] == "mu_condition_11" and premise["margin"] == pytest.approx(-0.1, rel=1e-9)
+    assert "design.mu_condition_11" not in cert.ids()
+    assert all(c["reason"] == "premise not met: mu condition (11)" for c in cert.not_claimed)
+    jsonschema.validate(cert.to_dict(), schema())
+
+
+def test_a_design_breaking_assumption_8_is_a_premise_not_met(recorded, spec):
+    """The recorded gain replaced by K = (0, −3) (a user's gain; A_cl has spectral radius 1.12 at a vertex of Θ):
+    Assumption 8 is a premise not met, and every claim built on that K that fails ((16), X0, X_f, the control
+    law) is not claimed, never failed."""
+    data = json.loads(json.dumps(recorded))
+    data["design"]["K"] = [[0.0, -3.0]]
+    cert = certify(Trajectory.from_dict(data), spec)
+    assert cert.verdict == "premise_not_met" and cert.ids("fail") == []
+    [premise] = cert.premises_not_met
+    A0, B0 = np.asarray(spec.problem.A0), np.asarray(spec.problem.B0)
+    radius = max(float(np.max(np.abs(np.linalg.eigvals(spec.problem.A_of(t) + spec.problem.B_of(t) @ np.array([[0.0, -3.0]])))))
+                 for t in theta_vertices(spec.problem.H_theta, spec.problem.h_theta))
+    assert radius > 1.0 and A0.shape == (2, 2) and B0.shape == (2, 1)
+    assert premise["id"] == "assumption_8" and premise["margin"] == pytest.approx(1.0 - radius, abs=1e-12)
+    unclaimed = {c["id"] for c in cert.not_claimed}
+    assert {"design.terminal_cost_16", "control_law"} <= unclaimed
 
 
 def test_not_run_is_not_a_pass(recorded):
     """Without the μ box (Z is unbounded in x) the (11) design check cannot run: the verdict is
-    'incomplete', not 'pass', although no claim failed."""
+    'incomplete', not 'pass', although no claim failed. The box travels with the trajectory twice (the
+    run's and the design's record); both are removed."""
     tr = fresh(recorded)
+    assert tr.mu_state_bound is not None and tr.design.mu_state_bound is not None
     tr.mu_state_bound = None
+    tr.design = dataclasses.replace(tr.design, mu_state_bound=None)
     cert = certify(tr)  # no problem spec either
     assert cert.ids("fail") == []
     assert cert.ids("not_run") == ["design.mu_condition_11"]
@@ -405,8 +492,8 @@ def test_not_run_is_not_a_pass(recorded):
     (lambda d: d["records"][2].update(Lambda=[[0.0]]), r"records\[2\]\.Lambda has shape"),
     (lambda d: d["x"][3].__setitem__(0, float("nan")), r"x has NaN"),
     (lambda d: d["records"][4]["x"].__setitem__(1, 9.0), r"records\[4\]\.x differs from x\[4\]"),
-    (lambda d: d.update(u=d["u"][:-2]), r"x has shape \(9, 2\); expected \(7, 2\)"),
-    (lambda d: d["records"][1].update(k=7), r"records\[1\]\.k = 7"),
+    (lambda d: d.update(u=d["u"][:-2]), r"x: expected 7 states \(one more than the 6 inputs in u\); received 9 states"),
+    (lambda d: d["records"][1].update(k=7), r"records\[1\]\.k: expected 1 \(records are numbered 0, 1, \.\.\. in order\); received 7"),
 ], ids=["Lambda-shape", "nan-state", "duplicate-mismatch", "missing-inputs", "step-index"])
 def test_malformed_trajectory_raises(recorded, tamper, message):
     data = json.loads(json.dumps(recorded))

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import jsonschema
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -79,6 +80,18 @@ def test_default_run_certifies_example_1(tmp_path):
     assert "CERTIFIED: all 35 claims hold" in result.stdout
     for claim in data["claims"]:
         assert claim["id"] in result.stdout
+    # the robust baseline beside the run: recorded apart from the claims, its adaptive cost that of the
+    # saved trajectory (recomputed here), its robust run as long as the adaptive one
+    baseline = data["figures"]["robust_baseline"]
+    with gzip.open(out / "trajectory.json.gz", "rt") as handle:
+        traj = json.load(handle)
+    spec = lorenzen2019_spec()
+    x, u = traj["x"][:-1], traj["u"]
+    cost = sum(float(np.dot(xk, spec.problem.Q @ xk) + np.dot(uk, spec.problem.R @ uk)) for xk, uk in zip(x, u))
+    assert baseline["adaptive"]["cost"] == pytest.approx(cost, rel=1e-12)
+    assert baseline["robust"]["steps"] == baseline["adaptive"]["steps"] == 50
+    assert "robust baseline (not part of the verdict): cost" in result.stdout
+    assert not [c for c in data["claims"] if "baseline" in c["id"]]
     no_leftovers(tmp_path)
 
 
@@ -91,6 +104,18 @@ def test_saved_trajectory_is_rechecked_without_running(saved, tmp_path, monkeypa
     assert result.exit_code == 0, result.output
     data = written(out)
     assert data["run"]["steps"] == STEPS and data["verdict"] == "pass"
+    assert "robust_baseline" not in data["figures"]  # a re-check runs nothing, not even the baseline
+
+
+def test_a_robust_run_has_no_baseline_beside_it(tmp_path):
+    """--update none is the robust baseline itself: nothing to compare, and the report says so."""
+    out = tmp_path / "out"
+    result = invoke("--update", "none", "--steps", 3, "--out", out)
+    assert result.exit_code == 0, result.output
+    data = written(out)
+    assert data["run"]["update"] == "none" and "robust_baseline" not in data["figures"]
+    assert "robust baseline itself" in (out / "report.html").read_text()
+    assert "robust baseline (not part of the verdict)" not in result.stdout
 
 
 def test_second_run_replaces_the_bundle(saved, tmp_path):
@@ -146,6 +171,7 @@ def test_claim_not_run_exits_1_and_never_says_pass(saved, tmp_path):
     data["problem"]["Theta"]["h"][0] *= 2.0
     data["problem"]["name"] = "example1-variant"
     data["mu_state_bound"] = None
+    data["design"]["mu_state_bound"] = None  # the design records its μ box too
     path = write_trajectory(data, tmp_path / "variant.json")
     out = tmp_path / "out"
     result = invoke("--trajectory", path, "--out", out)
@@ -156,8 +182,10 @@ def test_claim_not_run_exits_1_and_never_says_pass(saved, tmp_path):
     assert "NOT CERTIFIED (incomplete)" in result.stdout and "CERTIFIED: all" not in result.stdout
 
 
-def test_infeasible_scenario_exits_1(tmp_path):
-    """A problem file whose scenario starts outside Z: the QP fails at k = 0, recursive feasibility fails."""
+def test_an_infeasible_scenario_exits_3_premise_not_met(tmp_path):
+    """A problem file whose scenario starts outside Z: the QP is infeasible at k = 0. Theorem 14 assumes
+    𝔻(x_0, Θ_0) ≠ ∅, so this is a premise not met (exit 3, with the LP margin and a pointer to amcp coverage),
+    never a failed claim of Theorem 14."""
     spec = lorenzen2019_spec()
     data = spec_to_dict(spec)
     data["scenario"]["x0"] = [0.0, -1.0]
@@ -165,10 +193,33 @@ def test_infeasible_scenario_exits_1(tmp_path):
     problem.write_text(json.dumps(data))
     out = tmp_path / "out"
     result = invoke(problem, "--steps", 3, "--out", out)
-    assert result.exit_code == 1, result.output
+    assert result.exit_code == 3, result.output
     cert = written(out)
-    feasibility = next(c for c in cert["claims"] if c["id"] == "recursive_feasibility")
-    assert feasibility["status"] == "fail" and feasibility["worst_step"] == 0
+    assert cert["verdict"] == "premise_not_met" and cert["passed"] is False and cert["counts"]["fail"] == 0
+    assert "recursive_feasibility" not in [c["id"] for c in cert["claims"]]
+    premise = next(p for p in cert["premises"] if p["id"] == "initial_feasibility")
+    assert premise["status"] == "not_met" and premise["margin"] < 0
+    assert "PREMISE NOT MET: initial feasibility" in result.stdout and f"margin {premise['margin']:.3e}" in result.stdout
+    assert "amcp coverage" in result.stdout
+    assert "NOT CERTIFIED (premise not met)" in result.stdout and "claim(s) failed" not in result.stdout
+    report = (out / "report.html").read_text()
+    assert 'id="premise-initial_feasibility" class="fail" data-status="not_met"' in report
+    assert 'class="verdict premise_not_met">premise_not_met<' in report
+
+
+def test_a_given_gain_breaking_assumption_8_exits_3_premise_not_met(tmp_path):
+    """design.K = (0, −3) with some P in the problem file: A(θ) + B(θ)K has spectral radius 1.12 at a vertex of Θ.
+    The design cannot be made and nothing is run: a premise the user's design breaks (exit 3), not a failed claim."""
+    spec = lorenzen2019_spec()
+    data = spec_to_dict(spec)
+    data["design"]["K"], data["design"]["P"] = [[0.0, -3.0]], [[1.0, 0.0], [0.0, 1.0]]
+    problem = tmp_path / "bad_gain.json"
+    problem.write_text(json.dumps(data))
+    out = tmp_path / "out"
+    result = invoke(problem, "--steps", 3, "--out", out)
+    assert result.exit_code == 3, result.output
+    assert "PREMISE NOT MET: Assumption 8" in result.stdout and "spectral radius" in result.stdout
+    assert "1.1199" in result.stdout and not out.exists()
 
 
 # -- exit 2 ------------------------------------------------------------------------------------------

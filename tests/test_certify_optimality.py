@@ -1,4 +1,4 @@
-"""Certificate claim ``qp_optimality`` (issue 13, failure kind 4): the recorded (z, α, v) of every solved
+"""Certificate claim ``qp_optimality``: the recorded (z, α, v) of every solved
 step is a minimiser of the QP (20) rebuilt from the record, shown by KKT residuals with numpy/scipy.
 
 Honest runs pass (both backends, min–max cost, Example 2 with PE bounds and the predicted sets (26));

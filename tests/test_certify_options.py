@@ -1,5 +1,5 @@
-"""Certificate claims of the Section 4 options and of the recorded cost (issue 7):
-``cost_value`` ((17) or (19) re-evaluated), ``pe_level`` and ``pe_bounds`` (spec §8).
+"""Certificate claims of the Section 4 options and of the recorded cost:
+``cost_value`` ((17) or (19) re-evaluated), ``pe_level`` and ``pe_bounds`` (docs/explanation/paper.md §8).
 
 Known answers are worked by hand in the docstrings; honest runs pass; each tampering fails exactly
 the claims that use the tampered quantity.
@@ -194,8 +194,8 @@ def test_minmax_costs_are_not_certainty_equivalence_costs(minmax_run, spec):
 def test_unattainable_level_falls_back_to_the_plain_qp_and_claims_nothing(spec, designed):
     """ρ = 5 with P = 3 and |u| <= 1: even the one-dimensional rung at 1/8 of its level needs
     Σ_window u² >= 5·1.5²/0.95/8 ≈ 1.48 from one new input after the transient, so no step enforces PE
-    (spec §8 fallback: (20) alone). The run then equals the run without PE, and its certificate has
-    no checkable PE claim (incomplete), with the fallback steps counted in the figure."""
+    (the fallback of docs/explanation/paper.md §8: (20) alone). The run then equals the run without PE, and its
+    certificate has no checkable PE claim (incomplete), with the fallback steps counted in the figure."""
     steps = 12
     pe = fresh(_run(spec, designed, OnlineOptions(pe_window=3, pe_level=5.0), steps))
     plain = fresh(_run(spec, designed, OnlineOptions(), steps))

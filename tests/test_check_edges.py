@@ -277,3 +277,30 @@ def test_tube_5b_at_the_vertices_at_its_edge(tube, factor, passes):
     assert _row_5b(shifted, vertex, verts) == pytest.approx(factor * TUBE_ROW_TOL, rel=1e-6)
     check = _both_check_paths(shifted, vertex, x, shifted.h_theta0, verts, "tube (5b) at the vertices of Θ_k")
     assert check.passed is passes
+
+
+# -- exact update (7): a removed row is re-checked (HiGHS, certified) and put back when the kept rows allow
+# exceeding it by more than SET_NESTED_TOL ---------------------------------------------------------------------------
+@pytest.mark.parametrize("factor, put_back", [(2.0, True), (0.5, False)])
+def test_exact_update_removed_row_recheck_at_its_edge(example_spec, example_design, monkeypatch, factor, put_back):
+    """Θ_(k−1) = Θ_0 (irredundant) and one data row parallel to its first row, cutting it by factor × tol (unit row).
+    The backend's support LPs answer 0.1 too low (tests/tampered_backends.py), so it removes that row; the
+    re-check puts it back exactly when the cut exceeds the tolerance, and says so as a fallback."""
+    from amcp_drake.model.options import OnlineOptions
+    from amcp_drake.model.status import SolveStatus
+    from amcp_drake.online.controller import AdaptiveMPC, StepRecord
+    from tests import tampered_backends as tb
+
+    tb.use_as_drake(monkeypatch, tb.LowSupportDrake)
+    ctrl = AdaptiveMPC(example_spec.problem, example_design, backend="drake", options=OnlineOptions(update="exact"))
+    ctrl._exact_rows_irredundant = True
+    H0, h0 = np.array(ctrl.H_theta, float), np.array(ctrl.h_theta, float)
+    row = H0[0]
+    bound = h0[0] - factor * SET_NESTED_TOL * float(np.linalg.norm(row))
+    record = StepRecord(k=1, x=np.zeros(example_spec.problem.n), u=None, status=SolveStatus.NOT_RUN, H_theta=H0,
+                        h_theta=h0, theta_hat=np.zeros(example_spec.problem.p), answers=[])
+    assert ctrl._update_exact(row[None, :], np.array([bound]), record)
+    kept = any(np.array_equal(r, row) and b == bound for r, b in zip(ctrl.H_theta, ctrl.h_theta))
+    assert kept is put_back
+    [entry] = [e for e in record.answers if e["problem"] == "exact_update"]
+    assert entry["outcome"] == ("fallback" if put_back else "first"), entry

@@ -1,5 +1,5 @@
-"""The Clarabel retry ladder of the tube QP (issue 7, amcp_drake/backends/clarabel_retry.py): an
-"inaccurate" first solve (without iterative refinement since issue 16) is solved again with the
+"""The Clarabel retry ladder of the tube QP (amcp_drake/backends/clarabel_retry.py): an
+"inaccurate" first solve (made without iterative refinement) is solved again with the
 backend's own settings, then with the ladder's settings in order; only a clean "optimal" is
 accepted, the rung is named in the detail, and when every rung fails the status stays "inaccurate"
 (never promoted to "optimal")."""
@@ -111,8 +111,8 @@ def test_cvxpy_retries_in_order_and_never_promotes(monkeypatch, cvxpy_mpc):
 
 
 def test_a_minmax_step_that_stalled_under_every_earlier_rung_is_solved():
-    """Found by the thorough profile (min-max cost (19), n = 3, N = 3, x_0 on the boundary): step 1
-    ended AlmostSolved in Drake after the five earlier rungs; the two rungs added for it solve it
+    """A generated case (min-max cost (19), n = 3, N = 3, x_0 on the boundary): step 1
+    ended AlmostSolved in Drake after the five earlier rungs; the two later rungs solve it
     (a clean "Solved", checked by the controller's answer checks like any answer)."""
     from pathlib import Path
 

@@ -1,4 +1,4 @@
-"""Cross-backend comparison (issue 4): agreement on Example 1 and on 20 random scenarios, and proof
+"""Cross-backend comparison: agreement on Example 1 and on 20 random scenarios, and proof
 that `compare` catches a disagreement (an injected perturbation, a loose solver)."""
 
 from __future__ import annotations
@@ -89,6 +89,28 @@ def test_cli_compare_exits_0_and_writes_every_difference(tmp_path):
     assert data["tolerances"]["v"] == {"abs": TOLERANCES["v"][0], "rel": TOLERANCES["v"][1]}
 
 
+def test_cli_compare_shows_non_unique_quantities_as_information_never_with_a_tolerance(tmp_path):
+    """z and α of (20) are not unique: their (large) differences are marked as information in the per-step table and
+    the summary, have no tolerance and no verdict in compare.json, and nothing prints a NaN tolerance."""
+    from amcp_drake.cli import main
+
+    out = tmp_path / "cmp.json"
+    result = CliRunner().invoke(main, ["compare", "--steps", "3", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "nan" not in result.output.lower()
+    header = next(line for line in result.output.splitlines() if line.lstrip().startswith("k "))
+    assert header.split()[-2:] == ["z*", "alpha*"]
+    assert "* information only, never compared" in result.output
+    assert "information only, no tolerance, never a disagreement" in result.output
+    summary = result.output[result.output.index("quantity"):]
+    assert not any(line.split()[:1] in (["z"], ["alpha"]) for line in summary.splitlines())
+    data = json.loads(out.read_text())
+    info = data["informational"]
+    assert {d["quantity"] for d in info} == {"z", "alpha"} and max(d["difference"] for d in info) > 1e-3
+    assert all(d["tolerance"] is None and d["agree"] is None and d["information_only"] for d in info)
+    assert data["agree"] is True
+
+
 def test_cli_compare_with_a_loose_solver_exits_1_and_names_quantity_and_step(tmp_path):
     from amcp_drake.cli import main
 
@@ -111,7 +133,7 @@ def test_cli_compare_bad_problem_file_exits_2(tmp_path):
 
 
 def test_cli_compare_accurate_runs_both_backends_at_tight_tolerances(tmp_path):
-    """The flat optimum saved by the thorough profile (tests/data/lockstep-flat-optimum-problem.json):
+    """The flat optimum of a generated case (tests/data/lockstep-flat-optimum-problem.json):
     with --accurate both backends' Clarabel run at 1e-10 and v agrees to far below its tolerance;
     at the defaults v is determined only to ~1e-5 there, so the default comparison's v difference is
     larger. --accurate with another solver is refused, naming the option."""
@@ -166,7 +188,7 @@ def test_flat_optimum_steps_need_v_apart_and_the_cost_within_tolerance():
 
 #: The shipped examples whose two designs are compared here; bujarbaruah2022 is left to the command
 #: (`amcp compare --example bujarbaruah2022`: its cvxpy design alone takes ~50 s; K within 5.6e-7 of
-#: Drake's at 2.9e-4 tolerance, session 8).
+#: Drake's at 2.9e-4 tolerance).
 _DESIGN_EXAMPLES = ("lorenzen2019", "lorenzen2019_ex2", "massera2017", "parsi2020_siso", "parsi2020_mimo",
                     "sls_mpc_2d_eps0.05", "sls_mpc_2d_eps0.15", "sls_mpc_2d_eps0.25", "sls_mpc_2d_eps0.35",
                     "sls_mpc_2d_eps0.45", "kothare1996", "tranos2022")

@@ -1,4 +1,4 @@
-"""The cvxpy backend's compiled route (``amcp_reference.compiled_clarabel``, issue 16): Clarabel's
+"""The cvxpy backend's compiled route (``amcp_reference.compiled_clarabel``): Clarabel's
 data evaluated from cvxpy's compiled program, a kept solver updated by the entries that changed.
 
 Every expected value comes from cvxpy's own route: ``Problem.get_problem_data`` (cvxpy's parameter

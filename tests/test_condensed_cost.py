@@ -50,7 +50,7 @@ def test_condensed_cost_other_dimensions(n, m, p, N):
 
 
 def test_buffers_written_in_place_carry_nothing_between_calls(example_design, example_spec):
-    """The powers, W and G are buffers rewritten by every call (issue 16): alternating θ̂ gives, to the
+    """The powers, W and G are buffers rewritten by every call: alternating θ̂ gives, to the
     bit, what a fresh model gives for each θ̂, and an answer already returned is not changed by a later
     call (the returned H, g, c are never views of the buffers)."""
     from amcp_drake.online.controller import AdaptiveMPC

@@ -1,5 +1,5 @@
-"""The online loop (spec §2-§4, §6) on named reference problems whose answers are computed by hand
-in the test, on Example 1, and its failure behaviour."""
+"""The online loop (docs/explanation/paper.md §2-§4, §6) on named reference problems whose answers are
+computed by hand in the test, on Example 1, and its failure behaviour."""
 
 from __future__ import annotations
 

@@ -226,7 +226,7 @@ def test_robust_gain_example1_satisfies_16_at_every_vertex_and_matches_spec(be, 
         Acl = A + B @ res.K
         lhs = Acl.T @ res.P @ Acl - res.P + pr.Q + res.K.T @ pr.R @ res.K
         assert np.max(np.linalg.eigvalsh(lhs)) <= 1e-7
-    # spec §9 [NUM]: K ≈ [0.0176 −0.4152], P ≈ [1.468 0.208; 0.208 1.733]
+    # Example 1 (docs/explanation/paper.md §9): K ≈ [0.0176 −0.4152], P ≈ [1.468 0.208; 0.208 1.733]
     np.testing.assert_allclose(res.K, [[0.0176, -0.4152]], atol=5e-4)
     np.testing.assert_allclose(res.P, [[1.468, 0.208], [0.208, 1.733]], atol=1e-3)
 
@@ -291,7 +291,8 @@ def scalar_tube_data(u_max=10.0, x_max=10.0, N=5, K=-0.5, P=1.5, Q=1.0, R=1.0, H
 
 
 def check_tube_solution(data, sol, x, h_theta, H_theta=None, tol=TOL):
-    """Every constraint of (20), evaluated in numpy from the returned z, α, v, Λ (spec §4)."""
+    """Every constraint of (20), evaluated in numpy from the returned z, α, v, Λ
+    (docs/explanation/paper.md §4, §6)."""
     H_theta = np.asarray(data.H_theta if H_theta is None else H_theta, float)
     N, nv, u, q = sol.Lambda.shape
     n, p = data.A0.shape[0], data.A.shape[0]
@@ -712,7 +713,7 @@ def massera2017_cvxpy():
 
 
 #: (x_k, θ̂_k) at steps of massera2017 with θ* = −1 and vertex disturbances (seed 0 steps 24 and 29,
-#: seed 2 steps 28 and 36) where Θ_k = [−1, −1 + 1e-6]; recorded with the design of session 7.
+#: seed 2 steps 28 and 36) where Θ_k = [−1, −1 + 1e-6]; recorded with an earlier design of massera2017.
 MASSERA_THIN_STEPS = [
     ([0.18585618017650496, 0.2936495867467874, -0.03536531471134703], [-0.19919544911107998]),
     ([-0.12651280990886932, -0.18886391313985462, 0.1110682270409442], [-0.23045744732494922]),
@@ -777,10 +778,10 @@ def test_massera2017_plain_form_on_a_theta_k_1e_4_wide_is_answered_and_verified(
     assert abs(sol.cost - other.cost) <= 1e-6 and np.max(np.abs(sol.v - other.v)) <= 1e-5
 
 
-# -- the plain form's answer checked against the vertex form's optimum (session 10) ---------------------------
+# -- the plain form's answer checked against the vertex form's optimum ---------------------------------------
 
 def _suboptimal_step():
-    """Step 8 of the recorded run (thorough profile, session 10; tests/data/lockstep-plain-suboptimal: n = 1,
+    """Step 8 of the recorded run (a generated case; tests/data/lockstep-plain-suboptimal: n = 1,
     p = 2, exact update (7), Θ_k a slab 1.3e-6 wide, x_8 = −0.023, cost 7.5e-4)."""
     from pathlib import Path
 

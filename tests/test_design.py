@@ -1,5 +1,5 @@
-"""Offline design (spec §4-§6, §5.1) on Example 1 and failure cases, checked against values from the
-spec (not from the code) and by the independent design checks."""
+"""Offline design (docs/explanation/paper.md §4-§6, Appendix A.1) on Example 1 and failure cases, checked
+against values worked out from the paper (not from the code) and by the independent design checks."""
 
 from __future__ import annotations
 
@@ -14,7 +14,8 @@ from amcp_drake.model.problem import DesignOptions
 from amcp_drake.offline.checks import verify_design
 from amcp_drake.offline.design import design, template_directions
 
-#: spec §9 [NUM]: maximising trace(P^-1) s.t. (16) at the 8 vertices gives these (3-4 digits printed)
+#: Example 1 (docs/explanation/paper.md §9): maximising trace(P^-1) s.t. (16) at the 8 vertices gives these
+#: (3-4 digits printed)
 SPEC_K = np.array([[0.0176, -0.4152]])
 SPEC_P = np.array([[1.468, 0.208], [0.208, 1.733]])
 
@@ -33,7 +34,7 @@ def test_example_1_design_passes_every_independent_check(example_spec, example_d
 
 
 def test_example_1_mu_uses_the_box_of_src1(example_design):
-    # spec §9: in the box |x_i| <= 3 with |u| <= 1, sup ||D||_2^2 ≈ 0.140, so mu < 7.1
+    # Example 1: in the box |x_i| <= 3 with |u| <= 1, sup ||D||_2^2 ≈ 0.140, so mu < 7.1
     assert example_design.mu_sup == pytest.approx(0.140, abs=1e-3)
     assert example_design.mu < 7.1
     assert example_design.mu == pytest.approx(0.95 / example_design.mu_sup)
@@ -47,7 +48,8 @@ def test_example_1_x0_and_terminal_set_sizes(example_design):
 
 
 def test_the_papers_rounded_K_and_P_violate_16_by_about_1e_minus_3(example_spec):
-    # spec §9: "With the printed (rounded) P and K, (16) is violated by about 1.4e-3 in the largest eigenvalue."
+    # Example 1: with the paper's printed (rounded) P and K, (16) is violated by about 1.4e-3 in the
+    # largest eigenvalue
     # a fixed template: the design is returned and the checks judge it
     opts = DesignOptions(K=[[0.017, -0.41]], P=[[1.467, 0.207], [0.207, 1.731]], mu_state_bound=3.0,
                          x0_template="mrpi")
@@ -113,7 +115,8 @@ def test_each_tampered_design_fails_exactly_the_checks_that_depend_on_it(example
 
 
 def test_terminal_set_empty_is_a_clear_error(example_spec):
-    # x2 >= -0.05 leaves no room for the disturbance-driven tube (alpha_inf f_bar >= 1, spec §5.1)
+    # x2 >= -0.05 leaves no room for the disturbance-driven tube (alpha_inf f_bar >= 1; Appendix A.1,
+    # docs/explanation/paper.md §5)
     pr = example_spec.problem.with_changes(F=[[0.0, -20.0], [0.0, 0.0], [0.0, 0.0]])
     with pytest.raises(TerminalSetError, match="empty"):
         design(pr, DesignOptions(mu_state_bound=3.0, x0_template="mrpi"))

@@ -1,5 +1,5 @@
 """The exact update (7) on a thin Θ_k: redundant rows are removed, and only rows that are truly not
-implied are put back (session 7).
+implied are put back.
 
 Campaign seed 13 #6 (generator 2, vertex-type disturbances, p = 2): Θ_k is ~1e-6 wide around θ* and
 many of its rows cut it by 1e-10..1e-7 only. The re-check of the removed rows used HiGHS at its default

@@ -1,8 +1,7 @@
-"""A failing property example is saved as a complete problem file (issue 13): the online options
+"""A failing property example is saved as a complete problem file: the online options
 of the run and its exact disturbance array are in problem.json, so that ``amcp certify
-problem.json`` repeats the run that failed (found by the thorough profile: a failing lockstep run
-with the moving-window update was saved without its ``online`` section and with the disturbance
-kind only, so the file named another run)."""
+problem.json`` repeats the run that failed (a failing lockstep run with the moving-window update
+saved without its ``online`` section and with the disturbance kind only would name another run)."""
 
 from __future__ import annotations
 
@@ -39,9 +38,9 @@ def test_a_saved_failure_holds_the_online_options_and_the_disturbance_array(tmp_
 
 
 def test_corollary16_floor_follows_the_input_gain_on_a_problem_in_small_state_units():
-    """Saved by the thorough profile (session 7): a generated problem in state units 100 times smaller
+    """A generated problem in state units 100 times smaller
     (‖B(θ)‖ ≈ 50) whose disturbance stops at k1 = 7 settled at ‖x_T‖ = 2.5e-8, above the absolute floor
-    1e-8 of the convergence check (the QPs fix v to ~1e-10, which B multiplies). The floor is now
+    1e-8 of the convergence check (the QPs fix v to ~1e-10, which B multiplies). The floor is
     1e-8·max(1, max ‖B(θ)‖): the replayed run passes, with the state still 4e5 times below its peak."""
     pytest.importorskip("amcp_properties")
     from amcp_properties import claims

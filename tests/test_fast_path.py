@@ -218,3 +218,31 @@ def test_the_multiplier_sign_check_at_its_tolerance_edge(fast_run, factor, rejec
     off[model.n_alpha + row] = -factor * DUAL_TOL
     reason = model.check(w, off)
     assert reason.startswith("multiplier of the wrong sign") == rejected, reason
+
+
+COMPLEMENTARITY_TOL = 1e-7
+
+
+@pytest.mark.parametrize("factor, rejected", [(2.0, True), (0.5, False)])
+def test_the_complementarity_check_at_its_tolerance_edge(fast_run, factor, rejected):
+    """The same answer judged against the QP with one active row (its multiplier λ > 0) loosened by s, so that
+    λ·s = factor × COMPLEMENTARITY_TOL·scale: feasibility and stationarity are unchanged (neither reads the
+    offsets b), only complementarity moves."""
+    import copy
+
+    model, w, lam = _edge_model(fast_run)
+    rows = lam[model.n_alpha:]
+    row = int(np.argmax(rows))
+    assert rows[row] > 0
+    s = factor * COMPLEMENTARITY_TOL * _stationarity_scale(model, w) / float(rows[row])
+    loose = copy.copy(model)
+    loose.b = np.array(model.b, float)
+    loose.b[row] += s
+    slack = loose.b - loose.A @ w
+    gap = float(np.max(np.abs(rows * slack)))
+    assert gap == pytest.approx(factor * COMPLEMENTARITY_TOL * _stationarity_scale(model, w), rel=1e-3)
+    reason = loose.check(w, lam)
+    if rejected:
+        assert reason.startswith("complementarity"), reason
+    else:
+        assert reason == "", reason

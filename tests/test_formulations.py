@@ -1,4 +1,4 @@
-"""The vertex form of the tube MPC QP (20) (issue 8) against the plain form (15) with Λ.
+"""The vertex form of the tube MPC QP (20) against the plain form (15) with Λ.
 
 Both describe the same feasible set in (z, α, v) (proof of Proposition 9; argument in
 ``amcp_drake.backends.vertex_form``), so v* (unique: the cost is strictly convex in v) and the

@@ -393,7 +393,7 @@ def test_unstabilisable_vertex_by_the_pbh_test(A, B, index):
 @pytest.mark.parametrize("margin", [1e-8, 1e-9])
 def test_drake_gain_lmi_of_an_unstabilisable_vertex_is_infeasible_not_an_aborted_process(margin):
     """x⁺ = 1.5 x + 0·u at design.lmi_margin 1e-8 or 1e-9: Clarabel panicked inside Rust ("Eigval
-    error") and Drake, which cannot catch it, aborted the Python process (SIGABRT; session 9). Run in
+    error") and Drake, which cannot catch it, aborted the Python process (SIGABRT). Run in
     a child so that a regression fails this test instead of killing the suite."""
     import subprocess
     import sys

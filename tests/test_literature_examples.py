@@ -1,4 +1,4 @@
-"""Built-in systems from the literature (issue 14): each designs at default settings and its
+"""Built-in systems from the literature: each designs at default settings and its
 certificate passes every claim with both backends (short runs: the claims are per step, so a few
 steps exercise every check; the full scenarios are measured in docs/decisions.md)."""
 
@@ -37,7 +37,7 @@ def test_every_literature_example_is_registered_and_cites_its_source():
         assert examples_copy == raw, f"examples/{name}.json differs from amcp_drake/data/{name}.json"
         pr = spec_from_dict(raw).problem
         shapes.append((pr.n, pr.m))
-    assert any(n >= 3 or m >= 2 for n, m in shapes)  # issue 14: at least one with n >= 3 or m >= 2
+    assert any(n >= 3 or m >= 2 for n, m in shapes)  # at least one with n >= 3 or m >= 2
     assert any(n >= 3 for n, _ in shapes)  # and one with at least three states (massera2017: n = 3)
     references = {json.loads((resources.files("amcp_drake") / "data" / f"{n}.json").read_text())["source"]["reference"]
                   for n in LITERATURE_EXAMPLES}

@@ -34,11 +34,10 @@ def lockstep_both_ways(problem_file: str):
 
 
 def test_a_flat_optimum_agrees_in_lockstep_at_accurate_tolerances():
-    """Saved by the thorough profile (n = 3, p = 2, N = 2, x0 on the boundary, vertex disturbances):
-    at Clarabel's defaults (1e-8) the step-0 v of the two backends differed by 1.14e-5 > 1.06e-5
-    (cvxpy 1.2e-5 and Drake 9e-7 from the optimum: the optimum is flat, and the code before
-    session 4 of issue 16 gave the same). At ACCURATE tolerances the backends agree in lockstep
-    over the saved run, Drake and cvxpy leading in turn."""
+    """A generated case (n = 3, p = 2, N = 2, x0 on the boundary, vertex disturbances): at
+    Clarabel's defaults (1e-8) the step-0 v of the two backends differ by 1.14e-5 > 1.06e-5
+    (cvxpy 1.2e-5 and Drake 9e-7 from the optimum: the optimum is flat). At ACCURATE tolerances the
+    backends agree in lockstep over the saved run, Drake and cvxpy leading in turn."""
     spec, runs = lockstep_both_ways("lockstep-flat-optimum-problem.json")
     for traj, result in runs.values():
         assert result.passed, result.detail
@@ -47,13 +46,13 @@ def test_a_flat_optimum_agrees_in_lockstep_at_accurate_tolerances():
 
 
 def test_the_exact_update_is_compared_as_sets_when_the_backends_keep_different_rows():
-    """Found by the thorough profile (session 7; n = 1, p = 2, update (7), cvxpy leading, 40 steps):
-    the two backends' redundancy LPs kept different rows of the same Θ_k, and the comparison of the h_θ
-    arrays of different lengths crashed (ZeroDivisionError on a tolerance of 0). Θ_k is now compared by
-    the support functions of both sets in both row sets' directions: they agree to 1e-9, at steps
-    where the row counts differ. The file gives the K, P that the design found when the case was saved
-    (session 7): the design's gain LMI at tight tolerances (session 8) moves K by 1e-5, and on that
-    design the backends keep the same rows at every step, so this comparison would not be exercised."""
+    """A generated case (n = 1, p = 2, update (7), cvxpy leading, 40 steps): the two backends'
+    redundancy LPs keep different rows of the same Θ_k, so their h_θ arrays differ in length (compared
+    entry by entry: a ZeroDivisionError on a tolerance of 0). Θ_k is compared by the support
+    functions of both sets in both row sets' directions: they agree to 1e-9, at steps where the row
+    counts differ. The file gives the K, P that the design found when the case was saved: the
+    design's gain LMI at tight tolerances moves K by 1e-5, and on that design the backends keep the
+    same rows at every step, so this comparison would not be exercised."""
     from amcp_properties.lockstep import accurate_controller
 
     spec, runs = lockstep_both_ways("lockstep-exact-rows-problem.json")
@@ -75,10 +74,10 @@ def test_the_exact_update_is_compared_as_sets_when_the_backends_keep_different_r
 
 
 def test_a_loose_window_lp_answer_is_caught_and_replaced():
-    """Saved by the thorough profile (n = 1, p = 3, moving window of 5, data offsets up to 2e3): at
+    """A generated case (n = 1, p = 3, moving window of 5, data offsets up to 2e3): at
     step 11 Drake's LP (9) (Clarabel at 1e-10, "solved") gave one h_i 0.21 above the support: a valid
     but loose bound (multipliers ~1e5 cancelling), which the answer checks could not see without a
-    maximiser. The LP's duals are now the maximisers, the tightness check fails (0.166 > 1e-7), the
+    maximiser. The LP's duals serve as the maximisers, the tightness check fails (0.166 > 1e-7), the
     HiGHS support LPs answer, and the backends agree in lockstep, cvxpy and Drake leading in turn."""
     spec, runs = lockstep_both_ways("window-loose-lp-problem.json")
     assert spec.online.update == "window"

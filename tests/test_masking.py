@@ -66,12 +66,19 @@ def test_an_honest_run_records_every_answer_as_the_backends_own(example_spec, ex
     assert f"drake answered {STEPS + 1} of {STEPS + 1} tube QPs (20) itself" in data["solver_answers"]["summary"]
 
 
-def test_a_wrong_tube_qp_answer_is_a_backend_defect_not_a_failed_theorem(example_spec, example_design, monkeypatch):
-    tb.use_as_drake(monkeypatch, tb.WrongTubeDrake)
+@pytest.mark.parametrize("cls, check", [
+    (tb.WrongTubeDrake, "tube "),                       # v shifted by 0.5: fails a row of (15)
+    (tb.NoLambdaNBoundDrake, "tube Lambda >= 0"),       # Λ_N >= 0 dropped
+    (tb.NoTerminalSetDrake, "tube terminal set"),       # the terminal constraint dropped
+    (tb.WrongVertexDrake, "tube (15c)"),                # a facet judged by the wrong vertex of X0
+])
+def test_a_wrong_tube_qp_answer_is_a_backend_defect_not_a_failed_theorem(example_spec, example_design, monkeypatch,
+                                                                         cls, check):
+    tb.use_as_drake(monkeypatch, cls)
     traj = _run(example_spec, example_design)
     qp = _outcomes(traj, "tube_qp")
     # every plain-form answer was rejected by a check of (15), and the vertex form answered (checked)
-    assert all(e["outcome"] == "fallback" and e["kind"] == "vertex_form" and e["check"].startswith("tube ")
+    assert all(e["outcome"] == "fallback" and e["kind"] == "vertex_form" and e["check"].startswith(check)
                for e in qp), qp
     # the applied v is the vertex form's, not the shifted one: the shift never reached the plant
     for r in traj.records:
@@ -91,6 +98,7 @@ def test_a_wrong_tube_qp_answer_is_a_backend_defect_not_a_failed_theorem(example
     (tb.WrongSetUpdateDrake, "highs_support_lps", "set update nested h <= h_prev (10)"),
     (tb.StaleSetUpdateDrake, "highs_support_lps", "set update nested h <= h_prev (10)"),
     (tb.IgnoresLastDataRowDrake, "highs_support_lps", "set update maximisers feasible and tight"),
+    (tb.ReuseIgnoresLastRowDrake, "highs_support_lps", "set update maximisers feasible and tight"),
 ])
 def test_a_wrong_set_update_answer_is_a_backend_defect(example_spec, example_design, monkeypatch, cls, kind, check):
     tb.use_as_drake(monkeypatch, cls)

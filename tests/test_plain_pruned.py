@@ -1,4 +1,4 @@
-"""The Drake plain form (15) without the rows of (15c) implied by others on Θ0 (issue 16).
+"""The Drake plain form (15) without the rows of (15c) implied by others on Θ0.
 
 ``backends/dominated_rows.py`` leaves out row (l, j, i) when another vertex j' of X0 has
 g_{ij'}(θ) = [H_x]_i A_cl(θ) x^{j'} >= g_{ij}(θ) on all of Θ0; the multipliers of the rows left out

@@ -91,7 +91,7 @@ def _exact_supports_2d(H, h, directions):
 
 def test_certified_support_of_a_thin_window_sliver_is_exact():
     """The moving-window LP on which HiGHS at its default tolerances answered 4.4e-5 too large
-    (thorough profile, lockstep failure): the certified supports equal the rational answer."""
+    (a generated lockstep case): the certified supports equal the rational answer."""
     import json
     from pathlib import Path
 
@@ -123,8 +123,8 @@ def test_the_window_sliver_run_agrees_in_lockstep():
 
 def test_chebyshev_centre_when_highs_gives_no_answer_on_the_lp_as_written():
     """Example 1's terminal set in states x̃ = 1e-4 x (rows of size 1e4 next to the α column of size
-    1): scipy's HiGHS ends the Chebyshev LP as written with status 4, and the design check raised a
-    raw ValueError (session 9). The centre returned must be that of the LP solved independently
+    1): scipy's HiGHS ends the Chebyshev LP as written with status 4, on which a design check that
+    trusts it raises a raw ValueError. The centre returned must be that of the LP solved independently
     (Clarabel through cvxpy), and its ball inside the set (numpy)."""
     import json
     from pathlib import Path

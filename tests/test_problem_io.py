@@ -26,7 +26,7 @@ def test_example_1_data_is_the_papers(example_spec):
     np.testing.assert_array_equal(pr.A[1], [[0.015, 0.019], [0.009, 0.035]])
     np.testing.assert_array_equal(pr.B[2], [[0.040], [0.054]])
     assert pr.N == 10
-    # constraints x2 >= -0.3 and |u| <= 1 (spec §9, from SRC-1)
+    # constraints x2 >= -0.3 and |u| <= 1 (docs/explanation/paper.md §9: from a public re-implementation)
     assert pr.in_Z(np.array([0.0, -0.3]), np.array([1.0])) == pytest.approx(0.0, abs=1e-12)
     assert pr.in_Z(np.array([0.0, -0.31]), np.array([0.0])) > 0
     assert pr.in_Z(np.array([100.0, 50.0]), np.array([-1.01])) > 0

@@ -81,7 +81,7 @@ def test_model_matrices_follow_eq_2():
     np.testing.assert_allclose(problem.A_of(theta), expected_A)
     np.testing.assert_allclose(problem.B_of(theta), expected_B)
     x, u = np.array([1.0, -2.0]), np.array([0.5])
-    # A(θ)x + B(θ)u = A0 x + B0 u + D(x,u) θ (spec §2)
+    # A(θ)x + B(θ)u = A0 x + B0 u + D(x,u) θ (the regressor, docs/explanation/paper.md §1)
     np.testing.assert_allclose(problem.regressor(x, u) @ theta,
                                expected_A @ x + expected_B @ u - (np.array(GOOD["A0"]) @ x + np.array(GOOD["B0"]) @ u))
 

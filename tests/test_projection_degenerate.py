@@ -1,4 +1,4 @@
-"""The projection QP of (12) on degenerate and lower-dimensional sets, both backends (issue 13 item 1).
+"""The projection QP of (12) on degenerate and lower-dimensional sets, both backends.
 
 Expected points come from :func:`exact_projection`, a brute-force active-set enumeration in numpy
 written here (independent of both backends and of ``backends.projection_form``).

@@ -2,7 +2,7 @@
 Assumption 1 by construction, and the hard cases it builds (pinning, θ* on vertices and facets).
 
 Expected values are computed here from the definitions with scipy's LP (Θ ∩ Δ_1 written out from
-spec §3), never by the generator's own helpers."""
+(6), docs/explanation/paper.md §2), never by the generator's own helpers."""
 
 from __future__ import annotations
 
@@ -39,7 +39,7 @@ def _chebyshev_radius(H, h) -> float:
 
 def _theta_1(problem, x0, theta_star, w0):
     """Θ ∩ Δ_1 for the data x_1 = A(θ*) x0 + w0 (B_i = 0, u0 = 0 wlog since B(θ) u0 is known):
-    Δ_1 = {θ | H_w (x_1 − A0 x0 − D(x0) θ) <= 1}, written from spec §3."""
+    Δ_1 = {θ | H_w (x_1 − A0 x0 − D(x0) θ) <= 1}, written from (6)."""
     D = np.stack([A_i @ x0 for A_i in problem.A], axis=1)
     x1 = (problem.A0 + np.tensordot(theta_star, problem.A, axes=1)) @ x0 + w0
     H = np.vstack([problem.H_theta, -problem.H_w @ D])
@@ -256,7 +256,7 @@ def test_the_radius_of_the_last_set_is_measured_when_the_update_changed_its_rows
 
 
 def _theta_1_recorded(problem, x0, u0, x1):
-    """Θ ∩ Δ_1 from recorded data (x_0, u_0, x_1), written from spec §3 with input uncertainty:
+    """Θ ∩ Δ_1 from recorded data (x_0, u_0, x_1), written from (6) with input uncertainty:
     Δ_1 = {θ | H_w (x_1 − A0 x0 − B0 u0 − D(x0, u0) θ) <= 1}, D = [A_i x0 + B_i u0]_i."""
     D = np.stack([A_i @ x0 + B_i @ u0 for A_i, B_i in zip(problem.A, problem.B)], axis=1)
     H = np.vstack([problem.H_theta, -problem.H_w @ D])

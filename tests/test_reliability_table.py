@@ -15,7 +15,9 @@ during a campaign) follow the table.
 
 from __future__ import annotations
 
+import contextlib
 import errno
+import gzip
 import json
 import os
 import re
@@ -24,6 +26,7 @@ import sqlite3
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -90,6 +93,45 @@ def a_store(folder: Path) -> Path:
     return path
 
 
+def chain_problem(n: int, design: dict) -> Callable[[Path], dict]:
+    """A problem file at dimension ``n`` with the given design section: a chain x_i⁺ = x_i + 0.2 x_(i+1)
+    with an input on every state, ‖w‖∞ <= 0.005, Θ a box on two entries (A[0,1], B[n-1,n-1]), 4 steps."""
+
+    def build(folder: Path) -> dict:
+        import numpy as np
+
+        eye, A1, B2 = np.eye(n), np.zeros((n, n)), np.zeros((n, n))
+        A1[0, 1], B2[-1, -1] = 0.2, 0.5
+        data = {"format": "amcp-problem", "version": 1, "name": f"chain{n}",
+                "system": {"A0": (eye + 0.2 * np.eye(n, k=1)).tolist(), "B0": (0.5 * eye).tolist(),
+                           "A": [A1.tolist(), np.zeros((n, n)).tolist()], "B": [np.zeros((n, n)).tolist(), B2.tolist()]},
+                "W": {"H": np.vstack([eye / 0.005, -eye / 0.005]).tolist()},
+                "Theta": {"H": [[1, 0], [-1, 0], [0, 1], [0, -1]], "h": [0.1] * 4},
+                "Z": {"F": np.vstack([eye / 5, -eye / 5, np.zeros((2 * n, n))]).tolist(),
+                      "G": np.vstack([np.zeros((2 * n, n)), eye, -eye]).tolist()},
+                "cost": {"Q": eye.tolist(), "R": eye.tolist(), "N": 5}, "theta_hat0": [0.0, 0.0],
+                "design": design,
+                "scenario": {"x0": [0.5] + [0.0] * (n - 1), "theta_star": [0.05, -0.05], "steps": 4,
+                             "disturbance": "uniform", "seed": 0}}
+        path = folder / "p.json"
+        path.write_text(json.dumps(data))
+        return {"file": path}
+
+    return build
+
+
+def sparse_file(name: str, size: int) -> Callable[[Path], Path]:
+    """A file of ``size`` bytes that takes no disk space (a hole)."""
+
+    def make(folder: Path) -> Path:
+        path = folder / name
+        with open(path, "wb") as handle:
+            handle.truncate(size)
+        return path
+
+    return make
+
+
 DEVICE_SECONDS = 5.0  # generous for a loaded machine; the read stops at the first 64 KiB
 
 #: (id, build, args, exit code, regex, extras)
@@ -148,6 +190,12 @@ ROWS: list[tuple] = [
      {"seconds": DEVICE_SECONDS}),
     ("problem-over-size-limit", text("p.json", " " * (64 * 2**20 + 1)), ["design", "{file}"], 2,
      r"file: expected at most 67,108,864 bytes", {"seconds": DEVICE_SECONDS}),
+    ("corpus-over-size-limit", files(c=sparse_file("c.json", 100 * 2**20)), ["solvers", "--corpus", "{c}"], 2,
+     r"file: expected at most 67,108,864 bytes \(the size limit of a corpus file.*104,857,600 bytes",
+     {"seconds": DEVICE_SECONDS}),
+    ("corpus-gzip-over-size-limit", text("c.json.gz", gzip.compress(b" " * (64 * 2**20 + 1))),
+     ["solvers", "--corpus", "{file}"], 2, r"c\.json\.gz: expected at most 67,108,864 bytes of JSON after decompression",
+     {"seconds": DEVICE_SECONDS}),
     # 11: --max-memory that would disable the limit
     ("run-max-memory-nan", problem(lambda d: None), ["run", "{file}", "--max-memory", "nan"], 2,
      r"'--max-memory'.*nan", {}),
@@ -171,6 +219,9 @@ ROWS: list[tuple] = [
      r"--store: .*database or disk is full", {"patch": disk_full_in_sqlite}),
     ("campaign-report-disk-full", files(s=a_store), ["campaign", "--store", "{s}", "--report", "{folder}/r.html"], 2,
      r"--report: .*No space left on device.*nothing was written", {"patch": disk_full_on_report}),
+    # 18: the certificate of a run whose design sets x0_facets = 12 at n = 6 checks the design that ran
+    ("certify-n6-x0_facets-12", chain_problem(6, {"x0_facets": 12, "x0_template": "mrpi"}),
+     ["certify", "{file}", "--out", "{folder}/../D"], 0, r"design\.x0_vertices +pass.*CERTIFIED: all \d+ claims hold", {}),
 ]
 
 
@@ -365,14 +416,27 @@ def test_answers_field_of_a_record_is_accepted_with_its_documented_shape(tmp_pat
 
     with gzip.open(TRAJECTORY_DATA, "rt") as handle:
         data = json.load(handle)
-    data["records"][3]["answers"] = [{"problem": "qp", "outcome": "resolved", "kind": "plain", "check": "kkt"}]
+    data["records"][3]["answers"] = [{"problem": "tube_qp", "outcome": "resolved", "kind": "plain", "check": "kkt"}]
+    data["records"][4]["answers"] = None  # provenance unknown (what amcp writes for a record without it)
     path = tmp_path / "t.json"
     path.write_text(json.dumps(data))
-    assert Trajectory.load(path).records
-    data["records"][3]["answers"][0]["outcome"] = "maybe"
-    path.write_text(json.dumps(data))
-    with pytest.raises(TrajectoryError, match=r"records\[3\]\.answers\[0\]\.outcome: expected one of"):
-        Trajectory.load(path)
+    loaded = Trajectory.load(path)
+    assert loaded.records[3].answers == data["records"][3]["answers"] and loaded.records[4].answers is None
+    for key, value in (("outcome", "maybe"), ("problem", "qp")):
+        data["records"][3]["answers"][0] = {"problem": "tube_qp", "outcome": "resolved", "kind": "", "check": "",
+                                            key: value}
+        path.write_text(json.dumps(data))
+        with pytest.raises(TrajectoryError, match=rf"records\[3\]\.answers\[0\]\.{key}: expected one of"):
+            Trajectory.load(path)
+
+
+def test_the_schema_lists_the_answer_problems_and_outcomes_the_controller_writes():
+    from amcp_drake.model.trajectory_schema import trajectory_schema
+    from amcp_drake.online import answers
+
+    entry = trajectory_schema()["$defs"]["answer"]["properties"]
+    assert tuple(entry["problem"]["enum"]) == answers.PROBLEMS
+    assert tuple(entry["outcome"]["enum"]) == answers.OUTCOMES
 
 
 def test_problem_example_file_unchanged_by_row_scaling():
@@ -425,8 +489,287 @@ def test_the_compiled_schema_check_accepts_what_amcp_writes_and_agrees_with_json
     assert fast(good) and reference.is_valid(good)
     for path, value in (("records.3.k", -1), ("records.3.status", "fine"), ("theta_star.1", "0.2"),
                         ("records.3.Lambda.0.0.0.0", True), ("design.mu", 2e15), ("records.3.pe_bounds", [1.0]),
-                        ("options.window", 0), ("stop_reason", "done"), ("records.3.times.total", "1")):
+                        ("options.window", 0), ("stop_reason", "done"), ("records.3.times.total", "1"),
+                        ("records.3.answers", [{"problem": "qp", "outcome": "first", "kind": "", "check": ""}]),
+                        ("records.3.answers", {})):
         data = json.loads(json.dumps(good))
         set_(path, value)(data)
         assert not reference.is_valid(data), path
         assert not fast(data), path
+
+
+def test_an_endless_pipe_under_a_memory_limit_exits_2_naming_the_file(tmp_path):
+    """``amcp certify --trajectory /dev/stdin`` fed by ``yes`` (text without end) in a process whose address
+    space is limited to 1.5 GB: exit 2 naming the file (the size limit, or memory running out before it),
+    no traceback, nothing written."""
+    import resource
+
+    def limit_memory() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (1536 * 2**20, 1536 * 2**20))
+
+    out = tmp_path / "D"
+    source = subprocess.Popen(["yes"], stdout=subprocess.PIPE)
+    try:
+        proc = subprocess.Popen([sys.executable, "-m", "amcp_drake", "certify", "--trajectory", "/dev/stdin", "--out",
+                                 str(out)], env=_env(), stdin=source.stdout, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, start_new_session=True, preexec_fn=limit_memory)
+        source.stdout.close()
+        code, stdout, stderr = _finish(proc, 120)
+    finally:
+        source.kill()
+        source.wait()
+    assert code == 2, (code, stderr)
+    assert "Traceback" not in stderr and "MemoryError\n" not in stderr
+    assert re.search(r"^error: file: expected (at most 2,147,483,648 bytes|a trajectory file that fits in the memory "
+                     r"available).*/dev/stdin", stderr, re.MULTILINE), stderr
+    assert not out.exists()
+
+
+# -- full disks: a real tmpfs (needs root, as CI runs), and a file-size limit (any user) ----------------
+@contextlib.contextmanager
+def _tmpfs(folder: Path, size: str):
+    """A tmpfs of ``size`` mounted at ``folder`` for the block (root only: CI runs as root; elsewhere the
+    test is skipped visibly, and the RLIMIT_FSIZE tests below still run)."""
+    if os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs needs root (CI runs as root); test_*_file_size_limit simulate a full disk")
+    folder.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(folder)],
+                             capture_output=True, text=True)
+    assert mounted.returncode == 0, f"root could not mount a tmpfs: {mounted.stderr}"
+    try:
+        yield folder
+    finally:
+        subprocess.run(["umount", "-l", str(folder)], check=True)
+
+
+def _fill(folder: Path) -> Path:
+    """Write zeros into ``folder`` until its file system is full (ENOSPC); returns the file."""
+    path = folder / "fill"
+    with open(path, "wb", buffering=0) as handle:
+        try:
+            while True:
+                handle.write(b"\0" * 4096)
+        except OSError as exc:
+            assert exc.errno == errno.ENOSPC, exc
+    return path
+
+
+def test_certify_out_on_a_full_tmpfs_exits_2_naming_out_and_writes_nothing(tmp_path):
+    """``amcp certify --out`` on a 200 KB tmpfs (the bundle needs about 430 KB): exit 2 naming --out and
+    ENOSPC, no traceback, nothing left on the file system (the staging folder is removed)."""
+    with _tmpfs(tmp_path / "disk", "200k") as disk:
+        code, stdout, stderr = _finish(_amcp("certify", "--trajectory", str(TRAJECTORY_DATA), "--out",
+                                             str(disk / "D")), 120)
+        left = sorted(str(p.relative_to(disk)) for p in disk.rglob("*"))
+    assert code == 2, (code, stderr)
+    assert "Traceback" not in stderr
+    assert re.search(r"^error: --out: .*No space left on device \(ENOSPC\); nothing was written", stderr,
+                     re.MULTILINE), stderr
+    assert left == []
+
+
+def test_campaign_on_a_disk_that_fills_up_exits_2_and_resumes_without_running_a_problem_twice(tmp_path):
+    """A campaign whose tmpfs is filled to the brim after its first problem is stored: exit 2 naming
+    --store (no traceback, whole problems only in the store); ``--report`` onto that full disk: exit 2
+    naming --report, nothing written; once space is freed, ``--resume`` completes every problem exactly once."""
+    with _tmpfs(tmp_path / "disk", "2m") as disk:
+        store_path = disk / "c.sqlite"
+        args = ("campaign", "--systems", "6", "--backends", "drake", "--steps", "2", "--workers", "1", "--store",
+                str(store_path))
+
+        def stored() -> bool:
+            try:
+                return bool(_completions(store_path))
+            except sqlite3.Error:
+                return False
+
+        proc = _amcp(*args, cwd=tmp_path)
+        try:
+            _wait_for(stored, proc, 180)
+            fill = _fill(disk)
+            code, stdout, stderr = _finish(proc, 120)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+        assert code == 2, (code, stderr)
+        assert "Traceback" not in stderr
+        assert re.search(r"^error: --store: .*(database or disk is full|disk I/O error).*--resume", stderr,
+                         re.MULTILINE), stderr
+        first = _completions(store_path)
+        assert 1 <= len(first) < 6 and len(set(first)) == len(first)
+        code, stdout, stderr = _finish(_amcp("campaign", "--store", str(store_path), "--report",
+                                             str(disk / "r.html"), cwd=tmp_path), 60)
+        assert code == 2 and "Traceback" not in stderr, (code, stderr)
+        assert re.search(r"^error: --report: .*No space left on device.*nothing was written", stderr, re.MULTILINE)
+        assert sorted(p.name for p in disk.iterdir() if not p.name.startswith("c.sqlite")) == ["fill"]
+        fill.unlink()
+        code, stdout, stderr = _finish(_amcp(*args, "--resume", cwd=tmp_path), 240)
+        assert code in (0, 1), stderr
+        assert _completions(store_path) == [(0, i) for i in range(6)]
+
+
+def _file_size_limit(limit: int):
+    def apply() -> None:
+        import resource
+
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    return apply
+
+
+def test_certify_out_under_a_file_size_limit_exits_2_naming_out_and_writes_nothing(tmp_path):
+    """A full disk simulated without root: RLIMIT_FSIZE of 200 KB in the child (a write beyond it fails
+    with EFBIG, "File too large", where a full disk gives ENOSPC; Python ignores SIGXFSZ): exit 2 naming
+    --out and the cause, nothing left in the folder."""
+    out = tmp_path / "D"
+    proc = subprocess.Popen([sys.executable, "-m", "amcp_drake", "certify", "--trajectory", str(TRAJECTORY_DATA),
+                             "--out", str(out)], env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, preexec_fn=_file_size_limit(200 * 1024))
+    code, stdout, stderr = _finish(proc, 120)
+    assert code == 2, (code, stderr)
+    assert "Traceback" not in stderr
+    assert re.search(r"^error: --out: .*File too large \(EFBIG\); nothing was written", stderr, re.MULTILINE), stderr
+    assert not out.exists() or not list(out.rglob("*"))
+
+
+def test_a_store_whose_checkpoint_a_full_disk_stopped_is_resumable(tmp_path):
+    """What a full disk leaves of a store in WAL mode: the checkpoint rewrote page 1 (which records the
+    whole database size) but could not extend the file, so the pages past its end are only in the
+    write-ahead log. SQLite reads them from there; the store is accepted, every problem is read back,
+    quick_check passes, and a writer finishes the checkpoint."""
+    import shutil
+
+    from amcp_drake.studies.campaign import campaign_settings
+    from amcp_drake.studies.campaign_store import CampaignStore, inspect_store
+
+    original = tmp_path / "a.sqlite"
+    store = CampaignStore(original)
+    store.record_settings(campaign_settings(0, 3, ("drake",), 2))
+    store.db.execute("PRAGMA wal_autocheckpoint = 0")
+    for i in range(3):
+        store.add({"campaign_seed": 0, "idx": i, "status": "pass",
+                   "claims": {"drake": {f"claim{j}": {"status": "pass", "margin": 1.0} for j in range(40)}}})
+    left = tmp_path / "b.sqlite"
+    shutil.copyfile(original, left)
+    shutil.copyfile(tmp_path / "a.sqlite-wal", tmp_path / "b.sqlite-wal")
+    store.db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+    page_one = original.read_bytes()[:4096]
+    pages = int.from_bytes(page_one[28:32], "big")
+    store.close()
+    assert pages > 1
+    with open(left, "r+b") as handle:
+        handle.write(page_one)
+        handle.truncate(4096)
+    assert inspect_store(left).kind == "store"
+    resumed = CampaignStore(left, exclusive=True)
+    try:
+        assert resumed.done(0) == {0, 1, 2}
+        assert [r[0] for r in resumed.db.execute("PRAGMA quick_check")] == ["ok"]
+    finally:
+        resumed.close()
+    assert left.stat().st_size == pages * 4096
+
+
+def test_a_truncated_store_without_a_write_ahead_log_is_still_refused(tmp_path):
+    """The same truncated file with no write-ahead log beside it holds nothing past its end: refused."""
+    from amcp_drake.model.errors import CampaignStoreError
+    from amcp_drake.studies.campaign import campaign_settings
+    from amcp_drake.studies.campaign_store import CampaignStore, inspect_store
+
+    path = tmp_path / "c.sqlite"
+    store = CampaignStore(path)
+    store.record_settings(campaign_settings(0, 3, ("drake",), 2))
+    for i in range(3):
+        store.add({"campaign_seed": 0, "idx": i, "status": "pass",
+                   "claims": {"drake": {f"claim{j}": {"status": "pass", "margin": 1.0} for j in range(40)}}})
+    store.close()
+    assert not (tmp_path / "c.sqlite-wal").exists()
+    with open(path, "r+b") as handle:
+        handle.truncate(4096)
+    with pytest.raises(CampaignStoreError, match=r"truncated \(its header records \d+ pages"):
+        inspect_store(path)
+
+
+def test_a_long_design_prints_progress_while_it_runs(tmp_path):
+    """``amcp design`` of Example 1 with an mrpi template of 100 facets (about 10 s of work unloaded):
+    progress lines ("  ... design: <stage> (<t> s)") on stderr while it runs, at least two of them and
+    at least 2 s apart, and no silence longer than 3/4 of the command's wall time (a silent design prints
+    everything at its end: a silence of the whole run). Progress is due every 3 s at the design's loop
+    iterations (offline/budget.py); the bounds are relative, so a loaded machine slows both sides."""
+    import threading
+
+    data = example()
+    data["design"].update({"x0_template": "mrpi", "x0_facets": 100})
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps(data))
+    start = time.monotonic()
+    proc = _amcp("design", str(path))
+    arrivals: list[tuple[float, str]] = []
+
+    def read() -> None:
+        for line in proc.stderr:
+            arrivals.append((time.monotonic(), line))
+
+    reader = threading.Thread(target=read)
+    reader.start()
+    code, stdout, _ = _finish(proc, 300)
+    reader.join()
+    end = time.monotonic()
+    assert code == 0, "".join(line for _, line in arrivals)
+    assert "all design checks pass" in stdout
+    progress = [t for t, line in arrivals if re.match(r"\s*\.\.\. design: .*\(\d+ s\)$", line.rstrip())]
+    assert len(progress) >= 2 and progress[-1] - progress[0] >= 2.0, arrivals
+    times = [start] + [t for t, _ in arrivals] + [end]
+    silences = [b - a for a, b in zip(times, times[1:])]
+    assert max(silences) < 0.75 * (end - start), (max(silences), end - start, arrivals)
+
+
+def test_a_campaign_beside_another_dask_process_prints_no_port_warning(tmp_path):
+    """Port 8787 (Dask's default HTTP port) held by another process: a campaign runs with nothing on
+    stderr but its progress bar (its scheduler listens on a free loopback port, no dashboard)."""
+    import socket
+
+    holder = socket.socket()
+    try:
+        holder.bind(("127.0.0.1", 8787))
+        holder.listen()
+    except OSError:
+        pass  # held by another process already: the same situation
+    try:
+        code, stdout, stderr = _finish(_amcp("campaign", "--systems", "1", "--backends", "drake", "--steps", "2",
+                                             "--workers", "1", "--store", str(tmp_path / "c.sqlite"), cwd=tmp_path), 180)
+    finally:
+        holder.close()
+    assert code in (0, 1), stderr
+    assert [line for line in stderr.replace("\r", "\n").splitlines() if line.strip() and "campaign:" not in line] == []
+
+
+@pytest.mark.parametrize("command", ["run", "coverage"])
+def test_sigterm_during_run_and_coverage_ends_with_one_line_and_writes_nothing(tmp_path, command):
+    """SIGTERM while ``amcp run --save`` steps through the closed loop, or while ``amcp coverage``
+    computes its first region: exit 143, the last line of stderr says what was (not) written, no
+    traceback, and neither the trajectory nor any coverage file exists."""
+    out = tmp_path / "out"
+    if command == "run":
+        proc = _amcp("run", "--save", str(out / "t.json"), cwd=tmp_path)
+        started = lambda: proc.stdout.readline().lstrip().startswith("1 ")  # noqa: E731 - step 1 printed
+    else:
+        proc = _amcp("coverage", "--out", str(out), cwd=tmp_path)
+        started = lambda: "robust Θ:" in proc.stderr.read(64)  # noqa: E731 - its progress bar
+    try:
+        deadline = time.monotonic() + 120
+        while not started():
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        proc.send_signal(signal.SIGTERM)
+        code, stdout, stderr = _finish(proc, 60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert code == 128 + signal.SIGTERM, (code, stderr)
+    assert "Traceback" not in stderr
+    last = [line for line in stderr.replace("\r", "\n").splitlines() if line.strip()][-1]
+    expected = {"run": r"interrupted \(SIGTERM\): the run stopped; nothing saved to .*t\.json; run the command again",
+                "coverage": r"interrupted \(SIGTERM\): nothing new written to .*out \(each file is written whole or "
+                            r"not at all\); run the command again"}[command]
+    assert re.fullmatch(expected, last), stderr
+    assert not out.exists() or not list(out.rglob("*"))

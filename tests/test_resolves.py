@@ -53,6 +53,6 @@ def test_the_campaign_counts_extra_solves_only_where_they_can_occur():
     assert drake == {"resolve_clarabel_retry": 0.0, "resolve_refined_resolve": 0.0, "resolve_every_row": 2.0,
                      "resolve_answer_check_fallback": 1.0}
     # the cvxpy plain form always has every row: the key is not reported rather than reported as 0; its
-    # optimality re-solve (session 10) is reported for it alone
+    # optimality re-solve is reported for it alone
     assert _resolve_counts(run, "cvxpy") == {**{k: v for k, v in drake.items() if k != "resolve_every_row"},
                                              "resolve_optimality_resolve": 0.0}

@@ -1,5 +1,6 @@
-"""Section 4 extensions: PE (Section 4.2, spec §8), first-input bounds, the online section of problem
-files and the CLI options. Time-varying parameters are tested in properties/amcp_properties/test_time_varying.py."""
+"""Section 4 extensions: PE (Section 4.2, docs/explanation/paper.md §8), first-input bounds, the online
+section of problem files and the CLI options. Time-varying parameters are tested in
+properties/amcp_properties/test_time_varying.py."""
 
 from __future__ import annotations
 
@@ -29,8 +30,8 @@ def _window_gram(u_all, k, dim, window):
 
 
 def test_pe_quadratic_matches_eigenvalues(rng):
-    """a u² + b u + c >= 0 ⇔ λ_min(Σ_window ū⁽ᵈ⁾ ū⁽ᵈ⁾ᵀ) >= level (spec §8 step 2) for the rung d the
-    ladder picks, on random histories; every rung of the ladder is reached."""
+    """a u² + b u + c >= 0 ⇔ λ_min(Σ_window ū⁽ᵈ⁾ ū⁽ᵈ⁾ᵀ) >= level (docs/explanation/paper.md §8, step 2) for the
+    rung d the ladder picks, on random histories; every rung of the ladder is reached."""
     n, window, checked, dims = 2, 4, 0, set()
     for _ in range(400):
         past = rng.normal(scale=rng.uniform(0.05, 2.0), size=window - 1 + n + int(rng.integers(0, 3)))
@@ -243,8 +244,8 @@ def test_minmax_closed_loop_certifies(example_spec, example_design, backend):
 
 
 def test_example2_builtin_runs_with_drift():
-    """Example 2 (spec §9): built in, with its online section; the documented drifting θ*_k run keeps
-    θ*_k ∈ Θ_k, (x_k, u_k) ∈ Z and feasibility, and the PE constraint is enforced."""
+    """Example 2 (docs/explanation/paper.md §9): built in, with its online section; the documented drifting
+    θ*_k run keeps θ*_k ∈ Θ_k, (x_k, u_k) ∈ Z and feasibility, and the PE constraint is enforced."""
     from amcp_drake.model.examples import get_example, lorenzen2019_ex2_theta_star
     from amcp_drake.offline.design import design
 
@@ -343,13 +344,12 @@ def test_cli_certify_and_compare_take_the_robust_baseline(tmp_path):
 
 
 def test_a_wrong_optimal_under_a_pe_bound_is_dropped_and_the_loop_goes_on():
-    """Found by the thorough profile (PE, m = 1, window 2): at step 4 Clarabel answered the QP with
-    the PE bound u_0 >= 0.6626 "optimal" while (15c) was violated by 0.15. The controller used to
-    take that candidate, fail its answer checks and stop the run (u = None); a candidate is now
-    checked before it competes. Since issue 16 the Drake plain form solves (15d) for p of the
-    multipliers (backends/multiplier_basis.py) and Clarabel answers this step correctly, so the
-    data test checks the outcome (every step optimal and checked, PE enforced at step 4); the
-    dropping itself is tested with a stub below."""
+    """A generated case (PE, m = 1, window 2): a solver can call the QP with a PE bound "optimal"
+    while (15c) is violated (Clarabel at step 4, with u_0 >= 0.6626: by 0.15). Taking such a
+    candidate would fail its answer checks and stop the run (u = None), so a candidate is checked
+    before it competes. With (15d) solved for p of the multipliers (backends/multiplier_basis.py),
+    Clarabel answers this step correctly, so the data test checks the outcome (every step optimal
+    and checked, PE enforced at step 4); the dropping itself is tested with a stub below."""
     from pathlib import Path
 
     from amcp_drake.model.problem_io import load_spec
@@ -404,12 +404,12 @@ def test_a_pe_candidate_that_fails_its_checks_is_dropped_and_the_step_falls_back
 
 
 def test_a_first_try_outside_15c_is_solved_again_with_refinement_and_the_run_completes():
-    """Found by the thorough profile (PE, x_0 on the boundary of the feasible set): the first try of
-    the plain QP at step 0 (iterative refinement off, for speed) was 1.29e-6 outside (15c); the
-    step used to be "not solved" (PE allows only the plain form). Such a first try is now solved
-    again with refinement (mechanism: test_answer_checks, UnrefinedTube). Since issue 16's
-    elimination of (15d) (backends/multiplier_basis.py) the first try on this data passes its
-    checks; the data test checks the outcome: every step optimal, checked, and the tube claim holds."""
+    """A generated case (PE, x_0 on the boundary of the feasible set): the first try of the plain
+    QP at step 0 (iterative refinement off, for speed) can be 1.29e-6 outside (15c), and PE allows
+    only the plain form, so such a first try is solved again with refinement rather than the step
+    left "not solved" (mechanism: test_answer_checks, UnrefinedTube). With (15d) eliminated
+    (backends/multiplier_basis.py) the first try on this data passes its checks; the data test
+    checks the outcome: every step optimal, checked, and the tube claim holds."""
     from pathlib import Path
 
     from amcp_drake.model.problem_io import load_spec

@@ -1,4 +1,4 @@
-"""The cvxpy backend's exact update (9) by dual bases (issue 16, amcp_reference.set_update_dual).
+"""The cvxpy backend's exact update (9) by dual bases (amcp_reference.set_update_dual).
 
 Every answer is compared with an LP built anew for each row by scipy (HiGHS, independent of the code
 under test) on random data, h_θ within 1e-9, and its multipliers and maximisers are re-checked as a

@@ -1,9 +1,9 @@
-"""The set update (9) as the Drake backend solves it since issue 16: the LP written in place into a
+"""The set update (9) as the Drake backend solves it: the LP written in place into a
 preallocated program, and the exact per-facet maximum over the vertices of Θ_{k−1} ∩ Δ_k with its
 dual certificate (reusing the vertices of Θ_{k−1} when Δ_k cuts none of them).
 
 Every answer is compared with an LP built anew for each row by scipy (HiGHS), independent of the
-code under test, on random data: h_θ within 1e-9 (issue 16), and Λ re-checked as a certificate
+code under test, on random data: h_θ within 1e-9, and Λ re-checked as a certificate
 of (9) (Λ >= 0, Λ H̃ = H_θ, Λ h̃ <= h) with numpy.
 """
 
@@ -23,7 +23,7 @@ from amcp_drake.backends.set_update_vertices import (
 )
 from amcp_drake.model.status import SolveStatus
 
-#: issue 16: the in-place and vertex updates give the same h_θ as the rebuilt LP to 1e-9
+#: the in-place and vertex updates give the same h_θ as the rebuilt LP to 1e-9
 H_TOL = 1e-9
 #: Λ >= 0, Λ H̃ = H_θ and Λ h̃ <= h hold to round-off of the solvers (Clarabel at 1e-10, see CLARABEL_LP_OPTIONS)
 CERT_TOL = 1e-8
@@ -136,7 +136,7 @@ def test_reused_vertices_when_the_data_cut_nothing_and_when_they_cut_a_little():
 
 
 def test_reused_multipliers_are_fresh_for_each_theta_and_number_of_data_rows():
-    """The reuse case's Λ (a copy of one template per Θ_(k−1) and number of data rows, issue 16) equals
+    """The reuse case's Λ (a copy of one template per Θ_(k−1) and number of data rows) equals
     that of a fresh VertexSetUpdate while Θ_(k−1) (two sets whose redundant seventh row has different
     multipliers) and the number of data rows change, and an answer overwritten by the caller does not
     change the next one."""

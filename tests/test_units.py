@@ -4,9 +4,9 @@ The same system written in x̃ = T x, T = diag(t_i) > 0 (``model/state_units.sca
 the same design, mapped: K̃ = K T⁻¹, P̃ = T⁻ᵀ P T⁻¹, H̃_x = H_x T⁻¹ (rows in any order), X̃0 = T X0,
 Ã_z = T A_z T⁻¹, H̃_T = H_T T⁻¹ with the same h_T, and the same unit-free w̄, f̄, h̄, λ̄, template and
 terminal iterations; μ is that of (11) in the user's units (recomputed here from the vertices of the
-region, not by the design code). On session 7's main Example 1 in diag(100, 0.01) got
-K̃T = [−0.051, −0.478] instead of [0.018, −0.415] and massera2017 in diag(0.01, 100, 100) a K 2.6e-4
-away (relative): these tests were red there.
+region, not by the design code). A design that is not unit-free fails them: Example 1 in
+diag(100, 0.01) gets K̃T = [−0.051, −0.478] instead of [0.018, −0.415], and massera2017 in
+diag(0.01, 100, 100) a K 2.6e-4 away (relative).
 """
 
 from __future__ import annotations
@@ -28,16 +28,16 @@ from amcp_drake.offline.design import design, design_fixed
 #: to the size of each quantity, for everything the design computes from K and P (K and P themselves:
 #: :data:`GAIN_RTOL`). Both designs are made on normalised problems that differ only by a common factor
 #: c (S̃T = cS, offline/units.py) and by round-off (~1e-16); the support LPs stop at ~1e-8. Measured
-#: (Drake and cvxpy, sessions 7-9, with K equal to 9e-9): w̄ within 1e-8, λ̄ within 1e-11; 1e-6 leaves a
-#: factor 100 above the solvers' accuracy. Since session 10 these are compared on the design made with
+#: (Drake and cvxpy, with K equal to 9e-9): w̄ within 1e-8, λ̄ within 1e-11; 1e-6 leaves a
+#: factor 100 above the solvers' accuracy. These are compared on the design made with
 #: the original's K and P given, so the flatness of the gain LMI does not enter them.
 COVARIANCE_RTOL = 1e-6
 #: Agreement required of K and P from the gain LMI (16), relative. Its optimum trace(S) is flat in K:
-#: an interior-point answer at relative gap δ fixes K only to about √δ (session 8: ±3.3e-5 at 1e-10,
+#: an interior-point answer at relative gap δ fixes K only to about √δ (measured: ±3.3e-5 at 1e-10,
 #: ±3.5e-4 at 1e-8 on sls eps0.05). Twins are solved to 1e-9 of each other while their solves follow
 #: the same path, but round-off can send one of them to a stall and the backend's defaults (1e-8):
-#: session 10, on an AMD EPYC, massera2017 stalled at 1e-10 and its twins did not, and their K were
-#: 7.3e-5 apart, where the machine of sessions 7-9 had measured 9e-9. So K and P are required to
+#: on an AMD EPYC, massera2017 stalled at 1e-10 and its twins did not, and their K were
+#: 7.3e-5 apart, where another machine had measured 9e-9. So K and P are required to
 #: agree to √1e-8 = 1e-4 (which still catches the 2.6e-4 of the design before normalisation), and
 #: everything the design computes from them is required to 1e-6 on the design with the original's
 #: gain given in the new units (:func:`assert_same_downstream_design`).
@@ -142,7 +142,7 @@ def test_the_automatic_design_in_other_state_units_is_the_mapped_design(name, T,
 
 
 #: Example 1 written in x̃ = t x with a common factor far from 1 (states in micro- or mega-units).
-#: Before session 9 the design was not unit-free here: a 12-facet X0 instead of 8 (t = 1e-4, and a
+#: A design that is not unit-free gives here: a 12-facet X0 instead of 8 (t = 1e-4, and a
 #: raw ValueError from the design check's Chebyshev LP, HiGHS status 4), a 20-facet X0 (t = 1e6), no
 #: candidate passing (t = 1e8). t = 3e-5 and below are refused by the input limits (Q̃ > 1e9).
 COMMON_FACTORS = [1e-4, 1e6, 1e8]
@@ -227,7 +227,7 @@ def test_a_check_lost_by_the_mapping_is_an_error_not_a_silent_design(monkeypatch
 
 def test_as_written_designs_in_the_files_units_and_a_bad_value_names_the_field():
     """design.state_units = "as written" is the design in the units of the file (no "state_units" record;
-    Example 1 in diag(100, 0.01) then gets the other K of session 7: K̃T = [−0.051, −0.478], not [0.018, −0.415])."""
+    Example 1 in diag(100, 0.01) then gets the other K: K̃T = [−0.051, −0.478], not [0.018, −0.415])."""
     from amcp_drake.model.errors import ProblemError
 
     spec = get_example("lorenzen2019")

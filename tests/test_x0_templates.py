@@ -1,4 +1,4 @@
-"""Cross-section templates of X0 and the automatic design (issue 14 items 1-2).
+"""Cross-section templates of X0 and the automatic design.
 
 Every property of a template is re-checked here with plain numpy/scipy (Qhull vertex enumeration
 of the polytopes, vertices of boxes by itertools, random closed-loop samples), never with
@@ -237,7 +237,7 @@ def test_the_same_system_with_a_small_disturbance_designs():
 
 @pytest.mark.parametrize("eps_A", SLS_EPS_A_SWEEP)
 def test_sls_family_designs_at_default_settings(eps_A):
-    """Issue 14: the default (auto) design succeeds and passes every design check for every ε_A."""
+    """The default (auto) design succeeds and passes every design check for every ε_A."""
     from amcp_drake.offline.checks import verify_design
 
     spec = sls_mpc_2d_spec(eps_A)

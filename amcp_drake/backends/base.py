@@ -2,9 +2,9 @@
 
 A backend formulates and solves, with its own modelling layer:
 
-* offline (spec §4-§6): the robust gain LMI for (K, P) of Assumption 8 / eq. (16), and batched
+* offline (docs/explanation/paper.md §4-§6): the robust gain LMI for (K, P) of Assumption 8 / eq. (16), and batched
   support-function LPs (used for w̄, f̄, h̄^k, the minimal-RPI template of X0, the terminal-set
-  recursion of spec §5.1 and redundancy removal);
+  recursion of docs/explanation/paper.md §5 and redundancy removal);
 * online: the fixed-complexity set-membership LP (9) (also used, with more data rows, for the
   moving window of Remark 4), the projection QP of the LMS update (12), and the tube MPC QP (20)
   with constraints (15a)-(15d) and the certainty-equivalence cost (17)-(18).

@@ -2,7 +2,7 @@
 with a numerical solver error (InsufficientProgress).
 
 Both backends use this ladder for the plain form (15) of the QP (both costs), so a retry cannot
-make them disagree, and since session 10 for the vertex form too (after its first try without and its
+make them disagree, and for the vertex form too (after its first try without and its
 second with iterative refinement; :func:`retry_ladder`): the property suite's lockstep comparison of
 the vertex forms found a Drake step at 1e-10 that ended AlmostSolved after both, answered only by the
 controller's fallback, where cvxpy's solved it. Each retry is a full solve
@@ -10,7 +10,7 @@ with Clarabel's default tolerances (1e-8); only a status "Solved" is accepted, s
 turns an inaccurate answer into "optimal" by loosening anything. Which rung solved a step is
 written into ``MPCSolution.detail``.
 
-Measured (issue 7, min-max cost (19) in its second-order-cone form, Hypothesis min-max cases of
+Measured (min-max cost (19) in its second-order-cone form, Hypothesis min-max cases of
 the property suite, 12 steps each): on 21 steps whose first solve ended AlmostSolved, one retry
 without equilibration left 1 of 21 inaccurate, the smaller static regularisation 0 of 21. Over 200
 fresh cases (2600 steps) per backend, with the ladder every step solved to "optimal"; retries were
@@ -33,8 +33,8 @@ RETRIED = frozenset({SolveStatus.INACCURATE, SolveStatus.ERROR})
 
 #: Clarabel settings tried first for the certainty-equivalence cost (17) in both formulations and
 #: both backends (the user's options override them): iterative refinement off. Measured on Example 1
-#: (8-facet X0, N = 10; issue 16): plain form (15) 26 -> 17.5 ms CPU per Drake solve, vertex form
-#: 1.91 -> 1.37 ms (issue 8), v unchanged to 1e-11. A first try whose status is in RETRIED is solved
+#: (8-facet X0, N = 10): plain form (15) 26 -> 17.5 ms CPU per Drake solve, vertex form
+#: 1.91 -> 1.37 ms, v unchanged to 1e-11. A first try whose status is in RETRIED is solved
 #: again with the backend's own options (refinement on), then the ladder below.
 NO_REFINEMENT = {"iterative_refinement_enable": False}
 #: Clarabel tolerances tried first for the min–max cost (19) in both backends (the user's options

@@ -48,7 +48,7 @@ class CondensedCost:
         self._allocate()
 
     def _allocate(self) -> None:
-        """Buffers written in place by :meth:`_blocks` (issue 16: ~20 fewer numpy calls and temporaries
+        """Buffers written in place by :meth:`_blocks` (~20 fewer numpy calls and temporaries
         per step; the same products on the same operands, so the same bits as building them anew).
 
         ``_source`` holds the powers A_cl^l (N+1, n, n) and the products A_cl^l B(θ̂) (N+1, n, m) (the

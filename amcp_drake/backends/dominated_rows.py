@@ -1,4 +1,4 @@
-"""Rows of (15c)-(15d) implied by others for every Θ_k ⊆ Θ0: the plain form keeps only the rest (issue 16).
+"""Rows of (15c)-(15d) implied by others for every Θ_k ⊆ Θ0: the plain form keeps only the rest.
 
 Row ρ = (l, j, i) of (15c)-(15d), with its multipliers eliminated by LP duality (proof of
 Proposition 9), is

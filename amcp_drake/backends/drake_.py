@@ -54,7 +54,7 @@ class DrakeBackend:
         and default) or with (5b) at the vertices of Θ_k ("vertex", same optimum, no Λ:
         ``MPCSolution.Lambda`` is None; see ``drake_vertex``).
     set_update_method: "auto" (default): the update (9) by the vertices of Θ_{k−1} ∩ Δ_k with a dual
-        certificate per row where that applies, else the LP; "lp": always the LP (issue 16).
+        certificate per row where that applies, else the LP; "lp": always the LP.
     qp_solver: None (default: ``solver`` for the tube QP) or "daqp": the fast path of the vertex form
         (:mod:`.daqp_fast`): DAQP warm-started from the previous active set, every answer checked by
         its KKT residuals and primal feasibility against the original rows, Clarabel on any doubt.

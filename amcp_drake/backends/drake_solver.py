@@ -87,7 +87,7 @@ class DrakeSolver:
 
     def status(self, result) -> SolveStatus:
         # is_success() is Drake's solution_result == kSolutionFound (STATUS_MAP: OPTIMAL), 0.2 µs against
-        # ~1 µs for hashing the pybind11 enum into STATUS_MAP (issue 16: called once per QP)
+        # ~1 µs for hashing the pybind11 enum into STATUS_MAP (called once per QP)
         if not result.is_success():
             return STATUS_MAP.get(result.get_solution_result(), SolveStatus.ERROR)
         if self.name == "clarabel":

@@ -1,6 +1,6 @@
 """The tube MPC QP (20) in Drake: constraints (15a)-(15d), terminal set, cost (17)-(18).
 
-The program is built once per controller with sparse matrix constraints, reduced exactly (issue 16):
+The program is built once per controller with sparse matrix constraints, reduced exactly:
 
 * (15d) is solved for p of the q multipliers of each row (:mod:`.multiplier_basis`): the program
   holds the other q − p (Λ_N >= 0), the rows Λ_B = c M − Λ_N H_N M >= 0, and (15c) in the form
@@ -161,7 +161,7 @@ class DrakeTubeMPC:
         prog.AddBoundingBoxConstraint(0.0, np.inf, y[lay.a0:lay.a0 + N + 1]).evaluator().set_description("alpha >= 0")
         prog.AddBoundingBoxConstraint(0.0, np.inf, y[lay.L0:]).evaluator().set_description("Lambda >= 0")
 
-        # optional bound lo <= K x_k + v_0 <= hi on the first input (PE two-QP procedure, spec §8);
+        # optional bound lo <= K x_k + v_0 <= hi on the first input (PE two-QP procedure, docs/explanation/paper.md §8);
         # inactive (±inf) unless ``solve`` gets ``u0_bounds``
         self._c_u0 = prog.AddBoundingBoxConstraint(np.full(m, -np.inf), np.full(m, np.inf), y[lay.v(0)]).evaluator()
         self._c_u0.set_description("PE bound on u_0|k")
@@ -431,7 +431,7 @@ class DrakeTubeMPC:
         """Solve (20) at x_k with Θ_k = {H_θ θ <= h_theta} and point estimate θ̂_k.
 
         ``u0_bounds`` = (lo, hi) adds lo <= K x_k + v_{0|k} <= hi (±inf allowed), the PE
-        constraint of spec §8. ``refine``: Clarabel with iterative refinement from the start (the
+        constraint of docs/explanation/paper.md §8. ``refine``: Clarabel with iterative refinement from the start (the
         first try is otherwise without it, :data:`.clarabel_retry.NO_REFINEMENT`). ``h_theta`` may be (N, q): per-stage offsets of the predicted sets (26) (Section 4.1),
         stage l of (15c)/(28b) then uses row l."""
         start = time.perf_counter()

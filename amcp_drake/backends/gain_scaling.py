@@ -26,10 +26,10 @@ itself another objective (trace(D S Dᵀ)), so K moves, but (16) is solved as ac
 
 When a vertex is not stabilisable ((16) is then infeasible: K must make every vertex's closed
 loop Schur), :func:`solve_scaled` answers "infeasible" without calling a solver
-(:func:`unstabilisable_vertex`, the PBH test). Before session 9 the solver was asked and had to
-report it: Clarabel did at the default margin, but at ``design.lmi_margin`` = 1e-8 or 1e-9 it
-panicked inside Rust on x⁺ = 1.5x + 0·u ("Eigval error"), which the Drake backend cannot catch:
-the Python process was aborted (SIGABRT). A vertex that is stabilisable but has no stabilising
+(:func:`unstabilisable_vertex`, the PBH test), rather than ask the solver to report it:
+Clarabel does at the default margin, but at ``design.lmi_margin`` = 1e-8 or 1e-9 it
+panics inside Rust on x⁺ = 1.5x + 0·u ("Eigval error"), which the Drake backend cannot catch:
+the Python process is aborted (SIGABRT). A vertex that is stabilisable but has no stabilising
 Riccati solution for other reasons keeps T = I and the solver decides.
 
 The robust P can be far from P_ref (a common Lyapunov function for very different vertices:
@@ -68,7 +68,7 @@ ScaledSolve = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarr
 #: without an accepted answer (e.g. "inaccurate": cvxpy on massera2017) is solved again at the backend's
 #: own options, so no problem that designed before is lost.
 GAIN_TIGHT = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10}
-#: Settings tried on top of the first try's when it ends without an accepted answer (session 10),
+#: Settings tried on top of the first try's when it ends without an accepted answer,
 #: before the backend's own options. Only the static regularisation changes: equilibration and step
 #: lengths stay, so the iterates follow the first try's path and an answer lands where the first try
 #: would have. Example 1 in x' = 1e3 x (Drake, on an AMD EPYC): the first try stalled "AlmostSolved"
@@ -150,7 +150,7 @@ def solve_scaled(solve: ScaledSolve, A_vertices, B_vertices, Q, R, first: dict |
 
     1. :func:`gain_scaling` (mean vertex Riccati solution);
     2. the coordinates of the answer of 1 when it was "inaccurate", or "optimal" but violating (16);
-    3. the identity: the LMI as written, the only formulation before session 7, so that no problem
+    3. the identity: the LMI as written, the plain formulation, so that no problem
        solved by it is lost (found on a generated 3-state problem, seed 22 of the random problems,
        where Clarabel ended "AlmostSolved" in the cvxpy backend on 1 and 2 with P̃ ≈ I).
     """

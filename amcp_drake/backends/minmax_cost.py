@@ -5,7 +5,7 @@ Why not the solver's objective Σ s_l² (the epigraph variables of the QP): the 
 s_l >= ‖(Q^½ x^j_l, R^½ u^j_l)‖ hold only to the solver's feasibility tolerance, which Clarabel scales
 by the largest variable. On a problem in badly scaled state units (generator ``scaled_states``: states
 of size 350, Q of size 1e-4) Σ s_l² undershot (19) of the returned plan by 1.3e-6 relative, on both
-backends (found by the property suite, session 7). The cost of the plan is the number a user can act
+backends (a case of the property suite). The cost of the plan is the number a user can act
 on; that the plan minimises (19) is the optimality claim's job (:mod:`amcp_drake.certificate.optimality`,
 KKT residuals of the epigraph problem with t_l = max_j q_lj, recomputed from the plan).
 

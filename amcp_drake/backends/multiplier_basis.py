@@ -1,11 +1,11 @@
-"""(15d) solved for p of the q multipliers of each row of (15c): the Drake plain form's Λ (issue 16).
+"""(15d) solved for p of the q multipliers of each row of (15c): the Drake plain form's Λ.
 
 Each row ρ = (l, j, i) of (15c)-(15d) has a multiplier row Λ_ρ = Λ^j_{l|k}[i, :] ∈ R^q with
 
     (15d)  Λ_ρ H_θ = c_ρ,   c_ρ = [H_x]_i D^j_{l|k} ∈ R^p (linear in z_l, α_l, v_l),   Λ_ρ >= 0,
     (15c)  Λ_ρ h_θ + [H_x]_i d^j_{l|k} − α_{l+1} <= −w̄_i.
 
-H_θ (q, p) has full column rank (Θ is bounded, spec §2), so some p of its rows, B, form an
+H_θ (q, p) has full column rank (Θ is bounded, docs/explanation/paper.md §2), so some p of its rows, B, form an
 invertible H_B. With M = H_B^{-1} the equality (15d) is Λ_B = c_ρ M − Λ_N (H_N M) exactly, and
 
     Λ_ρ h_θ = c_ρ κ + Λ_N s,    κ = M h_B (the point where the facets B are active),

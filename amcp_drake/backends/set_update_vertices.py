@@ -1,12 +1,12 @@
 """The fixed-complexity update (9) solved exactly by basis enumeration, with its dual certificate.
 
 (9) is, row by row, the support of Θ_{k−1} ∩ Δ_k = {θ | H̃ θ <= h̃} (H̃ = [H_θ; H_data] (R, p),
-h̃ = [h_{k−1}; h_data]) in the directions of the rows of H_θ (spec §2.1):
+h̃ = [h_{k−1}; h_data]) in the directions of the rows of H_θ (docs/explanation/paper.md §2):
 
     [h_k]_i = max{[H_θ]_i θ | H̃ θ <= h̃}.
 
 A linear function on a bounded non-empty polytope attains its maximum at a vertex, so [h_k]_i is
-the per-facet maximum over the vertices of Θ_{k−1} ∩ Δ_k (issue 16). The vertices are enumerated
+the per-facet maximum over the vertices of Θ_{k−1} ∩ Δ_k. The vertices are enumerated
 as basic feasible solutions (every choice B of p linearly independent rows of H̃, θ_B = H̃_B⁻¹ h̃_B,
 kept when H̃ θ_B <= h̃), as in :func:`.vertex_form.theta_vertices`.
 
@@ -33,7 +33,7 @@ from amcp_drake.model.arrays import same_bits
 MAX_BASES = 3000
 #: A basic solution is primal feasible when H̃ θ <= h̃ + PRIMAL_TOL·max(1, |h̃|) on unit rows. Smaller
 #: than the vertex enumeration's 1e-9: a point kept although outside by ε can raise [h_k]_i by ε,
-#: and h_k must match the LP's to 1e-9 (issue 16); solves of p×p systems of unit rows err by ~1e-15·cond.
+#: and h_k must match the LP's to 1e-9; solves of p×p systems of unit rows err by ~1e-15·cond.
 PRIMAL_TOL = 1e-11
 #: Multipliers above −DUAL_TOL count as >= 0 (they are clipped to 0 in the returned Λ); the
 #: certificate is then exact up to DUAL_TOL·Σ|h̃| in the bound λᵀ h̃.
@@ -67,7 +67,7 @@ class VertexSetUpdate:
         # (H_θ, h_{k−1}, vertices (F, p), h, Λ (q, q), maximisers (q, p)) of Θ_{k−1} alone, or None
         self._last: tuple[np.ndarray, ...] | None = None
         # Λ of the reuse case for the current _last and number of data rows (zeros on the rows of Δ_k):
-        # each answer is a copy of it, one call instead of zeros and a slice assignment (issue 16)
+        # each answer is a copy of it, one call instead of zeros and a slice assignment
         self._lambda_template: np.ndarray | None = None
 
     def solve(self, H_theta: np.ndarray, h_prev: np.ndarray, H_data: np.ndarray,

@@ -1,6 +1,6 @@
 """The vertex form of the tube constraint (5b), shared by both backends' ``formulation="vertex"``.
 
-By the proof of Proposition 9 (spec §4), (5b) holds if and only if, for every l ∈ ℕ_0^{N−1},
+By the proof of Proposition 9 (docs/explanation/paper.md §4), (5b) holds if and only if, for every l ∈ ℕ_0^{N−1},
 every vertex x^j of X0 and every θ ∈ Θ_k,
 
     H_x (A_cl(θ)(z_l + α_l x^j) + B(θ) v_l − z_{l+1}) − α_{l+1} 1 <= −w̄.

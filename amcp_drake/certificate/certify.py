@@ -13,9 +13,13 @@ backend that ran the loop):
 * Proposition 9 at every solved step: tube containment by vertex enumeration, (5c), α >= 0,
   the terminal set, and the multipliers Λ as dual certificates (Λ >= 0, (15c), (15d));
 * the recorded cost against (17) or (19) and, when the run enforces persistent excitation, the
-  PE window level and input bounds of spec §8 (:mod:`amcp_drake.certificate.section4`);
+  PE window level and input bounds of docs/explanation/paper.md §8 (:mod:`amcp_drake.certificate.section4`);
 * the optimality of the recorded (z, α, v) for the QP (20) rebuilt from the record, by KKT
   residuals (:mod:`amcp_drake.certificate.optimality`).
+
+The premises of the results (𝔻(x_0, Θ_0) ≠ ∅, Assumption 8, (11)) are reported apart from the claims
+(:mod:`amcp_drake.certificate.premises`): a run whose premise is not met has the verdict
+``"premise_not_met"``, and the claims that did not pass on it are "not claimed", never failed.
 
 The claims are checked on the answers the controller applied (a checked fallback answer is a solved
 step for Theorem 14). Whose answers they were is reported beside the verdict: the section
@@ -27,7 +31,8 @@ a failed theorem and never as nothing.
 
 Each claim is a :class:`~amcp_drake.model.check_result.CheckResult` (margin, tolerance, worst step in
 ``data["worst_step"]``). :attr:`Certificate.passed` is True only when every claim passed: a claim
-that could not run (``not_run``) makes the verdict ``"incomplete"``, which is not a pass. The JSON
+that could not run (``not_run``) makes the verdict ``"incomplete"``, which is not a pass.
+:data:`TOLERANCE_RULE` is how every margin is judged. The JSON
 layout is described by ``amcp_drake/data/certificate.schema.json`` and docs/certificate.md.
 """
 
@@ -42,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from amcp_drake import __version__
+from amcp_drake.certificate import premises as premise_checks
 from amcp_drake.certificate.claims import RunView, run_checks, tag
 from amcp_drake.certificate.optimality import qp_optimality
 from amcp_drake.certificate.section4 import cost_value, excitation_checks, pe_figure
@@ -58,9 +64,25 @@ CERTIFICATE_FORMAT = "amcp-certificate"
 #: Version of the certificate JSON layout (bump on any incompatible change; see docs/certificate.md).
 CERTIFICATE_VERSION = 1
 VERDICT_PASS, VERDICT_FAIL, VERDICT_INCOMPLETE = "pass", "fail", "incomplete"
+#: A premise of the paper's results does not hold on this run (premises.py): nothing is claimed.
+VERDICT_PREMISE_NOT_MET = "premise_not_met"
+#: How every claim is judged, printed once above the claims (terminal and report).
+TOLERANCE_RULE = ("a claim passes when its margin >= -tolerance (margin > 0: holds with room; a small negative "
+                  "margin within the tolerance is round-off); tolerances marked 'r' are relative (scaled by the "
+                  "size of the quantity, see the statement), the others absolute in the claim's units")
 #: Backend conformance (:func:`amcp_drake.online.answers.summarize`): every answer the backend's own;
 #: some answer rejected by a check; provenance not recorded.
 CONFORMANCE_PASS, CONFORMANCE_FAIL, CONFORMANCE_UNKNOWN = "pass", "fail", "unknown"
+#: Claims whose margin and tolerance are relative (scaled by the size of the quantity, named in the claim's
+#: detail), marked "r" beside the tolerance; every other tolerance is absolute in the claim's units.
+RELATIVE_TOLERANCES = {
+    "design.terminal_cost_16": "eigenvalue tolerance relative to the size of the terms of (16)",
+    "design.x0_vertices": "relative to the largest vertex coordinate (floor 1)",
+    "cost_value": "relative to max(|J|, 1)",
+    "qp_optimality": "KKT residuals relative to the stationarity scale s",
+    "pe_level": "relative to max(1, pe_level)",
+    "pe_bounds": "relative to max(1, |bound|)",
+}
 #: Recorded copies of the same number (x_k in the record and in the state array) must agree exactly
 #: up to float64 rounding of a JSON round trip (which is exact); anything else is a corrupt file.
 DUPLICATE_TOL = 1e-12
@@ -79,6 +101,13 @@ class Certificate:
     created: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds"))
     #: the ``solver_answers`` section (:func:`amcp_drake.online.answers.summarize`)
     solver_answers: dict[str, Any] = field(default_factory=dict)
+    #: the ``premises`` section (:mod:`amcp_drake.certificate.premises`)
+    premises: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def premises_not_met(self) -> list[dict[str, Any]]:
+        """The premises of the paper's results that do not hold on this run."""
+        return [p for p in self.premises if p["status"] == premise_checks.NOT_MET]
 
     @property
     def conformance(self) -> str:
@@ -95,14 +124,18 @@ class Certificate:
 
     @property
     def passed(self) -> bool:
-        """True only when every claim passed (``not_run`` is not a pass)."""
-        return bool(self.claims) and all(c.status == PASS for c in self.claims)
+        """True only when every claim passed (``not_run`` is not a pass) and every premise is met."""
+        return bool(self.claims) and all(c.status == PASS for c in self.claims) and not self.premises_not_met
 
     @property
     def verdict(self) -> str:
-        """``"pass"``, ``"fail"`` (some claim failed) or ``"incomplete"`` (none failed, some not run)."""
+        """``"pass"``, ``"fail"`` (some claim failed), ``"premise_not_met"`` (no claim failed, a premise of the
+        paper's results does not hold: nothing is claimed for the run) or ``"incomplete"`` (none failed, every
+        premise met, some claim not run)."""
         if any(c.status == FAIL for c in self.claims):
             return VERDICT_FAIL
+        if self.premises_not_met:
+            return VERDICT_PREMISE_NOT_MET
         return VERDICT_PASS if self.passed else VERDICT_INCOMPLETE
 
     def claim(self, claim_id: str) -> CheckResult:
@@ -125,19 +158,20 @@ class Certificate:
             "format": CERTIFICATE_FORMAT, "version": CERTIFICATE_VERSION, "generator": f"amcp-drake {__version__}",
             "created": self.created, "verdict": self.verdict, "passed": self.passed, "counts": self.counts(),
             "problem": self.problem, "run": self.run,
-            "claims": [claim_to_dict(c) for c in self.claims],
+            "premises": self.premises, "claims": [claim_to_dict(c) for c in self.claims],
             "backend_conformance": self.conformance, "solver_answers": self.solver_answers,
             "figures": self.figures, "series": self.series,
         })
 
 
 def claim_to_dict(c: CheckResult) -> dict[str, Any]:
-    """One claim as in certificate.json: id, group, name, claim, status, margin, tolerance, worst_step,
-    detail, per_step (``[k, margin]`` pairs or null)."""
+    """One claim as in certificate.json: id, group, name, claim, status, margin, tolerance, tolerance_relative
+    (:data:`RELATIVE_TOLERANCES`), worst_step, detail, per_step (``[k, margin]`` pairs or null)."""
     margin = c.margin if c.margin is not None and np.isfinite(c.margin) else None
     extra = {k: v for k, v in c.data.items() if k not in ("id", "group", "worst_step", "per_step")}
     return {"id": c.data["id"], "group": c.data["group"], "name": c.name, "claim": c.claim, "status": c.status,
-            "margin": margin, "tolerance": c.tolerance, "worst_step": c.data.get("worst_step"), "detail": c.detail,
+            "margin": margin, "tolerance": c.tolerance, "tolerance_relative": c.data["id"] in RELATIVE_TOLERANCES,
+            "worst_step": c.data.get("worst_step"), "detail": c.detail,
             "per_step": c.data.get("per_step"), "extra": extra}
 
 
@@ -171,7 +205,9 @@ def certify(traj: Trajectory, problem_spec: ProblemSpec | None = None) -> Certif
     info["not_claimed"] = [{"id": c.data["id"], "name": c.name, "reason": c.detail}
                            for c in claims if c.data.get("not_claimed")]
     claims = [c for c in claims if not c.data.get("not_claimed")]
-    return Certificate(claims=claims, figures=figures, series=series, run=info,
+    claims, premises, unclaimed = premise_checks.apply(claims, view)
+    info["not_claimed"] += unclaimed
+    return Certificate(claims=claims, figures=figures, series=series, run=info, premises=premises,
                        problem={"name": traj.problem.name, "n": traj.problem.n, "m": traj.problem.m,
                                 "p": traj.problem.p, "N": traj.problem.N},
                        solver_answers=answers.summarize(traj.records, traj.backend))

@@ -165,7 +165,7 @@ class RunView:
         return [theta_vertices(r.H_theta, r.h_theta) for r in self.records]
 
     def regressor(self, k: int) -> np.ndarray:
-        """D_k = D(x_k, u_k) for an applied step (spec §2)."""
+        """D_k = D(x_k, u_k) for an applied step (docs/explanation/paper.md §2)."""
         return self.problem.regressor(self.traj.x[k], self.traj.u[k])
 
     @cached_property
@@ -220,7 +220,7 @@ def control_law(view: RunView) -> CheckResult:
 
 
 def mu_precondition(view: RunView, state_bound: float | None) -> CheckResult:
-    """Lemma 5 precondition: μ‖D(x_k, u_k)‖₂² <= 1 at every visited (x_k, u_k) (spec §3, (11)).
+    """Lemma 5 precondition: μ‖D(x_k, u_k)‖₂² <= 1 at every visited (x_k, u_k) (docs/explanation/paper.md §3, (11)).
 
     When Z is unbounded in x (Example 1), μ was computed on a box |x_i| <= bound; the detail
     reports the largest |x_i| visited against that bound.
@@ -478,7 +478,7 @@ class Lemma5Series:
 
 
 def lemma5_series(view: RunView) -> Lemma5Series:
-    """The two sides of the Lemma 5 inequality from recorded data (spec §3)."""
+    """The two sides of the Lemma 5 inequality from recorded data (docs/explanation/paper.md §3)."""
     tr = view.traj
     mu = view.design.mu
     M = min(view.T, len(view.records) - 1)

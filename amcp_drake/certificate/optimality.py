@@ -18,7 +18,7 @@ another feasible decision, passes them all. This claim closes that gap with the 
   c^s_i = max_j [H_x A_cl(θ^s) x^j]_i over the recorded vertices x^j of X0 (the rows of the other
   j are implied because α_l >= 0 is a row too);
 * terminal set H_T z_N + h_T α_N <= 1; α_l >= 0;
-* when the step enforced the PE constraint (spec §8): lo <= K x_k + v_0 <= hi, the recorded bounds
+* when the step enforced the PE constraint (docs/explanation/paper.md §8): lo <= K x_k + v_0 <= hi, the recorded bounds
   of the QP the controller chose (the claim is optimality for *that* QP; that the other branch was
   not cheaper is not checked).
 
@@ -69,7 +69,7 @@ GROUP_COST = "cost"
 CLAIM_ID = "qp_optimality"
 
 #: Judged KKT residual (dimensionless, see module docstring). The run's QPs are solved by Clarabel to
-#: its default 1e-8 gap and feasibility tolerances. Measured (issue 13 note in docs/certificate.md):
+#: its default 1e-8 gap and feasibility tolerances. Measured (docs/certificate.md, qp_optimality):
 #: honest runs <= 3.7e-6 (446 runs: problems 0-59 of campaign seeds 0, 1, 2 on both backends, 20 of
 #: them again with min–max, exact update, vertex formulation, PE; Example 1 with every option);
 #: Example 1 with design P[0][0] raised by 0.1 (still satisfying (16)) 4.6e-5..6.1e-5 (the terminal

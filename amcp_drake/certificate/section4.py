@@ -4,12 +4,12 @@
   minimise, evaluated with numpy from the recorded decision: (17) with the nominal prediction (18)
   and the recorded θ̂_k (certainty equivalence), or (19), the worst case over the tube vertices
   x^j_{l|k} = z_{l|k} + α_{l|k} x^j (min–max, Remark 13; docs/decisions.md "Min–max cost (19)").
-* ``pe_level`` (only when the run enforces persistent excitation, spec §8): at every step whose
+* ``pe_level`` (only when the run enforces persistent excitation, docs/explanation/paper.md §8): at every step whose
   record says the PE constraint was enforced, λ_min of the window Gram
   Σ_{j=k−P+1}^{k} ū_j ū_jᵀ, ū_j = [u_j; …; u_{j−d+1}] (d = ``pe_dim``), of the inputs the run
   actually applied reaches the recorded ``pe_level``.
 * ``pe_bounds`` (same condition): u_k lies within the recorded first-input bounds of the QP that
-  was chosen (spec §8 step 3).
+  was chosen (docs/explanation/paper.md §8 step 3).
 
 Both PE claims are absent from a run without PE (they are options, not claims of the paper's
 Theorem 14). The PE status counts and Definition 21 for the realised regressor D_kᵀ are figures
@@ -30,9 +30,9 @@ GROUP_EXCITATION = "excitation"
 
 #: Recorded cost vs the numpy evaluation, relative to max(|J|, COST_SCALE_FLOOR) (absolute below 1).
 #: Certainty equivalence: both sides are the same quadratic of recorded floats (~1e-14 relative).
-#: Min–max: the backends record (19) of their plan (amcp_drake.backends.minmax_cost; before session 7
-#: the solver's Σ s_l², 1.3e-6 relative off (19) on a problem in badly scaled state units), so both
-#: sides are the same formula of recorded floats too; the tolerance stays what it was for Σ s_l².
+#: Min–max: the backends record (19) of their plan (amcp_drake.backends.minmax_cost; not
+#: the solver's Σ s_l², which can be 1.3e-6 relative off (19) on a problem in badly scaled state units),
+#: so both sides are the same formula of recorded floats too.
 COST_REL_TOL = 1e-6
 COST_SCALE_FLOOR = 1.0
 #: λ_min(window Gram) vs the recorded level, relative to max(1, level): the input sits on a root of
@@ -142,8 +142,8 @@ def pe_level(view: RunView) -> CheckResult:
             continue
         per[k] = (float(np.linalg.eigvalsh(G)[0]) - float(r.pe_level)) / max(1.0, abs(float(r.pe_level)))
     return step_check("pe_level", GROUP_EXCITATION, "PE window level",
-                      "spec §8: at every step where the PE constraint was enforced, the window Gram of the applied "
-                      "inputs (stacked to pe_dim) has λ_min >= pe_level",
+                      "Section 4.2 (PE constraint): at every step where the PE constraint was enforced, the window Gram "
+                      "of the applied inputs (stacked to pe_dim) has λ_min >= pe_level",
                       per, PE_LEVEL_TOL, f"margin = (λ_min − pe_level) / max(1, pe_level), window P = {P}; "
                       "−inf at an enforced step that records no level or precedes its window",
                       "no step enforced the PE constraint in this run")
@@ -164,7 +164,7 @@ def pe_bounds(view: RunView) -> CheckResult:
         per[k] = min((uk - lo) / max(1.0, abs(lo)) if np.isfinite(lo) else np.inf,
                      (hi - uk) / max(1.0, abs(hi)) if np.isfinite(hi) else np.inf)
     return step_check("pe_bounds", GROUP_EXCITATION, "PE input bounds",
-                      "spec §8 step 3: the applied input lies within the first-input bounds of the chosen QP",
+                      "Section 4.2 (PE, two QPs): the applied input lies within the first-input bounds of the chosen QP",
                       per, PE_BOUND_TOL, "margin = distance of u_k inside [lo, hi], relative to max(1, |bound|); "
                       "−inf at an enforced step that records no bounds",
                       "no step recorded PE bounds")
@@ -180,7 +180,7 @@ def excitation_checks(view: RunView) -> list[CheckResult]:
     checks: list[CheckResult] = []
     if pe_enabled(view):
         if view.problem.m != 1:
-            checks.append(tag(not_run("PE window level", "spec §8 PE constraint", "PE needs m = 1"), "pe_level",
+            checks.append(tag(not_run("PE window level", "Section 4.2: the PE constraint", "PE needs m = 1"), "pe_level",
                               GROUP_EXCITATION))
         else:
             checks += [pe_level(view), pe_bounds(view)]

@@ -1,4 +1,4 @@
-"""``amcp campaign``: verification campaigns at scale on Dask (issues 9 and 17).
+"""``amcp campaign``: verification campaigns at scale on Dask.
 
 Exit codes: 0 every problem passed; 1 a problem failed (its replay commands are printed); 2 bad
 input: a bad option, a --store that is a directory, damaged, not a campaign store, or made with
@@ -8,6 +8,7 @@ and exits 2.
 
 from __future__ import annotations
 
+import sqlite3
 import sys
 from pathlib import Path
 
@@ -18,10 +19,12 @@ from amcp_drake.cli.common import (
     EXIT_OK,
     bad_input_exits_2,
     exit_verdict,
+    interruptible,
     max_memory_option,
     output_file_callback,
     parse_range,
     store_path_callback,
+    write_error,
 )
 
 
@@ -81,16 +84,19 @@ def draw_lines(labels: list[tuple[int, int, dict[str, str]]]) -> list[str]:
 def answer_lines(rows: list[tuple[str, str, float, int, int]]) -> list[str]:
     """Fallback and re-solve rates per backend and kind: of the backend's answers of each problem, the share
     that was not its first answer, and the problems with at least one such step."""
-    totals = {(backend, key[: -len("_answers")]): total for key, backend, total, _, _ in rows if key.endswith("_answers")}
+    # per (backend, problem): its answers over the campaign and the problems that recorded any (a kind's own
+    # key is stored only where it occurred, so its row counts only those problems)
+    totals = {(backend, key[: -len("_answers")]): (total, problems) for key, backend, total, _, problems in rows
+              if key.endswith("_answers")}
     lines = [f"{'solver answers':44s} {'backend':8s} {'steps':>7s} {'rate':>9s} {'problems':>9s}"]
     for key, backend, total, with_any, problems in rows:
         for outcome in ("resolved", "fallback", "not_solved"):
             head, sep, kind = key.partition(f"_{outcome}")
             if sep and (kind == "" or kind.startswith("_")) and head.startswith("answers_"):
-                answered = totals.get((backend, head), 0.0)
-                rate = total / answered if answered else float("nan")
+                answered, of_problems = totals.get((backend, head), (0.0, problems))
+                rate = f"{total / answered:9.2%}" if answered else f"{'-':>9s}"
                 label = f"{head[len('answers_'):]} {outcome}{(' ' + kind[1:]) if kind else ''}"
-                lines.append(f"{label:44s} {backend:8s} {int(total):7d} {rate:9.2%} {int(with_any):5d}/{problems}")
+                lines.append(f"{label:44s} {backend:8s} {int(total):7d} {rate} {int(with_any):5d}/{of_problems}")
                 break
     if len(lines) == 1:
         lines.append("(no solver answers recorded)")
@@ -140,6 +146,7 @@ def report_html(store, damage: list[str] | None = None) -> str:
                    "the automatic design (bounded-complexity templates first), each design candidate under "
                    "--max-memory and a 60 s budget; the range is recorded in the store.")
 @max_memory_option
+@interruptible(lambda kw, exc: _interrupted(kw, exc))
 @bad_input_exits_2
 def campaign_cmd(systems, backends, seed, scheduler, workers, store_path, steps, resume, report_file, max_memory,
                  state_dims):
@@ -161,8 +168,13 @@ def campaign_cmd(systems, backends, seed, scheduler, workers, store_path, steps,
         sys.exit(_report(store_path, report_file))
     from amcp_drake.studies.campaign import run_campaign
 
-    counts = run_campaign(store_path, systems, chosen, seed=seed, scheduler=scheduler, workers=workers,
-                          resume=resume, steps=steps, max_memory_mb=max_memory, state_dims=(dims[0], dims[-1]))
+    try:
+        counts = run_campaign(store_path, systems, chosen, seed=seed, scheduler=scheduler, workers=workers,
+                              resume=resume, steps=steps, max_memory_mb=max_memory, state_dims=(dims[0], dims[-1]))
+    except (sqlite3.OperationalError, OSError) as exc:  # creating the store on a full disk, say
+        from amcp_drake.studies.campaign import store_write_error
+
+        raise store_write_error(store_path, exc) from None
     store = CampaignStore(store_path)
     click.echo(f"submitted {counts['submitted']}, stored {counts['stored']}, skipped (already stored) {counts['skipped']}")
     click.echo(summary_text(store))
@@ -171,11 +183,24 @@ def campaign_cmd(systems, backends, seed, scheduler, workers, store_path, steps,
     exit_verdict(ok)
 
 
+def _interrupted(kwargs: dict, exc: BaseException) -> str:
+    """The line printed when a campaign is interrupted: what the store holds and the command that resumes."""
+    import shlex
+
+    command = ["amcp", "campaign", "--systems", str(kwargs["systems"]), "--backends", kwargs["backends"], "--seed",
+               str(kwargs["seed"]), "--steps", str(kwargs["steps"]), "--store", str(kwargs["store_path"])]
+    if kwargs.get("scheduler"):
+        command += ["--scheduler", kwargs["scheduler"]]
+    stored = getattr(exc, "stored", None)
+    held = (f"{stored} of {kwargs['systems']} problems stored in {kwargs['store_path']}" if stored is not None
+            else f"stopped before the first result; {kwargs['store_path']} holds what it held before")
+    return f"{held}; resume with: {shlex.join(command + ['--resume'])}"
+
+
 def _report(store_path: str, report_file: str) -> int:
     """``--report``: render the store. A damaged store is salvaged row by row (read-only, from a copy):
     what could be read is rendered with the damage listed first, and the exit code is 2."""
     from amcp_drake.model.errors import CampaignStoreError, ProblemError
-    from amcp_drake.model.problem_io import write_text_atomic
     from amcp_drake.studies.campaign_store import CampaignStore, inspect_store, salvage
 
     try:
@@ -189,7 +214,7 @@ def _report(store_path: str, report_file: str) -> int:
                        err=True)
             return EXIT_BAD_INPUT
         try:
-            write_text_atomic(report_html(found.store, found.damage), report_file)
+            _write_report(report_html(found.store, found.damage), report_file)
             counts = found.store.problem_counts()
         finally:
             found.store.close()
@@ -203,8 +228,18 @@ def _report(store_path: str, report_file: str) -> int:
                            f"{store_path}: " + ("an empty file" if Path(store_path).exists() else "no such file"))
     store = CampaignStore(store_path, allow_legacy=True)
     try:
-        write_text_atomic(report_html(store), report_file)
+        _write_report(report_html(store), report_file)
     finally:
         store.close()
     click.echo(f"report written to {report_file}")
     return EXIT_OK
+
+
+def _write_report(html: str, report_file: str) -> None:
+    """Write the report atomically; a failed write (a full disk) is a ProblemError naming ``--report``."""
+    from amcp_drake.model.problem_io import write_text_atomic
+
+    try:
+        write_text_atomic(html, report_file)
+    except OSError as exc:
+        raise write_error("--report", report_file, exc) from None

@@ -3,16 +3,20 @@
 Exit codes: 0 every claim holds and every solver answer was the backend's own; 1 a claim failed **or
 could not be checked** (verdict ``incomplete``: a claim that did not run is not a pass), or the backend's
 conformance failed (a check rejected one of its answers and a fallback answered); 2 bad input (unreadable or malformed
-problem or trajectory file, bad option, --out naming a file). On exit 2 no
-output is written; on 0 and 1 the bundle (certificate.json, report.html, trajectory.json.gz) is
-written atomically into --out.
+problem or trajectory file, bad option, --out naming a file); 3 a premise of the paper's results does not
+hold on the run (verdict ``premise_not_met``: x_0 outside the feasible region of (20), Assumption 8 or (11)
+broken by the design), so nothing is claimed. On exit 2 no output is written; on 0, 1 and 3 the bundle
+(certificate.json, report.html, trajectory.json.gz) is written atomically into --out.
 """
 
 from __future__ import annotations
 
+import sys
+
 import click
 
 from amcp_drake.cli.common import (
+    EXIT_PREMISE_NOT_MET,
     ONLINE_OPTION_NAMES,
     backend_option,
     bad_input_exits_2,
@@ -64,10 +68,13 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
 
     Exit code 0: every claim holds and the backend answered every problem itself; 1: a claim failed or
     could not be checked, or a check rejected a backend answer (backend conformance failed; the bundle
-    is still written); 2: bad input (nothing is written). See docs/certificate.md."""
-    from amcp_drake.certificate.certify import certify
+    is still written); 2: bad input (nothing is written); 3: a premise of the paper's results does not
+    hold (x0 outside the feasible region of (20), Assumption 8 or (11) broken by the design): nothing is
+    claimed for the run (the bundle is written; when a gain design.K of the problem file breaks Assumption 8
+    nothing is run). See docs/certificate.md."""
+    from amcp_drake.certificate.certify import VERDICT_PREMISE_NOT_MET, certify
     from amcp_drake.certificate.report import check_out_dir, remove_stale_staging, write_outputs
-    from amcp_drake.model.errors import ProblemError
+    from amcp_drake.model.errors import DesignError, ProblemError
 
     remove_stale_staging(check_out_dir(out_dir))
     if trajectory_file is not None:
@@ -86,17 +93,50 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
                                            "a scenario (x0, theta_star, ...) in the problem file to run",
                                            "Add a \"scenario\" object, or pass --trajectory.")
         seed = spec.scenario.seed if seed is None else seed
-        traj = _run(spec, backend, steps, seed, formulation, options, design_backend,
-                    design_budget(max_memory, candidate_budget))
+        try:
+            traj = _run(spec, backend, steps, seed, formulation, options, design_backend,
+                        design_budget(max_memory, candidate_budget))
+        except DesignError as exc:
+            broken = _assumption_8_broken_by_the_given_gain(exc, spec)
+            if broken is None:
+                raise
+            from amcp_drake.certificate.premises import DESIGN_HINT
+
+            click.echo(f"PREMISE NOT MET: Assumption 8 (A_cl(θ) = A(θ) + B(θ)K Schur stable at every vertex of Θ): the "
+                       f"gain design.K of the problem file breaks it ({broken}); nothing was run or written, nothing is "
+                       "claimed")
+            click.echo(f"                 next: {DESIGN_HINT}")
+            sys.exit(EXIT_PREMISE_NOT_MET)
         if traj.stop_reason.startswith("inconsistent"):
             click.echo(f"warning: the run stopped: {traj.stop_reason}; certifying the partial trajectory", err=True)
     cert = certify(traj, spec)
+    if trajectory_file is None and traj.options.update != "none":
+        cert = _with_robust_baseline(traj, cert)
     try:
         out = write_outputs(out_dir, traj, cert)
     except OSError as exc:  # a full disk or a failing medium: write_outputs removed what it had staged
         raise write_error("--out", out_dir, exc) from None
     _print(cert, out)
+    if cert.verdict == VERDICT_PREMISE_NOT_MET and cert.conformance != "fail":
+        sys.exit(EXIT_PREMISE_NOT_MET)
     exit_verdict(cert.passed and cert.conformance != "fail")
+
+
+def _with_robust_baseline(traj, cert):
+    """The certificate with ``figures.robust_baseline``: the robust baseline (``--update none``) run beside
+    ``traj`` on its recorded disturbance (:func:`amcp_drake.studies.baseline.robust_beside`). A measurement
+    shown apart from the verdict; a failure to run it is reported there, never as a failed claim."""
+    from dataclasses import replace
+
+    from amcp_drake.studies.baseline import robust_beside
+
+    click.echo("robust baseline (--update none) on the same disturbance ...", err=True)
+    try:
+        baseline = robust_beside(traj)
+    except Exception as exc:  # noqa: BLE001 - any failure is shown in the report; the verdict stands
+        click.echo(f"warning: the robust baseline could not be run: {type(exc).__name__}: {exc}", err=True)
+        baseline = {"error": f"{type(exc).__name__}: {exc}"}
+    return replace(cert, figures={**cert.figures, "robust_baseline": baseline})
 
 
 def _run(spec, backend: str, steps: int, seed: int, formulation: str = "plain", options=None,
@@ -107,6 +147,19 @@ def _run(spec, backend: str, steps: int, seed: int, formulation: str = "plain", 
 
     return run_scenario(spec, backend, design_backend=design_backend, formulation=formulation, steps=steps,
                         seed=seed, options=options, progress=True, design_budget=budget)
+
+
+def _assumption_8_broken_by_the_given_gain(exc: Exception, spec) -> str | None:
+    """The design's reason when the problem file gives K (design.K) and every design attempt failed on
+    Assumption 8 with it (a premise the user's design breaks, not a defect of the design); else None."""
+    if getattr(spec.design, "K", None) is None:
+        return None
+    attempts = getattr(exc, "attempts", None)
+    reasons = [a.reason for a in attempts if a.outcome == "design failed"] if attempts else [str(exc)]
+    prefix = "Assumption 8 fails: "
+    if reasons and all(r.startswith(prefix) for r in reasons):
+        return reasons[0][len(prefix):]
+    return None
 
 
 def _load_trajectory(path: str, problem_file, example):
@@ -130,17 +183,30 @@ def _load_trajectory(path: str, problem_file, example):
 
 
 def _print(cert, out) -> None:
-    click.echo(f"{'claim':32s} {'status':8s} {'margin':>11s} {'tolerance':>9s} {'step':>5s}  statement")
+    from amcp_drake.certificate.certify import RELATIVE_TOLERANCES, TOLERANCE_RULE
+
+    click.echo(f"how to read the table: {TOLERANCE_RULE}")
+    click.echo(f"{'claim':32s} {'status':8s} {'margin':>11s} {'tolerance':>10s} {'step':>5s}  statement")
     for c in cert.claims:
         margin = "n/a" if c.margin is None else f"{c.margin:.3e}"
         step = c.data.get("worst_step")
-        click.echo(f"{c.data['id']:32s} {c.status:8s} {margin:>11s} {c.tolerance:9.1e} "
+        mark = "r" if c.data["id"] in RELATIVE_TOLERANCES else " "
+        click.echo(f"{c.data['id']:32s} {c.status:8s} {margin:>11s} {c.tolerance:9.1e}{mark} "
                    f"{'' if step is None else step:>5}  {c.name}")
     for c in cert.not_claimed:
-        click.echo(f"{c['id']:32s} {'-':8s} {'':>11s} {'':9s} {'':>5s}  not claimed for this run: {c['reason']}")
+        click.echo(f"{c['id']:32s} {'-':8s} {'':>11s} {'':10s} {'':>5s}  not claimed for this run: {c['reason']}")
     click.echo("")
+    for p in cert.premises_not_met:
+        margin = "n/a" if p["margin"] is None else f"{p['margin']:.3e}"
+        click.echo(f"PREMISE NOT MET: {p['name']}: {p['premise']}; margin {margin} (tolerance {p['tolerance']:.0e}); "
+                   f"{p['detail']}")
+        click.echo(f"                 next: {p['hint']}")
     counts = cert.counts()
-    if cert.passed:
+    if cert.premises_not_met and not counts["fail"]:
+        click.echo(f"NOT CERTIFIED (premise not met): the paper's results assume {', '.join(p['name'] for p in cert.premises_not_met)}, "
+                   f"which does not hold on this run; nothing is claimed for it ({counts['pass']} checks passed, "
+                   f"{len(cert.not_claimed)} not claimed)")
+    elif cert.passed:
         click.echo(f"CERTIFIED: all {counts['pass']} claims hold")
     elif counts["fail"]:
         click.echo(f"NOT CERTIFIED: {counts['fail']} claim(s) failed: {', '.join(cert.ids('fail'))}"
@@ -159,7 +225,16 @@ def _print(cert, out) -> None:
         click.echo(f"backend conformance: pass ({answers['backend']} answered every problem itself)")
     else:
         click.echo("backend conformance: unknown (the trajectory has no record of how its solver answers were obtained)")
+    baseline = cert.figures.get("robust_baseline") or {}
+    if "adaptive" in baseline:
+        a, r = baseline["adaptive"], baseline["robust"]
+        click.echo(f"robust baseline (not part of the verdict): cost {_g(a['cost'])} adaptive vs {_g(r['cost'])} robust; "
+                   f"mean one-step tube {_g(a['mean_one_step_tube'])} vs {_g(r['mean_one_step_tube'])} (report.html)")
     click.echo(f"wrote {out}/certificate.json, {out}/report.html, {out}/trajectory.json.gz")
+
+
+def _g(value) -> str:
+    return "n/a" if value is None else f"{value:.4g}"
 
 
 def _steps(steps: list[int]) -> str:

@@ -16,6 +16,8 @@ from amcp_drake.model.limits import DEFAULT_MAX_MEMORY_MB, MAX_STEPS
 from amcp_drake.model.problem_io import check_output_dir, check_output_file, check_store_path
 
 EXIT_OK, EXIT_FAIL, EXIT_BAD_INPUT = 0, 1, 2
+#: ``amcp certify``: a premise of the paper's results does not hold on the run (nothing is claimed).
+EXIT_PREMISE_NOT_MET = 3
 #: Largest seed: seeds are stored as signed 64-bit integers (campaign store, trajectory meta).
 MAX_SEED = 2**63 - 1
 #: Most disturbance seeds of one ``amcp baseline`` / ``pe-figure`` (each seed is two full runs).

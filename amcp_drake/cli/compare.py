@@ -70,13 +70,17 @@ def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_sol
                 per_step[d.step][d.quantity] = d.difference
         quantities = [q for q in ("u", "v", "cost", "h_theta", "theta_hat", *INFORMATIONAL)
                       if any(q in row for row in per_step.values())]
-        click.echo(f"{'k':>3}  {'status a/b':22s} " + " ".join(f"{q:>10s}" for q in quantities))
+        head = [f"{q + '*' if q in INFORMATIONAL else q:>10s}" for q in quantities]
+        click.echo(f"{'k':>3}  {'status a/b':22s} " + " ".join(head))
         statuses = {k: (a, b) for k, a, b in comp.statuses}
         for k in sorted(per_step):
             a, b = statuses.get(k, ("-", "-"))
             flag = "" if a == b else "  <- status differs"
-            cells = " ".join(f"{per_step[k].get(q, float('nan')):10.2e}" for q in quantities)
+            cells = " ".join(f"{per_step[k][q]:10.2e}" if q in per_step[k] else f"{'-':>10s}" for q in quantities)
             click.echo(f"{k:3d}  {a[:10] + '/' + b[:10]:22s} {cells}{flag}")
+        if any(q in INFORMATIONAL for q in quantities):
+            click.echo("* information only, never compared: z and alpha are not unique minimisers of (20) (the cost "
+                       "depends on v alone), so their differences have no tolerance")
         click.echo("")
     click.echo(f"{comp.mode} comparison, backends {comp.backends[0]} ({drake_solver}) vs {comp.backends[1]} ({cvxpy_solver}), "
                f"{steps} steps, seed {seed}" + (", Clarabel at 1e-10 (--accurate)" if accurate else ""))
@@ -91,8 +95,9 @@ def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_sol
         click.echo(f"{q:14s} {d.difference:13.3e} {step:>8s} {d.tolerance:11.3e}  ({abs_tol:g} + {rel_tol:g}*{d.scale:.3g})  {verdict}")
     info = [(q, worst[q]) for q in INFORMATIONAL if q in worst]
     if info:
-        click.echo("information only, not compared (z and alpha are not unique minimisers of (20): the cost depends on v "
-                   "alone): " + ", ".join(f"{q} largest diff {d.difference:.3e} at step {d.step}" for q, d in info))
+        click.echo("information only, no tolerance, never a disagreement (z and alpha are not unique minimisers of "
+                   "(20): the cost depends on v alone): "
+                   + ", ".join(f"{q} largest diff {d.difference:.3e} at step {d.step}" for q, d in info))
     for name in comp.backends:
         counts = comp.answer_counts.get(name, {})
         if counts:

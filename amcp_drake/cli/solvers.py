@@ -32,7 +32,8 @@ from amcp_drake.model.errors import ProblemError
               help="Only re-run the reproducers of this folder and say which still reproduce.")
 @click.option("--export-corpus", "export_dir", type=click.Path(file_okay=False), default=None,
               help="Only export the corpus from recorded runs of the shipped examples and of the hard cases of "
-                   "--hard-cases into this folder (each reference verified).")
+                   "--hard-cases, and generated projections (12) onto each example's Θ, into this folder (each "
+                   "reference verified).")
 @click.option("--steps", type=click.IntRange(min=1, max=200), default=6, show_default=True,
               help="With --export-corpus: closed-loop steps per run.")
 @click.option("--hard-cases", type=click.Path(file_okay=False), default="tests/data", show_default=True,
@@ -104,9 +105,10 @@ def _recheck(folder: Path):
 
 
 def _export(folder: Path, steps: int, hard_cases: Path):
-    from amcp_drake.studies.solver_matrix.export import example_sources, export_corpus, hard_case_sources
+    from amcp_drake.studies.solver_matrix.export import example_sources, export_corpus, hard_case_sources, projection_sources
 
     sources = list(example_sources(steps=steps)) + list(example_sources(("lorenzen2019",), steps, backend="cvxpy"))
+    sources += list(projection_sources())
     if hard_cases.is_dir():
         sources += list(hard_case_sources(hard_cases))
     index = export_corpus(folder, sources, progress=lambda msg: click.echo(msg, err=True))

@@ -1,1 +1,1 @@
-"""Cross-backend comparison (issue 4): the same algorithm in Drake and cvxpy, step by step."""
+"""Cross-backend comparison: the same algorithm in Drake and cvxpy, step by step."""

@@ -12,7 +12,7 @@ not unique (the cost (17) depends on v only), so they are reported but never cou
 v is unique because the cost is strictly convex in v (R ≻ 0). Under the min–max cost (19) the
 objective is not strictly convex in v in general, so v and u agree only to the QP's accuracy
 (measured on Example 2, 30 steps: 2e-6 in v, 1.6e-8 in the cost; the same tolerances apply).
-With persistent excitation (spec §8) the PE status and dimension must match exactly and the
+With persistent excitation (Section 4.2 of the paper) the PE status and dimension must match exactly and the
 enforced level to ``pe_level``'s tolerance.
 
 How each answer was obtained counts too (``StepRecord.answers``, :mod:`amcp_drake.online.answers`):
@@ -53,8 +53,10 @@ TOLERANCES: dict[str, tuple[float, float]] = {
     "cost": (1e-5, 1e-6),
     "h_theta": (1e-6, 1e-6),
     "theta_hat": (1e-6, 1e-6),
-    # PE level enforced (spec §8): computed from the applied inputs, which agree to the u tolerance
+    # PE level enforced (Section 4.2 of the paper): computed from the applied inputs, which agree to the u tolerance
     "pe_level": (1e-5, 1e-5),
+    # the PE status and dimension of a step are discrete: they must match exactly
+    "pe_status": (0.0, 0.0),
     # K, P solve an SDP whose objective trace(P⁻¹) is flat near the optimum: Clarabel at its default
     # tolerances fixes K to ~2e-5 in either stack (measured: 1.6e-5 between Drake and cvxpy on Example 1;
     # tighter Clarabel tolerances end in AlmostSolved). The rest of the design is compared with the
@@ -83,6 +85,10 @@ class Difference:
     agree: bool
 
     def to_dict(self) -> dict[str, Any]:
+        """As in compare.json; a quantity of :data:`INFORMATIONAL` has no tolerance and no verdict (null)."""
+        if self.quantity in INFORMATIONAL:
+            return {"quantity": self.quantity, "step": self.step, "difference": self.difference, "scale": self.scale,
+                    "tolerance": None, "agree": None, "information_only": True}
         return {"quantity": self.quantity, "step": self.step, "difference": self.difference,
                 "scale": self.scale, "tolerance": self.tolerance, "agree": self.agree}
 
@@ -127,11 +133,12 @@ class Comparison:
             per[e["outcome"]] += 1
 
     def worst(self) -> dict[str, Difference]:
-        """The largest difference (relative to its tolerance) per quantity."""
+        """The largest difference per quantity (relative to its tolerance; the informational quantities,
+        which have none, by the difference itself)."""
         out: dict[str, Difference] = {}
         for d in self.differences + self.informational:
             cur = out.get(d.quantity)
-            if cur is None or d.difference / max(d.tolerance, 1e-300) > cur.difference / max(cur.tolerance, 1e-300):
+            if cur is None or _ratio(d) > _ratio(cur):
                 out[d.quantity] = d
         return out
 
@@ -156,6 +163,10 @@ class Comparison:
                 "drift": self.drift, "notes": self.notes, "flat_optimum_steps": self.flat_optimum_steps(),
                 "answer_mismatches": self.answer_mismatches, "answer_counts": self.answer_counts,
                 "allow_fallbacks": self.allow_fallbacks}
+
+
+def _ratio(d: Difference) -> float:
+    return d.difference if d.quantity in INFORMATIONAL else d.difference / max(d.tolerance, 1e-300)
 
 
 def _diff(quantity: str, step: int | None, a, b) -> Difference:
@@ -257,7 +268,7 @@ def _compare_answers(comp: Comparison, k: int, ra, rb) -> None:
 
 
 def _pe_diffs(k: int, ra, rb) -> list[Difference]:
-    """PE at step k (spec §8): the same status (which QP, which rung of the ladder) and level."""
+    """PE at step k (docs/explanation/paper.md §8): the same status (which QP, which rung of the ladder) and level."""
     same = ra.pe_status == rb.pe_status and ra.pe_dim == rb.pe_dim
     out = [Difference("pe_status", k, 0.0 if same else 1.0, 0.0, 0.0, same)]
     if ra.pe_level is not None or rb.pe_level is not None:

@@ -1,4 +1,4 @@
-"""Small array helpers for the online loop's caches (issue 16)."""
+"""Small array helpers for the online loop's caches."""
 
 from __future__ import annotations
 

@@ -1,8 +1,8 @@
-"""Built-in problems. ``lorenzen2019()`` is Example 1 of the paper (spec §9); ``lorenzen2019_ex2``
+"""Built-in problems. ``lorenzen2019()`` is Example 1 of the paper (docs/explanation/paper.md §9); ``lorenzen2019_ex2``
 is Example 2 (Section 4 extensions: PE input and time-varying parameters, choices documented).
 
 Data: A0, B0, A_i, B_i, Θ, W, N, Q, R, θ̂0, θ* from the paper [SEED]; the constraints
-x2 >= -0.3, |u| <= 1, x0 = [2, 3] from the third-party replication SRC-1 (spec §9).
+x2 >= -0.3, |u| <= 1, x0 = [2, 3] from the third-party replication SRC-1 (docs/explanation/paper.md §9).
 Z is unbounded in x1, so μ is evaluated on the box |x_i| <= 3 (as SRC-1 does); the closed loop
 is checked to stay inside that box (Lemma 5 precondition, design.md Pitfalls).
 """
@@ -87,12 +87,12 @@ def tranos2022_spec() -> ProblemSpec:
 
 
 def lorenzen2019() -> Problem:
-    """Example 1 of Lorenzen, Cannon & Allgöwer (2019), spec §9."""
+    """Example 1 of Lorenzen, Cannon & Allgöwer (2019), docs/explanation/paper.md §9."""
     return lorenzen2019_spec().problem
 
 
 def lorenzen2019_ex2_spec() -> ProblemSpec:
-    """Example 2 of the paper (spec §9): Example 1's system with a persistently exciting input and
+    """Example 2 of the paper (docs/explanation/paper.md §9): Example 1's system with a persistently exciting input and
     time-varying parameters. The paper's d_θ, θ*_k trajectory and PE parameters are not recoverable;
     the choices (docs/decisions.md, "Section 4 extensions", Example 2) are: the same system, Θ, W, Z,
     cost, x0 and design as Example 1; online section update "fixed" (9), d_θ = 0.01, PE window
@@ -119,11 +119,11 @@ EXAMPLES = {"lorenzen2019": lorenzen2019_spec, "lorenzen2019_ex2": lorenzen2019_
             "bujarbaruah2022": bujarbaruah2022_spec, "massera2017": massera2017_spec,
             "kothare1996": kothare1996_spec, "tranos2022": tranos2022_spec,
             **{f"sls_mpc_2d_eps{e:g}": (lambda e=e: sls_mpc_2d_spec(e)) for e in SLS_EPS_A_SWEEP}}
-#: The built-in systems taken from other publications than Lorenzen et al. (2019) (issue 14).
+#: The built-in systems taken from other publications than Lorenzen et al. (2019).
 LITERATURE_EXAMPLES = ("parsi2020_siso", "parsi2020_mimo", "bujarbaruah2022", "massera2017", "kothare1996",
                        "tranos2022")
 #: The SLS-MPC 2-D family (Chen et al. 2024; constructor amcp_drake.model.sls_mpc_2d) at the ε_A of
-#: issue 14's sweep; any ε_A through ``sls_mpc_2d_spec(eps_A)``.
+#: the sweep SLS_EPS_A_SWEEP; any ε_A through ``sls_mpc_2d_spec(eps_A)``.
 SLSMPC2D_EXAMPLES = tuple(f"sls_mpc_2d_eps{e:g}" for e in SLS_EPS_A_SWEEP)
 
 

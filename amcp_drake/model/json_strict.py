@@ -211,6 +211,8 @@ def _guess_nul_encoding(sample: bytes) -> str:
         part = sample[start::step]
         return len(part) >= 2 and not any(part)
 
+    if not any(sample):  # only NUL bytes (/dev/zero): no text in any encoding
+        return "binary data"
     if zero(1, 4) and zero(2, 4) and zero(3, 4):
         return "UTF-32 (little-endian) without byte-order mark"
     if zero(0, 4) and zero(1, 4) and zero(2, 4):
@@ -230,10 +232,9 @@ def _sniff(first: bytes, source: str, error: type[Exception], gzip_ok: bool) -> 
     for bom, name in _BOMS:
         if first.startswith(bom):
             return  # decode_utf8 names the encoding once the (bounded) file is read
-    if b"\x00" in first[:READ_CHUNK]:
+    if b"\x00" in first[:READ_CHUNK]:  # refused as decode_utf8 would refuse it, before the rest is read
         guess = _guess_nul_encoding(first[:400])
-        if guess == "binary data":
-            raise _error(error, "file", "UTF-8 encoded JSON text", f"{source} contains NUL bytes ({guess})")
+        raise _error(error, "file", "UTF-8 encoded JSON text", f"{source} contains NUL bytes ({guess})")
 
 
 def read_bytes_limited(path: str | os.PathLike, limit: int = MAX_INPUT_BYTES,
@@ -255,6 +256,8 @@ def read_bytes_limited(path: str | os.PathLike, limit: int = MAX_INPUT_BYTES,
         raise _error(error, "file", f"a readable {what}", f"{path} is a directory") from None
     except OSError as exc:
         raise _error(error, "file", f"a readable {what}", f"{path}: {exc.strerror or exc}") from None
+    chunks: list[bytes] = []
+    total = 0
     with handle:
         try:
             info = os.fstat(handle.fileno())
@@ -262,8 +265,6 @@ def read_bytes_limited(path: str | os.PathLike, limit: int = MAX_INPUT_BYTES,
                 raise _error(error, "file", f"a readable {what}", f"{path} is a directory")
             if stat.S_ISREG(info.st_mode) and info.st_size > limit:
                 raise too_big(f"{info.st_size:,} bytes")
-            chunks: list[bytes] = []
-            total = 0
             while True:
                 chunk = handle.read(READ_CHUNK if not chunks else min(limit + 1 - total, 1 << 24) or 1)
                 if not chunk:
@@ -274,11 +275,15 @@ def read_bytes_limited(path: str | os.PathLike, limit: int = MAX_INPUT_BYTES,
                 if total > limit:
                     raise too_big(f"more than {limit:,} bytes")
                 chunks.append(chunk)
+            return b"".join(chunks)
+        except MemoryError:
+            chunks.clear()
+            raise _error(error, "file", f"a {what} that fits in the memory available",
+                         f"{source}: memory ran out after {total:,} bytes (MemoryError)") from None
         except IsADirectoryError:
             raise _error(error, "file", f"a readable {what}", f"{path} is a directory") from None
         except OSError as exc:
             raise _error(error, "file", f"a readable {what}", f"{path}: {exc.strerror or exc}") from None
-    return b"".join(chunks)
 
 
 def read_text_strict(path: str | os.PathLike, error: type[Exception] = ProblemFileError,

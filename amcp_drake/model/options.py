@@ -1,4 +1,4 @@
-"""Online options of the adaptive MPC (spec §6 and Section 4): the update of Θ_k, the projection of
+"""Online options of the adaptive MPC (docs/explanation/paper.md §6 and Section 4): the update of Θ_k, the projection of
 (12), and the Section 4 extensions (time-varying θ, persistent excitation, min–max cost).
 
 Part of the model layer so that problem files (``problem_io``) can hold them without importing the

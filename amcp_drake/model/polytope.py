@@ -95,7 +95,7 @@ def chebyshev_center(H: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, float]:
     scale = 1.0
     if res.status not in (0, 2, 3):
         # HiGHS gave no answer (status 4, numerical difficulties: seen on sets of size 1e-5 written in
-        # rows of size 1e4-1e5 next to a column of size 1, session 9): the same LP with unit rows, in
+        # rows of size 1e4-1e5 next to a column of size 1): the same LP with unit rows, in
         # y = x / scale with scale the largest offset of the unit rows, has coefficients of order 1
         nz = np.where(norms > 0, norms, 1.0)
         scale = float(np.max(np.abs(h / nz))) or 1.0

@@ -85,6 +85,11 @@ class Problem:
         _require_bounded("W.H", H_w, np.ones(H_w.shape[0]), "W = {w | H_w w <= 1}")
         H_theta = as_matrix("Theta.H", self.H_theta, cols=p)
         h_theta = as_vector("Theta.h", self.h_theta, size=H_theta.shape[0])
+        empty = np.all(H_theta == 0, axis=1) & (h_theta < 0)
+        if np.any(empty):
+            row = int(np.argmax(empty))
+            raise ProblemError(f"Theta.h[{row}]", f"a value >= 0 for the zero row Theta.H[{row}] (0 <= h)",
+                               f"{h_theta[row]:g}: Theta would be empty")
         _require_bounded("Theta.H", H_theta, h_theta, "Theta = {θ | H_θ θ <= h_θ}")
         F = as_matrix("Z.F", self.F, cols=n)
         G = as_matrix("Z.G", self.G, rows=F.shape[0], cols=m)
@@ -345,7 +350,7 @@ class DesignOptions:
       sup ‖D(x,u)‖² in (11); required then. ``mu_fraction``: μ = fraction / sup ‖D‖² (< 1: strict).
     * ``centre_dynamics``: A_z, the centre dynamics z⁺ = A_z z of the terminal recursion (Appendix A.1): ``"nominal"`` = A_cl(θ̂0), ``"zero"`` = 0.
     * ``terminal_max_iter``: iteration cap of the terminal set recursion.
-    * ``terminal_set``: ``"recursion"`` (Appendix A.1, spec §5.1), ``"scaled"`` (the copy
+    * ``terminal_set``: ``"recursion"`` (Appendix A.1, docs/explanation/paper.md §5), ``"scaled"`` (the copy
       {H_x z + α1 <= ᾱ1} of offline/terminal.py, as many rows as X0, centre dynamics z⁺ = 0) or
       ``"auto"`` (default: the recursion up to n = 3, the scaled copy above).
     * ``theta_extra_directions``: extra facet normals (k, p) for the fixed-complexity shape H_θ of (9).

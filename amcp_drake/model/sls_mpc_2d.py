@@ -17,7 +17,7 @@ import numpy as np
 
 from amcp_drake.model.problem import DesignOptions, Problem, ProblemSpec, Scenario
 
-#: The ε_A values of the sweep in issue 14 (the paper sweeps ε_A with ε_B = 0.1 fixed).
+#: The ε_A values of the built-in sweep (the paper sweeps ε_A with ε_B = 0.1 fixed).
 SLS_EPS_A_SWEEP = (0.05, 0.15, 0.25, 0.35, 0.45)
 
 

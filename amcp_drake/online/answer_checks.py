@@ -1,4 +1,4 @@
-"""Solver answers verified before the online loop uses them (issue 13 item 1).
+"""Solver answers verified before the online loop uses them.
 
 A backend's "optimal" is a claim, not a fact (campaign problem 0-19: a projection 0.55 outside
 Θ_1 was recorded as optimal). Every answer of the three online problems is checked here, with
@@ -85,7 +85,7 @@ class AnswerCheck(NamedTuple):
     ``ran`` is False when the answer lacks what the check needs (recorded, never a pass).
 
     Immutable; a NamedTuple rather than a frozen dataclass because a dozen are made per step of the
-    online loop (0.2 µs each instead of 0.55, issue 16)."""
+    online loop (0.2 µs each instead of 0.55)."""
 
     name: str
     value: float
@@ -111,7 +111,7 @@ def failures(checks: list[AnswerCheck]) -> list[AnswerCheck]:
     """The checks that ran and failed (a check that did not run is not a failure: see ``ran``).
 
     Reads the fields (name, value, tolerance, ran) by index rather than through the ``passed``
-    property (a dozen checks per step of the online loop, issue 16); the criterion is :func:`_within`."""
+    property (a dozen checks per step of the online loop); the criterion is :func:`_within`."""
     return [c for c in checks if c[3] and not _within(c[1], c[2])]
 
 
@@ -187,7 +187,7 @@ def check_set_update(h, Lambda, points, H_theta: np.ndarray, h_prev: np.ndarray,
 
 
 class SetUpdateCheck:
-    """:func:`check_set_update` for the online loop (issue 16): the same rows, names and values, with the
+    """:func:`check_set_update` for the online loop: the same rows, names and values, with the
     parts that depend only on the answer (h, Λ, maximisers) and on Θ_{k−1} (H_θ, h_{k−1}) — the rows of h
     ("finite, shape" and the nesting (10)), the finiteness of Λ and max(Λ, 0), the finiteness of the
     maximisers and their miss of the offsets h — taken from the last call when those five arrays are
@@ -321,7 +321,7 @@ def check_tube(sol, data, x: np.ndarray, h_theta: np.ndarray, H_theta: np.ndarra
 
 
 class TubeCheck:
-    """:func:`check_tube` with its rows preassembled (issue 16): the same rows, check names and values
+    """:func:`check_tube` with its rows preassembled: the same rows, check names and values
     (up to round-off), written once as matrices on y = [z (N+1)·n | α (N+1) | v N·m] and on
     w_l = [z_l | z_{l+1} | α_l | α_{l+1} | v_l | 1] from the controller's data (never from a backend's
     matrices, so the check stays independent of the solver's problem):

@@ -31,7 +31,7 @@ OUTCOMES = ("first", "resolved", "fallback", "not_solved")
 #: What each problem is, for messages ("Drake answered 51 of 51 tube QPs (20) itself").
 PROBLEM_NAMES = {"set_update": "set updates (9)", "exact_update": "exact updates (7)",
                  "projection": "projections (12)", "tube_qp": "tube QPs (20)",
-                 "pe_candidate": "PE-bounded QP candidates (spec §8)"}
+                 "pe_candidate": "PE-bounded QP candidates (docs/explanation/paper.md §8)"}
 #: Kinds of fallback answers that are a solution of the problem itself (checked), so that the paper's
 #: claims about that solution hold for them: the other formulation of (20), HiGHS' supports for (9),
 #: the least-distance projection for (12). A kept Θ_(k−1) or θ̂_(k−1) is a valid but different answer.

@@ -1,4 +1,4 @@
-"""The adaptive MPC online loop (spec §6, "Online", steps (i)-(iv)), backend-agnostic.
+"""The adaptive MPC online loop (docs/explanation/paper.md §6, "Online", steps (i)-(iv)), backend-agnostic.
 
 At each k: (i) measure x_k; (ii) if k > 0 update Θ_k by (9) (or (7), or the moving window of
 Remark 4) and θ̂_k by the projected LMS (12); (iii) solve the tube MPC QP (20); (iv) apply
@@ -103,7 +103,7 @@ class StepRecord:
     pe_status: str = "off"
     pe_bounds: tuple | None = None
     #: PE constraint enforced at this step (excitation.pe_quadratic): λ_min of the window Gram of the
-    #: stacked input [u_j; …; u_{j−pe_dim+1}] >= pe_level. pe_dim = n + 1 is spec §8's constraint
+    #: stacked input [u_j; …; u_{j−pe_dim+1}] >= pe_level. pe_dim = n + 1 is docs/explanation/paper.md §8's constraint
     #: (status "enforced"); a smaller pe_dim is a rung of the ladder used while ρ is unattainable
     #: ("enforced_partial", or "enforced_necessary" for pe_dim = 1: Σ_window u_j² >= pe_level).
     pe_level: float | None = None
@@ -157,8 +157,8 @@ class AdaptiveMPC:
                                "predicted sets (26) differ per stage)", repr(self.backend.formulation))
         if self.options.pe_window is not None:
             if problem.m != 1:
-                raise ProblemError("online.pe_window", "None for m > 1 (the PE constraint of spec §8 is for a "
-                                   "scalar input)", repr(self.options.pe_window))
+                raise ProblemError("online.pe_window", "None for m > 1 (the PE constraint of Section 4.2 is for "
+                                   "a scalar input)", repr(self.options.pe_window))
             if getattr(self.backend, "formulation", "plain") != "plain":
                 raise ProblemError("formulation", "'plain' (the PE constraint needs formulation='plain')",
                                    repr(self.backend.formulation))
@@ -349,6 +349,8 @@ class AdaptiveMPC:
     @staticmethod
     def _answer(record: StepRecord, problem: str, outcome: str, kind: str = "", check: str = "") -> None:
         """Record how the step's answer of ``problem`` was obtained (:mod:`amcp_drake.online.answers`)."""
+        if record.answers is None:  # a record built outside step(), e.g. by a replay of one update
+            record.answers = []
         record.answers.append(answers.entry(problem, outcome, kind, check))
 
     def _dilate(self, h: np.ndarray, l: int) -> np.ndarray:
@@ -446,9 +448,9 @@ class AdaptiveMPC:
         finally:
             record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - t0
 
-    # -- (iii) the QP (20), with the PE two-QP procedure of spec §8 when enabled -----------------
+    # -- (iii) the QP (20), with the PE two-QP procedure of docs/explanation/paper.md §8 when enabled -----------------
     def _solve_qp(self, x, h_arg, H_arg, record: StepRecord):
-        """(answer, checked): the QP (20), or spec §8's PE procedure; ``checked`` is True when the
+        """(answer, checked): the QP (20), or docs/explanation/paper.md §8's PE procedure; ``checked`` is True when the
         answer already passed the answer checks (a PE candidate is checked before it competes)."""
         opts = self.options
         if opts.pe_window is None:

@@ -1,4 +1,4 @@
-"""Persistent excitation (Section 4.2, spec §8): Assumption 20, Definition 21, the scalar-input PE
+"""Persistent excitation (Section 4.2, docs/explanation/paper.md §8): Assumption 20, Definition 21, the scalar-input PE
 constraint and the two-QP procedure, and the set diameter used to show Proposition 23.
 
 * :func:`xi_matrix`, :func:`assumption20` — Ξ = [Ξ_1 … Ξ_n] ∈ ℝ^{p×n(n+m)}, row j =
@@ -8,8 +8,8 @@ constraint and the two-QP procedure, and the set diameter used to show Propositi
   infimum / supremum over windows).
 * :func:`pe_quadratic` — the Marafioti-style window constraint Σ_{j=k−P+1}^{k} ū_j ū_jᵀ ⪰ ρ I on the
   stacked input ū_k = [u_k; u_{k−1}; …; u_{k−n}] (m = 1), written by the Schur complement as
-  a u_k² + b u_k + c >= 0 (spec §8 step 2) and solved for its roots u₋ <= u₊.
-* :func:`pe_bounds` — the first-input bounds of the two QPs (spec §8 step 3).
+  a u_k² + b u_k + c >= 0 (docs/explanation/paper.md §8 step 2) and solved for its roots u₋ <= u₊.
+* :func:`pe_bounds` — the first-input bounds of the two QPs (docs/explanation/paper.md §8 step 3).
 """
 
 from __future__ import annotations
@@ -67,7 +67,7 @@ def pe_measure(D: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
 @dataclass(frozen=True)
 class PEQuadratic:
     """a u_k² + b u_k + c >= 0 ⇔ Σ_{j=k−P+1}^{k} ū⁽ᵈ⁾_j ū⁽ᵈ⁾_jᵀ ⪰ ``level``·I, with ū⁽ᵈ⁾_j =
-    [u_j; …; u_{j−d+1}] and d = ``dim`` (d = n + 1 is the constraint of spec §8); ``roots`` (u₋, u₊)
+    [u_j; …; u_{j−d+1}] and d = ``dim`` (d = n + 1 is the constraint of docs/explanation/paper.md §8); ``roots`` (u₋, u₊)
     when real. ``necessary_only``: d = 1, i.e. Σ_window u_j² >= level."""
 
     a: float
@@ -91,7 +91,7 @@ def stacked_gram(u: np.ndarray, k: int, dim: int, window: int) -> np.ndarray:
 
 
 def _quadratic(u_past: np.ndarray, k: int, dim: int, window: int, level: float) -> tuple[float, float, float]:
-    """a, b, c of the dim-dimensional window constraint at level ``level`` (spec §8 step 2), with
+    """a, b, c of the dim-dimensional window constraint at level ``level`` (docs/explanation/paper.md §8 step 2), with
     S = Ω₂₂ + r rᵀ ≻ 0 assumed (checked by the caller)."""
     Omega = -level * np.eye(dim)
     for j in range(k - window + 1, k):
@@ -108,12 +108,12 @@ def _quadratic(u_past: np.ndarray, k: int, dim: int, window: int, level: float) 
 
 
 def pe_quadratic(u_past: np.ndarray, n: int, window: int, level: float) -> PEQuadratic | None:
-    """The scalar PE constraint at step k (spec §8, steps 1-2), with a ladder for when it is
+    """The scalar PE constraint at step k (docs/explanation/paper.md §8, steps 1-2), with a ladder for when it is
     unattainable.
 
     ``u_past`` = [u_0, …, u_{k−1}] (m = 1). The target is Σ_{j=k−P+1}^{k} ū_j ū_jᵀ ⪰ ρ I on the
     stacked input ū_k = [u_k; …; u_{k−n}] (d = n + 1). Its lower-right block (the lagged inputs) does
-    not depend on u_k, so when that block's λ_min is below ρ no u_k reaches ρ (spec §8 assumes
+    not depend on u_k, so when that block's λ_min is below ρ no u_k reaches ρ (docs/explanation/paper.md §8 assumes
     S ≻ 0). That block is the (d−1)-dimensional window Gram of the previous step, so the constraint
     of dimension d−1 met at step k−1 makes dimension d attainable at step k. The rule (a decision of
     this project, docs/decisions.md "Section 4 extensions"): for d = n+1, n, …, 1 take the first
@@ -159,7 +159,7 @@ def pe_quadratic_at(u_past: np.ndarray, dim: int, window: int, level: float) -> 
 
 
 def pe_bounds(quad: PEQuadratic | None) -> list[tuple[float, float]] | None:
-    """First-input bounds (lo, hi) of the QPs to solve (spec §8 step 3): None = no constraint
+    """First-input bounds (lo, hi) of the QPs to solve (docs/explanation/paper.md §8 step 3): None = no constraint
     needed (no data yet, or a u² + b u + c >= 0 for every u); [] = no u_k satisfies it."""
     if quad is None:
         return None

@@ -23,7 +23,7 @@ the scaling table has a ratio below 1.4 and a faster vertex form. The crossing l
 3.2: 2.5.
 
 Options that only the plain form implements (the min-max cost (19), time-varying parameters (26),
-the PE constraint of spec §8) choose it whatever the sizes. S is counted on Θ0 = {H_θ θ <= h_θ0}
+the PE constraint of docs/explanation/paper.md §8) choose it whatever the sizes. S is counted on Θ0 = {H_θ θ <= h_θ0}
 (Θ_k ⊆ Θ0 keeps the shape of (9) and at most as many vertices in the generic case).
 """
 

@@ -1,4 +1,4 @@
-"""Run the scenario of a problem file: offline design, then the closed loop (issue 17, item 3).
+"""Run the scenario of a problem file: offline design, then the closed loop.
 
 One function, :func:`run_scenario`, used both by ``amcp certify PROBLEM`` and by the campaign
 (:mod:`amcp_drake.studies.campaign`), so that a campaign run and the replay of its saved problem file take

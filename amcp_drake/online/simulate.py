@@ -156,10 +156,16 @@ class Trajectory:
             raise TrajectoryError(f"--trajectory: expected a readable trajectory file; received {path}, which "
                                   f"cannot be read ({exc.strerror or exc})") from None
         raw = read_bytes_limited(path, MAX_TRAJECTORY_BYTES, TrajectoryError, "trajectory file", gzip_ok=True)
-        if raw[:2] == GZIP_MAGIC:
-            raw = _gunzip(raw, path)
-        text = decode_utf8(raw, str(path), TrajectoryError)
-        return cls.from_dict(loads_strict(text, str(path), TrajectoryError))
+        size = len(raw)
+        try:
+            if raw[:2] == GZIP_MAGIC:
+                raw = _gunzip(raw, path)
+            text = decode_utf8(raw, str(path), TrajectoryError)
+            del raw
+            return cls.from_dict(loads_strict(text, str(path), TrajectoryError))
+        except MemoryError:
+            raise TrajectoryError(f"file: expected a trajectory file that fits in the memory available; received "
+                                  f"{path} ({size:,} bytes): memory ran out while reading it (MemoryError)") from None
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Trajectory:

@@ -1,7 +1,10 @@
-"""Adaptive vs robust baseline on a problem (issue 7 item 5): what does adaptation buy?
+"""Adaptive vs robust baseline on a problem: what does adaptation buy?
 
-For each disturbance seed, two closed loops are run from the same x0 with the same θ* and the
-same disturbance sequence:
+:func:`robust_beside` runs the robust baseline beside one recorded adaptive run (the same problem, design,
+backend, x0, θ* and recorded disturbance sequence; ``amcp certify`` shows it in report.html, apart from
+the verdict). :func:`run_baseline` is the study over many seeds (``amcp baseline``): for each
+disturbance seed, two closed loops are run from the same x0 with the same θ* and the same
+disturbance sequence:
 
 * **adaptive**: the full scheme, Θ_k by (9) (or the update chosen) and θ̂_k by (12);
 * **robust**: ``OnlineOptions(update="none")``, i.e. Θ_k ≡ Θ_0 and θ̂_k ≡ θ̂_0 (the non-adaptive
@@ -27,6 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from amcp_drake.model.errors import InconsistentDataError
 from amcp_drake.model.options import OnlineOptions
 from amcp_drake.model.problem import ProblemSpec
 from amcp_drake.model.status import SolveStatus
@@ -174,3 +178,128 @@ def run_baseline(spec: ProblemSpec, design: OfflineDesign, seeds: int | list[int
         H_arg = ma.H_theta_final if update == "exact" else None
         res.feasible_adaptive.append(feasible_grid(adaptive, ma.h_theta_final, g1, g2, H_arg))
     return res
+
+
+# -- the robust baseline beside one recorded run (report.html of ``amcp certify``) ----------------------
+#: Directions probed for the feasible region: the direction of x0, its opposite, and ±e_i for the first
+#: RAY_AXES states (at most 2 + 2·RAY_AXES rays, so the cost does not grow with n).
+RAY_AXES = 2
+#: Relative accuracy of the feasible radius along a ray (bisection).
+RAY_REL_TOL = 1e-2
+#: The radius is searched up to 2**RAY_DOUBLINGS times max(‖x0‖, 1); beyond it is reported as a lower bound.
+RAY_DOUBLINGS = 6
+
+
+def closed_loop_cost(traj) -> float:
+    """Σ_{k<T} (‖x_k‖²_Q + ‖u_k‖²_R) over the T applied inputs (the stage cost of (17) on the run)."""
+    x, u = traj.x[: len(traj.u)], traj.u
+    Q, R = traj.problem.Q, traj.problem.R
+    return float(np.einsum("ki,ij,kj->", x, Q, x) + np.einsum("ki,ij,kj->", u, R, u))
+
+
+def tube_series(traj, disturbance: bool) -> list[float]:
+    """The one-step tube size s_k (:func:`one_step_tube`) at every applied step k of ``traj``."""
+    return [one_step_tube(traj.problem, traj.design, traj.x[r.k], traj.u[r.k], r.H_theta, r.h_theta, r.theta_hat,
+                          disturbance=disturbance) for r in traj.records if r.k < len(traj.u)]
+
+
+def ray_directions(x0: np.ndarray) -> list[tuple[str, np.ndarray]]:
+    """(name, unit vector) of the rays along which the feasible region is probed."""
+    n = len(x0)
+    out: list[tuple[str, np.ndarray]] = []
+    norm = float(np.linalg.norm(x0))
+    if norm > 0:
+        out += [("x0", x0 / norm + 0.0), ("−x0", -x0 / norm + 0.0)]  # + 0.0: no negative zeros
+    for i in range(min(n, RAY_AXES)):
+        for sign, name in ((1.0, f"+e{i + 1}"), (-1.0, f"−e{i + 1}")):
+            e = np.zeros(n)
+            e[i] = sign
+            if not any(np.allclose(e, d) for _, d in out):
+                out.append((name, e))
+    return out
+
+
+def feasible_radius(feasible, direction: np.ndarray, start: float) -> tuple[float | None, bool]:
+    """(r, capped): the largest t with ``feasible(t·direction)`` (to RAY_REL_TOL), None when the origin is
+    infeasible. The feasible set of (20) in x0 is convex (a projection of a polyhedron), so along a ray from
+    a feasible origin it is an interval [0, r]. ``capped``: still feasible at the search limit (r is then a
+    lower bound)."""
+    if not feasible(np.zeros_like(direction)):
+        return None, False
+    lo, hi = 0.0, start
+    for _ in range(RAY_DOUBLINGS + 1):
+        if not feasible(hi * direction):
+            break
+        lo, hi = hi, 2.0 * hi
+    else:
+        return lo, True
+    while hi - lo > RAY_REL_TOL * hi:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if feasible(mid * direction) else (lo, mid)
+    return lo, False
+
+
+def robust_beside(traj) -> dict:
+    """The robust baseline (``update="none"``: Θ_k ≡ Θ, θ̂_k ≡ θ̂0) run beside the recorded adaptive run
+    ``traj``: the same problem, offline design, backend, formulation and other online options, the same
+    x0 and θ*, and the *recorded* disturbance sequence w_0..w_{T−1}. Returns a JSON-ready dict:
+
+    * ``adaptive``/``robust``: steps applied, stop reason, closed-loop cost Σ(‖x‖²_Q + ‖u‖²_R), mean
+      one-step tube size s_k and its parametric part (:func:`one_step_tube`), ‖x_T‖, and per step s_k's
+      parametric part and ‖x_k‖;
+    * ``rays``: per direction, the feasible radius of the QP (20) at Θ (robust) and at the adaptive run's
+      final Θ_T; Θ_T ⊆ Θ (Lemma 3) makes the adaptive radius at least the robust one.
+
+    Not a claim of the paper and not part of the verdict: what adaptation bought on this run. A run that
+    applied no input gives ``{"error": reason}``."""
+    from dataclasses import replace
+
+    problem, design = traj.problem, traj.design
+    options = replace(traj.options, update="none")
+    ctrl = AdaptiveMPC(problem, design, backend=traj.backend, options=options,
+                       formulation=traj.meta.get("formulation", "plain"))
+    T = len(traj.u)
+    if T == 0:
+        return {"error": f"the run applied no input ({traj.stop_reason}): there is no disturbance sequence to rerun"}
+    theta_star = np.asarray(traj.theta_star, float)
+    stop = None
+    try:
+        robust = simulate(ctrl, traj.x[0], theta_star, T, np.asarray(traj.w, float), seed=traj.meta.get("seed") or 0,
+                          mu_state_bound=traj.mu_state_bound)
+    except InconsistentDataError as exc:  # cannot happen with Θ_k ≡ Θ, but never hide it
+        robust, stop = exc.trajectory, str(exc)
+
+    def finite(value: float) -> float | None:  # NaN (Θ_k vertices not enumerable) is JSON null
+        return float(value) if np.isfinite(value) else None
+
+    def run_figures(t) -> dict:
+        tube = tube_series(t, True)
+        param = tube_series(t, False)
+        return {"steps": len(t.u), "stop_reason": stop if t is robust and stop else t.stop_reason,
+                "all_solved": bool(t.all_solved), "cost": closed_loop_cost(t),
+                "mean_one_step_tube": finite(np.mean(tube)) if tube else None,
+                "mean_parametric_tube": finite(np.mean(param)) if param else None,
+                "final_state_norm": float(np.linalg.norm(t.x[-1])),
+                "parametric_tube": [finite(v) for v in param], "state_norm": np.linalg.norm(t.x, axis=1).tolist()}
+
+    last = traj.records[-1]
+    h_T = np.asarray(last.h_theta, float)
+    H_T = np.asarray(last.H_theta, float) if traj.options.update == "exact" else None
+
+    def feasible_at(h, H):
+        h_arg = ctrl.stage_offsets(h) if options.d_theta > 0 else h
+
+        def ok(x) -> bool:
+            return ctrl.mpc.solve(np.asarray(x, float), h_arg, problem.theta_hat0, H).status is SolveStatus.OPTIMAL
+        return ok
+
+    start = max(float(np.linalg.norm(traj.x[0])), 1.0)
+    rays = []
+    for name, d in ray_directions(np.asarray(traj.x[0], float)):
+        r_rob, cap_rob = feasible_radius(feasible_at(np.asarray(design.h_theta0, float), None), d, start)
+        r_ada, cap_ada = feasible_radius(feasible_at(h_T, H_T), d, start)
+        rays.append({"direction": name, "unit": d.tolist(), "robust": r_rob, "robust_capped": cap_rob,
+                     "adaptive": r_ada, "adaptive_capped": cap_ada})
+    return {"update": "none", "disturbance": "the adaptive run's recorded w_0..w_(T-1)", "final_k": int(last.k),
+            "adaptive": run_figures(traj), "robust": run_figures(robust), "rays": rays,
+            "ray_rel_tol": RAY_REL_TOL}

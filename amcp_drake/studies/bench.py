@@ -1,4 +1,4 @@
-"""Performance harness (issues 8 and 16): per-step times of the online loop, both backends, the
+"""Performance harness: per-step times of the online loop, both backends, the
 plain (15) and vertex forms of the tube MPC QP (20) and the DAQP fast path ("fast", Drake only), on
 Example 1 and on size sweeps (:mod:`amcp_drake.studies.bench_scaling`).
 
@@ -6,7 +6,7 @@ What is measured. CPU time (``time.thread_time``) of each part of one closed-loo
 :class:`~amcp_drake.online.controller.AdaptiveMPC` (k >= 1), as ``cpu_<part>`` (see
 :mod:`amcp_drake.studies.bench_cpu`: set update, LMS, QP, QP solver, LP solvers, outside the solvers,
 total): on this shared machine wall time was 2–6× (under heavy load 10×) CPU time, so the targets
-of issue 16 are CPU time. Beside them, the wall times as the controller records them
+are CPU time. Beside them, the wall times as the controller records them
 (``StepRecord.times``):
 
 * ``set_update``: the whole set-membership update (9) (building and solving the LP, Δ_k);
@@ -24,7 +24,7 @@ loops (as ``timeit`` does). The closed loops are independent (each applies its o
 runs also report how far the formulations' inputs drift apart (``max_abs_dv_vs_plain``).
 
 Reference lines: the paper reports a median solver time of 68 ms for Example 1 (Yalmip, Intel
-Core i7 3.4 GHz; 50 ms min, 95 ms max), spec §9.
+Core i7 3.4 GHz; 50 ms min, 95 ms max), docs/explanation/paper.md §9.
 
 Output: :func:`run_benchmarks` returns a JSON-ready dict (format ``amcp-bench`` version 5, keys
 documented in benchmarks/README.md); :func:`write_outputs` writes it, a PNG (matplotlib Agg) and,
@@ -58,24 +58,24 @@ from amcp_drake.studies.bench_run import (  # noqa: F401 - FORMULATION_OPTIONS, 
 from amcp_drake.studies.bench_size import DEFAULT_ROW_SECONDS
 
 BENCH_FORMAT = "amcp-bench"
-#: version 2 (issue 16): CPU-time columns (``cpu_*``), the fast path ("fast"), the n sweep, design
-#: times and the issue-16 targets
-#: version 3 (session 5): ``example.target_runs`` (issue 16's targets timed on their own runs,
-#: :data:`TARGET_RUNS`), ``target.issue16_cpu[].measured_among_all`` (the same figure in the run of every
-#: configuration, as version 2 reported it)
-#: version 4 (session 6): the target runs are repeated (:data:`TARGET_REPEATS`; ``target_runs[].repeat``);
+#: version 2: CPU-time columns (``cpu_*``), the fast path ("fast"), the n sweep, design times and the
+#: CPU targets (:data:`TARGETS_16`)
+#: version 3: ``example.target_runs`` (the CPU targets timed on their own runs, :data:`TARGET_RUNS`),
+#: ``target.issue16_cpu[].measured_among_all`` (the same figure in the run of every configuration, as
+#: version 2 reported it)
+#: version 4: the target runs are repeated (:data:`TARGET_REPEATS`; ``target_runs[].repeat``);
 #: ``issue16_cpu[].measured`` is the median over the repeats, ``per_run`` the value of each repeat,
 #: ``runs_met`` how many met the target, and ``met`` is true only when every repeat met it
 #: version 5: ``size``, the size table of ``only="size"`` (:mod:`amcp_drake.studies.bench_size`; None otherwise)
 BENCH_VERSION = 5
-#: Spec §9: "Median solver time reported by Yalmip: 0.068 s (0.10 s with the PE constraint);
+#: The paper (Section 5): "Median solver time reported by Yalmip: 0.068 s (0.10 s with the PE constraint);
 #: maximum 0.095 s; minimum 0.05 s; Intel Core i7, 3.4 GHz".
 PAPER_MS = {"median_solver": 68.0, "max_solver": 95.0, "min_solver": 50.0}
-#: Issue 8: a full step on Example 1 with an 8-facet X0 at a median of at most 7 ms (Drake backend),
+#: Wall-time target: a full step on Example 1 with an 8-facet X0 at a median of at most 7 ms (Drake backend),
 #: the cvxpy backend within 2x of it (wall time).
 TARGET_MS = 7.0
 TARGET_CVXPY_RATIO = 2.0
-#: Issue 16 (CPU time, medians, Example 1, 8-facet X0, N = 10): name -> (what, limit, unit).
+#: CPU-time targets (medians, Example 1, 8-facet X0, N = 10): name -> (what, limit, unit).
 TARGETS_16 = {
     "drake_vertex_total": ("Drake vertex full step", 2.0, "ms"),
     "drake_vertex_outside_solvers": ("Drake vertex, everything outside the solver calls", 0.3, "ms"),
@@ -83,21 +83,20 @@ TARGETS_16 = {
     "drake_plain_total": ("Drake plain (15) full step", 12.0, "ms"),
     "drake_fast_total": ("fast path (DAQP) full step", 1.2, "ms"),
 }
-#: The X0 facet count of issue 16's targets.
+#: The X0 facet count of the CPU targets.
 TARGET_FACETS = 8
-#: Issue 16's targets are timed on runs of their own (session 5): each absolute target with its
+#: The CPU targets are timed on runs of their own: each absolute target with its
 #: configuration alone (one closed loop, nothing interleaved), the cvxpy/Drake ratio with the two vertex
 #: forms interleaved as a pair. In the run of every configuration the neighbours evict the caches
-#: between two steps (the cvxpy plain form: 3 883 variables). Measured (session 5, benchmarks/README.md,
-#: "Targets at the end of session 5"): four bench runs on a quiet machine, Drake vertex alone 1.85,
+#: between two steps (the cvxpy plain form: 3 883 variables). Measured (benchmarks/README.md): four bench runs on a quiet machine, Drake vertex alone 1.85,
 #: 1.75, 2.18, 2.07 ms against 2.28, 1.96, 2.02, 2.20 among all, the fast path 0.60–1.05 against
 #: 0.88–1.08; three runs at load 1.5–1.7 within the noise both ways. The table of the run of all
 #: configurations stays the one for comparing configurations.
 TARGET_RUNS = ((("drake", "vertex"),), (("drake", "plain"),), (("drake", "fast"),),
                (("drake", "vertex"), ("cvxpy", "vertex")))
-#: The runs of :data:`TARGET_RUNS` are repeated (session 6), the order of the groups rotated from one
+#: The runs of :data:`TARGET_RUNS` are repeated, the order of the groups rotated from one
 #: repeat to the next, and a target counts as met only when every repeat meets it: one run is one draw
-#: of a machine whose speed drifts 15–40 % from minute to minute (session 5: the Drake vertex step alone
+#: of a machine whose speed drifts 15–40 % from minute to minute (measured: the Drake vertex step alone
 #: 1.75–2.18 ms in four bench runs within three minutes, i.e. "met" or not by the luck of the draw).
 TARGET_REPEATS = 5
 
@@ -153,7 +152,7 @@ def _design_or_reason(problem, options):
 
 
 def example_benchmark(settings: BenchSettings, progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
-    """Example 1 (spec §9) with X0 of each facet count, every backend and formulation."""
+    """Example 1 (docs/explanation/paper.md §9) with X0 of each facet count, every backend and formulation."""
     from amcp_drake.model.examples import lorenzen2019_spec
 
     spec = lorenzen2019_spec()
@@ -170,7 +169,7 @@ def example_benchmark(settings: BenchSettings, progress: Callable[[str], None] =
         runs_out.extend(summaries(runs, {"x0_facets": facets, "x0_vertices": int(len(d.X0_vertices)),
                                           "steps": settings.steps}))
         if facets == TARGET_FACETS:
-            progress(f"example: issue 16's targets, X0 with {facets} facets, each configuration alone, "
+            progress(f"example: the CPU targets, X0 with {facets} facets, each configuration alone, "
                      f"{settings.target_repeats} times")
             target_runs = _target_runs(spec, d, settings)
     return {"problem": "lorenzen2019", "x0": np.asarray(sc.x0).tolist(), "theta_star": np.asarray(sc.theta_star).tolist(),
@@ -237,7 +236,7 @@ def scaling_benchmark(settings: BenchSettings, progress: Callable[[str], None] =
 
 
 def _target(example: dict[str, Any] | None) -> dict[str, Any]:
-    """Issue 8's wall-time target (kept for comparison with earlier runs) and issue 16's CPU targets."""
+    """The wall-time target (kept for comparison with earlier runs) and the CPU targets."""
     rows = {(r.get("x0_facets"), r.get("backend"), r.get("formulation")): r
             for r in (example or {}).get("runs", []) if "times_ms" in r}
     drake = rows.get((8, "drake", "vertex"))
@@ -303,9 +302,9 @@ def machine_info() -> dict[str, Any]:
 
 def cpu_model(cpuinfo: str = "/proc/cpuinfo") -> str:
     """The processor's model name (Linux: the first "model name" of ``cpuinfo``; elsewhere
-    ``platform.processor()``). Recorded because figures differ by processor: session 10 ran on an AMD
-    EPYC about 30 % faster per step than the machine of sessions 5-9, and round-off there decided
-    differently where the gain LMI's optimum is flat (docs/decisions.md)."""
+    ``platform.processor()``). Recorded because figures differ by processor: an AMD EPYC measured
+    about 30 % faster per step than an earlier machine, and round-off there decided differently where
+    the gain LMI's optimum is flat (docs/decisions.md)."""
     try:
         with open(cpuinfo, encoding="utf-8") as handle:
             for line in handle:
@@ -471,7 +470,7 @@ def plot_results(result: dict[str, Any], path: str | Path) -> None:
 
 def format_summary(result: dict[str, Any]) -> str:
     """Plain-text tables: Example 1 (CPU medians per part and the total's wall median), the ratios
-    of the same interleaved run, issue 16's targets, the sweeps."""
+    of the same interleaved run, the CPU targets, the sweeps."""
     lines = []
     example = result.get("example")
     if example:
@@ -523,7 +522,7 @@ def _target_line(t: dict[str, Any]) -> str:
     spread = (f", median of {runs} own runs ({min(t['per_run']):.2f}–{max(t['per_run']):.2f})" if runs > 1
               else " (one own run)")
     among = t.get("measured_among_all")
-    return (f"target (issue 16, CPU): {t['what']}: {t['measured']:.2f} {unit}{spread} (<= {t['limit']} {unit}: {verdict})"
+    return (f"target (CPU): {t['what']}: {t['measured']:.2f} {unit}{spread} (<= {t['limit']} {unit}: {verdict})"
             + (f"; in the run of every configuration {among:.2f} {unit}" if among is not None else ""))
 
 

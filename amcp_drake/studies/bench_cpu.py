@@ -1,7 +1,7 @@
-"""CPU time per part of one controller step (issue 16): where a full step of the online loop goes.
+"""CPU time per part of one controller step: where a full step of the online loop goes.
 
 ``StepRecord.times`` holds wall times (``perf_counter``); on a shared machine wall time is 2–6×
-CPU time under load, so the performance figures of issue 16 are CPU time of the calling thread
+CPU time under load, so the performance targets are CPU time of the calling thread
 (``time.thread_time``: the solvers used here run in this thread, Clarabel and DAQP single-threaded).
 
 :class:`CpuProfile` wraps, on one controller instance only (nothing global is patched):

@@ -1,4 +1,4 @@
-"""One lockstep run of several controller configurations (issue 8, 16): the timing loop shared by
+"""One lockstep run of several controller configurations: the timing loop shared by
 the Example 1 bench (:mod:`.bench`) and the sweeps (:mod:`.bench_scaling`).
 
 All configurations run in lockstep (step k of every configuration, then step k+1): on a shared,
@@ -91,7 +91,7 @@ def lockstep(problem, design, configs: list[tuple[str, str]], x0, theta_star, st
     try:
         for k in range(steps + 1):
             # the order alternates step by step: a configuration that runs right after another one's
-            # solver call finds the caches evicted (measured: 5-37 µs of bias per step, session 5)
+            # solver call finds the caches evicted (measured: 5-37 µs of bias per step)
             for c in (range(len(runs)) if k % 2 == 0 else reversed(range(len(runs)))):
                 run, prof = runs[c], profiles[c]
                 if not active[c]:

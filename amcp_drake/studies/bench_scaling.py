@@ -1,6 +1,6 @@
-"""Scaling sweeps of the online loop (issue 16): one factor at a time around Example 1.
+"""Scaling sweeps of the online loop: one factor at a time around Example 1.
 
-Defaults (Example 1, spec §9): N = 10, X0 with 8 facets, n = 2, p = 3, x0 = [2, 3], θ* = [0.8,
+Defaults (Example 1, docs/explanation/paper.md §9): N = 10, X0 with 8 facets, n = 2, p = 3, x0 = [2, 3], θ* = [0.8,
 0.2, −0.5], uniform disturbance, seed 0. Each sweep changes one factor and keeps the others:
 
 * ``N`` ∈ {5, 10, 20, 40}: the horizon;

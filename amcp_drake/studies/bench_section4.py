@@ -1,13 +1,13 @@
 """Cost of the Section 4 options per step (``amcp bench --only section4``).
 
-Example 1 (spec §9), plain formulation (the options need it), each backend, with: the
-certainty-equivalence cost (17) (reference), the PE two-QP procedure of spec §8 (P = n + 1 = 3,
+Example 1 (docs/explanation/paper.md §9), plain formulation (the options need it), each backend, with: the
+certainty-equivalence cost (17) (reference), the PE two-QP procedure of docs/explanation/paper.md §8 (P = n + 1 = 3,
 ρ = 0.8, Example 2's values), the min–max cost (19) and time-varying parameters (d_θ = 0.01). The
 closed loops are interleaved step by step (same disturbance sequence, each with its own state), so
 machine noise hits all configurations alike. Reported per configuration: median and max of the full
 step and of all QP solves of the step (with PE: every QP solved, i.e. both bounded QPs and any retry),
 and the ratio of the medians and maxima to the reference of the same backend. The paper reports
-about 2× the median and maximum solve time for its PE case (spec §8).
+about 2× the median and maximum solve time for its PE case (docs/explanation/paper.md §8).
 """
 
 from __future__ import annotations

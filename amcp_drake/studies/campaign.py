@@ -278,7 +278,10 @@ def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure
                                            **_answer_counts(traj),
                                            # built, not reached: the generator's label is exact
                                            "scaled_units": float(bool(built_scaled(result["labels"])))}
-        failed = any(c["status"] != "pass" for claims in result["claims"].values() for c in claims.values())
+        # a premise not met (x0 outside the feasible region of (20): a generator defect) fails the problem too,
+        # although its claims that did not pass are then "not claimed" (certificate.premises)
+        failed = (any(c["status"] != "pass" for claims in result["claims"].values() for c in claims.values())
+                  or any(v != "pass" for v in result["verdicts"].values()))
         result["status"] = "fail" if failed else "pass"
         if failed:
             folder = Path(failure_dir) / f"{campaign_seed}-{idx}"
@@ -350,7 +353,7 @@ QUIET_WORKER_LOGGERS = ("distributed.worker.state_machine",)
 def _local_cluster(workers: int):
     """A LocalCluster whose worker processes ignore SIGINT (they inherit the ignored signal): Ctrl-C
     reaches this process, which shuts the workers down itself, instead of every worker printing a
-    KeyboardInterrupt traceback."""
+    KeyboardInterrupt traceback. Its HTTP endpoints listen on a free loopback port (no dashboard)."""
     import signal
     import threading
 
@@ -359,7 +362,10 @@ def _local_cluster(workers: int):
     main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
     try:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+        # no dashboard; the scheduler's HTTP endpoints on a free port of the loopback interface, so that
+        # another Dask process on the machine (holding port 8787) causes no "port in use" warning
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                               scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"})
     finally:
         if main:
             signal.signal(signal.SIGINT, previous)
@@ -453,10 +459,11 @@ def run_campaign(store_path: str | Path, systems: int, backends: Iterable[str] =
                 bar.update(1)
         if bar is not None:
             bar.close()
-    except KeyboardInterrupt as exc:
-        exc.stored = len(done) + stored
+    except BaseException as exc:
+        if isinstance(exc, KeyboardInterrupt):
+            exc.stored = len(done) + stored
         if bar is not None:
-            bar.close()  # ends the progress line, so that the CLI's last line stands alone
+            bar.close()  # ends the progress line, so that the CLI's message (interrupt, full disk) stands alone
         raise
     finally:
         _shut_down(client, cluster)

@@ -37,9 +37,8 @@ from pathlib import Path
 
 import numpy as np
 from scipy.optimize import linprog
-from scipy.sparse import csr_matrix
 
-from amcp_drake.certificate.claims import theta_vertices
+from amcp_drake.certificate.feasible_region import TubeLP
 from amcp_drake.model import polytope
 from amcp_drake.model.errors import ProblemError
 from amcp_drake.model.options import OnlineOptions
@@ -48,15 +47,12 @@ from amcp_drake.model.status import SolveStatus
 from amcp_drake.offline.design import OfflineDesign
 from amcp_drake.online.controller import AdaptiveMPC
 from amcp_drake.online.simulate import simulate
-from amcp_drake.studies.tube_feasibility import TubeLayout
 
 #: A QP verdict is confirmed when the LP slack t agrees in sign; within ±AGREEMENT_TOL of the
 #: boundary the two solvers may legitimately differ (Clarabel's and HiGHS's feasibility
 #: tolerances are ~1e-8 on rows of unit norm; the certificate's QP_TOL 1e-6 leaves room for the
 #: QP's scaling), so such points are "borderline", listed but not counted as disagreements.
 AGREEMENT_TOL = 1e-6
-#: Upper bound on the LP slack t (keeps the LP bounded; only its sign and small values matter).
-SLACK_CAP = 1.0
 #: Default grid resolution per axis.
 DEFAULT_GRID = 21
 #: Largest number of grid points (grid**n) accepted (each point costs one QP and one LP).
@@ -166,81 +162,6 @@ def load_points(path: str | Path, n: int, grid: int) -> tuple[np.ndarray, str]:
     if not np.any(inside):
         raise ProblemError("--points: polytope", "a polytope containing at least one grid point", "none inside")
     return pts[inside], f"{int(inside.sum())} grid points ({grid} per axis) in the polytope of {path}"
-
-
-# -- the independent LP -----------------------------------------------------------------------------
-@dataclass(frozen=True)
-class TubeLP:
-    """The vertex form of 𝔻(x0, Θ) for one Θ: rows A_ub y <= b_const + B_x x0 (scaled to unit
-    norm), with y = [z_0..z_N | α_0..α_N | v_0..v_(N−1)]. Built once per Θ, re-used for every x0."""
-
-    A: csr_matrix
-    b: np.ndarray
-    Bx: np.ndarray       # (rows, n): the x0-dependent part of the right-hand side
-    bounds: list
-    size: int
-    _A_t: csr_matrix | None = field(default=None, repr=False)
-
-    @classmethod
-    def build(cls, problem: Problem, design: OfflineDesign, H_theta: np.ndarray, h_theta: np.ndarray) -> TubeLP:
-        verts = theta_vertices(H_theta, h_theta)
-        if verts is None or len(verts) == 0:
-            raise ProblemError("Theta", "a non-empty bounded parameter set", "an empty or unbounded set")
-        n, m, N = problem.n, problem.m, int(problem.N)
-        K = np.asarray(design.K, float)
-        H_x = np.asarray(design.H_x, float)
-        X0v = polytope.vertices(H_x, np.ones(len(H_x)))
-        FGK = problem.F + problem.G @ K
-        w_bar = np.max(H_x @ problem.w_vertices().T, axis=1)
-        f_bar = np.max(FGK @ X0v.T, axis=1)
-        u, c = H_x.shape[0], FGK.shape[0]
-        layout = TubeLayout(n, m, N)
-        z, a, v, size = layout.z, layout.a, layout.v, layout.size
-        blocks, rhs, rhs_x = [], [], []
-        for l in range(N):  # (15a)
-            A = np.zeros((c, size))
-            A[:, z(l)], A[:, v(l)], A[:, a(l)] = FGK, problem.G, f_bar
-            blocks.append(A), rhs.append(np.ones(c)), rhs_x.append(np.zeros((c, n)))
-        A = np.zeros((u, size))  # (15b): −H_x z_0 − α_0 <= −H_x x0
-        A[:, z(0)], A[:, a(0)] = -H_x, -1.0
-        blocks.append(A), rhs.append(np.zeros(u)), rhs_x.append(-H_x)
-        for l in range(N):  # (5b) at the vertices of X0 and Θ
-            for theta in verts:
-                HA = H_x @ (problem.A_of(theta) + problem.B_of(theta) @ K)
-                HB = H_x @ problem.B_of(theta)
-                # the rows of the vertices x^j differ only in the coefficient HA x^j of α_l >= 0, so
-                # the row with the largest coefficient implies the others (row-wise max over j)
-                A = np.zeros((u, size))
-                A[:, z(l)], A[:, a(l)], A[:, v(l)] = HA, np.max(HA @ X0v.T, axis=1), HB
-                A[:, z(l + 1)], A[:, a(l + 1)] = -H_x, -1.0
-                blocks.append(A), rhs.append(-w_bar), rhs_x.append(np.zeros((u, n)))
-        H_T, h_T = np.asarray(design.H_T, float), np.asarray(design.h_T, float)
-        A = np.zeros((len(H_T), size))  # terminal set X_f (Assumption 11)
-        A[:, z(N)], A[:, a(N)] = H_T, h_T
-        blocks.append(A), rhs.append(np.ones(len(H_T))), rhs_x.append(np.zeros((len(H_T), n)))
-        A, b, Bx = np.vstack(blocks), np.concatenate(rhs), np.vstack(rhs_x)
-        norms = np.linalg.norm(A, axis=1)
-        keep = norms > 0  # an all-zero row 0 <= b: kept out (it constrains nothing but x0 through b)
-        if np.any(~keep & ((b < 0) | np.any(Bx != 0, axis=1))):
-            raise ProblemError("Z", "rows that involve the decision variables", "an all-zero row with data")
-        A, b, Bx, norms = A[keep], b[keep], Bx[keep], norms[keep]
-        return cls(A=csr_matrix(A / norms[:, None]), b=b / norms, Bx=Bx / norms[:, None], bounds=layout.bounds(),
-                   size=size)
-
-    def margin(self, x0: np.ndarray) -> float:
-        """max t (<= SLACK_CAP) with A y + t <= b(x0), α >= 0: >= 0 iff 𝔻(x0, Θ) ≠ ∅. nan if the LP
-        fails (it is always feasible: t may be as negative as needed)."""
-        from scipy.sparse import hstack
-
-        if self._A_t is None:
-            object.__setattr__(self, "_A_t", hstack([self.A, csr_matrix(np.ones((self.A.shape[0], 1)))], format="csr"))
-        cost = np.zeros(self.size + 1)
-        cost[-1] = -1.0
-        res = linprog(cost, A_ub=self._A_t, b_ub=self.b + self.Bx @ np.asarray(x0, float),
-                      bounds=self.bounds + [(None, SLACK_CAP)], method="highs")
-        if res.status != 0:
-            return float("nan")
-        return float(res.x[-1])
 
 
 # -- one region -------------------------------------------------------------------------------------

@@ -2,7 +2,7 @@
 
 For each seed, two closed loops on the problem's scenario with the same disturbance sequence
 (i.i.d. uniform on W, the support assumption of Proposition 23): the exact update (7) (or the
-update given) without PE, and with the PE constraint of spec §8 (``OnlineOptions(pe_window,
+update given) without PE, and with the PE constraint of docs/explanation/paper.md §8 (``OnlineOptions(pe_window,
 pe_level)``). diam Θ_k = sup_{θ1,θ2∈Θ_k} ‖θ1 − θ2‖ (vertex enumeration) is recorded per k and per
 seed; the JSON holds every series, the median and quartiles over seeds, and the values at
 checkpoints; the PNG plots the median with the min–max band over seeds on a log scale. Also

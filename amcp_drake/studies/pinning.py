@@ -1,4 +1,4 @@
-"""Pinning: a first disturbance w_0 that makes Θ_1 = Θ ∩ Δ_1 collapse (a hard case of issue 13,
+"""Pinning: a first disturbance w_0 that makes Θ_1 = Θ ∩ Δ_1 collapse (a hard case of the property suite,
 built by :mod:`amcp_drake.studies.random_problems` and the Hypothesis strategies, never filtered for).
 
 With θ* on ∂Θ, w_0 is the vertex of W that leaves Θ_1 = {θ*} when θ* is a vertex of Θ, and Θ_1 in
@@ -52,8 +52,8 @@ def pinning_disturbance(problem: Problem, regressor: np.ndarray, theta_star: np.
     """The vertex w of W that makes Θ ∩ Δ collapse at θ* ∈ ∂Θ, for data x⁺ = A(θ*)x + B(θ*)u + w
     with regressor D = D(x, u) (n, p) of full column rank.
 
-    Δ = {θ | D(θ* − θ) + w ∈ W} (spec §3), so near θ* the intersection Θ ∩ Δ is θ* plus the cone
-    {δ | g_i·δ <= 0 (rows of Θ active at θ*), a_j·(−D δ) <= 0 (rows of W active at w)}. With
+    Δ = {θ | D(θ* − θ) + w ∈ W} (docs/explanation/paper.md §2), so near θ* the intersection Θ ∩ Δ is θ*
+    plus the cone {δ | g_i·δ <= 0 (rows of Θ active at θ*), a_j·(−D δ) <= 0 (rows of W active at w)}. With
     g = Σ g_i/‖g_i‖, D^T c = g and w maximising c·w over W (so c is in the normal cone of W at
     w, c = Σ ν_j a_j, ν >= 0), every δ of the cone has g·δ <= 0 and g·δ = (D^T c)·δ >= 0: the cone
     lies in the hyperplane g·δ = 0. At a vertex θ* (active rows spanning R^p, g in the interior

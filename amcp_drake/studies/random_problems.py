@@ -1,5 +1,5 @@
 """Random uncertain systems and closed-loop scenarios meeting the paper's assumptions, drawn with
-plain numpy from an explicit :class:`numpy.random.Generator` (issue 15: campaigns and benchmarks
+plain numpy from an explicit :class:`numpy.random.Generator` (campaigns and benchmarks
 draw here; the Hypothesis strategies of ``amcp_properties`` draw the *structure* — dimensions and
 flags, :class:`ProblemShape` and the scenario kinds — and call these functions for the numbers).
 
@@ -12,7 +12,7 @@ Numbers sit on coarse grids (:func:`grid`) so that problems print readably.
 Any change that alters what a given generator state draws must bump ``GENERATOR_VERSION`` in
 :mod:`amcp_drake.studies.campaign` (stores made with other draws are then never resumed).
 
-The hard cases of issue 13 are *built*, behind explicit parameters, never filtered for:
+The hard cases are *built*, behind explicit parameters, never filtered for:
 
 * θ* at a vertex of Θ, on a facet (the ray from 0 to ∂Θ), or inside (:func:`random_theta_star`);
 * disturbances at the vertices of W (``"vertices"``), uniform on W, or zero;
@@ -134,7 +134,7 @@ class ProblemShape:
     * ``coupled_Q``: Q = diag + L Lᵀ instead of diagonal.
     * ``theta_hat0_off_centre``: θ̂0 on a ray towards ∂Θ instead of 0.
     * ``input_uncertainty``: B_i drawn like A_i; False: B_i = 0, so D(x, u) = D(x).
-    * ``zero_centre``: the tube centre dynamics A_z of spec §5.1 is 0 instead of A_cl(θ̂0).
+    * ``zero_centre``: the tube centre dynamics A_z of docs/explanation/paper.md §5 is 0 instead of A_cl(θ̂0).
     * ``delta_range``: range of δ = p·‖[A_i B_i]‖₂ (the size of the parametric uncertainty).
     * ``scaled_states``: the problem is written in the state coordinates x̃ = T x, T = diag(10^s_i),
       s_i drawn from :data:`STATE_SCALE_EXPONENTS` (not all 0): the same system in badly scaled
@@ -367,16 +367,16 @@ def random_disturbances(rng: np.random.Generator, problem: Problem, steps: int, 
 
 
 #: The set updates drawn, equally likely: (9) and the moving window twice each, the exact update (7)
-#: once (1/5 of the runs). (7) since session 6; its steps cost ~10x those of (9) (the redundancy LPs
+#: once (1/5 of the runs). Steps of (7) cost ~10x those of (9) (the redundancy LPs
 #: and, in the plain form, a program with every row of its own H_θk): with 1/3 of the runs the ci
-#: property profile took 585 s of CPU instead of 263 s (measured in one session, same load, before
-#: the put-back fix of the exact update, which made (7) runs cheaper; docs/decisions.md).
+#: property profile took 585 s of CPU instead of 263 s (measured on one machine at the same load, with
+#: an exact update slower than today's; docs/decisions.md).
 UPDATE_DRAWS = ("fixed", "window", "fixed", "window", "exact")
 
 
 def random_online_options(rng: np.random.Generator) -> OnlineOptions:
     """A set update of :data:`UPDATE_DRAWS` (as ``amcp_properties.strategies.online_options``; (7)
-    since session 6, generator version 2), a moving window of 1-10 (Remark 4), projection onto Θ (12)
+    from generator version 2 on), a moving window of 1-10 (Remark 4), projection onto Θ (12)
     or Θ_k (Remark 7). The last draws of :func:`random_case`: the problems and scenarios of a seed are
     those of version 1."""
     return OnlineOptions(update=UPDATE_DRAWS[int(rng.integers(len(UPDATE_DRAWS)))], window=int(rng.integers(1, 11)),
@@ -569,8 +569,8 @@ def theta_shrank(traj) -> bool:
     """Whether some recorded Θ_k, k >= 1, is smaller than Θ_0: a vertex of Θ_0 lies outside Θ_k by more
     than :data:`SHRINK_TOL` (rows of unit norm). Θ_k ⊆ Θ_0 (Lemma 3), so Θ_k = Θ_0 exactly when Θ_k
     holds every vertex of Θ_0 (it is convex). The test does not depend on the rows: (9) and the window
-    lower the offsets of Θ_0's rows, the exact update (7) appends rows (until session 6 both coverage
-    reports compared offsets on Θ_0's rows, and a run of (7) never counted as shrinking)."""
+    lower the offsets of Θ_0's rows, the exact update (7) appends rows (a comparison of offsets on Θ_0's
+    rows would never count a run of (7) as shrinking)."""
     r0 = traj.records[0]
     V = polytope.theta_vertices(np.asarray(r0.H_theta, float), np.asarray(r0.h_theta, float))
     if V is None:

@@ -1,5 +1,4 @@
-"""Steps that needed more than the first solve, counted from the notes the code writes (issue 16;
-the bench and the campaign summary count them the same way).
+"""Steps that needed more than the first solve, counted from the notes the code writes (the bench and the campaign summary count them the same way).
 
 A step's notes are the detail of the QP (20) answer it applied (``StepRecord.qp_detail``, from
 ``MPCSolution.detail``: the Clarabel retry ladder, the reduced plain form's fall back to every row of

@@ -31,43 +31,8 @@ import numpy as np
 from scipy.optimize import linprog
 from scipy.sparse import csr_matrix
 
+from amcp_drake.certificate.feasible_region import TubeLayout
 from amcp_drake.model import polytope
-
-
-@dataclass(frozen=True)
-class TubeLayout:
-    """Where the variables of (20) sit in y = [z_0..z_N (n each) | α_0..α_N | v_0..v_(N−1) (m each)]:
-    the layout of this module's LP and of :class:`amcp_drake.studies.coverage.TubeLP`."""
-
-    n: int
-    m: int
-    N: int
-
-    @property
-    def nz(self) -> int:
-        return (self.N + 1) * self.n
-
-    @property
-    def na(self) -> int:
-        return self.N + 1
-
-    @property
-    def size(self) -> int:
-        return self.nz + self.na + self.N * self.m
-
-    def z(self, l: int) -> slice:
-        return slice(l * self.n, (l + 1) * self.n)
-
-    def a(self, l: int) -> int:
-        return self.nz + l
-
-    def v(self, l: int) -> slice:
-        start = self.nz + self.na + l * self.m
-        return slice(start, start + self.m)
-
-    def bounds(self) -> list[tuple[float | None, float | None]]:
-        """linprog bounds: z and v free, α >= 0."""
-        return [(None, None)] * self.nz + [(0.0, None)] * self.na + [(None, None)] * (self.N * self.m)
 
 
 @dataclass(frozen=True)

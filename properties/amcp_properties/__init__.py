@@ -1,4 +1,4 @@
-"""amcp_properties: the Hypothesis property suite of amcp-drake (GitHub issue 5).
+"""amcp_properties: the Hypothesis property suite of amcp-drake.
 
 One property test per claim of Lorenzen, Cannon & Allgöwer (2019), each run on both online
 backends (``drake``, ``cvxpy``):

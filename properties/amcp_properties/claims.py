@@ -363,7 +363,7 @@ def l2_gain_ratios(traj) -> np.ndarray:
 CONVERGENCE_TARGET = 1e-6
 #: Below this norm the state is at the accuracy of the QP solutions (runs settle at 1e-11..1e-13).
 #: The QPs fix the inputs v to an accuracy in input units, which reaches the state through B(θ); so
-#: the floor is CONVERGENCE_FLOOR·max(1, max_θ ‖B(θ)‖₂) over the vertices of Θ (session 7: a generated
+#: the floor is CONVERGENCE_FLOOR·max(1, max_θ ‖B(θ)‖₂) over the vertices of Θ (a generated
 #: problem in state units 100 times smaller, ‖B‖ ≈ 100, settled at ‖x‖ = 2.5e-8, above 1e-8; the same
 #: problem in its drawn units settles 100 times lower). Unchanged (1e-8) wherever ‖B(θ)‖ <= 1.
 CONVERGENCE_FLOOR = 1e-8

@@ -3,7 +3,7 @@
 For every run the suite records whether a constraint of Z was active (max_k max_i of
 F x_k + G u_k within :data:`ACTIVE_TOL` of 1), whether Θ_k shrank, how close θ* came to the
 boundary of Θ_k, and the generator's labels (Θ and W kind, θ* kind, x0 kind, disturbance, ...).
-The hard cases of issue 13 are measured from the run, not taken from the labels: whether some Θ_k
+The hard cases are measured from the run, not taken from the labels: whether some Θ_k
 is lower-dimensional (the Chebyshev radius of the last Θ_k, k >= 1, with rows of unit norm, is at
 most :data:`amcp_drake.studies.random_problems.LOWER_DIM_TOL` = 1e-5, ten times the controller's 1e-6
 widening of Δ_k; the sets are nested by Lemma 3, so

@@ -9,8 +9,7 @@ the same accurate solver". At Clarabel's defaults (1e-8 on the gap) v is determi
 1e-5 on flat optima: the thorough profile found a run (x0 on the boundary, vertex disturbances,
 tests/data/lockstep-flat-optimum-problem.json) whose step-0 v differed by 1.14e-5 > 1.06e-5
 between the backends at defaults, with the cvxpy answer 1.2e-5 and the Drake answer 9e-7 from the
-optimum (both backends agree to 3.6e-9 at ACCURATE; the code before issue 16's session 4 gave the
-same 1.14e-5).
+optimum (both backends agree to 3.6e-9 at ACCURATE).
 
 The follower's estimator state is set through the controller's attributes (``H_theta``,
 ``h_theta``, ``theta_hat``, ``_prev``, ``_window``), as ``amcp_drake.comparison.compare`` does.

@@ -87,7 +87,7 @@ def _drop_drake_constraint(description: str) -> Iterator[None]:
                 prog.RemoveConstraint(binding)
         return original(self, prog, extra_options)
 
-    # the Drake backend answers (9) by vertices where it can (issue 16): the LP, and with it this
+    # the Drake backend answers (9) by vertices where it can: the LP, and with it this
     # mutant, would then never run; the mutant forces the LP so that it mutates what it names
     with patch.object(drake_._Solver, "solve", solve), \
             patch.object(set_update_vertices.VertexSetUpdate, "solve", lambda self, *args: None):
@@ -248,7 +248,7 @@ def targeted_scenarios(steps: int = 30, seed: int = 0) -> list[Scenario]:
     disturbance stops after 10 steps (Corollary 16, finite gain)."""
     out = []
     ex = lorenzen2019_spec()
-    # Example 1's Z is unbounded in x1 and its μ holds only on |x_i| <= 3 (spec §9); the feasible
+    # Example 1's Z is unbounded in x1 and its μ holds only on |x_i| <= 3 (docs/explanation/paper.md §9); the feasible
     # set of (20) reaches |x| ≈ 15 along the paper's x0 direction, so the targeted runs use μ
     # computed on |x_i| <= MU_BOX_EXAMPLE1 to keep Lemma 5's precondition (11) true along them.
     paper, paper_design = ex, design(ex.problem, ex.design)

@@ -1,5 +1,5 @@
-"""Generators and numpy checks for the Section 4 options (issue 7): the min-max cost (19),
-persistent excitation (spec §8) and time-varying parameters (Section 4.1), on random systems.
+"""Generators and numpy checks for the Section 4 options: the min-max cost (19),
+persistent excitation (docs/explanation/paper.md §8) and time-varying parameters (Section 4.1), on random systems.
 
 The generators reuse :mod:`amcp_properties.strategies` (designed problems, θ*, boundary initial
 states, disturbances) and add the option: ``cost="minmax"``; ``pe_window``/``pe_level`` for m = 1
@@ -51,7 +51,7 @@ class Section4Sizes:
     max_N: int      # horizon bound of the generated problems (the min-max form is an SOCP)
 
 
-#: ci: 40 examples per option (24 until session 7; why: the docstring of test_section4_options.py)
+#: ci: 40 examples per option (why: the docstring of test_section4_options.py)
 SIZES = {"ci": Section4Sizes(examples=40, steps=12, pe_steps=18, max_N=6),
          "thorough": Section4Sizes(examples=60, steps=24, pe_steps=36, max_N=8)}
 
@@ -528,7 +528,7 @@ def without_pe(case: Section4Case) -> Section4Case:
 
 
 def same_inputs(traj, reference) -> CheckResult:
-    """Spec §8 fallback: a step where no input meets both (20) and the PE constraint solves (20) alone,
+    """docs/explanation/paper.md §8 fallback: a step where no input meets both (20) and the PE constraint solves (20) alone,
     so a run that never enforced PE applies the inputs of the run without PE."""
     if traj.stop_reason != reference.stop_reason or len(traj.u) != len(reference.u):
         return judge("PE fallback = (20) alone", "a run without enforced PE steps equals the run without PE",

@@ -14,7 +14,7 @@ in :data:`GENERATOR_STATS` and reported by the suite, and the generator is tuned
 rare (systems are "nice" by construction: ‖A0‖∞ < 1 most of the time, small ‖[A_i B_i]‖, W small
 relative to Z).
 
-Hard cases (issue 13), built: θ* on a facet (of a problem with p >= 2) / at a vertex of Θ (3/8 each); w_0 at the vertex of W
+Hard cases, built: θ* on a facet (of a problem with p >= 2) / at a vertex of Θ (3/8 each); w_0 at the vertex of W
 that pins Θ_1 to {θ*} or into a facet's hyperplane (``pin="point"``), or leaves it thinner than
 the solvers' tolerances (``pin="thin"``), in 3/4 of the runs whose problem allows it (p <= n, θ* on ∂Θ;
 with input uncertainty w_0 is chosen for the controller's first input u_0, :mod:`amcp_drake.studies.pinning`); x0 on the boundary of the feasible set of (20); tight state boxes.
@@ -312,7 +312,7 @@ def pins(draw, shape: ProblemShape | None, theta_kind: str):
 
 def online_options() -> st.SearchStrategy[OnlineOptions]:
     """(9) fixed complexity, moving window (Remark 4) or the exact update (7) (Theorem 14 holds for (7)
-    or (9); (7) was not drawn before session 6) with the weights of
+    or (9)) with the weights of
     :data:`~amcp_drake.studies.random_problems.UPDATE_DRAWS`; projection onto Θ (12) or Θ_k (Remark 7)."""
     return st.builds(OnlineOptions, update=st.sampled_from(UPDATE_DRAWS), window=st.integers(1, 10),
                      projection=st.sampled_from(("Theta", "Theta_k")))

@@ -29,7 +29,7 @@ def test_backends_agree_in_lockstep(case, backend, both_backends, coverage):
 @profiles.examples("lockstep")
 @given(case=CLOSED_LOOP)
 def test_vertex_forms_agree_in_lockstep(case, backend, both_backends, coverage):
-    """The same comparison for the vertex form of (20) (session 10), on the case with the options that
+    """The same comparison for the vertex form of (20), on the case with the options that
     form takes (:func:`amcp_properties.lockstep.vertex_case`: the CE cost, constant θ, no PE). A saved
     failure replays with the vertex form: ``AdaptiveMPC(..., formulation="vertex")``."""
     follower = both_backends[1] if backend == both_backends[0] else both_backends[0]

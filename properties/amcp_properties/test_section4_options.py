@@ -1,5 +1,5 @@
-"""Section 4 options (issue 7) on RANDOM systems, both backends: the min-max cost (19) (Remark 13),
-persistent excitation (spec §8) and time-varying parameters (Section 4.1, Proposition 19).
+"""Section 4 options on RANDOM systems, both backends: the min-max cost (19) (Remark 13),
+persistent excitation (docs/explanation/paper.md §8) and time-varying parameters (Section 4.1, Proposition 19).
 
 Generators (:mod:`amcp_properties.section4`) reuse the suite's designed problems, θ* and
 boundary initial states; every check is numpy only against the recorded StepRecord contract.
@@ -11,7 +11,7 @@ boundary initial states; every check is numpy only against the recorded StepReco
   >= record.pe_level at "enforced" steps (dimension n + 1), Σ_window u_j² >= record.pe_level at
   "enforced_necessary" steps (and the pe_dim Gram at "enforced_partial"), u_k within record.pe_bounds;
   a run whose level is unattainable (every step "inactive" or "fallback") applies exactly the
-  inputs of the run without PE (spec §8: the fallback solves (20) alone).
+  inputs of the run without PE (docs/explanation/paper.md §8: the fallback solves (20) alone).
 * robust baseline (update "none", Θ_k ≡ Θ_0, θ̂_k ≡ θ̂0): every QP optimal, (x, u) ∈ Z, nothing
   updated; and what adaptation buys, as a claim: Θ_k ⊆ Θ_0 ⇒ 𝔻(x, Θ_0) ⊆ 𝔻(x, Θ_k), so wherever
   (20) on Θ_0 is feasible (probed at recorded x_k and along their rays to the robust feasible
@@ -28,19 +28,19 @@ rejected; undilated predicted sets and a tampered Θ_k are rejected.
 Coverage per (option, backend) is printed with the suite's coverage table (labels) and asserted
 by test_section4_coverage_is_not_vacuous (thresholds MIN_COVERAGE, ci profile).
 
-Runtime (ci profile: 40 examples per option and backend since session 7, 12-step runs, 18-step PE
+Runtime (ci profile: 40 examples per option and backend, 12-step runs, 18-step PE
 runs, N <= 6; 2-core machine; both backends, this file alone): 95 s at 24 examples (pytest), of which
 ~35 s are the baseline runs and probes (the robust ray length is one vertex-form LP,
-feasible.max_ray_length); 179 s wall, 118 s CPU at 40 on the loaded machine of session 7; the
+feasible.max_ray_length); 179 s wall, 118 s CPU at 40 on a loaded machine; the
 negative controls reuse the runs (Section4Runner).
 
-Why 40 (session 7): Hypothesis' examples are correlated (the ci seed's 24 time-varying examples held
+Why 40: Hypothesis' examples are correlated (the ci seed's 24 time-varying examples held
 five near-copies), and after the units-free gain LMI changed which generated problems design, the ci
 seed's 24 time-varying runs needed the dilation (26) in 4 (17 % < the 20 % minimum), while six other
 seeds gave 33-75 % (mean 51 %). At 40 examples the ci seed gives 38 % (time-varying), and every
 other option's coverage passes on both backends.
 
-Coverage measured (ci, both backends alike; at 24 examples, before session 7): PE 24 runs: "enforced" reached in 71 %,
+Coverage measured (ci, both backends alike; at 24 examples): PE 24 runs: "enforced" reached in 71 %,
 "enforced_necessary" in 58 %, the PE constraint binding (λ_min = level) in 75 %, Z active
 (max(Fx+Gu) > 0.95) in 88 %, fallback in 25 % (the unattainable regime of the generator; before it
 was added, fallback was never reached). Time-varying 24 runs: θ*_k within 0.05 of ∂Θ_k in 88 %,

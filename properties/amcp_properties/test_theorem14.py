@@ -45,9 +45,9 @@ def test_theorem14_iii_state_and_input_constraints_hold(case, backend, runner, c
     require(claims.constraints_satisfied(traj), test="theorem14_iii", backend=backend, case=case, traj=traj)
 
 
-#: Minimum fractions of the closed-loop runs that reach the hard cases of issue 13 (both profiles);
+#: Minimum fractions of the closed-loop runs that reach the hard cases (both profiles);
 #: measured from the runs by :mod:`amcp_properties.coverage` (see there for the definitions).
-#: Since session 7 also the problems in badly scaled state units (ci: 20 % of the 56 runs).
+#: Among them the problems in badly scaled state units (ci: 20 % of the 56 runs).
 MIN_HARD_CASE_COVERAGE = {"theta_k_lower_dim": 0.10, "theta_star_vertex": 0.10, "theta_star_facet": 0.10,
                           "scaled_units": 0.10}
 #: The property whose runs are measured (every closed-loop claim shares them under ci).
@@ -57,8 +57,8 @@ MEASURED_TEST = "test_theorem14_i_recursive_feasibility"
 def test_hard_cases_are_reached(backend, coverage):
     """Runs after the closed-loop properties of the same backend (pytest groups the session-scoped
     backend parameter): at least 10 % of their runs had a lower-dimensional Θ_k, θ* at a vertex of
-    Θ, and θ* on a facet, so the claims were checked on the degenerate sets, not only on nice ones, and
-    (since session 7) were problems in badly scaled state units."""
+    Θ, and θ* on a facet, so the claims were checked on the degenerate sets, not only on nice ones;
+    some of the problems are in badly scaled state units."""
     data = coverage.summary().get(f"{MEASURED_TEST}[{backend}]")
     if data is None or not data["examples"]:
         pytest.skip(f"{MEASURED_TEST}[{backend}] did not run in this session (deselected)")

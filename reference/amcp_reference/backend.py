@@ -77,12 +77,12 @@ class CvxpyBackend:
         and default) or with (5b) at the vertices of Θ_k ("vertex", same optimum, no Λ:
         ``MPCSolution.Lambda`` is None; see :mod:`amcp_reference.tube_vertex`).
     set_update_method: "auto" (default): the update (9) exactly by dual bases with numpy, the last
-        answer's maximisers reused when they still certify it (:mod:`amcp_reference.set_update_dual`,
-        issue 16), the cvxpy LP where neither applies;
+        answer's maximisers reused when they still certify it (:mod:`amcp_reference.set_update_dual`),
+        the cvxpy LP where neither applies;
         "lp": always the cvxpy LP.
     compiled_qp: with Clarabel and the vertex formulation, solve each step's QP first from cvxpy's
         compiled program by a Clarabel solver kept between steps, without ``Problem.solve``
-        (default True; :mod:`amcp_reference.compiled_clarabel`, issue 16); a step it does not answer
+        (default True; :mod:`amcp_reference.compiled_clarabel`); a step it does not answer
         is solved through ``Problem.solve``. False: always ``Problem.solve``.
     """
 
@@ -187,7 +187,7 @@ class CvxpyBackend:
         from .tube_mpc import CvxpyTubeMPC
         from .tube_vertex import CvxpyVertexTubeMPC
 
-        # the plain form's answers are checked against the vertex form's optimum (session 10; tube_mpc,
+        # the plain form's answers are checked against the vertex form's optimum (tube_mpc,
         # _checked_optimal): with Clarabel and the certainty-equivalence cost, on the user's options
         check = None
         if self._call.name == "CLARABEL" and not data.minmax:

@@ -1,5 +1,5 @@
 """A DPP cvxpy problem solved from its compiled parametric program by a kept Clarabel solver,
-without ``Problem.solve``: the cvxpy backend's fast route for the vertex-form QP (20) (issue 16).
+without ``Problem.solve``: the cvxpy backend's fast route for the vertex-form QP (20).
 
 Why. cvxpy compiles a DPP problem once into a parametric cone program: sparse tensors that map the
 vector of parameter values (each parameter flattened in column-major order, then a constant 1) to

@@ -13,7 +13,7 @@ from amcp_drake.model.status import SolveStatus
 
 
 class SetUpdateLP:
-    """The fixed-complexity update (9) in its per-row primal form (spec §2.1).
+    """The fixed-complexity update (9) in its per-row primal form (docs/explanation/paper.md §2).
 
     With H̃ = [H_θ; H_data] ((q + r), p) and h̃ = [h_prev; h_data], for every row i of H_θ
 

@@ -1,6 +1,6 @@
-"""The update (9) of the cvxpy backend solved exactly by enumerating *dual* bases (issue 16).
+"""The update (9) of the cvxpy backend solved exactly by enumerating *dual* bases.
 
-Row i of (9) is the LP (spec §2.1), with H̃ = [H_θ; H_data] (R, p) and h̃ = [h_{k−1}; h_data]:
+Row i of (9) is the LP (docs/explanation/paper.md §2), with H̃ = [H_θ; H_data] (R, p) and h̃ = [h_{k−1}; h_data]:
 
     [h_k]_i = max{[H_θ]_i θ | H̃ θ <= h̃}  =  min{λᵀ h̃ | λᵀ H̃ = [H_θ]_i, λ >= 0}   (LP duality).
 
@@ -39,7 +39,7 @@ SINGULAR_DET = 1e-10
 #: λᵀh̃ then errs by at most DUAL_TOL·Σ|h̃_B|, far below the 1e-9 agreement required of h).
 DUAL_TOL = 1e-12
 #: Primal feasibility of θ_B: H̃ θ_B <= h̃ + PRIMAL_TOL·max(1, |h̃|) on unit rows; a point kept although
-#: outside by ε can move its row's value by ε, and h must match the LP to 1e-9 (issue 16).
+#: outside by ε can move its row's value by ε, and h must match the LP to 1e-9.
 PRIMAL_TOL = 1e-11
 #: The certifying basis: its dual bound λ_Bᵀh̃_B and its primal value [H_θ]_i θ_B (equal in exact
 #: arithmetic) agree to this, relative to max(1, |h_i|).

@@ -6,7 +6,7 @@ changes). Parameters, set at every step:
 * ``x_k`` (n,): the measured state, in (15b) and x̂_0 = x_k of (18);
 * ``h_theta`` (N, q), ``H_theta`` (q, p): Θ_k of (15c)-(15d); row l of ``h_theta`` is the offset
   used at stage l (all rows equal to h_θk, or the predicted sets (26) of Section 4.1);
-* ``u0_lo``, ``u0_hi`` (m,): only in the variant built with ``u0_bounds=True`` (PE, spec §8);
+* ``u0_lo``, ``u0_hi`` (m,): only in the variant built with ``u0_bounds=True`` (PE, docs/explanation/paper.md §8);
 * ``A_cl_hat`` = A(θ̂_k) + B(θ̂_k) K (n, n), ``B_hat`` = B(θ̂_k) (n, m): the dynamics (18).
 
 The nominal trajectory x̂ of (18) is kept as a variable with equality constraints (the Drake
@@ -66,7 +66,7 @@ ROW_CAPACITY_STEP = 8
 #: first tries needing a retry 50 -> 6; CPU per closed-loop step +3-5 % (Example 1) to +6-15 %
 #: (massera2017). docs/decisions.md, "The cvxpy plain form's unanswered QPs on massera2017".
 PLAIN_FORM_CLARABEL_OPTIONS = {"direct_solve_method": "faer", "max_threads": 1}
-#: The optimality check of the plain form's answer (session 10, :meth:`CvxpyTubeMPC._checked_optimal`):
+#: The optimality check of the plain form's answer (:meth:`CvxpyTubeMPC._checked_optimal`):
 #: its cost may exceed the vertex form's optimum of the same step by at most this many times the gap
 #: tolerance in effect (tol_gap_abs + tol_gap_rel·|cost|, for the errors of both solves). Why: on a
 #: generated problem (thorough profile; n = 1, p = 2, exact update (7), a Θ_k slab 1.3e-6 wide,
@@ -218,7 +218,7 @@ def formulate(data: TubeMPCData, q: int, elastic: bool = False, u0_bounds: bool 
 
     constraints = [con for g in GROUPS for con in groups[g]]
     if u0_bounds:
-        # PE two-QP procedure (spec §8): u0_lo <= K x_k + v_0|k <= u0_hi
+        # PE two-QP procedure (docs/explanation/paper.md §8): u0_lo <= K x_k + v_0|k <= u0_hi
         params["u0_lo"] = cp.Parameter(m, name="u0_lo")
         params["u0_hi"] = cp.Parameter(m, name="u0_hi")
         u0 = K @ params["x_k"] + v[:, 0]
@@ -323,7 +323,7 @@ class CvxpyTubeMPC:
         ``refine``: Clarabel with iterative refinement from the start (as in the Drake backend).
 
         ``h_theta`` may be (N, q): per-stage offsets of the predicted sets (26) (Section 4.1).
-        ``u0_bounds`` = (lo, hi) adds lo <= K x_k + v_{0|k} <= hi (PE, spec §8); finite bounds
+        ``u0_bounds`` = (lo, hi) adds lo <= K x_k + v_{0|k} <= hi (PE, docs/explanation/paper.md §8); finite bounds
         only on one side are allowed (the other ±inf), as in the Drake backend.
 
         ``H_theta`` replaces the shape of Θ_k: same number of rows -> parameter update only;

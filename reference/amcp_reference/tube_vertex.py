@@ -27,7 +27,7 @@ ladder (:func:`amcp_drake.backends.clarabel_retry.retry_ladder`, as the Drake ve
 With Clarabel (and ``compiled=True``, the default) each step is first solved from cvxpy's compiled
 program by a Clarabel solver kept between steps, without ``Problem.solve``
 (:mod:`amcp_reference.compiled_clarabel`: the same data; Example 1, 8 facets: 1.56 against 2.74 ms
-CPU per step, session 10); a step that route
+CPU per step); a step that route
 does not answer with "Solved" is solved again through ``Problem.solve`` as before.
 """
 

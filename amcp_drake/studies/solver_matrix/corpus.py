@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -235,33 +234,33 @@ def write_json_atomic(path: str | os.PathLike, data: Any, indent: int | None = N
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    """Write ``text`` to ``path`` atomically, as readable as any file the user creates (the umask's
+    permissions, not the 0600 of a temporary file): :func:`amcp_drake.model.problem_io.write_text_atomic`."""
+    from amcp_drake.model.problem_io import write_text_atomic as write
+
+    return write(text, path)
 
 
 def load_problem(path: str | os.PathLike) -> CorpusProblem:
-    """One corpus file (``.json`` or gzip-compressed ``.json.gz``), read strictly."""
+    """One corpus file (``.json`` or gzip-compressed ``.json.gz``), read strictly, at most
+    :data:`~amcp_drake.model.json_strict.MAX_INPUT_BYTES` bytes on disk and after decompression."""
     import gzip
+    import io
 
-    from amcp_drake.model.json_strict import decode_utf8, loads_strict
+    from amcp_drake.model.json_strict import MAX_INPUT_BYTES, decode_utf8, loads_strict, read_bytes_limited
 
     path = Path(path)
+    raw = read_bytes_limited(path, MAX_INPUT_BYTES, ProblemFileError, "corpus file", gzip_ok=True)
     try:
-        raw = path.read_bytes()
         if path.name.endswith(".gz"):
-            raw = gzip.decompress(raw)
+            with gzip.GzipFile(fileobj=io.BytesIO(raw)) as handle:
+                raw = handle.read(MAX_INPUT_BYTES + 1)
     except (OSError, EOFError, gzip.BadGzipFile) as exc:
         raise ProblemFileError(str(path), "a readable corpus file (JSON, optionally gzip-compressed)",
                                f"{type(exc).__name__}: {exc}") from None
+    if len(raw) > MAX_INPUT_BYTES:
+        raise ProblemFileError(str(path), f"at most {MAX_INPUT_BYTES:,} bytes of JSON after decompression (the size "
+                               "limit of a corpus file; docs/decisions.md, 'Input size limits')", "more")
     data = loads_strict(decode_utf8(raw, str(path)), str(path))
     return CorpusProblem.from_dict(data, source=str(path))
 

@@ -10,8 +10,10 @@ Sources (:func:`example_sources`, :func:`hard_case_sources`):
   1e-10 (``lockstep-vertex-ladder``, step 4), the plain step where cvxpy's Clarabel ended 8.2e-9 above
   the optimum (``lockstep-plain-suboptimal``, step 8), the massera2017 plain step on a 1e-4-wide Θ_k,
   the generated gain LMI that ended AlmostSolved, and the gain LMI of x⁺ = 1.5x + 0·u at margin 1e-8
-  (infeasible; Clarabel panicked on it), recorded without solving; two recorded projections (12) onto
+  (infeasible; Clarabel panicked on it), recorded without solving (left out of the corpus: infeasible
+  by less than the verdicts resolve, see :data:`.reference.REFERENCE_FEAS_TOL`); two recorded projections (12) onto
   degenerate sets and the support LPs of a window update on a sliver Θ_k;
+* generated projections (12) onto Θ of every example (:func:`projection_sources`);
 * the cvxpy backend's own problems (:mod:`.cvxpy_export`): Example 1 (design and the plain form with
   (9)), the plain step 8 of ``lockstep-plain-suboptimal`` and the unstabilisable gain LMI as cvxpy
   poses them.
@@ -52,6 +54,7 @@ class Source:
     hard: bool = False
     note: str = ""
     slug: str = ""
+    keep_all: bool = False
 
 
 def example_sources(examples=DEFAULT_EXAMPLES, steps: int = 6, backend: str = "drake") -> Iterator[Source]:
@@ -86,6 +89,42 @@ def example_sources(examples=DEFAULT_EXAMPLES, steps: int = 6, backend: str = "d
 
     for name in examples:
         yield Source(f"example {name} ({backend})", make(name), slug=name if backend == "drake" else f"{name}-{backend}")
+
+
+def projection_sources(examples=DEFAULT_EXAMPLES, points: int = 2, seed: int = 0) -> Iterator[Source]:
+    """Generated projections (12) onto Θ of each example (the controller's default target): ``points``
+    points outside Θ along seeded random directions from its Chebyshev centre, 1 % and 50 % beyond the
+    boundary. The closed loops of :func:`example_sources` rarely leave Θ in a few steps, so these stand in
+    for the projections of longer runs."""
+
+    def make(name: str, index: int) -> Callable[[ProgramRecorder], None]:
+        def run(rec: ProgramRecorder) -> None:
+            from scipy.optimize import linprog
+
+            from amcp_drake.backends.drake_ import DrakeBackend
+            from amcp_drake.model.examples import get_example
+
+            problem = get_example(name).problem
+            H, h = np.asarray(problem.H_theta, float), np.asarray(problem.h_theta, float)
+            p = H.shape[1]
+            norms = np.linalg.norm(H, axis=1)
+            lp = linprog(np.r_[np.zeros(p), -1.0], A_ub=np.c_[H, norms], b_ub=h, bounds=[(None, None)] * p + [(0, None)])
+            centre = lp.x[:p]
+            rng = np.random.default_rng([seed, index])
+            backend = DrakeBackend()
+            for j in range(points):
+                u = rng.standard_normal(p)
+                u /= np.linalg.norm(u)
+                Hu = H @ u
+                t_max = float(np.min((h - H @ centre)[Hu > 0] / Hu[Hu > 0]))
+                rec.context.update(stage=f"projection (12) onto Θ of a point {(0.01, 0.5)[j % 2]:g} beyond it")
+                backend.project(centre + t_max * (1.0 + (0.01, 0.5)[j % 2]) * u, H, h)
+
+        return run
+
+    for index, name in enumerate(examples):
+        yield Source(f"projections onto Θ of {name}", make(name, index), slug=f"{name}-projection", keep_all=True,
+                     note="generated: points outside Θ along seeded random directions")
 
 
 def hard_case_sources(data_dir: Path) -> Iterator[Source]:
@@ -236,7 +275,8 @@ def export_corpus(out_dir: Path, sources: list[Source], per_kind: int = 2, max_b
                 source.run(rec)
             except Exception as exc:  # noqa: BLE001 - a source that fails is reported, the others go on
                 error = f"{type(exc).__name__}: {exc}"[:300]
-        chosen = [r for r in rec.records if r.problem is not None] if source.hard else select(rec.records, per_kind)
+        keep = source.hard or source.keep_all
+        chosen = [r for r in rec.records if r.problem is not None] if keep else select(rec.records, per_kind)
         entry = {"source": source.name, "note": source.note, "recorded": len(rec.records),
                  "unsupported": rec.unsupported + crec.unsupported,
                  "selected": len(chosen), "kept": 0, "error": error}
@@ -285,4 +325,5 @@ def _jsonable(value: Any) -> Any:
     return str(value)
 
 
-__all__ = ["DEFAULT_EXAMPLES", "Source", "example_sources", "export_corpus", "hard_case_sources", "select"]
+__all__ = ["DEFAULT_EXAMPLES", "Source", "example_sources", "export_corpus", "hard_case_sources", "projection_sources",
+           "select"]

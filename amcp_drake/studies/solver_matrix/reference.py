@@ -6,7 +6,11 @@ equalities, the nonnegative orthant for the inequalities and bounds, the scaled 
 block). The answer is accepted only when its KKT residuals, recomputed here with numpy from the problem's
 data and the solver's primal-dual pair, are all below :data:`KKT_TOL`:
 
-* primal: the largest constraint violation (:meth:`.corpus.CorpusProblem.violation`);
+* primal: the largest constraint violation (:meth:`.corpus.CorpusProblem.violation`), which must in
+  addition be at most :data:`REFERENCE_FEAS_TOL`, the tightest feasibility tolerance of the verdicts
+  (so a solver that returns the reference is judged correct under every settings, and a problem that
+  is infeasible by less than the verdicts can resolve, e.g. an LMI infeasible only by its 1e-8 margin,
+  is left out instead of being given an "optimal" reference);
 * dual: ‖P x + q + A_cᵀ z‖∞ / (1 + ‖q‖∞ + ‖P x‖∞), and z in the dual cone (relative to 1 + ‖z‖∞);
 * gap: |primal − dual objective| / (1 + |primal objective|).
 
@@ -33,6 +37,9 @@ from amcp_drake.studies.solver_matrix.corpus import CorpusProblem
 
 #: Relative KKT residual (primal, dual, gap, cone) below which a tight answer is accepted as the reference.
 KKT_TOL = 1e-7
+#: Largest constraint violation of an accepted optimal reference: the tightest verdict tolerance
+#: (:data:`.runner.TOLERANCES`, "tight").
+REFERENCE_FEAS_TOL = 1e-8
 #: Clarabel settings of the reference solve.
 REFERENCE_SETTINGS = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10, "tol_ktratio": 1e-8,
                       "max_iter": 500}
@@ -326,6 +333,9 @@ def verify_reference(pr: CorpusProblem) -> str | None:
     if max(res.values()) > KKT_TOL:
         worst = max(res, key=res.get)
         return f"KKT residual {worst} = {res[worst]:.2e} above {KKT_TOL:g} (Clarabel {status})"
+    if res["primal"] > REFERENCE_FEAS_TOL and pr.problem_class != "lp":   # an LP's reference is its exact vertex
+        return (f"KKT residual primal = {res['primal']:.2e} above REFERENCE_FEAS_TOL={REFERENCE_FEAS_TOL:g}, the tightest "
+                f"verdict tolerance (Clarabel {status}; infeasible by less than the verdicts resolve, or inaccurate)")
     ref = {"status": "optimal", "x": x.tolist(), "objective": pr.objective(x), "kkt": res, "tolerance": KKT_TOL,
            "solver": f"clarabel {clarabel.__version__} ({status})", "settings": used}
     if pr.problem_class == "lp":
@@ -337,5 +347,5 @@ def verify_reference(pr: CorpusProblem) -> str | None:
     return None
 
 
-__all__ = ["EXACT_LP_MAX", "KKT_TOL", "REFERENCE_SETTINGS", "ConicForm", "clarabel_solve", "conic_form",
+__all__ = ["EXACT_LP_MAX", "KKT_TOL", "REFERENCE_FEAS_TOL", "REFERENCE_SETTINGS", "ConicForm", "clarabel_solve", "conic_form",
            "exact_lp_certificate", "kkt_residuals", "verify_reference"]

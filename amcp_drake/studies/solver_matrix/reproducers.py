@@ -5,7 +5,8 @@ problem that shows it (:attr:`.corpus.CorpusProblem.size`) is written out as one
 script: pure pydrake or pure cvxpy with numpy/scipy, the problem's data inline, nothing from this
 project. It prints the installed versions and what is wrong, and exits 1 when the defect reproduces,
 0 when it does not, 3 when a package it needs is missing (an abort or a panic ends it by a signal or an
-uncaught exception, which :func:`recheck` counts as reproduced).
+uncaught exception, which :func:`recheck` counts as reproduced). A crash's script reproduces only by
+an exception or an abort; a status returned is "does not reproduce", whatever the answer.
 
 :func:`recheck` runs every ``*.py`` of a folder in a child process with a time limit and says which
 still reproduce on the installed versions.
@@ -66,6 +67,9 @@ def violation(x):
 def judge(success, status, x):
     ref = DATA["reference"]
     print(f"solver status: {status} (success reported: {success})")
+    if CRASH_ONLY:
+        print(f"does not reproduce: the solve returned the status {status}, without an exception or an abort")
+        sys.exit(0)
     if ref["status"] == "infeasible":
         if success:
             print(f"REPRODUCES: success reported on a problem with a verified infeasibility certificate")
@@ -204,15 +208,17 @@ def script_text(pr: CorpusProblem, solver: str, settings: str, verdict: str, det
            f"Problem {pr.id}: {pr.kind} {pr.equation}, {pr.problem_class.upper()}, {pr.n} variables, {pr.A.shape[0]} rows"
            f"{', ' + str(len(pr.lmis)) + ' LMI block(s)' if pr.lmis else ''}:\n"
            "    minimise 1/2 x'Px + q'x + r  s.t.  lower <= A x <= upper,  lb <= x <= ub,  mat(g0 + G x) PSD\n"
-           f"Seen in the matrix: {detail[:300]}\n"
-           "The reference answer is verified (KKT residuals below 1e-7; an LP's optimal basis in exact rational\n"
-           "arithmetic; an infeasible problem by a Farkas certificate).\n"
-           "Exit 1: reproduces; 0: does not; 3: a package is missing. Needs numpy, scipy and "
+           f"Seen: {detail[:300]}\n"
+           + ("Only a crash counts (an exception or an abort); the answer returned is not judged.\n" if verdict == "crash" else
+              "The reference answer is verified (KKT residuals below 1e-7; an LP's optimal basis in exact rational\n"
+              "arithmetic; an infeasible problem by a Farkas certificate).\n")
+           + "Exit 1: reproduces; 0: does not; 3: a package is missing. Needs numpy, scipy and "
            f"{'pydrake' if stack == 'drake' else 'cvxpy'} only.\n"
            '"""\n')
     payload = json.dumps(data, separators=(",", ":"), allow_nan=False)
     return (f"#!/usr/bin/env python3\n{doc}import json\n\nDATA = json.loads(r'''{payload}''')\n"
-            f"FEAS_TOL, OPT_TOL = {tol['feas']!r}, {tol['opt']!r}\n{head}{_COMMON}{body}")
+            f"FEAS_TOL, OPT_TOL = {tol['feas']!r}, {tol['opt']!r}\nCRASH_ONLY = {verdict == 'crash'!r}\n"
+            f"{head}{_COMMON}{body}")
 
 
 def write_reproducers(run: MatrixRun, out_dir: Path) -> list[Reproducer]:
