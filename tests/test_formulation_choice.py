@@ -119,3 +119,15 @@ def test_fast_path_off_answers_every_step_by_clarabel(example_spec, example_desi
         assert np.array_equal(u, u_ref)     # the same Clarabel program and settings
         x = problem.step(x, u, sc.theta_star, w[k])
     assert fast.mpc.fast_path_counts == {"daqp": 0, "fallback": 0}
+
+
+def test_fast_path_off_names_why_and_is_empty_while_on(example_spec, example_design, monkeypatch):
+    problem, sc = example_spec.problem, example_spec.scenario
+    on = AdaptiveMPC(problem, example_design, formulation="vertex", qp_solver="daqp")
+    on.step(np.asarray(sc.x0, float))
+    assert on.mpc.fast_path_off == "" and on.mpc.fast_path_counts["daqp"] == 1
+    assert AdaptiveMPC(problem, example_design, formulation="vertex").mpc.fast_path_off == ""  # no fast path
+    monkeypatch.setattr(daqp_fast, "MAX_DENSE_ENTRIES", 1)
+    off = AdaptiveMPC(problem, example_design, formulation="vertex", qp_solver="daqp")
+    off.step(np.asarray(sc.x0, float))
+    assert off.mpc.fast_path_off.startswith("dense QP of ") and "> 1 (S = 8 vertices)" in off.mpc.fast_path_off

@@ -279,6 +279,12 @@ class DrakeVertexTubeMPC:
         """Fast path only: steps answered by DAQP (checked) and steps that fell back to Clarabel."""
         return None if self._fast is None else dict(self._fast.counts)
 
+    @property
+    def fast_path_off(self) -> str:
+        """Fast path only: why the measured switch or the size limit turned it off ('' while it is on
+        or when there is none)."""
+        return "" if self._fast is None or self._fast.active else self._fast.off_reason
+
     def _solution(self, yv, Hv, g2, const, solver_time, update_time, detail) -> MPCSolution:
         """The answer read from y; ``g2`` = 2g (the cost is vᵀHv + 2gᵀv + c)."""
         N, n, m = self.N, self.n, self.m

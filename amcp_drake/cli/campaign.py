@@ -22,6 +22,7 @@ from amcp_drake.cli.common import (
     interruptible,
     max_memory_option,
     output_file_callback,
+    parse_range,
     store_path_callback,
     write_error,
 )
@@ -44,6 +45,7 @@ def summary_text(store) -> str:
     for key, backend, frac, count in store.coverage_table():
         lines.append(f"{key:34s} {backend:8s} {frac:9.2f} {count:6d}")
     lines += [""] + answer_lines(store.answer_table())
+    lines += [""] + draw_lines(store.labels())
     lines.append("")
     lines.append("slowest problems: " + ", ".join(f"#{idx} {sec:.1f} s" for _, idx, sec in store.slowest()))
     failures = store.failures()
@@ -57,6 +59,26 @@ def summary_text(store) -> str:
         else:
             lines.append(f"  seed {seed} #{idx}: (no replay files: " + ((message or "").splitlines() or [""])[0] + ")")
     return "\n".join(lines)
+
+
+def draw_lines(labels: list[tuple[int, int, dict[str, str]]]) -> list[str]:
+    """The problems by state dimension n, and the draws the offline design rejected before each
+    stored problem (the generator's labels "design attempts" and "rejected draws"), grouped by reason."""
+    by_n: dict[str, int] = {}
+    rejected = 0
+    reasons: dict[str, int] = {}
+    for _, _, lab in labels:
+        if "n" in lab:
+            by_n[lab["n"]] = by_n.get(lab["n"], 0) + 1
+        rejected += max(int(lab.get("design attempts", "1")) - 1, 0)
+        for reason in filter(None, lab.get("rejected draws", "").split(" | ")):
+            key = reason.split(": ", 1)[-1].split("; last:")[0]  # "AutoDesignError: 14 design failed, ..."
+            reasons[key] = reasons.get(key, 0) + 1
+    lines = ["problems by state dimension: " + (", ".join(f"n={n}: {c}" for n, c in sorted(by_n.items(), key=lambda kv: int(kv[0])))
+                                               or "(no labels)")]
+    lines.append(f"draws rejected by the offline design (and replaced by the next draw): {rejected}")
+    lines += [f"  {count:4d} x {reason}" for reason, count in sorted(reasons.items(), key=lambda kv: -kv[1])]
+    return lines
 
 
 def answer_lines(rows: list[tuple[str, str, float, int, int]]) -> list[str]:
@@ -119,28 +141,36 @@ def report_html(store, damage: list[str] | None = None) -> str:
               "problems are skipped; other settings are refused).")
 @click.option("--report", "report_file", default=None, type=click.Path(), callback=output_file_callback,
               help="Only render the store as HTML to this file (no run).")
+@click.option("--state-dims", "state_dims", default="1-3", show_default=True,
+              help="State dimensions n of the drawn problems, A-B or one n (1..8). From n = 4 on the problems use "
+                   "the automatic design (bounded-complexity templates first), each design candidate under "
+                   "--max-memory and a 60 s budget; the range is recorded in the store.")
 @max_memory_option
 @interruptible(lambda kw, exc: _interrupted(kw, exc))
 @bad_input_exits_2
-def campaign_cmd(systems, backends, seed, scheduler, workers, store_path, steps, resume, report_file, max_memory):
+def campaign_cmd(systems, backends, seed, scheduler, workers, store_path, steps, resume, report_file, max_memory,
+                 state_dims):
     """Verification campaign of random problems on Dask, stored in SQLite.
 
     Draws random problems (the library's numpy generator, amcp_drake.studies.random_problems), runs
     every claim check on each closed loop for each backend, fans out on Dask, and keeps every result in
-    SQLite."""
+    SQLite. --state-dims 4-6 draws systems of 4 to 6 states."""
     from amcp_drake.model.errors import ProblemError
     from amcp_drake.studies.campaign_store import CampaignStore
 
     chosen = tuple(b.strip() for b in backends.split(",") if b.strip())
     if not chosen or any(b not in ("drake", "cvxpy") for b in chosen):
         raise ProblemError("--backends", "a comma-separated subset of drake,cvxpy", repr(backends))
+    from amcp_drake.studies.random_problems import MAX_STATE_DIM
+
+    dims = parse_range("--state-dims", state_dims, 1, MAX_STATE_DIM)
     if report_file:
         sys.exit(_report(store_path, report_file))
     from amcp_drake.studies.campaign import run_campaign
 
     try:
         counts = run_campaign(store_path, systems, chosen, seed=seed, scheduler=scheduler, workers=workers,
-                              resume=resume, steps=steps, max_memory_mb=max_memory)
+                              resume=resume, steps=steps, max_memory_mb=max_memory, state_dims=(dims[0], dims[-1]))
     except (sqlite3.OperationalError, OSError) as exc:  # creating the store on a full disk, say
         from amcp_drake.studies.campaign import store_write_error
 

@@ -106,6 +106,21 @@ class FiniteFloatRange(click.FloatRange):
         return super().convert(number, param, ctx)
 
 
+def parse_range(option: str, text: str, low: int, high: int) -> tuple[int, ...]:
+    """"A-B" or "A" (integers, low <= A <= B <= high) as the tuple A..B; ProblemError naming ``option``."""
+    from amcp_drake.model.errors import ProblemError
+
+    expected = f"an integer or a range A-B of integers within {low}..{high}"
+    parts = text.strip().split("-")
+    try:
+        first, last = (int(parts[0]), int(parts[-1])) if len(parts) in (1, 2) else (None, None)
+    except ValueError:
+        first = last = None
+    if first is None or not low <= first <= last <= high:
+        raise ProblemError(option, expected, repr(text))
+    return tuple(range(first, last + 1))
+
+
 max_memory_option = click.option(
     "--max-memory", "max_memory", type=FiniteFloatRange(min=1.0), default=DEFAULT_MAX_MEMORY_MB, show_default=True,
     help="Refuse a run whose estimated size (tube QP nonzeros, recorded steps; docs/problem-format.md, "

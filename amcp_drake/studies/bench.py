@@ -26,9 +26,10 @@ runs also report how far the formulations' inputs drift apart (``max_abs_dv_vs_p
 Reference lines: the paper reports a median solver time of 68 ms for Example 1 (Yalmip, Intel
 Core i7 3.4 GHz; 50 ms min, 95 ms max), docs/explanation/paper.md §9.
 
-Output: :func:`run_benchmarks` returns a JSON-ready dict (format ``amcp-bench`` version 3, keys
+Output: :func:`run_benchmarks` returns a JSON-ready dict (format ``amcp-bench`` version 5, keys
 documented in benchmarks/README.md); :func:`write_outputs` writes it, a PNG (matplotlib Agg) and,
-with sweeps, ``scaling.md``.
+with sweeps, ``scaling.md``; with ``only="size"`` the size table ``size.md``
+(:mod:`amcp_drake.studies.bench_size`) and no PNG.
 """
 
 from __future__ import annotations
@@ -44,7 +45,9 @@ from typing import Any
 
 import numpy as np
 
+from amcp_drake.model.limits import DEFAULT_MAX_MEMORY_MB
 from amcp_drake.model.problem_io import jsonable
+from amcp_drake.offline.budget import DEFAULT_CANDIDATE_SECONDS
 from amcp_drake.studies.bench_run import (  # noqa: F401 - FORMULATION_OPTIONS, RunResult, lockstep re-exported
     FORMULATION_OPTIONS,
     TIME_KEYS,
@@ -52,6 +55,7 @@ from amcp_drake.studies.bench_run import (  # noqa: F401 - FORMULATION_OPTIONS, 
     lockstep,
     summaries,
 )
+from amcp_drake.studies.bench_size import DEFAULT_ROW_SECONDS
 
 BENCH_FORMAT = "amcp-bench"
 #: version 2: CPU-time columns (``cpu_*``), the fast path ("fast"), the n sweep, design times and the
@@ -62,7 +66,8 @@ BENCH_FORMAT = "amcp-bench"
 #: version 4: the target runs are repeated (:data:`TARGET_REPEATS`; ``target_runs[].repeat``);
 #: ``issue16_cpu[].measured`` is the median over the repeats, ``per_run`` the value of each repeat,
 #: ``runs_met`` how many met the target, and ``met`` is true only when every repeat met it
-BENCH_VERSION = 4
+#: version 5: ``size``, the size table of ``only="size"`` (:mod:`amcp_drake.studies.bench_size`; None otherwise)
+BENCH_VERSION = 5
 #: The paper (Section 5): "Median solver time reported by Yalmip: 0.068 s (0.10 s with the PE constraint);
 #: maximum 0.095 s; minimum 0.05 s; Intel Core i7, 3.4 GHz".
 PAPER_MS = {"median_solver": 68.0, "max_solver": 95.0, "min_solver": 50.0}
@@ -103,7 +108,7 @@ class BenchSettings:
     steps: int = 50
     scaling_steps: int = 30
     seed: int = 0
-    only: str | None = None                      # None, "example", "scaling" or "section4"
+    only: str | None = None                      # None, "example", "scaling", "section4" or "size"
     backends: tuple[str, ...] = ("drake", "cvxpy")
     formulations: tuple[str, ...] = ("plain", "vertex", "fast")
     example_facets: tuple[int, ...] = (4, 8)
@@ -114,6 +119,15 @@ class BenchSettings:
     scaling_backends: tuple[str, ...] = ("drake",)
     target_repeats: int = TARGET_REPEATS
     quick: bool = False
+    # the size table (only="size", amcp_drake.studies.bench_size): chain kinds and n, built-in examples
+    # (None: every one with n >= 4), problem files; limits of every row
+    size_chain_ns: tuple[int, ...] = tuple(range(2, 9))
+    size_chain_kinds: tuple[str, ...] | None = None
+    size_examples: tuple[str, ...] | None = None
+    size_problems: tuple[str, ...] = ()
+    max_memory_mb: float = DEFAULT_MAX_MEMORY_MB
+    candidate_seconds: float = DEFAULT_CANDIDATE_SECONDS
+    row_seconds: float = DEFAULT_ROW_SECONDS
 
     @classmethod
     def quick_settings(cls, **changes: Any) -> BenchSettings:
@@ -305,8 +319,8 @@ def run_benchmarks(settings: BenchSettings | None = None,
                    progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
     """Run the selected benchmarks; return the JSON-ready result (format ``amcp-bench``)."""
     settings = settings or BenchSettings()
-    if settings.only not in (None, "example", "scaling", "section4"):
-        raise ValueError(f"only: expected None, 'example', 'scaling' or 'section4', got {settings.only!r}")
+    if settings.only not in (None, "example", "scaling", "section4", "size"):
+        raise ValueError(f"only: expected None, 'example', 'scaling', 'section4' or 'size', got {settings.only!r}")
     started = time.perf_counter()
     example = example_benchmark(settings, progress) if settings.only in (None, "example") else None
     scaling = scaling_benchmark(settings, progress) if settings.only in (None, "scaling") else None
@@ -315,6 +329,11 @@ def run_benchmarks(settings: BenchSettings | None = None,
         from amcp_drake.studies.bench_section4 import section4_benchmark
 
         section4 = section4_benchmark(settings.steps, settings.seed, settings.backends, progress)
+    size = None
+    if settings.only == "size":  # minutes per row at n = 8: only when asked for
+        from amcp_drake.studies.bench_size import size_benchmark
+
+        size = size_benchmark(settings, progress)
     settings_dict = asdict(settings)
     settings_dict["gc_disabled_in_timed_loops"] = True
     return {
@@ -323,7 +342,7 @@ def run_benchmarks(settings: BenchSettings | None = None,
         "machine": machine_info(), "settings": settings_dict,
         "time_keys": {name: f"StepRecord.times[{key!r}]" for name, key in TIME_KEYS.items()},
         "reference_ms": {"paper": PAPER_MS, "target_drake_full_step": TARGET_MS},
-        "example": example, "scaling": scaling, "section4": section4, "target": _target(example),
+        "example": example, "scaling": scaling, "section4": section4, "size": size, "target": _target(example),
         "elapsed_s": time.perf_counter() - started,
     }
 
@@ -343,7 +362,12 @@ def write_outputs(result: dict[str, Any], out_dir: str | Path, plot: bool = True
 
         paths["markdown"] = out_dir / "scaling.md"
         paths["markdown"].write_text(scaling_markdown(result["scaling"]))
-    if plot:
+    if result.get("size"):
+        from amcp_drake.studies.bench_size import size_markdown
+
+        paths["size"] = out_dir / "size.md"
+        paths["size"].write_text(size_markdown(result["size"]))
+    if plot and (result.get("example") or result.get("scaling") or result.get("section4")):
         paths["png"] = out_dir / "bench.png"
         plot_results(result, paths["png"])
     return paths
@@ -480,6 +504,10 @@ def format_summary(result: dict[str, Any]) -> str:
         from amcp_drake.studies.bench_scaling import scaling_markdown
 
         lines += ["scaling (one factor at a time around Example 1):", scaling_markdown(result["scaling"]).rstrip()]
+    if result.get("size"):
+        from amcp_drake.studies.bench_size import size_markdown
+
+        lines += ["size table (one row per system):", size_markdown(result["size"]).rstrip()]
     if result.get("section4"):
         from amcp_drake.studies.bench_section4 import format_section4
 

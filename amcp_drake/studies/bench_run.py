@@ -49,6 +49,8 @@ class RunResult:
     fast_path: dict[str, int] | None = None   # fast path: steps answered by DAQP and fallbacks
     #: steps that needed more than the first solve (:func:`count_resolves`; full and first steps)
     resolves: dict[str, int] = field(default_factory=dict)
+    #: fast path: why it was switched off during the run ('' while on, or for other configurations)
+    fast_path_off: str = ""
 
     @property
     def label(self) -> str:
@@ -115,6 +117,7 @@ def lockstep(problem, design, configs: list[tuple[str, str]], x0, theta_star, st
             gc.enable()
     for run, prof, run_notes in zip(runs, profiles, notes):
         run.fast_path = getattr(prof.ctrl.mpc, "fast_path_counts", None)
+        run.fast_path_off = getattr(prof.ctrl.mpc, "fast_path_off", "")
         run.resolves = count_resolves(run_notes)
     return runs
 

@@ -14,7 +14,8 @@ Replays. Each drawn case becomes a complete problem file first
 (:func:`replay_spec`: problem, design options, ``online`` options, x0, θ*, steps and the explicit
 disturbance array), which is serialised and parsed back; the campaign then runs *that* file through
 :func:`amcp_drake.online.replay.run_scenario`, the function ``amcp certify PROBLEM`` runs, with the offline
-design on :data:`DESIGN_BACKEND` and the formulation :data:`FORMULATION`. A failing problem is saved
+design on :data:`DESIGN_BACKEND` and the formulation :data:`FORMULATION` (:data:`LARGE_FORMULATION`,
+the automatic choice, for campaigns over other state dimensions). A failing problem is saved
 as that very file plus ``replay.json`` (the commands, settings, library versions and the recorded
 verdict and margins) and the trajectories; ``amcp certify D/problem.json --backend B
 --design-backend drake --formulation plain`` repeats the same computation and prints the same
@@ -57,6 +58,20 @@ GENERATOR_VERSION = "amcp_drake.studies.random_problems.random_case/5"
 DESIGN_BACKEND = "drake"
 #: The tube QP formulation of campaign runs (``--formulation`` of the replay command).
 FORMULATION = "plain"
+#: The formulation of campaigns over other state dimensions than the default (``--state-dims``): the one
+#: ``amcp certify`` chooses by default (:mod:`amcp_drake.online.formulation_choice`). The cvxpy plain form
+#: keeps every row of (15c) with its multipliers: on a generated problem of 6 states (X0 with 21 facets and
+#: 199 vertices, N = 10, p = 3) compiling it took more than 4 minutes of CPU and 1.6 GB before its first
+#: step, where the vertex form that "auto" chooses there takes seconds.
+LARGE_FORMULATION = "auto"
+
+
+def campaign_formulation(state_dims: tuple[int, int] | None) -> str:
+    """The formulation of a campaign's runs: :data:`FORMULATION` for the default state dimensions,
+    :data:`LARGE_FORMULATION` for any other range."""
+    from amcp_drake.studies.random_problems import DEFAULT_STATE_DIMS
+
+    return FORMULATION if state_dims is None or tuple(state_dims) == DEFAULT_STATE_DIMS else LARGE_FORMULATION
 #: Packages whose versions are recorded with a store and a replay (they determine the numbers).
 RESULT_PACKAGES = ("amcp-drake", "drake", "cvxpy", "clarabel", "numpy", "scipy", "hypothesis")
 #: The file format of the replay manifest written next to a failing problem's problem.json.
@@ -68,13 +83,26 @@ def problem_seed(campaign_seed: int, idx: int) -> int:
     return (int(campaign_seed) * 1_000_003 + int(idx)) % (2**32)
 
 
-def draw_case(campaign_seed: int, idx: int, steps: int = CAMPAIGN_STEPS):
+def draw_case(campaign_seed: int, idx: int, steps: int = CAMPAIGN_STEPS, state_dims: tuple[int, int] | None = None,
+              max_memory_mb: float | None = None):
     """Problem ``idx`` of campaign ``campaign_seed``: the library's numpy generator
     (:func:`amcp_drake.studies.random_problems.random_case`, the one the property suite's strategies
-    build on) with the generator seeded by :func:`problem_seed` (reproducible per (seed, index))."""
-    from amcp_drake.studies.random_problems import random_case
+    build on) with the generator seeded by :func:`problem_seed` (reproducible per (seed, index)).
 
-    return random_case(np.random.default_rng(problem_seed(campaign_seed, idx)), steps)
+    ``state_dims`` = (min n, max n) (``--state-dims``; None: the generator's default 1 … 3, drawn as
+    always). With other dimensions every design of the draws runs under a budget (``max_memory_mb``
+    and :data:`~amcp_drake.offline.budget.DEFAULT_CANDIDATE_SECONDS` per candidate of the automatic
+    design), so that no draw can hold a worker for long."""
+    from amcp_drake.studies.random_problems import DEFAULT_STATE_DIMS, random_case
+
+    rng = np.random.default_rng(problem_seed(campaign_seed, idx))
+    if state_dims is None or tuple(state_dims) == DEFAULT_STATE_DIMS:
+        return random_case(rng, steps)
+    from amcp_drake.offline.budget import DEFAULT_CANDIDATE_SECONDS, DesignBudget
+
+    budget = DesignBudget(candidate_seconds=DEFAULT_CANDIDATE_SECONDS) if max_memory_mb is None else \
+        DesignBudget(max_memory_mb, DEFAULT_CANDIDATE_SECONDS)
+    return random_case(rng, steps, state_dims=tuple(state_dims), budget=budget)
 
 
 def library_versions() -> dict[str, str]:
@@ -90,13 +118,20 @@ def library_versions() -> dict[str, str]:
     return out
 
 
-def campaign_settings(seed: int, systems: int, backends: Iterable[str], steps: int) -> dict[str, Any]:
+def campaign_settings(seed: int, systems: int, backends: Iterable[str], steps: int,
+                      state_dims: tuple[int, int] | None = None) -> dict[str, Any]:
     """Everything that determines a campaign's results, as recorded in its store:
     a store made with other settings is never resumed (scheduler and workers do not change results
-    and are not recorded)."""
-    return {"seed": int(seed), "systems": int(systems), "backends": list(backends), "steps": int(steps),
-            "generator": GENERATOR_VERSION, "design_backend": DESIGN_BACKEND, "formulation": FORMULATION,
-            "versions": library_versions()}
+    and are not recorded). ``state_dims`` is recorded only when it is not the default (1, 3), so that
+    stores made before the option keep their settings."""
+    from amcp_drake.studies.random_problems import DEFAULT_STATE_DIMS
+
+    settings = {"seed": int(seed), "systems": int(systems), "backends": list(backends), "steps": int(steps),
+                "generator": GENERATOR_VERSION, "design_backend": DESIGN_BACKEND,
+                "formulation": campaign_formulation(state_dims), "versions": library_versions()}
+    if state_dims is not None and tuple(state_dims) != DEFAULT_STATE_DIMS:
+        settings["state_dims"] = [int(state_dims[0]), int(state_dims[1])]
+    return settings
 
 
 def replay_spec(case):
@@ -118,14 +153,15 @@ def round_trip(spec) -> tuple[Any, str]:
     return spec_from_dict(json.loads(text)), text
 
 
-def replay_command(folder: str | Path, backend: str) -> str:
+def replay_command(folder: str | Path, backend: str, formulation: str = FORMULATION) -> str:
     """The shell command that replays ``backend``'s run of the failing problem saved in ``folder``."""
     folder = Path(folder)
     return shlex.join(["amcp", "certify", str(folder / "problem.json"), "--backend", backend, "--design-backend",
-                       DESIGN_BACKEND, "--formulation", FORMULATION, "--out", str(folder / f"replay-{backend}")])
+                       DESIGN_BACKEND, "--formulation", formulation, "--out", str(folder / f"replay-{backend}")])
 
 
-def save_replay(folder: str | Path, text: str, result: dict[str, Any], trajs: dict) -> list[str]:
+def save_replay(folder: str | Path, text: str, result: dict[str, Any], trajs: dict,
+                formulation: str = FORMULATION) -> list[str]:
     """Write a failing problem's replay into ``folder`` (problem.json, replay.json, one trajectory per
     backend), each file atomically; return the replay commands of the backends that did not pass."""
     from amcp_drake.model.problem_io import write_json_atomic, write_text_atomic
@@ -136,9 +172,9 @@ def save_replay(folder: str | Path, text: str, result: dict[str, Any], trajs: di
         traj.save(folder / f"trajectory-{backend}.json.gz")
     runs = {}
     for backend, claims in result["claims"].items():
-        runs[backend] = {"command": replay_command(folder, backend), "backend": backend,
-                         "design_backend": DESIGN_BACKEND, "formulation": FORMULATION,
-                         "backend_options": {"formulation": FORMULATION},
+        runs[backend] = {"command": replay_command(folder, backend, formulation), "backend": backend,
+                         "design_backend": DESIGN_BACKEND, "formulation": formulation,
+                         "backend_options": {"formulation": formulation},
                          "verdict": result["verdicts"][backend], "claims": claims}
     failing = [b for b, claims in result["claims"].items() if any(c["status"] != "pass" for c in claims.values())]
     manifest = {"format": REPLAY_FORMAT, "version": REPLAY_VERSION, "campaign_seed": result["campaign_seed"],
@@ -162,7 +198,7 @@ def _coverage(traj) -> dict[str, float]:
             "theta_star_near_boundary": float(closeness < 1e-2), **hard_case_coverage(traj)}
 
 
-def _resolve_counts(traj, backend: str) -> dict[str, float]:
+def _resolve_counts(traj, backend: str, formulation: str = FORMULATION) -> dict[str, float]:
     """How many steps of the run needed more than the first solve, per kind of
     :data:`amcp_drake.studies.resolves.RESOLVE_MARKS` that can occur in a campaign run: the vertex
     form's fall back to the plain form only with :data:`FORMULATION` "vertex", the reduced plain
@@ -172,15 +208,19 @@ def _resolve_counts(traj, backend: str) -> dict[str, float]:
     compiled route to ``Problem.solve`` only in the cvxpy vertex form, the optimality re-solve only in
     the cvxpy plain form. Keys ``resolve_<kind>``;
     the summary shows the fraction of problems with at least one such step (for every_row: how often
-    the campaign did not test the reduced program alone)."""
+    the campaign did not test the reduced program alone). With ``formulation`` "auto" the form the
+    controller chose (the trajectory's ``meta["formulation"]``) decides."""
     from amcp_drake.studies.resolves import count_resolves, step_notes
+
+    if formulation == "auto":
+        formulation = (getattr(traj, "meta", None) or {}).get("formulation", FORMULATION)
 
     counts = count_resolves([step_notes(r) for r in traj.records])
     minmax = getattr(getattr(traj, "options", None), "cost", "certainty_equivalence") == "minmax"
-    applies = {"plain_fallback": FORMULATION == "vertex", "every_row": FORMULATION == "plain" and backend == "drake",
+    applies = {"plain_fallback": formulation == "vertex", "every_row": formulation == "plain" and backend == "drake",
                "minmax_default_tolerances": minmax,
-               "compiled_route_fallback": FORMULATION == "vertex" and backend == "cvxpy",
-               "optimality_resolve": FORMULATION == "plain" and backend == "cvxpy"}
+               "compiled_route_fallback": formulation == "vertex" and backend == "cvxpy",
+               "optimality_resolve": formulation == "plain" and backend == "cvxpy"}
     return {f"resolve_{kind}": float(n) for kind, n in counts.items() if applies.get(kind, True)}
 
 
@@ -196,39 +236,46 @@ def _answer_counts(traj) -> dict[str, float]:
 
 def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure_dir: str,
                 steps: int = CAMPAIGN_STEPS, draw: Callable | None = None,
-                max_memory_mb: float | None = None) -> dict[str, Any]:
+                max_memory_mb: float | None = None, state_dims: tuple[int, int] | None = None) -> dict[str, Any]:
     """Draw, run and certify problem ``idx`` on each backend (a Dask task; also callable directly).
 
     ``draw(campaign_seed, idx, steps)`` returns the case (default :func:`draw_case`); the run is that
     of the case's complete problem file (:func:`replay_spec`, :func:`round_trip`), through the same
     :func:`~amcp_drake.online.replay.run_scenario` as ``amcp certify``. ``max_memory_mb``: the memory limit
     of the design's stages (``--max-memory``; None: the default limit); a problem above it is recorded as an
-    error naming the stage."""
+    error naming the stage. ``state_dims``: the state dimensions drawn (:func:`draw_case`)."""
     from amcp_drake.certificate.certify import certify
-    from amcp_drake.offline.budget import DesignBudget
+    from amcp_drake.offline.budget import DEFAULT_CANDIDATE_SECONDS, DesignBudget
     from amcp_drake.offline.design import design
     from amcp_drake.online.replay import run_scenario
-    from amcp_drake.studies.random_problems import built_scaled
+    from amcp_drake.studies.random_problems import DEFAULT_STATE_DIMS, built_scaled
 
     start = time.perf_counter()
+    formulation = campaign_formulation(state_dims)
     result: dict[str, Any] = {"campaign_seed": campaign_seed, "idx": idx, "claims": {}, "coverage": {},
                               "verdicts": {}}
     try:
-        case = (draw or draw_case)(campaign_seed, idx, steps)
+        if draw is not None:
+            case = draw(campaign_seed, idx, steps)
+        else:
+            case = draw_case(campaign_seed, idx, steps, state_dims, max_memory_mb)
         result["labels"] = {k: str(v) for k, v in getattr(case, "labels", {}).items()}
         spec, text = round_trip(replay_spec(case))
         result["digest"] = _digest(text)
         budget = DesignBudget() if max_memory_mb is None else DesignBudget(max_memory_mb)
+        if state_dims is not None and tuple(state_dims) != DEFAULT_STATE_DIMS:  # as the draw was designed
+            budget = DesignBudget(budget.max_memory_mb, DEFAULT_CANDIDATE_SECONDS)
         offline = design(spec.problem, spec.design, backend=DESIGN_BACKEND, budget=budget)
         trajs = {}
         for backend in backends:
-            traj = run_scenario(spec, backend, design_backend=DESIGN_BACKEND, formulation=FORMULATION,
+            traj = run_scenario(spec, backend, design_backend=DESIGN_BACKEND, formulation=formulation,
                                 offline=offline)
             trajs[backend] = traj
             cert = certify(traj, spec)
             result["claims"][backend] = {c.name: {"status": c.status, "margin": c.margin} for c in cert.claims}
             result["verdicts"][backend] = cert.verdict
-            result["coverage"][backend] = {**_coverage(traj), **_resolve_counts(traj, backend), **_answer_counts(traj),
+            result["coverage"][backend] = {**_coverage(traj), **_resolve_counts(traj, backend, formulation),
+                                           **_answer_counts(traj),
                                            # built, not reached: the generator's label is exact
                                            "scaled_units": float(bool(built_scaled(result["labels"])))}
         # a premise not met (x0 outside the feasible region of (20): a generator defect) fails the problem too,
@@ -238,7 +285,7 @@ def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure
         result["status"] = "fail" if failed else "pass"
         if failed:
             folder = Path(failure_dir) / f"{campaign_seed}-{idx}"
-            result["replay"] = save_replay(folder, text, result, trajs)
+            result["replay"] = save_replay(folder, text, result, trajs, formulation)
             result["failure_dir"] = str(folder)
     except Exception as exc:  # noqa: BLE001 - any crash of one problem is a recorded result, not a lost one
         result["status"] = "error"
@@ -353,7 +400,7 @@ def store_write_error(store_path: str | Path, exc: BaseException):
 def run_campaign(store_path: str | Path, systems: int, backends: Iterable[str] = ("drake", "cvxpy"),
                  seed: int = 0, scheduler: str | None = None, workers: int = 2, resume: bool = False,
                  steps: int = CAMPAIGN_STEPS, progress: bool = True, failure_dir: str | Path | None = None,
-                 max_memory_mb: float | None = None) -> dict:
+                 max_memory_mb: float | None = None, state_dims: tuple[int, int] | None = None) -> dict:
     """Run (or resume) a campaign; returns counts {"submitted", "stored", "skipped"}.
 
     The store is held exclusively while the campaign runs (:class:`CampaignStore` ``exclusive``): a
@@ -361,7 +408,8 @@ def run_campaign(store_path: str | Path, systems: int, backends: Iterable[str] =
     twice. A bad ``scheduler`` is refused before the store is touched. An interrupt (KeyboardInterrupt,
     which the CLI raises on SIGTERM too) shuts the workers down and propagates with ``stored``: the
     number of problems of the campaign in the store. ``max_memory_mb``: the design's memory limit in
-    every problem (:func:`run_problem`)."""
+    every problem (:func:`run_problem`). ``state_dims``: (min n, max n) of the drawn problems (None: the
+    generator's default)."""
     import sqlite3
 
     from dask.distributed import as_completed
@@ -375,7 +423,7 @@ def run_campaign(store_path: str | Path, systems: int, backends: Iterable[str] =
     store = CampaignStore(store_path, exclusive=True)  # CampaignStoreError (exit 2): damaged, foreign or in use
     try:
         try:
-            store.require_settings(campaign_settings(seed, systems, backends, steps))
+            store.require_settings(campaign_settings(seed, systems, backends, steps, state_dims))
         except (sqlite3.OperationalError, OSError) as exc:
             raise store_write_error(store_path, exc) from None
         done = store.done(seed)
@@ -392,7 +440,8 @@ def run_campaign(store_path: str | Path, systems: int, backends: Iterable[str] =
     bar = None
     try:
         futures = [client.submit(run_problem, seed, i, backends, failure_dir, steps, key=f"amcp-{seed}-{i}",
-                                 retries=TASK_RETRIES, pure=False, max_memory_mb=max_memory_mb) for i in todo]
+                                 retries=TASK_RETRIES, pure=False, max_memory_mb=max_memory_mb,
+                                 state_dims=state_dims) for i in todo]
         if progress:
             from tqdm import tqdm
 

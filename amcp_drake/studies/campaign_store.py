@@ -81,7 +81,7 @@ LEGACY_TABLES = {name: tuple(c for c in cols if c != "replay") for name, cols in
 #: How a setting is named in messages (the CLI option that sets it).
 SETTING_NAMES = {"seed": "--seed", "systems": "--systems", "backends": "--backends", "steps": "--steps",
                  "generator": "generator version", "design_backend": "design backend", "formulation": "formulation",
-                 "versions": "library versions"}
+                 "versions": "library versions", "state_dims": "--state-dims"}
 
 
 def _error(path: Path, what: str, fix: str = "") -> CampaignStoreError:
@@ -407,6 +407,11 @@ class CampaignStore:
 
     def problem_counts(self) -> dict[str, int]:
         return {r[0]: r[1] for r in self.db.execute("SELECT status, COUNT(*) FROM problems GROUP BY status")}
+
+    def labels(self) -> list[tuple[int, int, dict[str, str]]]:
+        """(seed, idx, the generator's labels) of every stored problem."""
+        return [(s, i, json.loads(lab) if lab else {}) for s, i, lab in self.db.execute(
+            "SELECT campaign_seed, idx, labels FROM problems ORDER BY campaign_seed, idx")]
 
     def slowest(self, limit: int = 5) -> list[tuple[int, int, float]]:
         return [tuple(r) for r in self.db.execute(

@@ -175,11 +175,14 @@ class ProblemShape:
 
 
 def random_shape(rng: np.random.Generator, max_n: int = 3, max_m: int = 2, max_p: int = 3, min_N: int = 2,
-                 max_N: int = 10, min_p: int = 1) -> ProblemShape:
+                 max_N: int = 10, min_p: int = 1, min_n: int = 1) -> ProblemShape:
     """A :class:`ProblemShape` with the probabilities of the Hypothesis strategy
-    ``amcp_properties.strategies.problem_shapes`` (one boolean: 1/2; two: 1/4)."""
+    ``amcp_properties.strategies.problem_shapes`` (one boolean: 1/2; two: 1/4); n uniform on
+    ``min_n`` … ``max_n`` (the default 1 … 3 draws what it always drew)."""
+    if not 1 <= min_n <= max_n:
+        raise ProblemError("state dimensions", "1 <= min_n <= max_n", f"{min_n}..{max_n}")
     coin = lambda: bool(rng.integers(2))  # a fair coin, read like draw(booleans())
-    n = int(rng.integers(1, max_n + 1))
+    n = int(rng.integers(min_n, max_n + 1))
     m = int(rng.integers(1, max_m + 1))
     input_uncertainty = coin()
     low_p = min(min_p, max_p)
@@ -267,10 +270,14 @@ def random_problem(rng: np.random.Generator, shape: ProblemShape) -> tuple[Probl
 
     problem = Problem(A0=A0, B0=B0, A=np.array(A_list), B=np.array(B_list), H_w=H_w, H_theta=H_theta,
                       h_theta=h_theta, F=F, G=G, Q=Q, R=R, N=shape.N, theta_hat0=theta_hat0, name="generated")
-    # the mrpi template the facet count is drawn for (the automatic default would choose its own)
+    # the mrpi template the facet count is drawn for, up to n = 3; from n = AUTO_TEMPLATE_N on the automatic
+    # design (bounded-complexity templates first; the fixed mrpi directions rarely fit the closed loop
+    # there). The facet draw is made either way, so the later draws of a seed do not depend on n.
     facets = {1: (2,), 2: (4, 6, 8), 3: (6,)}.get(n, (2 * n,))
-    options = DesignOptions(x0_template="mrpi", x0_facets=int(facets[rng.integers(len(facets))]),
-                            centre_dynamics="zero" if shape.zero_centre else "nominal",
+    drawn_facets = int(facets[rng.integers(len(facets))])
+    template = ({"x0_template": "auto", "x0_facets": None} if n >= AUTO_TEMPLATE_N
+                else {"x0_template": "mrpi", "x0_facets": drawn_facets})
+    options = DesignOptions(**template, centre_dynamics="zero" if shape.zero_centre else "nominal",
                             mu_fraction=grid(rng, 0.5, 0.99, 0.01))
     labels["state scaling"] = UNSCALED
     if shape.scaled_states:
@@ -281,6 +288,15 @@ def random_problem(rng: np.random.Generator, shape: ProblemShape) -> tuple[Probl
         labels["state scaling"] = ", ".join(f"1e{int(e)}" for e in exponents)
     return ProblemSpec(problem, options), labels
 
+
+#: From this state dimension on, generated problems use the automatic design (``x0_template = "auto"``):
+#: every fixed mrpi template of 2n facets diverged on the generated systems with n = 4 … 6 measured,
+#: the automatic order (parallelotope and contractive templates first from n = 4) designs them.
+AUTO_TEMPLATE_N = 4
+#: The state dimensions drawn by default (campaigns without ``--state-dims``, the property suite's ci profile).
+DEFAULT_STATE_DIMS = (1, 3)
+#: The largest state dimension a campaign or the property suite may draw.
+MAX_STATE_DIM = 8
 
 #: Exponents e of the state scales 10^e of ``ProblemShape.scaled_states`` (units from 1/100 to 100 of
 #: the drawn ones: a position in m next to a velocity in cm/s is a factor 100).
@@ -325,7 +341,9 @@ def random_initial_state(rng: np.random.Generator, problem: Problem, offline: Of
         raise ProblemError("x0 kind", f"one of {INITIAL_STATE_KINDS}", repr(kind))
     d = unit_vector(rng, problem.n)
     geo = TubeGeometry.build(problem, offline, offline.theta_vertices)
-    s_max = max_ray_length(geo, d)
+    # from n = AUTO_TEMPLATE_N on with the exact row maxima over X0's vertices (tube_feasibility): the
+    # rows at every vertex do not fit in memory there; below, the LP as it always was (the same draws)
+    s_max = max_ray_length(geo, d, row_maxima=problem.n >= AUTO_TEMPLATE_N)
     if not np.isfinite(s_max) or s_max <= 0.0:
         raise GenerationError(f"boundary LP along {d} returned {s_max}")
     fraction = {"boundary": lambda: 1.0 - BOUNDARY_BACKOFF, "near boundary": lambda: grid(rng, 0.9, 0.995, 0.005),
@@ -432,25 +450,32 @@ def complete_spec(case, theta_star=None) -> ProblemSpec:
     return ProblemSpec(case.spec.problem, case.spec.design, scenario, online=case.options)
 
 
-def random_case(rng: np.random.Generator, steps: int, max_N: int = 10) -> RandomCase:
+def random_case(rng: np.random.Generator, steps: int, max_N: int = 10,
+                state_dims: tuple[int, int] = DEFAULT_STATE_DIMS, budget=None) -> RandomCase:
     """A designed problem and a scenario, everything drawn from ``rng`` with the probabilities of
     ``amcp_properties.strategies.closed_loop_cases`` (θ* on a facet (then p >= 2) / at a vertex 3/8
     each, inside 1/4; x0 on
     the boundary 1/2; pinning 3/4 of the runs that allow it, half of them thin). A problem the
     offline design rejects is replaced by the next draw (at most :data:`MAX_DESIGN_ATTEMPTS`);
-    ``labels["design attempts"]`` says how many it took."""
+    ``labels["design attempts"]`` says how many it took. ``state_dims`` = (min n, max n) of the drawn
+    problems (the default draws what it always drew); ``budget`` (a
+    :class:`~amcp_drake.offline.budget.DesignBudget`) bounds every design's memory and time per candidate
+    (None: the default memory limit, no time budget)."""
     coin = lambda: bool(rng.integers(2))  # noqa: E731 - read like draw(booleans())
+    rejected: list[str] = []
     for attempt in range(1, MAX_DESIGN_ATTEMPTS + 1):
         theta_kind = "interior" if coin() and coin() else ("facet", "vertex")[int(rng.integers(2))]
-        shape = random_shape(rng, max_N=max_N, min_p=2 if theta_kind == "facet" else 1)
+        shape = random_shape(rng, max_N=max_N, min_p=2 if theta_kind == "facet" else 1, min_n=state_dims[0],
+                             max_n=state_dims[1])
         spec, labels = random_problem(rng, shape)
         try:
-            offline = design(spec.problem, spec.design, backend=DESIGN_BACKEND)
+            offline = design(spec.problem, spec.design, backend=DESIGN_BACKEND, budget=budget)
             problem = spec.problem
             theta_star = random_theta_star(rng, problem, theta_kind)
             x0_kind = "boundary" if rng.integers(2) == 0 else ("interior" if rng.integers(4) == 0 else "near boundary")
             x0, s_max = random_initial_state(rng, problem, offline, x0_kind)
-        except DesignError:
+        except DesignError as exc:
+            rejected.append(rejection_reason(shape, exc))
             continue
         w_kind = DISTURBANCE_KINDS[int(rng.integers(3))]
         w, seed = random_disturbances(rng, problem, steps, w_kind)
@@ -462,9 +487,33 @@ def random_case(rng: np.random.Generator, steps: int, max_N: int = 10) -> Random
         options = random_online_options(rng)
         labels = dict(labels, theta_star=theta_kind, x0=x0_kind, disturbance=w_kind, pin=pin,
                       update=options.update, projection=options.projection, **{"design attempts": str(attempt)})
+        if rejected:
+            labels["rejected draws"] = " | ".join(rejected)
         return RandomCase(spec=spec, design=offline, x0=x0, theta_star=theta_star, w=w, options=options,
                           labels=labels, seed=seed, ray_length=s_max)
-    raise DesignError(f"random_case: the offline design rejected {MAX_DESIGN_ATTEMPTS} problems in a row")
+    raise DesignError(f"random_case: the offline design rejected {MAX_DESIGN_ATTEMPTS} problems in a row: "
+                      + " | ".join(rejected))
+
+
+#: Characters of a rejected draw's reason kept in the ``"rejected draws"`` label.
+REJECTION_CHARS = 160
+
+
+def rejection_reason(shape: ProblemShape, exc: Exception) -> str:
+    """One rejected draw of :func:`random_case` as "n=5 m=2 p=3: AutoDesignError: <first line>" (the
+    automatic design's first line is followed by the outcome of each candidate, counted by outcome)."""
+    head = f"n={shape.n} m={shape.m} p={shape.p}: {type(exc).__name__}"
+    attempts = getattr(exc, "attempts", None)
+    if attempts:
+        outcomes: dict[str, int] = {}
+        for a in attempts:
+            outcomes[a.outcome] = outcomes.get(a.outcome, 0) + 1
+        last = attempts[-1]
+        text = (", ".join(f"{count} {outcome}" for outcome, count in outcomes.items())
+                + f"; last: {last.label}: {last.reason}")
+    else:
+        text = str(exc).splitlines()[0] if str(exc) else ""
+    return f"{head}: {text}"[:REJECTION_CHARS]
 
 
 # -- did a run reach the hard cases? ---------------------------------------------------------------

@@ -12,6 +12,15 @@ row maxima over Θ_k). w̄ and f̄ are recomputed from the vertices of W and X0 
 the design) so that a wrong offline constant is not copied in.
 
 Variables y = [z (N+1)·n | α (N+1) | v N·m | s], with x_k = s·d for a ray direction d.
+
+``row_maxima=True`` writes the rows of (5b) once per (l, θ) instead of once per (l, θ, x^j): for
+α_l >= 0 (a bound of the LP) the rows at all vertices x^j hold exactly when
+
+    H_x (A_cl(θ) z_l + B(θ) v_l − z_{l+1}) + α_l c(θ) − α_{l+1} 1 <= −w̄,   c(θ)_i = max_j (H_x A_cl(θ) x^j)_i,
+
+the same set with q times fewer rows (q vertices of X0). The generator uses it from n = 4 on: there
+X0 has hundreds to thousands of vertices and the rows at every vertex (N·|vert Θ|·q·u of them, dense)
+exhausted 12 GB on a problem of 6 states.
 """
 
 from __future__ import annotations
@@ -60,9 +69,10 @@ class TubeGeometry:
                    H_T=np.asarray(design.H_T, float), h_T=np.asarray(design.h_T, float), N=int(problem.N))
 
 
-def _rows(geo: TubeGeometry, direction: np.ndarray | None, x: np.ndarray | None):
+def _rows(geo: TubeGeometry, direction: np.ndarray | None, x: np.ndarray | None, row_maxima: bool = False):
     """A_ub, b_ub of the vertex form; the last variable is the ray length s when ``direction``
-    is given (x_k = s d), otherwise x_k = ``x`` is data and s is absent."""
+    is given (x_k = s d), otherwise x_k = ``x`` is data and s is absent. ``row_maxima``: the rows of
+    (5b) with the maxima over X0's vertices (module docstring) instead of one block per vertex."""
     N = geo.N
     layout = TubeLayout(geo.H_x.shape[1], geo.G.shape[1], N)
     z, a, v = layout.z, layout.a, layout.v
@@ -89,10 +99,12 @@ def _rows(geo: TubeGeometry, direction: np.ndarray | None, x: np.ndarray | None)
     for l in range(N):  # (5b) at the vertices of X0 and Θ
         for Acl, Bt in zip(geo.A_cl, geo.B_v):
             HA, HB = geo.H_x @ Acl, geo.H_x @ Bt
-            for xj in geo.X0_vertices:
+            coefficients = [np.max(HA @ geo.X0_vertices.T, axis=1)] if row_maxima else \
+                (HA @ xj for xj in geo.X0_vertices)
+            for c_alpha in coefficients:
                 A = np.zeros((u, size))
                 A[:, z(l)] = HA
-                A[:, a(l)] = HA @ xj
+                A[:, a(l)] = c_alpha
                 A[:, v(l)] = HB
                 A[:, z(l + 1)] = -geo.H_x
                 A[:, a(l + 1)] = -1.0
@@ -109,10 +121,11 @@ def _rows(geo: TubeGeometry, direction: np.ndarray | None, x: np.ndarray | None)
     return csr_matrix(np.vstack(blocks)), np.concatenate(rhs), bounds, size
 
 
-def max_ray_length(geo: TubeGeometry, direction: np.ndarray) -> float:
+def max_ray_length(geo: TubeGeometry, direction: np.ndarray, row_maxima: bool = False) -> float:
     """max{s >= 0 | 𝔻(s·d, Θ) ≠ ∅}: the distance from 0 to the boundary of the feasible set of
-    (20) along d (in units of ‖d‖). Returns nan when the LP fails and inf when unbounded."""
-    A, b, bounds, size = _rows(geo, np.asarray(direction, float), None)
+    (20) along d (in units of ‖d‖). Returns nan when the LP fails and inf when unbounded.
+    ``row_maxima``: the rows of (5b) with the maxima over X0's vertices (module docstring)."""
+    A, b, bounds, size = _rows(geo, np.asarray(direction, float), None, row_maxima)
     cost = np.zeros(size)
     cost[-1] = -1.0
     res = linprog(cost, A_ub=A, b_ub=b, bounds=bounds, method="highs")

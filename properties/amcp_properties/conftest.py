@@ -103,6 +103,9 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
     tr.write_line(f"generator: {len(stats.distinct)} distinct problems, {distinct:.1%} rejected by the design "
                   f"({stats.attempts} draws, {rate:.1%} rejected); by reason: "
                   + ", ".join(f"{k[10:]}={v}" for k, v in sorted(stats.counts.items()) if k.startswith("rejected:")))
+    from amcp_properties.coverage import dimension_line
+
+    tr.write_line(dimension_line(stats.by_dimension(), summary))
     tr.write_line("Θk↓d = some Θ_k lower-dimensional (Chebyshev radius <= 1e-5); θ*vx / θ*fc = θ* at a vertex / "
                   "elsewhere on ∂Θ; scaled = in badly scaled state units (fractions of the runs)")
     run_cache = config.stash[_RUNNER]
@@ -112,4 +115,7 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
         recorder.write_json(path, {"profile": PROFILE, "generator": dict(stats.counts),
                                    "rejection_rate": rate, "distinct_problems": len(stats.distinct),
                                    "distinct_rejection_rate": distinct, "runs": {"simulated": run_cache.misses,
-                                                                    "reused": run_cache.hits}})
+                                                                    "reused": run_cache.hits},
+                                   "by_dimension": {str(n): {"draws": d, "accepted": a}
+                                                    for n, (d, a) in stats.by_dimension().items()}})
+

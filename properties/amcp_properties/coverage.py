@@ -170,3 +170,17 @@ class CoverageRecorder:
                 "answers": {b: {p: dict(c) for p, c in per.items()} for b, per in self.answers.items()}}
         data.update(extra or {})
         Path(path).write_text(json.dumps(data, indent=1, sort_keys=True))
+
+
+def dimension_line(by_dimension: dict[int, tuple[int, int]], summary: dict[str, dict]) -> str:
+    """"state dimension n: draws (accepted) / runs" for every n drawn: the generator's design attempts
+    and accepted problems, and the examples of every test whose problem had n states (labels "n=...")."""
+    runs: dict[int, int] = {}
+    for data in summary.values():
+        for label, count in data.get("labels", {}).items():
+            if label.startswith("n="):
+                runs[int(label[2:])] = runs.get(int(label[2:]), 0) + count
+    dims = sorted(set(by_dimension) | set(runs))
+    cells = [f"n={n}: {by_dimension.get(n, (0, 0))[0]} ({by_dimension.get(n, (0, 0))[1]}) / {runs.get(n, 0)}"
+             for n in dims]
+    return "state dimension n: draws (accepted) / runs of all tests: " + (", ".join(cells) or "none")

@@ -17,6 +17,9 @@
   property is a fresh offline design plus a run (about 0.6 s), so the earlier sizes (2000 examples
   of 50 steps per property) would have taken about 9 hours and were never run to completion. For
   a longer search, run it repeatedly: the seeds are random and the database keeps what failed.
+  thorough draws systems of up to 5 states (``Sizes.max_n``; ci up to 3): a quarter of its problems
+  have n = 4 or 5 (:func:`amcp_properties.strategies.problem_shapes`), designed by the automatic
+  design; the coverage report counts the draws and runs per n.
 
 Sizes are per kind of property: ``closed_loop`` (the claims checked on one shared run), ``design``
 (Assumption 11), ``long`` (Corollary 16 and the finite gain) and ``lockstep``.
@@ -50,11 +53,13 @@ class Sizes:
     steps: int          # closed-loop claims and lockstep
     tail: int           # Corollary 16: steps after the disturbance stops
     gain_steps: int     # finite-gain runs
+    max_n: int = 3      # largest state dimension drawn (strategies.problem_shapes)
 
 
 SIZES = {
     "ci": Sizes(closed_loop=56, design=56, long=16, lockstep=16, steps=20, tail=40, gain_steps=90),
-    "thorough": Sizes(closed_loop=200, design=200, long=40, lockstep=40, steps=40, tail=100, gain_steps=200),
+    "thorough": Sizes(closed_loop=200, design=200, long=40, lockstep=40, steps=40, tail=100, gain_steps=200,
+                      max_n=5),
 }
 
 _COMMON = dict(deadline=None, suppress_health_check=SUPPRESSED, print_blob=True)

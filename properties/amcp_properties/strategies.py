@@ -43,6 +43,7 @@ from amcp_drake.model.errors import DesignError
 from amcp_drake.model.options import OnlineOptions
 from amcp_drake.model.problem import Problem, ProblemSpec
 from amcp_drake.model.problem_io import spec_to_dict
+from amcp_drake.offline.budget import DEFAULT_CANDIDATE_SECONDS, DesignBudget
 from amcp_drake.offline.design import OfflineDesign, design
 from amcp_drake.studies.pinning import pin_first_disturbance
 from amcp_drake.studies.random_problems import (
@@ -91,6 +92,11 @@ class GeneratorStats:
     def add(self, key: str) -> None:
         self.counts[key] += 1
 
+    def by_dimension(self) -> dict[int, tuple[int, int]]:
+        """n -> (design attempts, accepted) of the problems drawn with n states."""
+        dims = sorted({int(k.rpartition("=")[2]) for k in self.counts if k.startswith("draws n=")})
+        return {n: (self.counts[f"draws n={n}"], self.counts[f"accepted n={n}"]) for n in dims}
+
     @property
     def attempts(self) -> int:
         return self.counts["design attempts"]
@@ -133,6 +139,11 @@ class DesignedProblem(GeneratedProblem):
     design: OfflineDesign | None = None
 
 
+#: The state dimensions every profile draws (1 … SMALL_N); larger ones are the rarer draws of
+#: :func:`problem_shapes` up to its ``max_n``.
+SMALL_N = 3
+
+
 def _seeds() -> st.SearchStrategy[int]:
     """The seed of the library's numpy generator for one piece (shrinks towards 0)."""
     return st.integers(0, 2**32 - 1)
@@ -145,8 +156,15 @@ def problem_shapes(draw, max_n: int = 3, max_m: int = 2, max_p: int = 3, min_N: 
     dimensions, then the flags, each behind ``draw(booleans())`` (two booleans for the rarer ones:
     expansive A0, tight state box, badly scaled state units). Without input uncertainty (B_i = 0, which the shrinker moves
     towards) p <= n, so that the first regressor D(x_0) can pin Θ_1 (:func:`closed_loop_cases`).
-    The probabilities are those of :func:`amcp_drake.studies.random_problems.random_shape`."""
-    n = draw(st.integers(1, max_n))
+    The probabilities are those of :func:`amcp_drake.studies.random_problems.random_shape`, which draws
+    n uniformly in a given range; here, with ``max_n`` > :data:`SMALL_N` (the thorough profile), n is
+    drawn above SMALL_N only in a quarter of the problems (two booleans: each design there costs seconds),
+    uniformly in SMALL_N + 1 … max_n; with ``max_n`` <= SMALL_N nothing more is drawn (the ci profile's
+    examples are those it always drew)."""
+    if max_n > SMALL_N and draw(st.booleans()) and draw(st.booleans()):
+        n = draw(st.integers(SMALL_N + 1, max_n))
+    else:
+        n = draw(st.integers(1, min(max_n, SMALL_N)))
     m = draw(st.integers(1, max_m))
     input_uncertainty = draw(st.booleans())
     p = draw(st.integers(min(min_p, max_p), max(min(min_p, max_p), max_p if input_uncertainty else min(max_p, n))))
@@ -186,8 +204,10 @@ class _DesignCache:
     def get(self, spec: ProblemSpec) -> OfflineDesign:
         key = spec_digest(spec)
         if key not in self.items:
+            # above SMALL_N (thorough profile) every candidate of the automatic design has a time budget
+            budget = DesignBudget(candidate_seconds=DEFAULT_CANDIDATE_SECONDS) if spec.problem.n > SMALL_N else None
             try:
-                self.items[key] = design(spec.problem, spec.design, backend=DESIGN_BACKEND)
+                self.items[key] = design(spec.problem, spec.design, backend=DESIGN_BACKEND, budget=budget)
             except DesignError as exc:
                 self.items[key] = exc
             if len(self.items) > self.size:
@@ -207,6 +227,7 @@ def designed_problems(draw, **kwargs):
     """:func:`problem_specs` plus the offline design; a DesignError is a counted rejection."""
     gen = draw(problem_specs(**kwargs))
     GENERATOR_STATS.add("design attempts")
+    GENERATOR_STATS.add(f"draws n={gen.problem.n}")
     digest = spec_digest(gen.spec)
     try:
         d = DESIGNS.get(gen.spec)
@@ -219,6 +240,7 @@ def designed_problems(draw, **kwargs):
         event(f"generator: design rejected ({reason})")
         reject()
     GENERATOR_STATS.add("accepted")
+    GENERATOR_STATS.add(f"accepted n={gen.problem.n}")
     GENERATOR_STATS.outcome(digest, "accepted")
     return DesignedProblem(gen.spec, gen.labels, gen.shape, d)
 

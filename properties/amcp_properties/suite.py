@@ -21,14 +21,15 @@ ZERO_AFTER_MAX = 15
 
 #: Short closed-loop runs from (near-)boundary initial states: Theorem 14, Lemmas 3 and 5,
 #: Proposition 9, lockstep.
-CLOSED_LOOP = closed_loop_cases(steps=SIZES.steps)
+CLOSED_LOOP = closed_loop_cases(steps=SIZES.steps, max_n=SIZES.max_n)
 #: Designs only: Assumption 11.
-DESIGNS = designed_problems()
+DESIGNS = designed_problems(max_n=SIZES.max_n)
 #: Finite-energy disturbances: w = 0 from a step in [0, 15] on, then ``tail`` more steps.
-VANISHING = closed_loop_cases(steps=ZERO_AFTER_MAX + SIZES.tail, zero_after=st.integers(0, ZERO_AFTER_MAX))
+VANISHING = closed_loop_cases(steps=ZERO_AFTER_MAX + SIZES.tail, zero_after=st.integers(0, ZERO_AFTER_MAX),
+                              max_n=SIZES.max_n)
 #: Long runs for the finite gain (22): persistent disturbances, or finite energy (boolean).
 LONG = closed_loop_cases(steps=SIZES.gain_steps,
-                         zero_after=st.one_of(st.none(), st.integers(1, SIZES.gain_steps // 3)))
+                         zero_after=st.one_of(st.none(), st.integers(1, SIZES.gain_steps // 3)), max_n=SIZES.max_n)
 
 
 def observe(case, traj, test: str, backend: str, coverage) -> None:
