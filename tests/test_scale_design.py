@@ -109,7 +109,25 @@ def test_automatic_mode_prints_each_candidate_at_start_and_end_in_order_at_n6(tm
     for i, (label, attempt) in enumerate(zip(labels, err.value.attempts), start=1):
         expected += [f"design candidate {i}/{len(labels)}: {label} ...", f"design candidate {i}: {attempt.line()}"]
     assert events == expected
-    assert any(a.outcome == "time budget" and "0.5 s used up" in a.reason for a in err.value.attempts)
+    assert any(a.outcome == "time budget" and "0.5 s of CPU used up" in a.reason for a in err.value.attempts)
+
+
+def test_the_candidate_budget_counts_cpu_time_not_wall_time():
+    """Waiting (a loaded machine) uses no budget; computing does: 0.5 s asleep leaves a 0.2 s budget
+    intact, about 0.4 s of computation uses it up."""
+    import time
+
+    from amcp_drake.offline.budget import CandidateTimeout
+
+    budget = DesignBudget(candidate_seconds=0.2)
+    time.sleep(0.5)
+    budget.tick("asleep")  # no CandidateTimeout: 0.5 s of wall time, ~0 s of CPU
+    assert budget.elapsed() < 0.1
+    start = time.process_time()
+    while time.process_time() - start < 0.4:
+        pass
+    with pytest.raises(CandidateTimeout, match=r"0\.2 s of CPU used up in busy"):
+        budget.tick("busy")
 
 
 # -- the scaled terminal set -----------------------------------------------------------------------

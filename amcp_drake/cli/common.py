@@ -127,14 +127,15 @@ max_memory_option = click.option(
          "'Size limits') exceeds this many MiB, before anything is built; every stage of the offline design is "
          "sized against the same limit (a design candidate above it is skipped, with the stage named).")
 
-#: Default of ``--candidate-budget`` (seconds per candidate of the automatic design).
+#: Default of ``--candidate-budget`` (CPU seconds per candidate of the automatic design).
 DEFAULT_CANDIDATE_BUDGET = 60.0
 
 candidate_budget_option = click.option(
     "--candidate-budget", "candidate_budget", type=click.FloatRange(min=0.1), default=DEFAULT_CANDIDATE_BUDGET,
     show_default=True,
-    help="Time budget in seconds of one candidate of the offline design (automatic mode: a candidate over it is "
-         "recorded as 'time budget' and the next one is tried; a fixed template stops with that reason).")
+    help="Time budget of one candidate of the offline design, in CPU seconds (so that the choice does not depend "
+         "on the machine's load; automatic mode: a candidate over it is recorded as 'time budget' and the next one "
+         "is tried; a fixed template stops with that reason).")
 
 
 def design_budget(max_memory: float = DEFAULT_MAX_MEMORY_MB, candidate_budget: float | None = DEFAULT_CANDIDATE_BUDGET,
