@@ -72,3 +72,51 @@ def test_upper_bound_theorem():
     assert max_vertices(6, 3) == 8
     assert max_vertices(8, 4) == 20  # C(6, 2) + C(5, 1)
     assert max_vertices(2, 1) == 2
+
+
+# -- the run's size once the design is known ------------------------------------------------------
+def _design_with(facets: int, vertices: int):
+    """A stand-in for an OfflineDesign: only the sizes of X0 enter the estimate."""
+    from types import SimpleNamespace
+
+    return SimpleNamespace(H_x=np.zeros((facets, 4)), X0_vertices=np.zeros((vertices, 4)))
+
+
+def test_the_estimate_after_the_design_uses_the_designs_own_facets_and_vertices():
+    """Tube block N·v·u counted from the design's X0, not from the upper bound theorem; before the
+    design of an automatic n >= 4 problem the smallest candidate (parallelotope: 2n facets, 2^n
+    vertices) is taken."""
+    from amcp_drake.model.examples import get_example
+    from amcp_drake.model.limits import estimate_run_size
+
+    spec = get_example("ji2022_quadrotor")  # n = 4, no design section
+    pr = spec.problem
+    before = estimate_for(pr, spec.design, steps=50)
+    assert (before.facets, before.vertices) == (8, 16)
+    after = estimate_for(pr, spec.design, steps=50, offline=_design_with(102, 318))
+    assert (after.facets, after.vertices) == (102, 318)
+    by_hand = estimate_run_size(pr.n, pr.m, pr.p, int(pr.N), 102, len(pr.H_theta), len(pr.H_w), len(pr.F), steps=50,
+                                vertices=318)
+    assert after.memory_bytes == by_hand.memory_bytes
+    # the plain form's multipliers alone: N·v·u·(q − p) variables
+    assert after.variables >= int(pr.N) * 318 * 102 * (len(pr.H_theta) - pr.p)
+
+
+@pytest.mark.parametrize("factor, refused", [(0.5, True), (2.0, False)])
+def test_a_design_larger_than_the_memory_limit_is_refused_after_the_design(factor, refused):
+    """The limit at half the design's estimate refuses the run (naming the design's X0 and the option);
+    at twice it the run goes on."""
+    from amcp_drake.model.errors import ProblemError
+    from amcp_drake.model.examples import get_example
+    from amcp_drake.model.limits import check_designed_run_size
+
+    spec = get_example("ji2022_quadrotor")
+    offline = _design_with(102, 318)
+    est = estimate_for(spec.problem, None, steps=50, offline=offline)
+    limit_mb = factor * est.memory_bytes / 2**20
+    if refused:
+        with pytest.raises(ProblemError, match=r"with the design found.*X0 facets = 102 \(318 vertices\).*--max-memory") as err:
+            check_designed_run_size(spec.problem, offline, 50, None, limit_mb)
+        assert "design.x0_facets" in str(err.value)  # what to change
+    else:
+        assert check_designed_run_size(spec.problem, offline, 50, None, limit_mb).memory_bytes == est.memory_bytes

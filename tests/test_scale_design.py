@@ -182,3 +182,19 @@ def test_parallelotope_template_is_contractive_and_invariant_by_independent_chec
     lam = max(float(np.max(d.H_x @ (spec.problem.A_of(t) + spec.problem.B_of(t) @ d.K) @ d.X0_vertices.T))
               for t in theta_v)
     assert lam < 1.0 and np.isclose(lam, d.lambda_bar, atol=1e-8)
+
+
+def test_certify_refuses_a_run_whose_design_is_too_large_before_building_the_controller(tmp_path):
+    """The quadrotor's automatic design passes with a 102-facet X0 (318 vertices): the run's estimate with
+    that design exceeds the default limit, so `amcp certify` exits 2 naming the design's size and the
+    option, after the design and before the controller is built; nothing is written."""
+    from click.testing import CliRunner
+
+    from amcp_drake.cli import main
+
+    out = tmp_path / "out"
+    result = CliRunner().invoke(main, ["certify", "--example", "ji2022_quadrotor", "--steps", "50", "--out", str(out)])
+    assert result.exit_code == 2, result.output
+    assert "problem size with the design found" in result.output and "--max-memory" in result.output
+    assert "X0 facets = 102 (318 vertices)" in result.output
+    assert not out.exists()

@@ -15,8 +15,13 @@ states, m inputs, p parameters, horizon N, u facets and v vertices of the tube s
 * nonzeros, of the cvxpy form (the larger of the two, so the memory bound holds for both):
   N·c·(n+m+1) + u·(n+1) + N·v·u·(2n+m+2+q) + N·v·u·p·(n+m+1+q) + c·(n+1).
 
-v is not known before the design; it is bounded by the upper bound theorem (McMullen 1970) for a
-polytope with u facets in dimension n (exact for n <= 2: v = u). The set update LP (9) adds q + q·r·L
+Before the design, u and v are not known: u is ``design.x0_facets`` (else the automatic design's
+first candidate's, 2n facets from n = 4 on, else 8) and v is bounded by the upper bound theorem
+(McMullen 1970) for a polytope with u facets in dimension n (exact for n <= 2: v = u), except for the
+automatic design from n = 4 on, whose first candidate is the parallelotope (2n facets, 2^n vertices):
+the estimate before the design is then that of the smallest design it may return. Once the design is
+known, :func:`check_designed_run_size` repeats the estimate with its own u and v and refuses the run
+before the controller is built. The set update LP (9) adds q + q·r·L
 variables (r rows of W, L = 1 or the window length of update "window"); every step records Θ_k,
 (v, z, α) and Λ (N·v·u·q numbers), kept in memory for the whole run and written at the end.
 
@@ -115,9 +120,11 @@ def _mib(nbytes: int) -> str:
 
 
 def estimate_run_size(n: int, m: int, p: int, N: int, facets: int, theta_rows: int, w_rows: int, z_rows: int,
-                      steps: int = 1, window: int = 1) -> SizeEstimate:
-    """The size of a run (module docstring); Python integers, so absurd inputs cannot overflow."""
-    nv, u, q, c = max_vertices(facets, n), facets, theta_rows, z_rows
+                      steps: int = 1, window: int = 1, vertices: int | None = None) -> SizeEstimate:
+    """The size of a run (module docstring); Python integers, so absurd inputs cannot overflow.
+    ``vertices``: the number of vertices of X0 when known (default: the upper bound theorem's)."""
+    nv = max_vertices(facets, n) if vertices is None else int(vertices)
+    u, q, c = facets, theta_rows, z_rows
     block = N * nv * u
     variables = (N + 1) * n + (N + 1) + N * m + block * (q - p)
     rows = N * c + u + block + block * p + c
@@ -130,16 +137,27 @@ def estimate_run_size(n: int, m: int, p: int, N: int, facets: int, theta_rows: i
     return SizeEstimate(n, m, p, N, facets, nv, q, w_rows, c, steps, variables, rows, nonzeros, recorded, memory)
 
 
-def estimate_for(problem, design_options=None, steps: int = 1, online=None) -> SizeEstimate:
-    """:func:`estimate_run_size` for a :class:`~amcp_drake.model.problem.Problem` and its options."""
-    facets = max(8, 2 * problem.n)
+#: From this dimension on the automatic design tries the parallelotope (2n facets, 2^n vertices) first
+#: (``offline/auto.py``); the estimate before the design takes that smallest candidate.
+PARALLELOTOPE_FIRST_DIM = 4
+
+
+def estimate_for(problem, design_options=None, steps: int = 1, online=None, offline=None) -> SizeEstimate:
+    """:func:`estimate_run_size` for a :class:`~amcp_drake.model.problem.Problem` and its options;
+    with ``offline`` (an OfflineDesign), for that design's X0 (its facets and vertices)."""
+    facets, vertices = max(8, 2 * problem.n), None
     if design_options is not None and getattr(design_options, "x0_facets", None) is not None:
         facets = design_options.x0_facets
+    elif (problem.n >= PARALLELOTOPE_FIRST_DIM
+          and getattr(design_options, "x0_template", "auto") == "auto" and getattr(design_options, "x0_H", None) is None):
+        facets, vertices = 2 * problem.n, 2 ** problem.n
+    if offline is not None:
+        facets, vertices = len(offline.H_x), len(offline.X0_vertices)
     extra = getattr(design_options, "theta_extra_directions", None) if design_options is not None else None
     theta_rows = len(problem.H_theta) + (0 if extra is None else len(np.atleast_2d(extra)))
     window = online.window if online is not None and getattr(online, "update", "") == "window" else 1
     return estimate_run_size(problem.n, problem.m, problem.p, int(problem.N), int(facets), theta_rows,
-                             len(problem.H_w), len(problem.F), steps=int(steps), window=int(window))
+                             len(problem.H_w), len(problem.F), steps=int(steps), window=int(window), vertices=vertices)
 
 
 def check_run_size(problem, design_options=None, steps: int = 1, online=None,
@@ -152,6 +170,20 @@ def check_run_size(problem, design_options=None, steps: int = 1, online=None,
                            est.describe(),
                            f"Reduce cost.N, design.x0_facets or the steps, or raise the limit with {option} "
                            "(docs/problem-format.md, 'Size limits').")
+    return est
+
+
+def check_designed_run_size(problem, offline, steps: int = 1, online=None,
+                            max_memory_mb: float = DEFAULT_MAX_MEMORY_MB, option: str = "--max-memory") -> SizeEstimate:
+    """:func:`check_run_size` once the design is known: the estimate with the design's own X0 (its
+    facets and vertices), checked after the design and before the controller is built."""
+    est = estimate_for(problem, None, steps, online, offline=offline)
+    if est.memory_bytes > max_memory_mb * 2**20:
+        raise ProblemError("problem size with the design found (cost.N, the design's X0, rows of Theta and W.H, steps)",
+                           f"an estimated memory of at most {max_memory_mb:,g} MiB",
+                           est.describe().replace("design.x0_facets", "X0 facets").replace("(<= ", "("),
+                           f"Reduce cost.N or the steps, give a design with fewer facets (design.x0_template, "
+                           f"design.x0_facets), or raise the limit with {option} (docs/problem-format.md, 'Size limits').")
     return est
 
 
@@ -300,6 +332,7 @@ __all__ = [
     "DEFAULT_MAX_MEMORY_MB",
     "MAX_STEPS",
     "SizeEstimate",
+    "check_designed_run_size",
     "check_run_size",
     "estimate_for",
     "estimate_run_size",

@@ -23,9 +23,12 @@ def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: s
     OfflineDesign to use instead of designing; ``steps``/``seed``: override the scenario's;
     ``options``: the OnlineOptions (default: the file's ``online`` section, else the defaults);
     ``design_budget``: the :class:`~amcp_drake.offline.budget.DesignBudget` of the design (memory limit,
-    time budget per candidate, progress lines; None: the default limit, silent).
+    time budget per candidate, progress lines; None: the default limit, silent); with a budget, the run's
+    size is estimated again for the design found and refused above its memory limit
+    (:func:`~amcp_drake.model.limits.check_designed_run_size`).
     """
     from amcp_drake.model.errors import InconsistentDataError, ProblemError
+    from amcp_drake.model.limits import check_designed_run_size
     from amcp_drake.offline.design import design
     from amcp_drake.online.controller import AdaptiveMPC
     from amcp_drake.online.simulate import simulate
@@ -40,6 +43,8 @@ def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: s
         options = spec.online
     if offline is None:
         offline = design(spec.problem, spec.design, backend=design_backend or backend, budget=design_budget)
+        if design_budget is not None:  # the run's size with the design found, before the controller is built
+            check_designed_run_size(spec.problem, offline, steps, options, design_budget.max_memory_mb)
     ctrl = AdaptiveMPC(spec.problem, offline, backend=backend, options=options, formulation=formulation)
     try:
         return simulate(ctrl, sc.x0, sc.theta_star_for(steps), steps, sc.disturbance_for(steps), seed=seed,
