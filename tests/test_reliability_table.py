@@ -691,19 +691,20 @@ def test_a_truncated_store_without_a_write_ahead_log_is_still_refused(tmp_path):
 
 
 def test_a_long_design_prints_progress_while_it_runs(tmp_path):
-    """``amcp design`` of Example 1 with an mrpi template of 100 facets (about 10 s of work unloaded):
-    progress lines ("  ... design: <stage> (<t> s)") on stderr while it runs, at least two of them and
+    """``amcp design`` of Example 1 with an mrpi template of 160 facets (about 11 s of work unloaded; the
+    limit raised so that the size estimate of the later run does not refuse it before the design):
+    progress lines ("  ... design: <stage> (<t> s CPU)") on stderr while it runs, at least two of them and
     at least 2 s apart, and no silence longer than 3/4 of the command's wall time (a silent design prints
     everything at its end: a silence of the whole run). Progress is due every 3 s at the design's loop
     iterations (offline/budget.py); the bounds are relative, so a loaded machine slows both sides."""
     import threading
 
     data = example()
-    data["design"].update({"x0_template": "mrpi", "x0_facets": 100})
+    data["design"].update({"x0_template": "mrpi", "x0_facets": 160})
     path = tmp_path / "p.json"
     path.write_text(json.dumps(data))
     start = time.monotonic()
-    proc = _amcp("design", str(path))
+    proc = _amcp("design", str(path), "--max-memory", "8192")
     arrivals: list[tuple[float, str]] = []
 
     def read() -> None:
@@ -717,7 +718,7 @@ def test_a_long_design_prints_progress_while_it_runs(tmp_path):
     end = time.monotonic()
     assert code == 0, "".join(line for _, line in arrivals)
     assert "all design checks pass" in stdout
-    progress = [t for t, line in arrivals if re.match(r"\s*\.\.\. design: .*\(\d+ s\)$", line.rstrip())]
+    progress = [t for t, line in arrivals if re.match(r"\s*\.\.\. design: .*\(\d+ s CPU\)$", line.rstrip())]
     assert len(progress) >= 2 and progress[-1] - progress[0] >= 2.0, arrivals
     times = [start] + [t for t, _ in arrivals] + [end]
     silences = [b - a for a, b in zip(times, times[1:])]
