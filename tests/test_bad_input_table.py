@@ -467,8 +467,10 @@ def test_files_written_by_amcp_load_back_unchanged(tmp_path, example_spec):
 
 
 def test_a_killed_certify_leaves_a_staging_folder_that_the_next_run_removes(tmp_path):
-    """SIGKILL ``amcp certify`` while it writes its bundle into a new D: D holds only the staging
-    folder; the next ``amcp certify`` into D (here one that exits 2 on a bad problem) removes it."""
+    """SIGKILL ``amcp certify`` while it writes its bundle into a new D (once its staging folder holds
+    the writer's lock file): D holds only the staging folder; the next ``amcp certify`` into D (here one
+    that exits 2 on a bad problem) removes it. A folder killed in the instant between its creation and
+    its lock file is left for STAGING_UNLOCKED_GRACE_S (certificate/report.py), not tested here."""
     import os
     import signal
     import subprocess
@@ -481,7 +483,7 @@ def test_a_killed_certify_leaves_a_staging_folder_that_the_next_run_removes(tmp_
                              "--out", str(out)], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + 300
-        while not list(out.glob(".certify-staging-*")):
+        while not list(out.glob(".certify-staging-*/.lock")):
             assert proc.poll() is None, "certify ended before its staging folder was seen"
             assert time.monotonic() < deadline
             time.sleep(0.005)
