@@ -130,6 +130,35 @@ def test_the_candidate_budget_counts_cpu_time_not_wall_time():
         budget.tick("busy")
 
 
+def test_progress_lines_come_at_most_every_progress_seconds_of_wall_time(monkeypatch):
+    """With progress_seconds = 2: a tick 1.9 s after the last line prints nothing, one 2.1 s after it
+    prints one line naming the stage; the next line is due 2 s after that one, not after the start."""
+    import amcp_drake.offline.budget as budget_module
+
+    clock = [100.0]
+    monkeypatch.setattr(budget_module.time, "perf_counter", lambda: clock[0])
+    lines: list[str] = []
+    budget = DesignBudget(progress=lines.append, label="cand", progress_seconds=2.0)
+    clock[0] = 101.9
+    budget.tick("early")
+    assert lines == []
+    clock[0] = 102.1
+    budget.tick("due")
+    assert len(lines) == 1 and lines[0].startswith("  ... cand: due (") and lines[0].endswith(" s CPU)")
+    clock[0] = 103.9
+    budget.tick("too soon after the last line")
+    assert len(lines) == 1
+    clock[0] = 104.2
+    budget.tick("due again")
+    assert len(lines) == 2 and "due again" in lines[1]
+
+
+@pytest.mark.parametrize("value", [0.0, -1.0, float("nan"), float("inf")])
+def test_a_progress_interval_that_is_not_a_positive_finite_number_is_refused(value):
+    with pytest.raises(ValueError, match="progress_seconds: expected a positive finite number"):
+        DesignBudget(progress_seconds=value)
+
+
 # -- the scaled terminal set -----------------------------------------------------------------------
 def _terminal_inputs(product: float):
     """(H_x, f̄, w̄, h̄) of a box X0 with α_∞ · max f̄ = product."""

@@ -21,6 +21,7 @@ from amcp_drake.cli.common import (
     backend_option,
     bad_input_exits_2,
     candidate_budget_option,
+    progress_every_option,
     design_budget,
     exit_verdict,
     formulation_option,
@@ -53,12 +54,13 @@ from amcp_drake.cli.common import (
 @online_options
 @max_memory_option
 @candidate_budget_option
+@progress_every_option
 @click.pass_context
 @interruptible(lambda kw, exc: f"nothing written to {kw['out_dir']} (its staging folder was removed); "
                "run the command again")
 @bad_input_exits_2
 def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend, formulation, steps, seed, out_dir,
-                trajectory_file, online, max_memory, candidate_budget):
+                trajectory_file, online, max_memory, candidate_budget, progress_every):
     """Run a closed loop and check every claim of the paper independently.
 
     Runs the adaptive MPC on PROBLEM (default: --example lorenzen2019, x0 = [2, 3],
@@ -81,7 +83,7 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
         from click.core import ParameterSource
 
         run_options = ("backend", "design_backend", "steps", "seed", *ONLINE_OPTION_NAMES, "max_memory", "x0_template",
-                       "candidate_budget")
+                       "candidate_budget", "progress_every")
         given = [f"--{name.replace('_', '-')}" for name in run_options
                  if ctx.get_parameter_source(name) is ParameterSource.COMMANDLINE]
         if given:
@@ -95,7 +97,7 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
         seed = spec.scenario.seed if seed is None else seed
         try:
             traj = _run(spec, backend, steps, seed, formulation, options, design_backend,
-                        design_budget(max_memory, candidate_budget))
+                        design_budget(max_memory, candidate_budget, progress_every=progress_every))
         except DesignError as exc:
             broken = _assumption_8_broken_by_the_given_gain(exc, spec)
             if broken is None:

@@ -138,15 +138,24 @@ candidate_budget_option = click.option(
          "is tried; a fixed template stops with that reason).")
 
 
+#: Default of ``--progress-every`` (seconds of wall time between two progress lines of a long design stage).
+DEFAULT_PROGRESS_EVERY = 3.0
+
+progress_every_option = click.option(
+    "--progress-every", "progress_every", type=FiniteFloatRange(min=0.1, max=3600.0), default=DEFAULT_PROGRESS_EVERY,
+    show_default=True,
+    help="Least wall time in seconds between two progress lines of a long design stage on stderr.")
+
+
 def design_budget(max_memory: float = DEFAULT_MAX_MEMORY_MB, candidate_budget: float | None = DEFAULT_CANDIDATE_BUDGET,
-                  quiet: bool = False):
+                  quiet: bool = False, progress_every: float = DEFAULT_PROGRESS_EVERY):
     """The :class:`~amcp_drake.offline.budget.DesignBudget` of a command: ``--max-memory``,
     ``--candidate-budget`` and progress lines on stderr (each design candidate when it starts and ends,
-    long stages every few seconds) unless ``quiet``."""
+    long stages every ``--progress-every`` seconds) unless ``quiet``."""
     from amcp_drake.offline.budget import DesignBudget
 
     progress = None if quiet else (lambda line: click.echo(line, err=True))
-    return DesignBudget(max_memory, candidate_budget, progress)
+    return DesignBudget(max_memory, candidate_budget, progress, progress_seconds=progress_every)
 
 
 def bad_input_exits_2(func: Callable) -> Callable:

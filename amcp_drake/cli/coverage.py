@@ -11,6 +11,7 @@ from amcp_drake.cli.common import (
     backend_option,
     bad_input_exits_2,
     candidate_budget_option,
+    progress_every_option,
     check_run_size,
     design_budget,
     exit_verdict,
@@ -43,11 +44,12 @@ from amcp_drake.cli.common import (
 @click.option("--no-progress", is_flag=True, help="No progress bar (and no design progress lines).")
 @max_memory_option
 @candidate_budget_option
+@progress_every_option
 @interruptible(lambda kw, exc: f"nothing new written to {kw['out_dir']} (each file is written whole or not at all); "
                "run the command again")
 @bad_input_exits_2
 def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, points_file, adapt_steps, adapt_x0,
-                 update, window, projection, out_dir, no_progress, max_memory, candidate_budget):
+                 update, window, projection, out_dir, no_progress, max_memory, candidate_budget, progress_every):
     """Feasible fraction of a grid of initial states (QP (20), confirmed by an LP).
 
     Writes coverage.json (every point, both verdicts, every disagreement) and coverage.png (n <= 2).
@@ -88,7 +90,7 @@ def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, po
         if len(adapt_x0) != pr.n:
             raise ProblemError("--adapt-x0", f"{pr.n} numbers separated by commas", f"{len(adapt_x0)} numbers")
     check_run_size(spec, 1, online, max_memory)
-    d = design(pr, spec.design, backend=backend, budget=design_budget(max_memory, candidate_budget, quiet=no_progress))
+    d = design(pr, spec.design, backend=backend, budget=design_budget(max_memory, candidate_budget, quiet=no_progress, progress_every=progress_every))
 
     def progress_factory(total, label):
         if no_progress:

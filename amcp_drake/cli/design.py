@@ -13,6 +13,7 @@ from amcp_drake.cli.common import (
     backend_option,
     bad_input_exits_2,
     candidate_budget_option,
+    progress_every_option,
     check_run_size,
     design_budget,
     exit_verdict,
@@ -33,8 +34,9 @@ def _fmt(a) -> str:
 @click.option("--json", "as_json", is_flag=True, help="Print the design and checks as JSON.")
 @max_memory_option
 @candidate_budget_option
+@progress_every_option
 @bad_input_exits_2
-def design_cmd(problem_file, example, x0_template, backend, as_json, max_memory, candidate_budget):
+def design_cmd(problem_file, example, x0_template, backend, as_json, max_memory, candidate_budget, progress_every):
     """Compute K, P, X0, w_bar, f_bar, Xf and mu ((11), (14), (16), Appendix A.1) and verify them independently."""
     from amcp_drake.offline.checks import verify_design
     from amcp_drake.offline.design import design
@@ -42,7 +44,7 @@ def design_cmd(problem_file, example, x0_template, backend, as_json, max_memory,
     spec = with_x0_template(load_problem_spec(problem_file, example), x0_template)
     pr = spec.problem
     check_run_size(spec, 1, None, max_memory)  # the design builds the tube QP's sets, not a run
-    d = design(pr, spec.design, backend=backend, budget=design_budget(max_memory, candidate_budget))
+    d = design(pr, spec.design, backend=backend, budget=design_budget(max_memory, candidate_budget, progress_every=progress_every))
     checks = verify_design(pr, d, spec.design.mu_state_bound)
     ok = all(c.passed for c in checks)
     if as_json:

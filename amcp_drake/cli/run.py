@@ -11,6 +11,7 @@ from amcp_drake.cli.common import (
     backend_option,
     bad_input_exits_2,
     candidate_budget_option,
+    progress_every_option,
     design_budget,
     exit_verdict,
     formulation_option,
@@ -38,11 +39,12 @@ from amcp_drake.cli.common import (
               help="Save the trajectory (JSON, .gz allowed).")
 @max_memory_option
 @candidate_budget_option
+@progress_every_option
 @interruptible(lambda kw, exc: "the run stopped" + (f"; nothing saved to {kw['save']}" if kw.get("save") else "")
                + "; run the command again")
 @bad_input_exits_2
 def run_cmd(problem_file, example, x0_template, backend, formulation, steps, seed, disturbance, online, every, save,
-            max_memory, candidate_budget):
+            max_memory, candidate_budget, progress_every):
     """Design, then run the adaptive MPC closed loop and print one line per step."""
     from amcp_drake.cli.summary import format_table, step_table
     from amcp_drake.model.limits import check_designed_run_size
@@ -52,7 +54,7 @@ def run_cmd(problem_file, example, x0_template, backend, formulation, steps, see
 
     spec, steps, options = prepare_run(problem_file, example, x0_template, steps, online, max_memory)
     sc, pr = spec.scenario, spec.problem
-    d = design(pr, spec.design, backend=backend, budget=design_budget(max_memory, candidate_budget))
+    d = design(pr, spec.design, backend=backend, budget=design_budget(max_memory, candidate_budget, progress_every=progress_every))
     check_designed_run_size(pr, d, steps, options, max_memory)
     update = options.update
     ctrl = AdaptiveMPC(pr, d, backend=backend, options=options, formulation=formulation)

@@ -23,7 +23,8 @@ Estimates:
 Time: :meth:`DesignBudget.tick` is called by every loop of the design (template iterations, terminal
 set iterations, chunks); it raises :class:`CandidateTimeout` once the candidate's time budget
 (``candidate_seconds``, the CLI's ``--candidate-budget``) is used up, and reports progress through the
-``progress`` callback at most every :data:`PROGRESS_SECONDS` seconds of wall time. The budget counts
+``progress`` callback at most every ``progress_seconds`` seconds of wall time (default
+:data:`PROGRESS_SECONDS`; the CLI's ``--progress-every``). The budget counts
 the process's CPU time, not wall time: on a loaded machine a candidate's wall time is several times
 its CPU time (measured up to 18× on the shared 2-core machine), and a wall-clock budget would make
 the template the automatic design chooses depend on the load. The budget holds no global
@@ -87,15 +88,20 @@ class DesignBudget:
 
     ``max_memory_mb``: the limit in MiB (default the CLI's ``--max-memory`` default);
     ``candidate_seconds``: time budget of one candidate (None: unbounded); ``progress``: called with
-    one line of text (the CLI prints it to stderr); ``label``: the candidate's name in those lines.
+    one line of text (the CLI prints it to stderr); ``label``: the candidate's name in those lines;
+    ``progress_seconds``: the least wall time between two progress lines.
     """
 
     def __init__(self, max_memory_mb: float = DEFAULT_MAX_MEMORY_MB, candidate_seconds: float | None = None,
-                 progress: Callable[[str], None] | None = None, label: str = "design") -> None:
+                 progress: Callable[[str], None] | None = None, label: str = "design",
+                 progress_seconds: float = PROGRESS_SECONDS) -> None:
         if not (isinstance(max_memory_mb, (int, float)) and np.isfinite(max_memory_mb) and max_memory_mb > 0):
             raise ValueError(f"max_memory_mb: expected a positive finite number; received {max_memory_mb!r}")
         if candidate_seconds is not None and not (np.isfinite(candidate_seconds) and candidate_seconds > 0):
             raise ValueError(f"candidate_seconds: expected a positive finite number or None; received {candidate_seconds!r}")
+        if not (isinstance(progress_seconds, (int, float)) and np.isfinite(progress_seconds) and progress_seconds > 0):
+            raise ValueError(f"progress_seconds: expected a positive finite number; received {progress_seconds!r}")
+        self.progress_seconds = float(progress_seconds)
         self.max_memory_mb = float(max_memory_mb)
         self.candidate_seconds = candidate_seconds
         self.progress = progress
@@ -110,7 +116,7 @@ class DesignBudget:
 
     def for_candidate(self, label: str) -> DesignBudget:
         """A fresh budget (clock restarted) for one candidate of the automatic design."""
-        return DesignBudget(self.max_memory_mb, self.candidate_seconds, self.progress, label)
+        return DesignBudget(self.max_memory_mb, self.candidate_seconds, self.progress, label, self.progress_seconds)
 
     def elapsed(self) -> float:
         """CPU seconds used by the process since this budget started."""
@@ -147,12 +153,12 @@ class DesignBudget:
         return max(2**16, min(CHUNK_BYTES, self.limit_bytes // 16))
 
     def tick(self, stage: str) -> None:
-        """Check the time budget (CandidateTimeout) and report progress every PROGRESS_SECONDS."""
+        """Check the time budget (CandidateTimeout) and report progress every ``progress_seconds``."""
         used = self.elapsed()
         if self.candidate_seconds is not None and used > self.candidate_seconds:
             raise CandidateTimeout(stage, self.candidate_seconds)
         now = time.perf_counter()
-        if self.progress is not None and now - self._last_report >= PROGRESS_SECONDS:
+        if self.progress is not None and now - self._last_report >= self.progress_seconds:
             self._last_report = now
             self.progress(f"  ... {self.label}: {stage} ({used:.0f} s CPU)")
 
