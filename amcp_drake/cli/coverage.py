@@ -11,7 +11,6 @@ from amcp_drake.cli.common import (
     backend_option,
     bad_input_exits_2,
     candidate_budget_option,
-    progress_every_option,
     check_run_size,
     design_budget,
     exit_verdict,
@@ -19,6 +18,7 @@ from amcp_drake.cli.common import (
     load_problem_spec,
     max_memory_option,
     problem_options,
+    progress_every_option,
     update_options,
 )
 

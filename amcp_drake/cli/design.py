@@ -13,13 +13,13 @@ from amcp_drake.cli.common import (
     backend_option,
     bad_input_exits_2,
     candidate_budget_option,
-    progress_every_option,
     check_run_size,
     design_budget,
     exit_verdict,
     load_problem_spec,
     max_memory_option,
     problem_options,
+    progress_every_option,
     with_x0_template,
 )
 

@@ -11,7 +11,6 @@ from amcp_drake.cli.common import (
     backend_option,
     bad_input_exits_2,
     candidate_budget_option,
-    progress_every_option,
     design_budget,
     exit_verdict,
     formulation_option,
@@ -21,6 +20,7 @@ from amcp_drake.cli.common import (
     output_file_callback,
     prepare_run,
     problem_options,
+    progress_every_option,
     seed_option,
     steps_option,
 )
