@@ -85,6 +85,17 @@ class DrakeSolver:
         result = self.solver.Solve(prog, None, options)
         return result, time.perf_counter() - start
 
+    def describe(self, result) -> str:
+        """Drake's result code of ``result`` and, for Clarabel when it did not end "Solved", Clarabel's own
+        status (e.g. ``SolutionResult.kSolverSpecificError (Clarabel: NumericalError)``): what Drake
+        otherwise says only in an INFO line of its log (:mod:`.drake_log`)."""
+        text = str(result.get_solution_result())
+        if self.name == "clarabel":
+            own = getattr(result.get_solver_details(), "status", None)
+            if own and own != "Solved":
+                text += f" (Clarabel: {own})"
+        return text
+
     def status(self, result) -> SolveStatus:
         # is_success() is Drake's solution_result == kSolutionFound (STATUS_MAP: OPTIMAL), 0.2 µs against
         # ~1 µs for hashing the pybind11 enum into STATUS_MAP (called once per QP)

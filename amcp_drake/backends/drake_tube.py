@@ -467,8 +467,8 @@ class DrakeTubeMPC:
         if status is not SolveStatus.OPTIMAL:
             names = infeasible_constraint_names(result, self.prog)
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names,
-                               detail=f"{result.get_solution_result()} ({detail})" if detail
-                               else str(result.get_solution_result()))
+                               detail=f"{self._solver.describe(result)} ({detail})" if detail
+                               else self._solver.describe(result))
         yv = result.get_x_val()[: self.layout.size]  # y first, then the epigraph s of (19) if any
         N, n, m = lay.N, lay.n, lay.m
         z = yv[: lay.a0].reshape(N + 1, n)

@@ -264,7 +264,7 @@ class DrakeVertexTubeMPC:
         if status is not SolveStatus.OPTIMAL:
             names = infeasible_constraint_names(result, self.prog)
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names,
-                               detail=f"{result.get_solution_result()}; {detail}")
+                               detail=f"{self._plain_solver.describe(result)}; {detail}")
         yv = result.get_x_val()  # y is the program's only decision vector, in order
         return self._solution(yv, Hv, g2, const, solver_time, update_time, detail)
 
