@@ -453,6 +453,28 @@ def test_a_design_breaking_11_is_a_premise_not_met(recorded, spec, baseline):
     jsonschema.validate(cert.to_dict(), schema())
 
 
+@pytest.mark.parametrize("shift, status", [(0.0, "not_met"), (-1e-12, "met"), (1e-12, "not_met")])
+def test_the_11_premise_is_strict(recorded, spec, shift, status):
+    """(11) is strict, 1/μ > sup‖D‖²: the certificate's own re-check of a recorded μ with μ·sup‖D‖² = 1 exactly
+    (margin 0) finds the premise not met, as just outside (1 + 1e-12); just inside (1 − 1e-12) it is met."""
+    from amcp_drake.offline.result import regressor_bound
+
+    data = json.loads(json.dumps(recorded))
+    sup, _ = regressor_bound(spec.problem, spec.design.mu_state_bound)
+    mu = 1.0 / sup
+    for _ in range(8):  # the float μ on the boundary (a few ulps from 1/sup)
+        if 1.0 - mu * sup == 0.0:
+            break
+        mu = float(np.nextafter(mu, np.inf if mu * sup < 1.0 else -np.inf))
+    assert 1.0 - mu * sup == 0.0
+    data["design"]["mu"] = mu * (1.0 + shift)
+    cert = certify(Trajectory.from_dict(data), spec)
+    premise = {p["id"]: p for p in cert.premises}["mu_condition_11"]
+    assert premise["status"] == status, premise
+    assert premise["margin"] == pytest.approx(-shift, abs=1e-15)
+    assert (cert.verdict == "premise_not_met") == (status == "not_met")
+
+
 def test_a_design_breaking_assumption_8_is_a_premise_not_met(recorded, spec):
     """The recorded gain replaced by K = (0, −3) (a user's gain; A_cl has spectral radius 1.12 at a vertex of Θ):
     Assumption 8 is a premise not met, and every claim built on that K that fails ((16), X0, X_f, the control

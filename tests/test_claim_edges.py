@@ -543,6 +543,32 @@ def test_mu_condition_11_at_its_edge(recorded, example_spec, margin, status):
     assert out.status == status
 
 
+def _mu_on_the_boundary(problem, bound) -> float:
+    """A μ with 1 − μ·sup‖D‖² == 0.0 exactly in floating point (sup as the design check evaluates it)."""
+    from amcp_drake.offline.result import regressor_bound
+
+    sup, _ = regressor_bound(problem, bound)
+    mu = 1.0 / sup
+    for _ in range(8):
+        if 1.0 - mu * sup == 0.0:
+            return mu
+        mu = np.nextafter(mu, np.inf if mu * sup < 1.0 else -np.inf)
+    raise AssertionError(f"no float μ with μ·{sup!r} == 1")
+
+
+def test_mu_condition_11_fails_at_margin_exactly_0(recorded, example_spec):
+    """(11) is strict, 1/μ > sup‖D‖²: μ·sup‖D‖² = 1 exactly (margin 0.0) fails, a margin of 1e-12 passes."""
+    from amcp_drake.offline.checks import verify_design
+
+    tr = _fresh(recorded)
+    bound = example_spec.design.mu_state_bound
+    mu0 = _mu_on_the_boundary(tr.problem, bound)
+    for mu, margin, status in ((mu0, 0.0, "fail"), (mu0 * (1.0 - 1e-12), 1e-12, "pass")):
+        design = dataclasses.replace(tr.design, mu=mu)
+        out = next(c for c in verify_design(tr.problem, design, bound) if c.name == "mu condition (11)")
+        assert out.margin == pytest.approx(margin, abs=1e-15) and out.status == status, (margin, out)
+
+
 # -- design checks on a scalar system: x+ = (0.5 + 0.2θ)x + u + w, θ ∈ [−1, 1], |w| <= 0.1 (tests/conftest.py) ---------
 # With one state, X0 = {|c x| <= 1} and A_cl(θ) = 0.5 + 0.2θ + K, every quantity of these checks is a number:
 # spectral radius = λ̄ = max |0.5 ± 0.2 + K|, w̄ = 0.1 c, and (16) reads (a² − 1) P + Q + K R K <= 0 at both vertices.
@@ -573,6 +599,23 @@ def test_assumption_8_at_its_edge(scalar, delta, status):
     out = _design_check(problem, offline, "Assumption 8", K=np.array([[0.3 + delta]]))
     assert out.tolerance == 0.0 and out.margin == pytest.approx(-delta, rel=1e-6)
     assert out.status == status
+
+
+def test_assumption_8_fails_at_spectral_radius_exactly_1(scalar):
+    """Assumption 8 is strict (Schur stable: spectral radius < 1): K with a = 0.7 + K == 1.0 exactly at the
+    vertex θ = 1 (margin 0.0) fails; the next float K whose a is below 1 (margin ~1e-16 > 0) passes."""
+    problem, offline = scalar
+    a_vertex = float(problem.A_of(np.array([1.0]))[0, 0])          # 0.5 + 0.2 at θ = 1; B = 1
+    K = 1.0 - a_vertex
+    assert a_vertex + K == 1.0 and abs(float(problem.A_of(np.array([-1.0]))[0, 0]) + K) < 1.0
+    out = _design_check(problem, offline, "Assumption 8", K=np.array([[K]]))
+    assert out.margin == 0.0 and out.status == "fail"
+    inside = K
+    while a_vertex + inside == 1.0:  # the next K below whose a is below 1 (a few ulps of 1)
+        inside = np.nextafter(inside, -np.inf)
+    assert 0.0 < 1.0 - (a_vertex + inside) < 1e-15
+    out = _design_check(problem, offline, "Assumption 8", K=np.array([[inside]]))
+    assert 0.0 < out.margin < 1e-15 and out.status == "pass"
 
 
 @pytest.mark.parametrize("factor, status", EDGES)
