@@ -25,6 +25,7 @@ from amcp_drake.model.errors import TrajectoryError
 from amcp_drake.model.examples import lorenzen2019_spec
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.online.simulate import Trajectory
+from tests.recorded_runs import example_1_recorded, fresh
 
 STEPS = 8
 ROOT = Path(__file__).resolve().parents[1]
@@ -60,18 +61,7 @@ def controller(spec):
 @pytest.fixture(scope="module")
 def recorded(spec, controller) -> dict:
     """An 8-step run of Example 1 (seed 0), as the JSON dict of its trajectory file."""
-    from amcp_drake.online.simulate import simulate
-
-    sc = spec.scenario
-    traj = simulate(controller, sc.x0, sc.theta_star, STEPS, "uniform", seed=0,
-                    mu_state_bound=spec.design.mu_state_bound)
-    assert traj.stop_reason == "completed" and len(traj.records) == STEPS + 1
-    return json.loads(json.dumps(traj.to_dict()))
-
-
-def fresh(recorded: dict) -> Trajectory:
-    """An independent copy of the recorded trajectory (through its file format)."""
-    return Trajectory.from_dict(json.loads(json.dumps(recorded)))
+    return example_1_recorded(spec, controller, STEPS)
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import json
 
 import numpy as np
 import pytest
@@ -24,6 +23,8 @@ from amcp_drake.certificate import claims as cl
 from amcp_drake.certificate.section4 import cost_value
 from amcp_drake.certificate.tube import tube_checks, x0_vertex_list
 from amcp_drake.online.simulate import Trajectory
+from tests.recorded_runs import as_recorded, example_1_recorded
+from tests.recorded_runs import fresh as _fresh
 
 STEPS = 8
 MEMBERSHIP_TOL = 1e-9     # θ* ∈ Θ, w_k ∈ W
@@ -42,18 +43,8 @@ EDGES = [(2.0, "fail"), (0.5, "pass")]  # (−margin / tolerance, status)
 @pytest.fixture(scope="module")
 def recorded(example_spec, example_design) -> dict:
     from amcp_drake.online.controller import AdaptiveMPC
-    from amcp_drake.online.simulate import simulate
 
-    sc = example_spec.scenario
-    ctrl = AdaptiveMPC(example_spec.problem, example_design, backend="drake")
-    traj = simulate(ctrl, sc.x0, sc.theta_star, STEPS, "uniform", seed=0,
-                    mu_state_bound=example_spec.design.mu_state_bound)
-    assert traj.stop_reason == "completed" and len(traj.records) == STEPS + 1
-    return json.loads(json.dumps(traj.to_dict()))
-
-
-def _fresh(recorded: dict) -> Trajectory:
-    return Trajectory.from_dict(json.loads(json.dumps(recorded)))
+    return example_1_recorded(example_spec, AdaptiveMPC(example_spec.problem, example_design, backend="drake"), STEPS)
 
 
 def _view(traj: Trajectory) -> cl.RunView:
@@ -700,7 +691,7 @@ def pe_recorded(example_spec, example_design) -> dict:
                        options=OnlineOptions(update="fixed", pe_window=PE_WINDOW, pe_level=0.2))
     traj = simulate(ctrl, sc.x0, sc.theta_star, 25, "uniform", seed=2, mu_state_bound=example_spec.design.mu_state_bound)
     assert traj.stop_reason == "completed"
-    return json.loads(json.dumps(traj.to_dict()))
+    return as_recorded(traj)
 
 
 def _gram(u: np.ndarray, k: int, dim: int) -> np.ndarray:
