@@ -58,3 +58,33 @@ def test_a_failed_clarabel_solve_names_clarabels_status_in_the_step_record(examp
     record = traj.records[0]
     assert record.status.value == "solver_error"
     assert "Clarabel: InsufficientProgress" in record.detail, record.detail
+
+
+def test_a_try_rescued_by_a_retry_names_what_clarabel_returned(example_spec, example_design):
+    """A tube QP whose first Clarabel try ends InsufficientProgress and whose re-solve succeeds: the applied
+    answer's detail names the try that was not solved and Clarabel's status."""
+    from amcp_drake.backends.drake_ import DrakeBackend
+    from amcp_drake.backends.drake_solver import DrakeSolver
+    from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_drake.online.simulate import simulate
+
+    class FirstTryStalls(DrakeSolver):
+        """Clarabel whose first solve is forced to stop with InsufficientProgress."""
+
+        calls = 0
+
+        def solve(self, prog, extra_options=None):
+            self.calls += 1
+            if self.calls == 1:
+                extra_options = {**(extra_options or {}), "min_terminate_step_length": 0.99}
+            return super().solve(prog, extra_options)
+
+    backend = DrakeBackend()
+    backend._solver = FirstTryStalls("clarabel", None)
+    sc = example_spec.scenario
+    ctrl = AdaptiveMPC(example_spec.problem, example_design, backend=backend)
+    traj = simulate(ctrl, sc.x0, sc.theta_star, 1, "zero", seed=0)
+    record = traj.records[0]
+    assert record.status.value == "optimal"
+    assert "tries not solved: 1 x SolutionResult.kSolverSpecificError (Clarabel: InsufficientProgress)" \
+        in record.qp_detail, record.qp_detail

@@ -5,6 +5,7 @@ counterpart of ``amcp_reference.solver_call``). Its own module so that every Dra
 from __future__ import annotations
 
 import time
+from collections import Counter
 
 import numpy as np
 from pydrake.solvers import (
@@ -108,6 +109,16 @@ class DrakeSolver:
         return SolveStatus.OPTIMAL
 
 
+def tries_note(described: list[str]) -> str:
+    """The solves of one problem that did not end "optimal", for ``MPCSolution.detail``: each distinct
+    :meth:`DrakeSolver.describe` text with its count (e.g. ``tries not solved: 2 x
+    SolutionResult.kSolverSpecificError (Clarabel: NumericalError)``); "" when there were none."""
+    if not described:
+        return ""
+    counts = Counter(described)
+    return "tries not solved: " + ", ".join(f"{n} x {text}" for text, n in counts.items())
+
+
 def infeasible_constraint_names(result, prog: MathematicalProgram, tol: float = INFEASIBLE_NAME_TOL) -> tuple[str, ...]:
     """Descriptions of the constraints violated by more than ``tol`` at the solver's last iterate
     (Drake's ``GetInfeasibleConstraintNames``): a diagnostic for a step that failed. A failed
@@ -118,4 +129,4 @@ def infeasible_constraint_names(result, prog: MathematicalProgram, tol: float = 
         return ()
 
 
-__all__ = ["SOLVERS", "STATUS_MAP", "DrakeSolver", "finite_or_raise", "infeasible_constraint_names"]
+__all__ = ["SOLVERS", "STATUS_MAP", "DrakeSolver", "finite_or_raise", "infeasible_constraint_names", "tries_note"]
