@@ -170,3 +170,44 @@ def test_the_size_with_the_design_counts_the_extra_directions_of_theta(example_s
     limit_mb = 0.5 * (without + with_extra) / 2**20
     with pytest.raises(ProblemError, match=rf"with the design found.*X0 facets = 8 \(8 vertices\), {q + 2} rows of Theta"):
         run_scenario(spec, "drake", steps=steps, design_budget=DesignBudget(limit_mb))
+
+
+def test_a_campaign_problem_whose_design_is_too_large_is_recorded_as_refused(tmp_path, example_spec):
+    """A campaign problem (Example 1 with two extra directions of Θ) whose memory limit lies between the
+    estimate without the extra rows and the estimate with the design found: the problem is recorded as
+    an error naming the stage, after the design and before any run."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from amcp_drake.model.limits import estimate_run_size
+    from amcp_drake.model.options import OnlineOptions
+    from amcp_drake.studies.campaign import run_problem
+
+    extra = np.array([[1.0, 1.0, 0.0], [0.0, 1.0, 1.0]])
+    spec = replace(example_spec, design=replace(example_spec.design, theta_extra_directions=extra))
+    pr, steps = spec.problem, 4
+    sizes = dict(n=pr.n, m=pr.m, p=pr.p, N=int(pr.N), facets=8, w_rows=len(pr.H_w), z_rows=len(pr.F), steps=steps,
+                 vertices=8)
+    without = estimate_run_size(theta_rows=len(pr.H_theta), **sizes).memory_bytes
+    with_extra = estimate_run_size(theta_rows=len(pr.H_theta) + 2, **sizes).memory_bytes
+    case = SimpleNamespace(spec=spec, x0=np.array([2.0, 3.0]), theta_star=np.array([0.8, 0.2, -0.5]),
+                           w=np.zeros((steps, 2)), options=OnlineOptions(), labels={}, seed=0)
+    result = run_problem(0, 0, ("drake",), str(tmp_path), steps=steps, draw=lambda seed, idx, s: case,
+                         max_memory_mb=0.5 * (without + with_extra) / 2**20)
+    assert result["status"] == "error", result
+    assert "problem size with the design found" in result["message"] and "8 rows of Theta" in result["message"]
+    assert result["claims"] == {}
+
+
+def test_coverage_refuses_a_design_too_large_for_the_limit():
+    """`amcp coverage` on the quadrotor (no design section): before the design its QP is estimated at
+    13 MiB (the parallelotope's 8 facets and 16 vertices), with the design found (102 facets, 318
+    vertices) above the default 2 GiB: exit 2 naming the design's size, before any QP is built."""
+    from click.testing import CliRunner
+
+    from amcp_drake.cli import main
+
+    result = CliRunner().invoke(main, ["coverage", "--example", "ji2022_quadrotor", "--no-progress"])
+    assert result.exit_code == 2, result.output
+    assert "problem size with the design found" in result.output and "--max-memory" in result.output
+    assert "X0 facets = 102 (318 vertices)" in result.output
