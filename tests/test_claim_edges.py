@@ -785,3 +785,20 @@ def test_x_f_invariant_at_its_edge(scalar, factor, status):
     s = _bisect(violation, factor * VERTEX_TOL, hi=1.0)
     out = _design_check(problem, offline, "X_f invariant", A_z=np.array([[base + s]]))
     _assert_edge(out, -violation(s), factor, VERTEX_TOL, status, rel=1e-6)
+
+
+@pytest.mark.parametrize("mu, status", [(1.0, "fail"), (1.0 - 1e-12, "pass"), (1.0 + 1e-12, "fail")])
+def test_the_property_suites_11_check_is_strict_on_z(mu, status):
+    """The property suite's (11) on the scalar system (Z bounded: |x| <= 5, |u| <= 2, D(x, u) = 0.2 x, so
+    sup_Z ‖D‖² = 1 exactly): μ = 1 (margin 0) fails, 1 − 1e-12 passes, 1 + 1e-12 fails; the visited states
+    (|x| <= 1) are far inside."""
+    from types import SimpleNamespace
+
+    from amcp_properties.claims import lms_precondition
+    from tests.conftest import scalar_problem
+
+    assert (0.2 * 5.0) ** 2 == 1.0
+    traj = SimpleNamespace(problem=scalar_problem(), design=SimpleNamespace(mu=mu),
+                           x=np.array([[1.0], [0.5], [0.2]]), u=np.array([[0.1], [0.0]]))
+    out = lms_precondition(traj)
+    assert out.margin == pytest.approx(1.0 - mu, abs=1e-15) and out.status == status
