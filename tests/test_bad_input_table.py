@@ -29,8 +29,8 @@ import pytest
 from click.testing import CliRunner
 
 from amcp_drake.cli import main
+from tests.recorded_runs import TRAJECTORY_DATA, trajectory
 
-TRAJECTORY_DATA = Path(__file__).parent / "data" / "campaign-0-126-trajectory.json.gz"
 STALE = ".certify-staging-" + "0123456789abcdef" * 2
 
 
@@ -39,12 +39,6 @@ def example() -> dict:
     data = json.loads((resources.files("amcp_drake") / "data" / "lorenzen2019.json").read_text())
     data["scenario"]["steps"] = 3
     return data
-
-
-def trajectory() -> dict:
-    """A recorded 15-step campaign trajectory (tests/data) as a dict."""
-    with gzip.open(TRAJECTORY_DATA, "rt") as handle:
-        return json.load(handle)
 
 
 # -- builders ----------------------------------------------------------------------------------------

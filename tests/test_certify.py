@@ -25,6 +25,7 @@ from amcp_drake.model.errors import TrajectoryError
 from amcp_drake.model.examples import lorenzen2019_spec
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.online.simulate import Trajectory
+from tests.recorded_runs import example_1_recorded, fresh
 
 STEPS = 8
 ROOT = Path(__file__).resolve().parents[1]
@@ -60,18 +61,7 @@ def controller(spec):
 @pytest.fixture(scope="module")
 def recorded(spec, controller) -> dict:
     """An 8-step run of Example 1 (seed 0), as the JSON dict of its trajectory file."""
-    from amcp_drake.online.simulate import simulate
-
-    sc = spec.scenario
-    traj = simulate(controller, sc.x0, sc.theta_star, STEPS, "uniform", seed=0,
-                    mu_state_bound=spec.design.mu_state_bound)
-    assert traj.stop_reason == "completed" and len(traj.records) == STEPS + 1
-    return json.loads(json.dumps(traj.to_dict()))
-
-
-def fresh(recorded: dict) -> Trajectory:
-    """An independent copy of the recorded trajectory (through its file format)."""
-    return Trajectory.from_dict(json.loads(json.dumps(recorded)))
+    return example_1_recorded(spec, controller, STEPS)
 
 
 @pytest.fixture(scope="module")
@@ -451,6 +441,28 @@ def test_a_design_breaking_11_is_a_premise_not_met(recorded, spec, baseline):
     assert "design.mu_condition_11" not in cert.ids()
     assert all(c["reason"] == "premise not met: mu condition (11)" for c in cert.not_claimed)
     jsonschema.validate(cert.to_dict(), schema())
+
+
+@pytest.mark.parametrize("shift, status", [(0.0, "not_met"), (-1e-12, "met"), (1e-12, "not_met")])
+def test_the_11_premise_is_strict(recorded, spec, shift, status):
+    """(11) is strict, 1/μ > sup‖D‖²: the certificate's own re-check of a recorded μ with μ·sup‖D‖² = 1 exactly
+    (margin 0) finds the premise not met, as just outside (1 + 1e-12); just inside (1 − 1e-12) it is met."""
+    from amcp_drake.offline.result import regressor_bound
+
+    data = json.loads(json.dumps(recorded))
+    sup, _ = regressor_bound(spec.problem, spec.design.mu_state_bound)
+    mu = 1.0 / sup
+    for _ in range(8):  # the float μ on the boundary (a few ulps from 1/sup)
+        if 1.0 - mu * sup == 0.0:
+            break
+        mu = float(np.nextafter(mu, np.inf if mu * sup < 1.0 else -np.inf))
+    assert 1.0 - mu * sup == 0.0
+    data["design"]["mu"] = mu * (1.0 + shift)
+    cert = certify(Trajectory.from_dict(data), spec)
+    premise = {p["id"]: p for p in cert.premises}["mu_condition_11"]
+    assert premise["status"] == status, premise
+    assert premise["margin"] == pytest.approx(-shift, abs=1e-15)
+    assert (cert.verdict == "premise_not_met") == (status == "not_met")
 
 
 def test_a_design_breaking_assumption_8_is_a_premise_not_met(recorded, spec):

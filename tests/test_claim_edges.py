@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import json
 
 import numpy as np
 import pytest
@@ -24,6 +23,8 @@ from amcp_drake.certificate import claims as cl
 from amcp_drake.certificate.section4 import cost_value
 from amcp_drake.certificate.tube import tube_checks, x0_vertex_list
 from amcp_drake.online.simulate import Trajectory
+from tests.recorded_runs import as_recorded, example_1_recorded
+from tests.recorded_runs import fresh as _fresh
 
 STEPS = 8
 MEMBERSHIP_TOL = 1e-9     # θ* ∈ Θ, w_k ∈ W
@@ -42,18 +43,8 @@ EDGES = [(2.0, "fail"), (0.5, "pass")]  # (−margin / tolerance, status)
 @pytest.fixture(scope="module")
 def recorded(example_spec, example_design) -> dict:
     from amcp_drake.online.controller import AdaptiveMPC
-    from amcp_drake.online.simulate import simulate
 
-    sc = example_spec.scenario
-    ctrl = AdaptiveMPC(example_spec.problem, example_design, backend="drake")
-    traj = simulate(ctrl, sc.x0, sc.theta_star, STEPS, "uniform", seed=0,
-                    mu_state_bound=example_spec.design.mu_state_bound)
-    assert traj.stop_reason == "completed" and len(traj.records) == STEPS + 1
-    return json.loads(json.dumps(traj.to_dict()))
-
-
-def _fresh(recorded: dict) -> Trajectory:
-    return Trajectory.from_dict(json.loads(json.dumps(recorded)))
+    return example_1_recorded(example_spec, AdaptiveMPC(example_spec.problem, example_design, backend="drake"), STEPS)
 
 
 def _view(traj: Trajectory) -> cl.RunView:
@@ -543,6 +534,32 @@ def test_mu_condition_11_at_its_edge(recorded, example_spec, margin, status):
     assert out.status == status
 
 
+def _mu_on_the_boundary(problem, bound) -> float:
+    """A μ with 1 − μ·sup‖D‖² == 0.0 exactly in floating point (sup as the design check evaluates it)."""
+    from amcp_drake.offline.result import regressor_bound
+
+    sup, _ = regressor_bound(problem, bound)
+    mu = 1.0 / sup
+    for _ in range(8):
+        if 1.0 - mu * sup == 0.0:
+            return mu
+        mu = np.nextafter(mu, np.inf if mu * sup < 1.0 else -np.inf)
+    raise AssertionError(f"no float μ with μ·{sup!r} == 1")
+
+
+def test_mu_condition_11_fails_at_margin_exactly_0(recorded, example_spec):
+    """(11) is strict, 1/μ > sup‖D‖²: μ·sup‖D‖² = 1 exactly (margin 0.0) fails, a margin of 1e-12 passes."""
+    from amcp_drake.offline.checks import verify_design
+
+    tr = _fresh(recorded)
+    bound = example_spec.design.mu_state_bound
+    mu0 = _mu_on_the_boundary(tr.problem, bound)
+    for mu, margin, status in ((mu0, 0.0, "fail"), (mu0 * (1.0 - 1e-12), 1e-12, "pass")):
+        design = dataclasses.replace(tr.design, mu=mu)
+        out = next(c for c in verify_design(tr.problem, design, bound) if c.name == "mu condition (11)")
+        assert out.margin == pytest.approx(margin, abs=1e-15) and out.status == status, (margin, out)
+
+
 # -- design checks on a scalar system: x+ = (0.5 + 0.2θ)x + u + w, θ ∈ [−1, 1], |w| <= 0.1 (tests/conftest.py) ---------
 # With one state, X0 = {|c x| <= 1} and A_cl(θ) = 0.5 + 0.2θ + K, every quantity of these checks is a number:
 # spectral radius = λ̄ = max |0.5 ± 0.2 + K|, w̄ = 0.1 c, and (16) reads (a² − 1) P + Q + K R K <= 0 at both vertices.
@@ -573,6 +590,23 @@ def test_assumption_8_at_its_edge(scalar, delta, status):
     out = _design_check(problem, offline, "Assumption 8", K=np.array([[0.3 + delta]]))
     assert out.tolerance == 0.0 and out.margin == pytest.approx(-delta, rel=1e-6)
     assert out.status == status
+
+
+def test_assumption_8_fails_at_spectral_radius_exactly_1(scalar):
+    """Assumption 8 is strict (Schur stable: spectral radius < 1): K with a = 0.7 + K == 1.0 exactly at the
+    vertex θ = 1 (margin 0.0) fails; the next float K whose a is below 1 (margin ~1e-16 > 0) passes."""
+    problem, offline = scalar
+    a_vertex = float(problem.A_of(np.array([1.0]))[0, 0])          # 0.5 + 0.2 at θ = 1; B = 1
+    K = 1.0 - a_vertex
+    assert a_vertex + K == 1.0 and abs(float(problem.A_of(np.array([-1.0]))[0, 0]) + K) < 1.0
+    out = _design_check(problem, offline, "Assumption 8", K=np.array([[K]]))
+    assert out.margin == 0.0 and out.status == "fail"
+    inside = K
+    while a_vertex + inside == 1.0:  # the next K below whose a is below 1 (a few ulps of 1)
+        inside = np.nextafter(inside, -np.inf)
+    assert 0.0 < 1.0 - (a_vertex + inside) < 1e-15
+    out = _design_check(problem, offline, "Assumption 8", K=np.array([[inside]]))
+    assert 0.0 < out.margin < 1e-15 and out.status == "pass"
 
 
 @pytest.mark.parametrize("factor, status", EDGES)
@@ -657,7 +691,7 @@ def pe_recorded(example_spec, example_design) -> dict:
                        options=OnlineOptions(update="fixed", pe_window=PE_WINDOW, pe_level=0.2))
     traj = simulate(ctrl, sc.x0, sc.theta_star, 25, "uniform", seed=2, mu_state_bound=example_spec.design.mu_state_bound)
     assert traj.stop_reason == "completed"
-    return json.loads(json.dumps(traj.to_dict()))
+    return as_recorded(traj)
 
 
 def _gram(u: np.ndarray, k: int, dim: int) -> np.ndarray:
@@ -751,3 +785,20 @@ def test_x_f_invariant_at_its_edge(scalar, factor, status):
     s = _bisect(violation, factor * VERTEX_TOL, hi=1.0)
     out = _design_check(problem, offline, "X_f invariant", A_z=np.array([[base + s]]))
     _assert_edge(out, -violation(s), factor, VERTEX_TOL, status, rel=1e-6)
+
+
+@pytest.mark.parametrize("mu, status", [(1.0, "fail"), (1.0 - 1e-12, "pass"), (1.0 + 1e-12, "fail")])
+def test_the_property_suites_11_check_is_strict_on_z(mu, status):
+    """The property suite's (11) on the scalar system (Z bounded: |x| <= 5, |u| <= 2, D(x, u) = 0.2 x, so
+    sup_Z ‖D‖² = 1 exactly): μ = 1 (margin 0) fails, 1 − 1e-12 passes, 1 + 1e-12 fails; the visited states
+    (|x| <= 1) are far inside."""
+    from types import SimpleNamespace
+
+    from amcp_properties.claims import lms_precondition
+    from tests.conftest import scalar_problem
+
+    assert (0.2 * 5.0) ** 2 == 1.0
+    traj = SimpleNamespace(problem=scalar_problem(), design=SimpleNamespace(mu=mu),
+                           x=np.array([[1.0], [0.5], [0.2]]), u=np.array([[0.1], [0.0]]))
+    out = lms_precondition(traj)
+    assert out.margin == pytest.approx(1.0 - mu, abs=1e-15) and out.status == status

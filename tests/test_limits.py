@@ -75,11 +75,12 @@ def test_upper_bound_theorem():
 
 
 # -- the run's size once the design is known ------------------------------------------------------
-def _design_with(facets: int, vertices: int):
-    """A stand-in for an OfflineDesign: only the sizes of X0 enter the estimate."""
+def _design_with(facets: int, vertices: int, theta_rows: int):
+    """A stand-in for an OfflineDesign: only the sizes of X0 and of its H_θ enter the estimate."""
     from types import SimpleNamespace
 
-    return SimpleNamespace(H_x=np.zeros((facets, 4)), X0_vertices=np.zeros((vertices, 4)))
+    return SimpleNamespace(H_x=np.zeros((facets, 4)), X0_vertices=np.zeros((vertices, 4)),
+                           H_theta=np.zeros((theta_rows, 3)))
 
 
 def test_the_estimate_after_the_design_uses_the_designs_own_facets_and_vertices():
@@ -93,7 +94,7 @@ def test_the_estimate_after_the_design_uses_the_designs_own_facets_and_vertices(
     pr = spec.problem
     before = estimate_for(pr, spec.design, steps=50)
     assert (before.facets, before.vertices) == (8, 16)
-    after = estimate_for(pr, spec.design, steps=50, offline=_design_with(102, 318))
+    after = estimate_for(pr, spec.design, steps=50, design=_design_with(102, 318, len(pr.H_theta)))
     assert (after.facets, after.vertices) == (102, 318)
     by_hand = estimate_run_size(pr.n, pr.m, pr.p, int(pr.N), 102, len(pr.H_theta), len(pr.H_w), len(pr.F), steps=50,
                                 vertices=318)
@@ -108,15 +109,105 @@ def test_a_design_larger_than_the_memory_limit_is_refused_after_the_design(facto
     at twice it the run goes on."""
     from amcp_drake.model.errors import ProblemError
     from amcp_drake.model.examples import get_example
-    from amcp_drake.model.limits import check_designed_run_size
+    from amcp_drake.model.limits import check_run_size
 
     spec = get_example("ji2022_quadrotor")
-    offline = _design_with(102, 318)
-    est = estimate_for(spec.problem, None, steps=50, offline=offline)
+    offline = _design_with(102, 318, len(spec.problem.H_theta))
+    est = estimate_for(spec.problem, None, steps=50, design=offline)
     limit_mb = factor * est.memory_bytes / 2**20
     if refused:
         with pytest.raises(ProblemError, match=r"with the design found.*X0 facets = 102 \(318 vertices\).*--max-memory") as err:
-            check_designed_run_size(spec.problem, offline, 50, None, limit_mb)
+            check_run_size(spec.problem, spec.design, 50, None, limit_mb, design=offline)
         assert "design.x0_facets" in str(err.value)  # what to change
     else:
-        assert check_designed_run_size(spec.problem, offline, 50, None, limit_mb).memory_bytes == est.memory_bytes
+        assert check_run_size(spec.problem, spec.design, 50, None, limit_mb, design=offline).memory_bytes \
+            == est.memory_bytes
+
+
+def test_one_size_check_before_and_after_the_design():
+    """The same function refuses before the design (the file's design.x0_facets, the bound on its
+    vertices) and after it (the design's facets and vertices); each refusal names its stage, the
+    estimate, the limit, the facets and the vertices."""
+    import re
+
+    from amcp_drake.model.errors import ProblemError
+    from amcp_drake.model.examples import get_example
+    from amcp_drake.model.limits import check_run_size
+
+    spec = get_example("ji2022_quadrotor")
+    with pytest.raises(ProblemError) as before:
+        check_run_size(spec.problem, spec.design, 50, None, 0.01)
+    with pytest.raises(ProblemError) as after:
+        check_run_size(spec.problem, spec.design, 50, None, 0.01, design=_design_with(12, 20, len(spec.problem.H_theta)))
+    text_before, text_after = str(before.value), str(after.value)
+    assert "with the design found" not in text_before and "with the design found" in text_after
+    assert "design.x0_facets = 8 (<= 16 vertices)" in text_before
+    assert "X0 facets = 12 (20 vertices)" in text_after
+    for text in (text_before, text_after):
+        assert re.search(r"estimated memory [\d.,]+ MiB", text) and "0.01 MiB" in text and "--max-memory" in text
+
+
+def test_the_size_with_the_design_counts_the_extra_directions_of_theta(example_spec):
+    """design.theta_extra_directions adds rows to the shape H_θ of (9), so to the multipliers of (15):
+    a run of Example 1 with two extra directions whose memory limit lies between the estimate without
+    them and the estimate with them is refused after the design (run_scenario, as amcp certify)."""
+    from dataclasses import replace
+
+    from amcp_drake.model.errors import ProblemError
+    from amcp_drake.model.limits import estimate_run_size
+    from amcp_drake.offline.budget import DesignBudget
+    from amcp_drake.online.replay import run_scenario
+
+    extra = np.array([[1.0, 1.0, 0.0], [0.0, 1.0, 1.0]])
+    spec = replace(example_spec, design=replace(example_spec.design, theta_extra_directions=extra))
+    pr, steps = spec.problem, 5
+    q = len(pr.H_theta)  # 6; the design's H_θ has q + 2 rows, X0 8 facets and 8 vertices (n = 2)
+    sizes = dict(n=pr.n, m=pr.m, p=pr.p, N=int(pr.N), facets=8, w_rows=len(pr.H_w), z_rows=len(pr.F), steps=steps,
+                 vertices=8)
+    without = estimate_run_size(theta_rows=q, **sizes).memory_bytes
+    with_extra = estimate_run_size(theta_rows=q + 2, **sizes).memory_bytes
+    assert with_extra > 1.01 * without
+    limit_mb = 0.5 * (without + with_extra) / 2**20
+    with pytest.raises(ProblemError, match=rf"with the design found.*X0 facets = 8 \(8 vertices\), {q + 2} rows of Theta"):
+        run_scenario(spec, "drake", steps=steps, design_budget=DesignBudget(limit_mb))
+
+
+def test_a_campaign_problem_whose_design_is_too_large_is_recorded_as_refused(tmp_path, example_spec):
+    """A campaign problem (Example 1 with two extra directions of Θ) whose memory limit lies between the
+    estimate without the extra rows and the estimate with the design found: the problem is recorded as
+    an error naming the stage, after the design and before any run."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from amcp_drake.model.limits import estimate_run_size
+    from amcp_drake.model.options import OnlineOptions
+    from amcp_drake.studies.campaign import run_problem
+
+    extra = np.array([[1.0, 1.0, 0.0], [0.0, 1.0, 1.0]])
+    spec = replace(example_spec, design=replace(example_spec.design, theta_extra_directions=extra))
+    pr, steps = spec.problem, 4
+    sizes = dict(n=pr.n, m=pr.m, p=pr.p, N=int(pr.N), facets=8, w_rows=len(pr.H_w), z_rows=len(pr.F), steps=steps,
+                 vertices=8)
+    without = estimate_run_size(theta_rows=len(pr.H_theta), **sizes).memory_bytes
+    with_extra = estimate_run_size(theta_rows=len(pr.H_theta) + 2, **sizes).memory_bytes
+    case = SimpleNamespace(spec=spec, x0=np.array([2.0, 3.0]), theta_star=np.array([0.8, 0.2, -0.5]),
+                           w=np.zeros((steps, 2)), options=OnlineOptions(), labels={}, seed=0)
+    result = run_problem(0, 0, ("drake",), str(tmp_path), steps=steps, draw=lambda seed, idx, s: case,
+                         max_memory_mb=0.5 * (without + with_extra) / 2**20)
+    assert result["status"] == "error", result
+    assert "problem size with the design found" in result["message"] and "8 rows of Theta" in result["message"]
+    assert result["claims"] == {}
+
+
+def test_coverage_refuses_a_design_too_large_for_the_limit():
+    """`amcp coverage` on the quadrotor (no design section): before the design its QP is estimated at
+    13 MiB (the parallelotope's 8 facets and 16 vertices), with the design found (102 facets, 318
+    vertices) above the default 2 GiB: exit 2 naming the design's size, before any QP is built."""
+    from click.testing import CliRunner
+
+    from amcp_drake.cli import main
+
+    result = CliRunner().invoke(main, ["coverage", "--example", "ji2022_quadrotor", "--no-progress"])
+    assert result.exit_code == 2, result.output
+    assert "problem size with the design found" in result.output and "--max-memory" in result.output
+    assert "X0 facets = 102 (318 vertices)" in result.output

@@ -33,7 +33,8 @@ import pytest
 from click.testing import CliRunner
 
 from amcp_drake.cli import main
-from tests.test_bad_input_table import TRAJECTORY_DATA, example, files, good_traj, problem, set_, text, traj
+from tests.recorded_runs import TRAJECTORY_DATA, trajectory
+from tests.test_bad_input_table import example, files, good_traj, problem, set_, text, traj
 
 
 def theta_scaled(factor: float):
@@ -409,13 +410,11 @@ def test_a_saved_trajectory_loads_back(tmp_path, example_spec):
 
 def test_answers_field_of_a_record_is_accepted_with_its_documented_shape(tmp_path):
     """A record may carry ``answers``: a list of {problem, outcome, kind, check}; another outcome is refused."""
-    import gzip
 
     from amcp_drake.model.errors import TrajectoryError
     from amcp_drake.online.simulate import Trajectory
 
-    with gzip.open(TRAJECTORY_DATA, "rt") as handle:
-        data = json.load(handle)
+    data = trajectory()
     data["records"][3]["answers"] = [{"problem": "tube_qp", "outcome": "resolved", "kind": "plain", "check": "kkt"}]
     data["records"][4]["answers"] = None  # provenance unknown (what amcp writes for a record without it)
     path = tmp_path / "t.json"
@@ -475,7 +474,6 @@ def test_sigterm_during_verify_stops_its_pytest_child_and_says_so(tmp_path):
 def test_the_compiled_schema_check_accepts_what_amcp_writes_and_agrees_with_jsonschema():
     """The one-pass predicate that accepts valid trajectories (jsonschema runs only on invalid ones) is
     used (not None), accepts every trajectory of tests/data, and rejects what jsonschema rejects."""
-    import gzip
 
     import jsonschema
 
@@ -484,8 +482,7 @@ def test_the_compiled_schema_check_accepts_what_amcp_writes_and_agrees_with_json
     fast = _fast_check()
     assert fast is not None
     reference = jsonschema.Draft202012Validator(trajectory_schema())
-    with gzip.open(TRAJECTORY_DATA, "rt") as handle:
-        good = json.load(handle)
+    good = trajectory()
     assert fast(good) and reference.is_valid(good)
     for path, value in (("records.3.k", -1), ("records.3.status", "fine"), ("theta_star.1", "0.2"),
                         ("records.3.Lambda.0.0.0.0", True), ("design.mu", 2e15), ("records.3.pe_bounds", [1.0]),

@@ -5,6 +5,7 @@ counterpart of ``amcp_reference.solver_call``). Its own module so that every Dra
 from __future__ import annotations
 
 import time
+from collections import Counter
 
 import numpy as np
 from pydrake.solvers import (
@@ -85,6 +86,17 @@ class DrakeSolver:
         result = self.solver.Solve(prog, None, options)
         return result, time.perf_counter() - start
 
+    def describe(self, result) -> str:
+        """Drake's result code of ``result`` and, for Clarabel when it did not end "Solved", Clarabel's own
+        status (e.g. ``SolutionResult.kSolverSpecificError (Clarabel: NumericalError)``): what Drake
+        otherwise says only in an INFO line of its log (:mod:`.drake_log`)."""
+        text = str(result.get_solution_result())
+        if self.name == "clarabel":
+            own = getattr(result.get_solver_details(), "status", None)
+            if own and own != "Solved":
+                text += f" (Clarabel: {own})"
+        return text
+
     def status(self, result) -> SolveStatus:
         # is_success() is Drake's solution_result == kSolutionFound (STATUS_MAP: OPTIMAL), 0.2 µs against
         # ~1 µs for hashing the pybind11 enum into STATUS_MAP (called once per QP)
@@ -97,6 +109,16 @@ class DrakeSolver:
         return SolveStatus.OPTIMAL
 
 
+def tries_note(described: list[str]) -> str:
+    """The solves of one problem that did not end "optimal", for ``MPCSolution.detail``: each distinct
+    :meth:`DrakeSolver.describe` text with its count (e.g. ``tries not solved: 2 x
+    SolutionResult.kSolverSpecificError (Clarabel: NumericalError)``); "" when there were none."""
+    if not described:
+        return ""
+    counts = Counter(described)
+    return "tries not solved: " + ", ".join(f"{n} x {text}" for text, n in counts.items())
+
+
 def infeasible_constraint_names(result, prog: MathematicalProgram, tol: float = INFEASIBLE_NAME_TOL) -> tuple[str, ...]:
     """Descriptions of the constraints violated by more than ``tol`` at the solver's last iterate
     (Drake's ``GetInfeasibleConstraintNames``): a diagnostic for a step that failed. A failed
@@ -107,4 +129,4 @@ def infeasible_constraint_names(result, prog: MathematicalProgram, tol: float = 
         return ()
 
 
-__all__ = ["SOLVERS", "STATUS_MAP", "DrakeSolver", "finite_or_raise", "infeasible_constraint_names"]
+__all__ = ["SOLVERS", "STATUS_MAP", "DrakeSolver", "finite_or_raise", "infeasible_constraint_names", "tries_note"]

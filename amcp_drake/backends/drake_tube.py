@@ -35,7 +35,7 @@ from amcp_drake.backends.base import MPCSolution, TubeMPCData
 from amcp_drake.backends.clarabel_retry import first_try, solve_with_retries
 from amcp_drake.backends.condensed_cost import CondensedCost
 from amcp_drake.backends.dominated_rows import kept_vertices
-from amcp_drake.backends.drake_solver import infeasible_constraint_names
+from amcp_drake.backends.drake_solver import infeasible_constraint_names, tries_note
 from amcp_drake.backends.minmax_cost import minmax_plan_cost
 from amcp_drake.backends.multiplier_basis import (
     FeasibleBases,
@@ -414,14 +414,21 @@ class DrakeTubeMPC:
         """(result, status, solver time, retry note): Clarabel with the retry ladder of
         :mod:`.clarabel_retry`, any other solver once; ``refine``: Clarabel's iterative refinement
         from the first solve (the backend's own options, no :data:`NO_REFINEMENT` try)."""
+        not_solved: list[str] = []  # what each try that did not end "optimal" returned (tries_note)
+
         def once(extra_options):
             result, elapsed = self._solver.solve(self.prog, extra_options)
-            return result, self._solver.status(result), elapsed
+            status = self._solver.status(result)
+            if status is not SolveStatus.OPTIMAL:
+                not_solved.append(self._solver.describe(result))
+            return result, status, elapsed
 
         if self._solver.name != "clarabel":
             return (*once(None), "")
         # the first try of both backends (clarabel_retry.first_try), then Clarabel's defaults and the ladder
-        return solve_with_retries(once, *first_try(self.data.minmax, refine, self._solver.option_values))
+        result, status, elapsed, note = solve_with_retries(once, *first_try(self.data.minmax, refine,
+                                                                              self._solver.option_values))
+        return result, status, elapsed, "; ".join(t for t in (note, tries_note(not_solved)) if t)
 
     #: ``solve(..., refine=True)`` is supported (the controller's first fallback for an answer that
     #: fails its checks, amcp_drake.online.controller).
@@ -467,8 +474,8 @@ class DrakeTubeMPC:
         if status is not SolveStatus.OPTIMAL:
             names = infeasible_constraint_names(result, self.prog)
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names,
-                               detail=f"{result.get_solution_result()} ({detail})" if detail
-                               else str(result.get_solution_result()))
+                               detail=f"{self._solver.describe(result)} ({detail})" if detail
+                               else self._solver.describe(result))
         yv = result.get_x_val()[: self.layout.size]  # y first, then the epigraph s of (19) if any
         N, n, m = lay.N, lay.n, lay.m
         z = yv[: lay.a0].reshape(N + 1, n)

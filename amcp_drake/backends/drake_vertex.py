@@ -35,7 +35,7 @@ from amcp_drake.backends.base import MPCSolution, TubeMPCData
 from amcp_drake.backends.clarabel_retry import RETRIED, retry_ladder
 from amcp_drake.backends.condensed_cost import CondensedCost
 from amcp_drake.backends.daqp_fast import DaqpFastPath
-from amcp_drake.backends.drake_solver import DrakeSolver, infeasible_constraint_names
+from amcp_drake.backends.drake_solver import DrakeSolver, infeasible_constraint_names, tries_note
 from amcp_drake.backends.vertex_form import CLARABEL_OPTIONS, VertexEnumerationError, theta_vertices
 from amcp_drake.model.arrays import all_finite, same_bits, scalar_operand
 from amcp_drake.model.status import SolveStatus
@@ -248,31 +248,39 @@ class DrakeVertexTubeMPC:
         self._c15b.UpdateUpperBound(b15b)
         self._cost.UpdateCoefficients(_TWO * Hv, g2, const, True)  # is_convex positional: pybind11's keyword path costs ~0.5 µs
         update_time = time.perf_counter() - start
+        not_solved: list[str] = []  # what each try that did not end "optimal" returned (tries_note)
+
+        def tried(solver, result):
+            status = solver.status(result)
+            if status is not SolveStatus.OPTIMAL:
+                not_solved.append(solver.describe(result))
+            return status
+
         result, solver_time = self._solver.solve(self.prog)
-        status = self._solver.status(result)
+        status = tried(self._solver, result)
         detail = f"vertex form, {S} vertices of Theta_k{fast_note}"
         if status is SolveStatus.INACCURATE and self._solver is not self._plain_solver:
             # near-degenerate steps (states at the edge of the feasible set, tight tolerances) can end
             # AlmostSolved without iterative refinement: solve again with the user's settings
             result, extra = self._plain_solver.solve(self.prog)
-            status = self._plain_solver.status(result)
+            status = tried(self._plain_solver, result)
             solver_time += extra
             detail += "; re-solved with iterative refinement"
         if status in RETRIED and self._plain_solver.name == "clarabel":
-            result, status, solver_time, note = retry_ladder(self._plain_once, result, status, solver_time)
+            def rung(extra_options):
+                result, elapsed = self._plain_solver.solve(self.prog, extra_options)
+                return result, tried(self._plain_solver, result), elapsed
+
+            result, status, solver_time, note = retry_ladder(rung, result, status, solver_time)
             detail += f"; {note}"
+        if not_solved:
+            detail += f"; {tries_note(not_solved)}"
         if status is not SolveStatus.OPTIMAL:
             names = infeasible_constraint_names(result, self.prog)
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names,
-                               detail=f"{result.get_solution_result()}; {detail}")
+                               detail=f"{self._plain_solver.describe(result)}; {detail}")
         yv = result.get_x_val()  # y is the program's only decision vector, in order
         return self._solution(yv, Hv, g2, const, solver_time, update_time, detail)
-
-    def _plain_once(self, extra_options):
-        """(result, status, seconds) of the program solved with the user's settings and ``extra_options``
-        (a rung of :func:`~.clarabel_retry.retry_ladder`)."""
-        result, elapsed = self._plain_solver.solve(self.prog, extra_options)
-        return result, self._plain_solver.status(result), elapsed
 
     @property
     def fast_path_counts(self) -> dict[str, int] | None:

@@ -68,7 +68,8 @@ VERDICT_PASS, VERDICT_FAIL, VERDICT_INCOMPLETE = "pass", "fail", "incomplete"
 VERDICT_PREMISE_NOT_MET = "premise_not_met"
 #: How every claim is judged, printed once above the claims (terminal and report).
 TOLERANCE_RULE = ("a claim passes when its margin >= -tolerance (margin > 0: holds with room; a small negative "
-                  "margin within the tolerance is round-off); tolerances marked 'r' are relative (scaled by the "
+                  "margin within the tolerance is round-off), the strict inequalities of Assumption 8 and (11) "
+                  "when margin > 0; tolerances marked 'r' are relative (scaled by the "
                   "size of the quantity, see the statement), the others absolute in the claim's units")
 #: Backend conformance (:func:`amcp_drake.online.answers.summarize`): every answer the backend's own;
 #: some answer rejected by a check; provenance not recorded.

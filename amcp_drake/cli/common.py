@@ -46,12 +46,14 @@ def load_problem_spec(problem_file: str | None, example: str | None):
     return spec
 
 
-def check_run_size(spec, steps: int, online=None, max_memory_mb: float = DEFAULT_MAX_MEMORY_MB):
-    """Refuse a run whose estimated size exceeds ``--max-memory`` before anything is built
+def check_run_size(spec, steps: int, online=None, max_memory_mb: float = DEFAULT_MAX_MEMORY_MB, design=None):
+    """Refuse a run whose estimated size exceeds ``--max-memory`` before anything is built, and again with
+    ``design`` (the design found) before the controller is built
     (:func:`amcp_drake.model.limits.check_run_size`); returns the estimate."""
     from amcp_drake.model.limits import check_run_size as check
 
-    return check(spec.problem, spec.design, steps, online if online is not None else spec.online, max_memory_mb)
+    return check(spec.problem, spec.design, steps, online if online is not None else spec.online, max_memory_mb,
+                 design=design)
 
 
 # -- output paths (checked as soon as the option is parsed) ----------------------------------------

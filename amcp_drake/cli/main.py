@@ -56,6 +56,9 @@ class LazyGroup(click.Group):
 @click.version_option(package_name="amcp-drake")
 def main() -> None:
     """Verification suite for the adaptive robust MPC of Lorenzen, Cannon & Allgöwer (2019)."""
+    from amcp_drake.backends.drake_log import drop_drake_info
+
+    drop_drake_info()  # Drake's INFO lines off stderr; what they say is in the records
 
 
 if __name__ == "__main__":  # pragma: no cover

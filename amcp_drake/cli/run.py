@@ -11,6 +11,7 @@ from amcp_drake.cli.common import (
     backend_option,
     bad_input_exits_2,
     candidate_budget_option,
+    check_run_size,
     design_budget,
     exit_verdict,
     formulation_option,
@@ -47,7 +48,6 @@ def run_cmd(problem_file, example, x0_template, backend, formulation, steps, see
             max_memory, candidate_budget, progress_every):
     """Design, then run the adaptive MPC closed loop and print one line per step."""
     from amcp_drake.cli.summary import format_table, step_table
-    from amcp_drake.model.limits import check_designed_run_size
     from amcp_drake.offline.design import design
     from amcp_drake.online.controller import AdaptiveMPC
     from amcp_drake.online.simulate import simulate
@@ -55,7 +55,7 @@ def run_cmd(problem_file, example, x0_template, backend, formulation, steps, see
     spec, steps, options = prepare_run(problem_file, example, x0_template, steps, online, max_memory)
     sc, pr = spec.scenario, spec.problem
     d = design(pr, spec.design, backend=backend, budget=design_budget(max_memory, candidate_budget, progress_every=progress_every))
-    check_designed_run_size(pr, d, steps, options, max_memory)
+    check_run_size(spec, steps, options, max_memory, design=d)
     update = options.update
     ctrl = AdaptiveMPC(pr, d, backend=backend, options=options, formulation=formulation)
     traj = simulate(ctrl, sc.x0, sc.theta_star_for(steps), steps, disturbance or sc.disturbance_for(steps),

@@ -2,7 +2,10 @@
 
 ``status`` is ``"pass"``, ``"fail"`` or ``"not_run"``; a check that could not run is never a pass.
 ``margin`` is how far the quantity is from failing (positive = holds, in the check's own units),
-``tolerance`` the slack allowed for round-off; a check passes when margin >= -tolerance.
+``tolerance`` the slack allowed for round-off; a check passes when margin >= -tolerance. A check of one
+of the paper's strict inequalities (Assumption 8: spectral radius < 1; (11): 1/μ > sup ‖D‖²) is judged
+with ``strict=True`` and tolerance 0: it passes only when margin > 0, so the boundary case fails
+(docs/decisions.md, "Strict inequalities of the paper").
 """
 
 from __future__ import annotations
@@ -37,11 +40,12 @@ class CheckResult:
 
 
 def judge(name: str, claim: str, margin: float | None, tolerance: float, detail: str = "",
-          data: dict[str, Any] | None = None) -> CheckResult:
-    """Build a CheckResult: pass iff margin is a number and margin >= -tolerance."""
+          data: dict[str, Any] | None = None, strict: bool = False) -> CheckResult:
+    """Build a CheckResult: pass iff margin is a number and margin >= -tolerance (``strict``:
+    margin > -tolerance, for a strict inequality of the paper)."""
     if margin is None or margin != margin:
         return CheckResult(name, claim, NOT_RUN, None, tolerance, detail or "margin could not be computed", data or {})
-    status = PASS if margin >= -tolerance else FAIL
+    status = PASS if (margin > -tolerance if strict else margin >= -tolerance) else FAIL
     return CheckResult(name, claim, status, float(margin), tolerance, detail, data or {})
 
 

@@ -20,9 +20,9 @@ first candidate's, 2n facets from n = 4 on, else 8) and v is bounded by the uppe
 (McMullen 1970) for a polytope with u facets in dimension n (exact for n <= 2: v = u), except for the
 automatic design from n = 4 on, whose first candidate is the parallelotope (2n facets, 2^n vertices):
 the estimate before the design is then that of the smallest design it may return. Once the design is
-known, :func:`check_designed_run_size` repeats the estimate with its own u and v and refuses the run
-before the controller is built. The set update LP (9) adds q + q·r·L
-variables (r rows of W, L = 1 or the window length of update "window"); every step records Θ_k,
+known, :func:`check_run_size` given the design repeats the estimate with its own u, v and q (its
+H_θ, ``design.theta_extra_directions`` included) and refuses the run before the controller is built.
+The set update LP (9) adds q + q·r·L variables (r rows of W, L = 1 or the window length of update "window"); every step records Θ_k,
 (v, z, α) and Λ (N·v·u·q numbers), kept in memory for the whole run and written at the end.
 
 Memory = :data:`BYTES_PER_NONZERO` × nonzeros + :data:`BYTES_PER_RECORDED_NUMBER` × numbers recorded
@@ -42,7 +42,7 @@ dimensions only duplicate rows are merged (Qhull's cost grows quickly with the d
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from math import comb
 from typing import Any
 
@@ -104,11 +104,15 @@ class SizeEstimate:
     nonzeros: int
     recorded_numbers: int
     memory_bytes: int
+    #: True when the sizes of X0 and Θ are those of a design found, False for the estimate before it.
+    designed: bool = False
 
     def describe(self) -> str:
         """One line with the inputs and the estimate."""
-        return (f"n = {self.n}, m = {self.m}, p = {self.p}, cost.N = {self.N}, design.x0_facets = {self.facets} "
-                f"(<= {self.vertices} vertices), {self.theta_rows} rows of Theta, {self.w_rows} rows of W.H, "
+        x0 = (f"X0 facets = {self.facets} ({self.vertices} vertices)" if self.designed
+              else f"design.x0_facets = {self.facets} (<= {self.vertices} vertices)")
+        return (f"n = {self.n}, m = {self.m}, p = {self.p}, cost.N = {self.N}, {x0}, "
+                f"{self.theta_rows} rows of Theta, {self.w_rows} rows of W.H, "
                 f"{self.z_rows} rows of Z, {self.steps} steps: tube QP (15) with {self.variables:,} variables, "
                 f"{self.rows:,} rows, {self.nonzeros:,} nonzeros; {self.recorded_numbers:,} numbers recorded; "
                 f"estimated memory {_mib(self.memory_bytes)}")
@@ -142,49 +146,44 @@ def estimate_run_size(n: int, m: int, p: int, N: int, facets: int, theta_rows: i
 PARALLELOTOPE_FIRST_DIM = 4
 
 
-def estimate_for(problem, design_options=None, steps: int = 1, online=None, offline=None) -> SizeEstimate:
-    """:func:`estimate_run_size` for a :class:`~amcp_drake.model.problem.Problem` and its options;
-    with ``offline`` (an OfflineDesign), for that design's X0 (its facets and vertices)."""
+def estimate_for(problem, design_options=None, steps: int = 1, online=None, design=None) -> SizeEstimate:
+    """:func:`estimate_run_size` for a :class:`~amcp_drake.model.problem.Problem` and its design options
+    (``design.x0_facets``, ``design.x0_template``, ``design.theta_extra_directions``); with ``design`` (an
+    OfflineDesign), for that design's X0 (its facets and vertices) and its shape H_θ of (9)."""
     facets, vertices = max(8, 2 * problem.n), None
     if design_options is not None and getattr(design_options, "x0_facets", None) is not None:
         facets = design_options.x0_facets
     elif (problem.n >= PARALLELOTOPE_FIRST_DIM
           and getattr(design_options, "x0_template", "auto") == "auto" and getattr(design_options, "x0_H", None) is None):
         facets, vertices = 2 * problem.n, 2 ** problem.n
-    if offline is not None:
-        facets, vertices = len(offline.H_x), len(offline.X0_vertices)
     extra = getattr(design_options, "theta_extra_directions", None) if design_options is not None else None
     theta_rows = len(problem.H_theta) + (0 if extra is None else len(np.atleast_2d(extra)))
+    if design is not None:
+        facets, vertices, theta_rows = len(design.H_x), len(design.X0_vertices), len(design.H_theta)
     window = online.window if online is not None and getattr(online, "update", "") == "window" else 1
-    return estimate_run_size(problem.n, problem.m, problem.p, int(problem.N), int(facets), theta_rows,
-                             len(problem.H_w), len(problem.F), steps=int(steps), window=int(window), vertices=vertices)
+    est = estimate_run_size(problem.n, problem.m, problem.p, int(problem.N), int(facets), theta_rows,
+                            len(problem.H_w), len(problem.F), steps=int(steps), window=int(window), vertices=vertices)
+    return replace(est, designed=design is not None)
 
 
 def check_run_size(problem, design_options=None, steps: int = 1, online=None,
-                   max_memory_mb: float = DEFAULT_MAX_MEMORY_MB, option: str = "--max-memory") -> SizeEstimate:
-    """Refuse a run whose estimated memory exceeds ``max_memory_mb`` (ProblemError naming the sizes)."""
-    est = estimate_for(problem, design_options, steps, online)
-    if est.memory_bytes > max_memory_mb * 2**20:
-        raise ProblemError("problem size (cost.N, design.x0_facets, rows of Theta and W.H, steps)",
-                           f"an estimated memory of at most {max_memory_mb:,g} MiB",
-                           est.describe(),
-                           f"Reduce cost.N, design.x0_facets or the steps, or raise the limit with {option} "
-                           "(docs/problem-format.md, 'Size limits').")
-    return est
-
-
-def check_designed_run_size(problem, offline, steps: int = 1, online=None,
-                            max_memory_mb: float = DEFAULT_MAX_MEMORY_MB, option: str = "--max-memory") -> SizeEstimate:
-    """:func:`check_run_size` once the design is known: the estimate with the design's own X0 (its
-    facets and vertices), checked after the design and before the controller is built."""
-    est = estimate_for(problem, None, steps, online, offline=offline)
-    if est.memory_bytes > max_memory_mb * 2**20:
-        raise ProblemError("problem size with the design found (cost.N, the design's X0, rows of Theta and W.H, steps)",
-                           f"an estimated memory of at most {max_memory_mb:,g} MiB",
-                           est.describe().replace("design.x0_facets", "X0 facets").replace("(<= ", "("),
-                           f"Reduce cost.N or the steps, give a design with fewer facets (design.x0_template, "
-                           f"design.x0_facets), or raise the limit with {option} (docs/problem-format.md, 'Size limits').")
-    return est
+                   max_memory_mb: float = DEFAULT_MAX_MEMORY_MB, option: str = "--max-memory",
+                   design=None) -> SizeEstimate:
+    """Refuse a run whose estimated memory exceeds ``max_memory_mb`` (ProblemError naming the stage, the
+    sizes, the estimate and the limit). Called twice per run: before the design (``design`` None: the
+    estimate from ``design_options``) and once the design is known (``design``: its X0's facets and
+    vertices and its H_θ, so the run is refused before the controller is built)."""
+    est = estimate_for(problem, design_options, steps, online, design=design)
+    if est.memory_bytes <= max_memory_mb * 2**20:
+        return est
+    if design is None:
+        field = "problem size (cost.N, design.x0_facets, rows of Theta and W.H, steps)"
+        fix = "Reduce cost.N, design.x0_facets or the steps"
+    else:
+        field = "problem size with the design found (cost.N, the design's X0, rows of Theta and W.H, steps)"
+        fix = "Reduce cost.N or the steps, give a design with fewer facets (design.x0_template, design.x0_facets)"
+    raise ProblemError(field, f"an estimated memory of at most {max_memory_mb:,g} MiB", est.describe(),
+                       f"{fix}, or raise the limit with {option} (docs/problem-format.md, 'Size limits').")
 
 
 # -- redundant rows --------------------------------------------------------------------------------
@@ -332,7 +331,6 @@ __all__ = [
     "DEFAULT_MAX_MEMORY_MB",
     "MAX_STEPS",
     "SizeEstimate",
-    "check_designed_run_size",
     "check_run_size",
     "estimate_for",
     "estimate_run_size",

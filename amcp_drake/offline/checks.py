@@ -63,7 +63,7 @@ def _terminal_cost(problem: Problem, design: OfflineDesign, A_cl: np.ndarray) ->
 def _prestabilisation(A_cl: np.ndarray) -> CheckResult:
     radius = max(float(np.max(np.abs(np.linalg.eigvals(Ak)))) for Ak in A_cl)
     return judge("Assumption 8", "A_cl(θ) Schur stable at every vertex of Θ (spectral radius < 1)",
-                 1.0 - radius, 0.0, f"max spectral radius {radius:.6f}")
+                 1.0 - radius, 0.0, f"max spectral radius {radius!r} (must be < 1)", strict=True)
 
 
 def _terminal_set(problem, design, A_cl, X0_v, W_v, w_bar, h_bar) -> list[CheckResult]:
@@ -131,4 +131,4 @@ def _mu(problem: Problem, design: OfflineDesign, state_bound: float | None) -> C
     except ValueError as exc:
         return not_run("mu condition (11)", claim, str(exc))
     return judge("mu condition (11)", claim, 1.0 - design.mu * sup, 0.0,
-                 f"μ = {design.mu:.6g}, sup ‖D‖² = {sup:.6g} over {region}")
+                 f"μ = {design.mu:.6g}, sup ‖D‖² = {sup:.6g} over {region} (μ·sup ‖D‖² must be < 1)", strict=True)

@@ -25,10 +25,10 @@ def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: s
     ``design_budget``: the :class:`~amcp_drake.offline.budget.DesignBudget` of the design (memory limit,
     time budget per candidate, progress lines; None: the default limit, silent); with a budget, the run's
     size is estimated again for the design found and refused above its memory limit
-    (:func:`~amcp_drake.model.limits.check_designed_run_size`).
+    (:func:`~amcp_drake.model.limits.check_run_size` with the design).
     """
     from amcp_drake.model.errors import InconsistentDataError, ProblemError
-    from amcp_drake.model.limits import check_designed_run_size
+    from amcp_drake.model.limits import check_run_size
     from amcp_drake.offline.design import design
     from amcp_drake.online.controller import AdaptiveMPC
     from amcp_drake.online.simulate import simulate
@@ -44,7 +44,7 @@ def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: s
     if offline is None:
         offline = design(spec.problem, spec.design, backend=design_backend or backend, budget=design_budget)
         if design_budget is not None:  # the run's size with the design found, before the controller is built
-            check_designed_run_size(spec.problem, offline, steps, options, design_budget.max_memory_mb)
+            check_run_size(spec.problem, spec.design, steps, options, design_budget.max_memory_mb, design=offline)
     ctrl = AdaptiveMPC(spec.problem, offline, backend=backend, options=options, formulation=formulation)
     try:
         return simulate(ctrl, sc.x0, sc.theta_star_for(steps), steps, sc.disturbance_for(steps), seed=seed,

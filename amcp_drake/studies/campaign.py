@@ -245,6 +245,7 @@ def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure
     of the design's stages (``--max-memory``; None: the default limit); a problem above it is recorded as an
     error naming the stage. ``state_dims``: the state dimensions drawn (:func:`draw_case`)."""
     from amcp_drake.certificate.certify import certify
+    from amcp_drake.model.limits import check_run_size
     from amcp_drake.offline.budget import DEFAULT_CANDIDATE_SECONDS, DesignBudget
     from amcp_drake.offline.design import design
     from amcp_drake.online.replay import run_scenario
@@ -266,6 +267,9 @@ def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure
         if state_dims is not None and tuple(state_dims) != DEFAULT_STATE_DIMS:  # as the draw was designed
             budget = DesignBudget(budget.max_memory_mb, DEFAULT_CANDIDATE_SECONDS)
         offline = design(spec.problem, spec.design, backend=DESIGN_BACKEND, budget=budget)
+        # the run's size with the design found, before the controllers are built (as amcp certify)
+        check_run_size(spec.problem, spec.design, spec.scenario.steps, spec.online, budget.max_memory_mb,
+                       design=offline)
         trajs = {}
         for backend in backends:
             traj = run_scenario(spec, backend, design_backend=DESIGN_BACKEND, formulation=formulation,
@@ -380,11 +384,15 @@ def _local_cluster(workers: int):
 
 def _quiet_worker_logs() -> None:
     """Run in each local worker process: the loggers of :data:`QUIET_WORKER_LOGGERS` report errors only
-    (a task cancelled by a shutdown is otherwise reported as a warning by every worker)."""
+    (a task cancelled by a shutdown is otherwise reported as a warning by every worker), and Drake's log
+    below WARNING is dropped (:func:`~amcp_drake.backends.drake_log.drop_drake_info`)."""
     import logging
+
+    from amcp_drake.backends.drake_log import drop_drake_info
 
     for name in QUIET_WORKER_LOGGERS:
         logging.getLogger(name).setLevel(logging.ERROR)
+    drop_drake_info()
 
 
 def store_write_error(store_path: str | Path, exc: BaseException):

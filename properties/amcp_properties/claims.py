@@ -215,13 +215,15 @@ def lms_precondition(traj) -> CheckResult:
     H = np.hstack([pr.F, pr.G])
     visited = [float(np.linalg.norm(regressor(pr, x, u), 2) ** 2) for x, u in zip(traj.x, traj.u)]
     margin = 1.0 - mu * max(visited, default=0.0)
+    strict = False  # μ‖D_k‖² <= 1 along the run is what (13) needs; (11) itself is strict
     detail = f"μ = {mu:.4g}, max_k ‖D_k‖² = {max(visited, default=0.0):.4g}"
     if polytope.is_bounded(H, np.ones(len(H))):
         verts = polytope.vertices(H, np.ones(len(H)))
         sup = max(float(np.linalg.norm(regressor(pr, vx[:pr.n], vx[pr.n:]), 2) ** 2) for vx in verts)
-        margin = min(margin, 1.0 - mu * sup)
+        if 1.0 - mu * sup <= margin:
+            margin, strict = 1.0 - mu * sup, True
         detail += f", sup_Z ‖D‖² = {sup:.4g}"
-    return judge("(11)", claim, margin, 0.0, detail)
+    return judge("(11)", claim, margin, 0.0, detail, strict=strict)
 
 
 def lms_inequality(traj) -> CheckResult:

@@ -1,4 +1,4 @@
-"""Every shipped example, on each backend and in both formulations of (20), is answered by the backend
+"""Every shipped example, on each backend and in each formulation of (20) it runs in, is answered by the backend
 itself: no answer of the set update (9), the projection (12) or the tube QP (20) is rejected by its check
 and replaced by a fallback (amcp_drake.online.answers). A seeded defect in a backend's answers (a wrong v,
 a dropped constraint, wrong offsets of (9)) is caught here even when the fallbacks keep the run safe and
@@ -31,14 +31,30 @@ def _design(designs: dict, name: str):
     return designs[name]
 
 
-@pytest.mark.parametrize("formulation", ["plain", "vertex"])
-@pytest.mark.parametrize("name", sorted(set(EXAMPLES) - set(MEASURED_EXAMPLES)))  # those: docs/results.md
+def _formulations(spec) -> tuple[str, ...]:
+    """The formulations of (20) an example runs in: the vertex form needs θ* constant (d_θ = 0: the
+    predicted sets (26) differ per stage otherwise), the certainty-equivalence cost (17) and no PE
+    constraint; the plain form (15) takes every option."""
+    online = spec.online
+    if online is not None and (online.d_theta > 0 or online.cost != "certainty_equivalence"
+                               or online.pe_window is not None):
+        return ("plain",)
+    return ("plain", "vertex")
+
+
+_NAMES = sorted(set(EXAMPLES) - set(MEASURED_EXAMPLES))  # the measured ones: docs/results.md
+_FORMS = {name: _formulations(EXAMPLES[name]()) for name in _NAMES}
+#: Every shipped example in every formulation it runs in.
+CASES = [(name, form) for name in _NAMES for form in _FORMS[name]]
+#: The (example, formulation) pairs left out of CASES: the controller refuses them.
+LEFT_OUT = [(name, form) for name in _NAMES for form in ("plain", "vertex") if form not in _FORMS[name]]
+
+
+@pytest.mark.parametrize("name, formulation", CASES)
 def test_every_shipped_example_is_answered_by_the_backend_itself(name, formulation, backend, shipped_designs):
     from amcp_drake.online.replay import run_scenario
 
     spec, offline = _design(shipped_designs, name)
-    if formulation == "vertex" and spec.online is not None and spec.online.d_theta > 0:
-        pytest.skip(f"{name}: time-varying θ* (d_θ > 0) has only the plain form of (20)")
     traj = run_scenario(spec, backend, offline=offline, steps=STEPS, formulation=formulation)
     assert traj.stop_reason == "completed", traj.stop_reason
     assert answers.unknown_steps(traj.records) == []
@@ -46,3 +62,15 @@ def test_every_shipped_example_is_answered_by_the_backend_itself(name, formulati
     assert helped == [], f"{name}, {backend}, {formulation} form: answers not the backend's own: {helped[:5]}"
     qp = [answers.of(r, "tube_qp") for r in traj.records]
     assert all(e is not None and e["outcome"] in ("first", "resolved") for e in qp)
+
+
+@pytest.mark.parametrize("name, formulation", LEFT_OUT)
+def test_the_formulations_left_out_are_refused_by_the_controller(name, formulation, backend, shipped_designs):
+    """An (example, formulation) pair is left out of CASES only when the controller refuses it (a
+    ProblemError naming ``formulation``), so no formulation an example runs in goes untested."""
+    from amcp_drake.model.errors import ProblemError
+    from amcp_drake.online.controller import AdaptiveMPC
+
+    spec, offline = _design(shipped_designs, name)
+    with pytest.raises(ProblemError, match="formulation"):
+        AdaptiveMPC(spec.problem, offline, backend=backend, options=spec.online, formulation=formulation)
