@@ -42,7 +42,7 @@ from amcp_drake.model.errors import ProblemError
 @click.option("--examples", "examples_dir", type=click.Path(file_okay=False), default="examples", show_default=True,
               help="With --export-corpus: a folder of problem files <name>.json exported besides the built-in "
                    "examples (skipped if absent).")
-@click.option("--generated", type=click.IntRange(min=0, max=1000), default=6, show_default=True,
+@click.option("--generated", type=click.IntRange(min=0, max=1000), default=4, show_default=True,
               help="With --export-corpus: how many generated problems (problems 0 … N-1 of --generated-seed, "
                    "drawn as amcp campaign draws them).")
 @click.option("--generated-seed", type=click.IntRange(min=0, max=2**31 - 1), default=0, show_default=True,

@@ -7,7 +7,8 @@ Sources (:func:`example_sources`, :func:`generated_sources`, :func:`hard_case_so
   :func:`example_names`): the offline design (gain SDP (16), support LPs), then ``steps`` steps of the
   plain form of (20) with the set update (9) solved as an LP, and ``steps`` steps of the vertex form
   with the exact update (7) (its redundancy LPs); the projections (12) that the runs need (the examples
-  with n >= 4 run :data:`LARGE_EXAMPLE_STEPS` steps);
+  with n >= 4 run :data:`LARGE_EXAMPLE_STEPS` steps; a member of a family of :data:`FAMILY_PREFIXES`
+  keeps one program per kind);
 * generated problems (:func:`generated_sources`): problem ``idx`` of campaign seed ``seed``, drawn by the
   library's numpy generator that the property suite's strategies build on
   (:func:`amcp_drake.studies.campaign.draw_case`, with its hard cases: θ* on a facet or at a vertex of
@@ -51,11 +52,14 @@ from amcp_drake.studies.solver_matrix.reference import verify_reference
 #: :func:`example_names`).
 DEFAULT_EXAMPLES = ("lorenzen2019", "lorenzen2019_ex2", "parsi2020_siso", "parsi2020_mimo", "bujarbaruah2022",
                     "massera2017", "kothare1996", "tranos2022")
+#: Examples of one system at several parameter values (the SLS-MPC 2-D family at five ε_A): one program
+#: of each kind per member.
+FAMILY_PREFIXES = ("sls_mpc_2d_eps",)
 #: Closed-loop steps of the examples with n >= 4 (their vertex form of (20) takes seconds and GiB per step).
 LARGE_EXAMPLE_STEPS = 3
 #: The generated problems exported by default: problems 0 … DEFAULT_GENERATED - 1 of campaign seed
 #: :data:`DEFAULT_GENERATED_SEED`.
-DEFAULT_GENERATED, DEFAULT_GENERATED_SEED = 6, 0
+DEFAULT_GENERATED, DEFAULT_GENERATED_SEED = 4, 0
 
 
 @dataclass
@@ -68,6 +72,7 @@ class Source:
     note: str = ""
     slug: str = ""
     keep_all: bool = False
+    per_kind: int | None = None   # None: the per_kind of export_corpus
 
 
 def example_names(folder: Path | None = None) -> tuple[str, ...]:
@@ -114,7 +119,8 @@ def example_sources(examples=DEFAULT_EXAMPLES, steps: int = 6, backend: str = "d
         return run
 
     for name in examples:
-        yield Source(f"example {name} ({backend})", make(name), slug=name if backend == "drake" else f"{name}-{backend}")
+        yield Source(f"example {name} ({backend})", make(name), slug=name if backend == "drake" else f"{name}-{backend}",
+                     per_kind=1 if name.startswith(FAMILY_PREFIXES) else None)
 
 
 def generated_sources(count: int = DEFAULT_GENERATED, seed: int = DEFAULT_GENERATED_SEED, steps: int = 6,
@@ -345,7 +351,8 @@ def export_corpus(out_dir: Path, sources: list[Source], per_kind: int = 2, max_b
             except Exception as exc:  # noqa: BLE001 - a source that fails is reported, the others go on
                 error = f"{type(exc).__name__}: {exc}"[:300]
         keep = source.hard or source.keep_all
-        chosen = [r for r in rec.records if r.problem is not None] if keep else select(rec.records, per_kind)
+        chosen = ([r for r in rec.records if r.problem is not None] if keep
+                  else select(rec.records, source.per_kind or per_kind))
         entry = {"source": source.name, "note": source.note, "recorded": len(rec.records),
                  "unsupported": rec.unsupported + crec.unsupported,
                  "selected": len(chosen), "kept": 0, "error": error}
@@ -394,6 +401,6 @@ def _jsonable(value: Any) -> Any:
     return str(value)
 
 
-__all__ = ["DEFAULT_EXAMPLES", "DEFAULT_GENERATED", "DEFAULT_GENERATED_SEED", "LARGE_EXAMPLE_STEPS", "Source",
+__all__ = ["DEFAULT_EXAMPLES", "DEFAULT_GENERATED", "DEFAULT_GENERATED_SEED", "FAMILY_PREFIXES", "LARGE_EXAMPLE_STEPS", "Source",
            "example_names", "example_sources", "export_corpus", "generated_sources", "hard_case_sources",
            "projection_sources", "select"]
