@@ -130,8 +130,9 @@ def generated_sources(count: int = DEFAULT_GENERATED, seed: int = DEFAULT_GENERA
     strategies, seeded per problem, so the draw is reproducible), each: its offline design (Drake, with
     the designs of the draws it rejected), ``steps`` steps of the plain form of (20) with the drawn online
     options (the set update (9) as an LP) and of the vertex form with the exact update (7), under the drawn
-    θ*, x0 and disturbance sequence (w_0 pinning Θ_1 where drawn). The generator's labels (θ* on a
-    facet/vertex, pinning, x0 on the boundary, ...) go into each problem's provenance."""
+    θ*, x0 and disturbance sequence (w_0 pinning Θ_1 where drawn). Every problem's provenance holds the
+    campaign seed and index; those of the closed loops also the generator's labels (θ* on a facet/vertex,
+    pinning, x0 on the boundary, ...)."""
 
     def make(idx: int) -> Callable[[ProgramRecorder], None]:
         def run(rec: ProgramRecorder) -> None:
