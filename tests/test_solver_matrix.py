@@ -457,3 +457,29 @@ def test_every_shipped_reference_is_verified_again_from_the_data(problem_id):
         x = np.asarray(shipped["x"], float)
         assert pr.violation(x) <= REFERENCE_FEAS_TOL
         assert pr.objective(x) == pytest.approx(pr.reference["objective"], rel=1e-7, abs=1e-7)
+
+
+def test_select_keeps_the_first_and_the_last_program_of_a_kind_that_keeps_its_shape():
+    """A kind whose programs all have one shape (the plain tube QP of a closed loop): the first and the
+    last of the run; with distinct shapes, those first; a failed solve is kept besides."""
+    from amcp_drake.studies.solver_matrix.drake_export import Recorded
+    from amcp_drake.studies.solver_matrix.export import example_names, select
+
+    def rec(rows: int, success: bool = True) -> Recorded:
+        pr = CorpusProblem(id="p", kind="tube_qp_plain", P=None, q=np.zeros(2), r=0.0, A=sp.csr_matrix(np.ones((rows, 2))),
+                           lower=np.zeros(rows), upper=np.ones(rows), lb=np.full(2, -np.inf), ub=np.full(2, np.inf))
+        return Recorded("tube_qp_plain", pr, "stub", {}, success=success)
+
+    same = [rec(3) for _ in range(6)]
+    picked = select(same, 2)
+    assert len(picked) == 2 and picked[0] is same[0] and picked[1] is same[-1]
+    assert len(select(same, 1)) == 1 and select(same, 1)[0] is same[0]
+    shapes = [rec(3), rec(3), rec(4), rec(3), rec(5)]
+    picked = select(shapes, 2)
+    assert [r.problem.A.shape[0] for r in picked] == [3, 5]
+    failing = [rec(3), rec(3, success=False), rec(3), rec(3)]
+    assert [next(i for i, q in enumerate(failing) if q is r) for r in select(failing, 2)] == [0, 3, 1]
+    # every problem file of examples/ is exported besides the built-in ones, each once
+    names = example_names(ROOT / "examples")
+    assert {p.name[:-len(".json")] for p in (ROOT / "examples").glob("*.json")} <= set(names)
+    assert len(names) == len(set(names)) and "lorenzen2019_ex2" in names
