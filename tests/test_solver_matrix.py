@@ -173,7 +173,7 @@ def test_a_malformed_file_names_its_field(tmp_path, mutate, field):
 def test_shipped_corpus_is_small_verified_and_covers_every_kind():
     folder = shipped_corpus_dir()
     total = sum(f.stat().st_size for f in folder.iterdir())
-    assert total < 1_000_000
+    assert total < 2_000_000
     problems = load_corpus(folder)
     kinds = {p.kind for p in problems}
     assert kinds == {"tube_qp_plain", "tube_qp_vertex", "set_update_lp", "exact_update_lp", "projection_qp", "gain_sdp",
@@ -393,3 +393,93 @@ def test_the_corpus_table_of_the_docs_counts_the_shipped_corpus():
     text = (ROOT / "docs" / "choosing-a-solver.md").read_text(encoding="utf-8")
     table = {m.group(1): int(m.group(2)) for m in re.finditer(r"^\| `(\w+)` \|[^|]*\| (\d+) \|$", text, flags=re.M)}
     assert table == dict(counts)
+
+
+# -- the sources of the shipped corpus ---------------------------------------------------------------
+
+def _shipped_index() -> dict:
+    return json.loads((shipped_corpus_dir() / "index.json").read_text())
+
+
+def _shipped_provenance() -> dict[str, dict]:
+    return {p["id"]: load_problem(shipped_corpus_dir() / p["file"]).provenance for p in _shipped_index()["problems"]}
+
+
+def test_the_shipped_corpus_holds_problems_of_every_file_of_examples():
+    """Every problem file of examples/ (listed here, not by the exporter) has at least one problem recorded
+    in a closed-loop run or the design of that very example, and one tube QP (20) or a reason it was left out."""
+    provenance = _shipped_provenance()
+    index = _shipped_index()
+    names = sorted(p.name[:-len(".json")] for p in (ROOT / "examples").glob("*.json"))
+    assert len(names) >= 15 and {"mass_chain3", "mass_chain4", "ji2022_quadrotor"} <= set(names)
+    for name in names:
+        mine = {pid: prov for pid, prov in provenance.items()
+                if prov.get("source") == f"example {name} (drake)" and prov.get("example") == name}
+        assert mine, f"no shipped problem recorded in a run of examples/{name}.json"
+        assert all(pid.startswith(f"{name}-") for pid in mine)
+        tube = [pid for pid in mine if "tube_qp" in pid]
+        tube_left_out = [e for e in index["left_out"] if e["id"].startswith(f"{name}-tube_qp")]
+        assert tube or tube_left_out, name
+
+
+def test_the_shipped_corpus_holds_generated_problems_reproducible_from_their_seed():
+    """Problems of the generator under the property suite's strategies, with its labels; the labels of one
+    of them are those of a fresh draw of the same (campaign seed, index)."""
+    from amcp_drake.studies.campaign import draw_case
+
+    generated = {pid: prov for pid, prov in _shipped_provenance().items()
+                 if str(prov.get("source", "")).startswith("generated problem")}
+    assert len({(prov["campaign_seed"], prov["idx"]) for prov in generated.values()}) >= 3
+    assert {"tube_qp_plain", "tube_qp_vertex", "gain_sdp"} <= {pid.split("-")[-2] for pid in generated}
+    # the generator's hard cases are among them: θ* on the boundary of Θ, w_0 pinning Θ_1
+    closed_loop = [prov for prov in generated.values() if "labels" in prov]   # the design's come before the labels
+    labels = [prov["labels"] for prov in closed_loop]
+    assert any(lab["theta_star"] in ("facet", "vertex") for lab in labels)
+    assert any(lab["pin"] in ("point", "thin") for lab in labels)
+    prov = min(closed_loop, key=lambda p: p["idx"])
+    case = draw_case(prov["campaign_seed"], prov["idx"], prov.get("steps", 6))
+    assert {k: str(v) for k, v in case.labels.items()} == prov["labels"]
+
+
+@pytest.mark.parametrize("problem_id", [p["id"] for p in json.loads(
+    (shipped_corpus_dir() / "index.json").read_text())["problems"]])
+def test_every_shipped_reference_is_verified_again_from_the_data(problem_id):
+    """The reference is recomputed from the stored data alone (KKT residuals; an LP's basis in exact
+    arithmetic) and agrees with the shipped one."""
+    from amcp_drake.studies.solver_matrix.reference import REFERENCE_FEAS_TOL, verify_reference
+
+    pr = load_problem(shipped_corpus_dir() / f"{problem_id}.json.gz")
+    shipped = dict(pr.reference)
+    pr.reference = {}
+    assert verify_reference(pr) is None
+    assert pr.reference["status"] == shipped["status"]
+    if shipped["status"] == "optimal":
+        x = np.asarray(shipped["x"], float)
+        assert pr.violation(x) <= REFERENCE_FEAS_TOL
+        assert pr.objective(x) == pytest.approx(pr.reference["objective"], rel=1e-7, abs=1e-7)
+
+
+def test_select_keeps_the_first_and_the_last_program_of_a_kind_that_keeps_its_shape():
+    """A kind whose programs all have one shape (the plain tube QP of a closed loop): the first and the
+    last of the run; with distinct shapes, those first; a failed solve is kept besides."""
+    from amcp_drake.studies.solver_matrix.drake_export import Recorded
+    from amcp_drake.studies.solver_matrix.export import example_names, select
+
+    def rec(rows: int, success: bool = True) -> Recorded:
+        pr = CorpusProblem(id="p", kind="tube_qp_plain", P=None, q=np.zeros(2), r=0.0, A=sp.csr_matrix(np.ones((rows, 2))),
+                           lower=np.zeros(rows), upper=np.ones(rows), lb=np.full(2, -np.inf), ub=np.full(2, np.inf))
+        return Recorded("tube_qp_plain", pr, "stub", {}, success=success)
+
+    same = [rec(3) for _ in range(6)]
+    picked = select(same, 2)
+    assert len(picked) == 2 and picked[0] is same[0] and picked[1] is same[-1]
+    assert len(select(same, 1)) == 1 and select(same, 1)[0] is same[0]
+    shapes = [rec(3), rec(3), rec(4), rec(3), rec(5)]
+    picked = select(shapes, 2)
+    assert [r.problem.A.shape[0] for r in picked] == [3, 5]
+    failing = [rec(3), rec(3, success=False), rec(3), rec(3)]
+    assert [next(i for i, q in enumerate(failing) if q is r) for r in select(failing, 2)] == [0, 3, 1]
+    # every problem file of examples/ is exported besides the built-in ones, each once
+    names = example_names(ROOT / "examples")
+    assert {p.name[:-len(".json")] for p in (ROOT / "examples").glob("*.json")} <= set(names)
+    assert len(names) == len(set(names)) and "lorenzen2019_ex2" in names

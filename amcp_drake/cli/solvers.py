@@ -31,16 +31,25 @@ from amcp_drake.model.errors import ProblemError
 @click.option("--recheck", "recheck_dir", type=click.Path(), default=None,
               help="Only re-run the reproducers of this folder and say which still reproduce.")
 @click.option("--export-corpus", "export_dir", type=click.Path(file_okay=False), default=None,
-              help="Only export the corpus from recorded runs of the shipped examples and of the hard cases of "
+              help="Only export the corpus from recorded runs of the shipped examples (the built-in ones and "
+                   "every file of --examples), of --generated generated problems and of the hard cases of "
                    "--hard-cases, and generated projections (12) onto each example's Θ, into this folder (each "
                    "reference verified).")
 @click.option("--steps", type=click.IntRange(min=1, max=200), default=6, show_default=True,
               help="With --export-corpus: closed-loop steps per run.")
 @click.option("--hard-cases", type=click.Path(file_okay=False), default="tests/data", show_default=True,
               help="With --export-corpus: the folder of recorded hard cases (skipped if absent).")
+@click.option("--examples", "examples_dir", type=click.Path(file_okay=False), default="examples", show_default=True,
+              help="With --export-corpus: a folder of problem files <name>.json exported besides the built-in "
+                   "examples (skipped if absent).")
+@click.option("--generated", type=click.IntRange(min=0, max=1000), default=4, show_default=True,
+              help="With --export-corpus: how many generated problems (problems 0 … N-1 of --generated-seed, "
+                   "drawn as amcp campaign draws them).")
+@click.option("--generated-seed", type=click.IntRange(min=0, max=2**31 - 1), default=0, show_default=True,
+              help="With --export-corpus: the campaign seed of the generated problems.")
 @bad_input_exits_2
 def solvers_cmd(corpus, solvers, settings, kinds, time_limit, out_dir, no_reproducers, recheck_dir, export_dir, steps,
-                hard_cases):
+                hard_cases, examples_dir, generated, generated_seed):
     """Solve every corpus problem with every solver reachable through Drake and through cvxpy, each in its
     own child process with a time limit, and classify each (solver, problem): correct, honest failure,
     wrong (success reported, answer infeasible or suboptimal beyond the tolerance), crash, timeout.
@@ -49,7 +58,7 @@ def solvers_cmd(corpus, solvers, settings, kinds, time_limit, out_dir, no_reprod
     if recheck_dir is not None:
         _recheck(Path(recheck_dir))
     if export_dir is not None:
-        _export(Path(export_dir), steps, Path(hard_cases))
+        _export(Path(export_dir), steps, Path(hard_cases), Path(examples_dir), generated, generated_seed)
     from amcp_drake.studies.solver_matrix.corpus import KINDS, load_corpus, shipped_corpus_dir
     from amcp_drake.studies.solver_matrix.report import terminal_table, to_json, write_outputs
     from amcp_drake.studies.solver_matrix.reproducers import write_reproducers
@@ -104,11 +113,21 @@ def _recheck(folder: Path):
     sys.exit(EXIT_OK)
 
 
-def _export(folder: Path, steps: int, hard_cases: Path):
-    from amcp_drake.studies.solver_matrix.export import example_sources, export_corpus, hard_case_sources, projection_sources
+def _export(folder: Path, steps: int, hard_cases: Path, examples: Path, generated: int, generated_seed: int):
+    from amcp_drake.studies.solver_matrix.export import (
+        example_names,
+        example_sources,
+        export_corpus,
+        generated_sources,
+        hard_case_sources,
+        projection_sources,
+    )
 
-    sources = list(example_sources(steps=steps)) + list(example_sources(("lorenzen2019",), steps, backend="cvxpy"))
-    sources += list(projection_sources())
+    names = example_names(examples)
+    sources = list(example_sources(names, steps=steps, folder=examples))
+    sources += list(example_sources(("lorenzen2019",), steps, backend="cvxpy"))
+    sources += list(generated_sources(generated, generated_seed, steps))
+    sources += list(projection_sources(names))
     if hard_cases.is_dir():
         sources += list(hard_case_sources(hard_cases))
     index = export_corpus(folder, sources, progress=lambda msg: click.echo(msg, err=True))

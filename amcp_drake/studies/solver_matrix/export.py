@@ -1,11 +1,19 @@
 """Export the corpus: the problems the Drake backend solves in recorded runs of the shipped examples and
 of the recorded hard cases, each verified (:mod:`.reference`) and written as one corpus file.
 
-Sources (:func:`example_sources`, :func:`hard_case_sources`):
+Sources (:func:`example_sources`, :func:`generated_sources`, :func:`hard_case_sources`):
 
-* every shipped example: the offline design (gain SDP (16), support LPs), then ``steps`` steps of the
+* every shipped example (the built-in ones and every problem file of the repository's examples/,
+  :func:`example_names`): the offline design (gain SDP (16), support LPs), then ``steps`` steps of the
   plain form of (20) with the set update (9) solved as an LP, and ``steps`` steps of the vertex form
-  with the exact update (7) (its redundancy LPs); the projections (12) that the runs need;
+  with the exact update (7) (its redundancy LPs); the projections (12) that the runs need (the examples
+  with n >= 4 run :data:`LARGE_EXAMPLE_STEPS` steps; a member of a family of :data:`FAMILY_PREFIXES`
+  keeps one program per kind);
+* generated problems (:func:`generated_sources`): problem ``idx`` of campaign seed ``seed``, drawn by the
+  library's numpy generator that the property suite's strategies build on
+  (:func:`amcp_drake.studies.campaign.draw_case`, with its hard cases: θ* on a facet or at a vertex of
+  Θ, w_0 pinning Θ_1 to a point or a thin slab, x0 on the boundary of the feasible set), its design,
+  then the plain form with the drawn options and the vertex form with (7);
 * the recorded hard cases of ``tests/data`` (when present): the Drake vertex step that stalled at
   1e-10 (``lockstep-vertex-ladder``, step 4), the plain step where cvxpy's Clarabel ended 8.2e-9 above
   the optimum (``lockstep-plain-suboptimal``, step 8), the massera2017 plain step on a 1e-4-wide Θ_k,
@@ -18,8 +26,8 @@ Sources (:func:`example_sources`, :func:`hard_case_sources`):
   (9)), the plain step 8 of ``lockstep-plain-suboptimal`` and the unstabilisable gain LMI as cvxpy
   poses them.
 
-Of the many programs of one (source, kind), :func:`select` keeps up to ``per_kind`` of distinct shape,
-spread over the run (a hard case keeps all of its). ``index.json`` lists what was recorded, kept,
+Of the many programs of one (source, kind), :func:`select` keeps up to ``per_kind`` spread over the run,
+those of distinct shape first, then the first and the last (a hard case keeps all of its). ``index.json`` lists what was recorded, kept,
 left out (unsupported, unverified with the reason) and shipped.
 """
 
@@ -40,9 +48,18 @@ from amcp_drake.studies.solver_matrix.cvxpy_export import CvxpyRecorder
 from amcp_drake.studies.solver_matrix.drake_export import ProgramRecorder, Recorded, SolveSkipped
 from amcp_drake.studies.solver_matrix.reference import verify_reference
 
-#: The examples exported by default (the SLS-MPC family is left out: alike in shape to Example 1).
+#: The built-in examples always exported (the other shipped examples come from the files of examples/,
+#: :func:`example_names`).
 DEFAULT_EXAMPLES = ("lorenzen2019", "lorenzen2019_ex2", "parsi2020_siso", "parsi2020_mimo", "bujarbaruah2022",
                     "massera2017", "kothare1996", "tranos2022")
+#: Examples of one system at several parameter values (the SLS-MPC 2-D family at five ε_A): one program
+#: of each kind per member.
+FAMILY_PREFIXES = ("sls_mpc_2d_eps",)
+#: Closed-loop steps of the examples with n >= 4 (their vertex form of (20) takes seconds and GiB per step).
+LARGE_EXAMPLE_STEPS = 3
+#: The generated problems exported by default: problems 0 … DEFAULT_GENERATED - 1 of campaign seed
+#: :data:`DEFAULT_GENERATED_SEED`.
+DEFAULT_GENERATED, DEFAULT_GENERATED_SEED = 4, 0
 
 
 @dataclass
@@ -55,11 +72,22 @@ class Source:
     note: str = ""
     slug: str = ""
     keep_all: bool = False
+    per_kind: int | None = None   # None: the per_kind of export_corpus
 
 
-def example_sources(examples=DEFAULT_EXAMPLES, steps: int = 6, backend: str = "drake") -> Iterator[Source]:
+def example_names(folder: Path | None = None) -> tuple[str, ...]:
+    """:data:`DEFAULT_EXAMPLES`, then the name of every problem file ``<name>.json`` of ``folder`` (the
+    repository's examples/, each a copy of a built-in example) not among them, sorted."""
+    extra = sorted(p.name[:-len(".json")] for p in folder.glob("*.json")) if folder is not None and folder.is_dir() else []
+    return DEFAULT_EXAMPLES + tuple(name for name in extra if name not in DEFAULT_EXAMPLES)
+
+
+def example_sources(examples=DEFAULT_EXAMPLES, steps: int = 6, backend: str = "drake",
+                    folder: Path | None = None) -> Iterator[Source]:
     """The runs of the examples on ``backend`` (Drake: plain + (9) LP, vertex + (7); cvxpy: the plain form
-    with (9) only, its vertex form being solved by a compiled Clarabel outside the recorded calls)."""
+    with (9) only, its vertex form being solved by a compiled Clarabel outside the recorded calls). An
+    example is read from ``folder/<name>.json`` when that file exists, else it is the built-in one; one with
+    n >= 4 runs min(steps, :data:`LARGE_EXAMPLE_STEPS`) steps."""
     runs = ((("plain", "fixed", {"set_update_method": "lp"}), ("vertex", "exact", {})) if backend == "drake"
             else (("plain", "fixed", {"set_update_method": "lp"}),))
 
@@ -67,28 +95,70 @@ def example_sources(examples=DEFAULT_EXAMPLES, steps: int = 6, backend: str = "d
         def run(rec: ProgramRecorder) -> None:
             from amcp_drake.model.examples import get_example
             from amcp_drake.model.options import OnlineOptions
+            from amcp_drake.model.problem_io import load_spec
             from amcp_drake.offline.design import design
             from amcp_drake.online.controller import AdaptiveMPC
             from amcp_drake.online.simulate import simulate
 
-            spec = get_example(name)
-            rec.context.update(stage="design")
+            file = folder / f"{name}.json" if folder is not None else None
+            spec = load_spec(file) if file is not None and file.is_file() else get_example(name)
+            n_steps = steps if spec.problem.n < 4 else min(steps, LARGE_EXAMPLE_STEPS)
+            rec.context.update(stage="design", example=name)
             d = design(spec.problem, spec.design, backend=backend)
             base = spec.online or OnlineOptions()
             sc = spec.scenario
             for formulation, update, extra in runs:
-                rec.context.update(stage=f"closed loop, {formulation} form, update {update}", steps=steps)
+                rec.context.update(stage=f"closed loop, {formulation} form, update {update}", steps=n_steps)
                 options = dataclasses.replace(base, update=update, d_theta=0.0, pe_window=None,
                                               cost="certainty_equivalence")
                 ctrl = AdaptiveMPC(spec.problem, d, backend=backend, options=options, formulation=formulation, **extra)
-                theta = np.asarray(sc.theta_star_for(steps), float)
+                theta = np.asarray(sc.theta_star_for(n_steps), float)
                 theta = theta if theta.ndim == 1 else theta[0]
-                simulate(ctrl, sc.x0, theta, steps, "uniform", seed=sc.seed)
+                simulate(ctrl, sc.x0, theta, n_steps, "uniform", seed=sc.seed)
 
         return run
 
     for name in examples:
-        yield Source(f"example {name} ({backend})", make(name), slug=name if backend == "drake" else f"{name}-{backend}")
+        yield Source(f"example {name} ({backend})", make(name), slug=name if backend == "drake" else f"{name}-{backend}",
+                     per_kind=1 if name.startswith(FAMILY_PREFIXES) else None)
+
+
+def generated_sources(count: int = DEFAULT_GENERATED, seed: int = DEFAULT_GENERATED_SEED, steps: int = 6,
+                      start: int = 0) -> Iterator[Source]:
+    """Problems ``start`` … ``start + count - 1`` of campaign seed ``seed``
+    (:func:`amcp_drake.studies.campaign.draw_case`: the numpy generator under the property suite's
+    strategies, seeded per problem, so the draw is reproducible), each: its offline design (Drake, with
+    the designs of the draws it rejected), ``steps`` steps of the plain form of (20) with the drawn online
+    options (the set update (9) as an LP) and of the vertex form with the exact update (7), under the drawn
+    θ*, x0 and disturbance sequence (w_0 pinning Θ_1 where drawn). Every problem's provenance holds the
+    campaign seed and index; those of the closed loops also the generator's labels (θ* on a facet/vertex,
+    pinning, x0 on the boundary, ...)."""
+
+    def make(idx: int) -> Callable[[ProgramRecorder], None]:
+        def run(rec: ProgramRecorder) -> None:
+            from amcp_drake.model.options import OnlineOptions
+            from amcp_drake.online.controller import AdaptiveMPC
+            from amcp_drake.online.simulate import simulate
+            from amcp_drake.studies.campaign import draw_case
+
+            rec.context.update(stage="design of the drawn problem", campaign_seed=seed, idx=idx)
+            case = draw_case(seed, idx, steps)
+            rec.context.update(labels={k: str(v) for k, v in case.labels.items()})
+            base = case.options or OnlineOptions()
+            runs = (("plain", base, {"set_update_method": "lp"}),
+                    ("vertex", dataclasses.replace(base, update="exact", d_theta=0.0, pe_window=None,
+                                                   cost="certainty_equivalence"), {}))
+            for formulation, options, extra in runs:
+                rec.context.update(stage=f"closed loop, {formulation} form, update {options.update}", steps=steps)
+                ctrl = AdaptiveMPC(case.problem, case.design, backend="drake", options=options,
+                                   formulation=formulation, **extra)
+                simulate(ctrl, case.x0, case.theta_star, steps, case.w)
+
+        return run
+
+    for idx in range(start, start + count):
+        yield Source(f"generated problem {idx} of campaign seed {seed}", make(idx), slug=f"generated-{seed}-{idx}",
+                     note="generated: amcp_drake.studies.campaign.draw_case (the property suite's generator), seeded")
 
 
 def projection_sources(examples=DEFAULT_EXAMPLES, points: int = 2, seed: int = 0) -> Iterator[Source]:
@@ -236,7 +306,9 @@ def hard_case_sources(data_dir: Path) -> Iterator[Source]:
 
 
 def select(records: list[Recorded], per_kind: int) -> list[Recorded]:
-    """Up to ``per_kind`` programs of each kind, of distinct shapes, spread over the run."""
+    """Up to ``per_kind`` programs of each kind spread over the run: of distinct shapes first, then (when
+    fewer shapes than ``per_kind``) the first and the last of the run (e.g. the first and a late step
+    of a closed loop whose tube QP keeps its shape); plus the first one whose solve failed."""
     out = []
     kinds = sorted({r.kind for r in records if r.problem is not None})
     for kind in kinds:
@@ -247,7 +319,11 @@ def select(records: list[Recorded], per_kind: int) -> list[Recorded]:
             shapes.setdefault((r.problem.n, r.problem.A.shape[0], len(r.problem.lmis)), r)
         distinct = list(shapes.values())
         picks = [distinct[i] for i in np.unique(np.linspace(0, len(distinct) - 1, min(per_kind, len(distinct))).round().astype(int))]
-        out.extend(picks + [r for r in failed[:1] if r not in picks])
+        for i in np.unique(np.linspace(0, len(of_kind) - 1, min(per_kind, len(of_kind))).round().astype(int)):
+            if len(picks) < per_kind and not any(of_kind[i] is r for r in picks):
+                picks.append(of_kind[i])
+        picks.sort(key=lambda r: next(j for j, q in enumerate(of_kind) if q is r))
+        out.extend(picks + [r for r in failed[:1] if not any(r is q for q in picks)])
     return out
 
 
@@ -256,7 +332,7 @@ def _slug(text: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "-" for c in text).strip("-").lower()
 
 
-def export_corpus(out_dir: Path, sources: list[Source], per_kind: int = 2, max_bytes: int = 400_000,
+def export_corpus(out_dir: Path, sources: list[Source], per_kind: int = 2, max_bytes: int = 1_200_000,
                   progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Record every source, select, verify, write ``<id>.json.gz`` + ``index.json``; returns the index."""
     from amcp_drake.studies.solver_matrix.solvers import versions
@@ -276,7 +352,8 @@ def export_corpus(out_dir: Path, sources: list[Source], per_kind: int = 2, max_b
             except Exception as exc:  # noqa: BLE001 - a source that fails is reported, the others go on
                 error = f"{type(exc).__name__}: {exc}"[:300]
         keep = source.hard or source.keep_all
-        chosen = [r for r in rec.records if r.problem is not None] if keep else select(rec.records, per_kind)
+        chosen = ([r for r in rec.records if r.problem is not None] if keep
+                  else select(rec.records, source.per_kind or per_kind))
         entry = {"source": source.name, "note": source.note, "recorded": len(rec.records),
                  "unsupported": rec.unsupported + crec.unsupported,
                  "selected": len(chosen), "kept": 0, "error": error}
@@ -325,5 +402,6 @@ def _jsonable(value: Any) -> Any:
     return str(value)
 
 
-__all__ = ["DEFAULT_EXAMPLES", "Source", "example_sources", "export_corpus", "hard_case_sources", "projection_sources",
-           "select"]
+__all__ = ["DEFAULT_EXAMPLES", "DEFAULT_GENERATED", "DEFAULT_GENERATED_SEED", "FAMILY_PREFIXES", "LARGE_EXAMPLE_STEPS", "Source",
+           "example_names", "example_sources", "export_corpus", "generated_sources", "hard_case_sources",
+           "projection_sources", "select"]

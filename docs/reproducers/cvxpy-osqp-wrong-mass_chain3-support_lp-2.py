@@ -1,16 +1,16 @@
 #!/usr/bin/env python3
 """cvxpy:OSQP (default settings) on one problem of the amcp-drake solver corpus: wrong.
 
-Problem bujarbaruah2022-exact_update_lp-2: exact_update_lp (7), LP, 4 variables, 9 rows:
+Problem mass_chain3-support_lp-2: support_lp (14), A.1, LP, 2 variables, 6 rows:
     minimise 1/2 x'Px + q'x + r  s.t.  lower <= A x <= upper,  lb <= x <= ub,  mat(g0 + G x) PSD
-Seen: success reported but infeasible by 5.03e-06 (tol 1e-06)
+Seen: success reported but infeasible by 2.83e-06 (tol 1e-06)
 The reference answer is verified (KKT residuals below 1e-7; an LP's optimal basis in exact rational
 arithmetic; an infeasible problem by a Farkas certificate).
 Exit 1: reproduces; 0: does not; 3: a package is missing. Needs numpy, scipy and cvxpy only.
 """
 import json
 
-DATA = json.loads(r'''{"format":"amcp-solver-corpus","version":1,"id":"bujarbaruah2022-exact_update_lp-2","kind":"exact_update_lp","equation":"(7)","class":"lp","n":4,"objective":{"P":null,"q":[-0.8928782759068197,0.0,0.45029810616264565,0.0],"r":0.0},"linear":{"A":{"shape":[9,4],"row":[0,1,2,2,3,3,4,4,5,6,6,7,7,8,8],"col":[0,1,2,3,2,3,0,2,3,0,2,0,2,1,3],"val":[-1.0,-1.0,-0.7071067811865475,0.7071067811865475,-0.7071067811865475,-0.7071067811865475,-0.7324264421237753,0.6808461697607675,1.0,0.7324264421237753,-0.6808461697607675,0.9619225580500466,0.2733221401834379,0.9251415168275031,-0.37962240956258986]},"lower":[null,null,null,null,null,null,null,null,null],"upper":[0.9999999999993892,0.9999999999993892,0.7071067811861063,0.7071067811861064,0.18453070221789067,0.3927677827061166,0.181684518843997,0.17601607948290235,-0.8959908615146136]},"bounds":{"lower":[null,null,null,null],"upper":[null,null,null,null]},"lmi":[],"reference":{"status":"optimal","objective":-0.2011279108956713,"x":[0.19821817550033438,-0.9999999999993892,-0.053616055166834105,-0.07678855246167499]}}''')
+DATA = json.loads(r'''{"format":"amcp-solver-corpus","version":1,"id":"mass_chain3-support_lp-2","kind":"support_lp","equation":"(14), A.1","class":"lp","n":2,"objective":{"P":null,"q":[-1.0,0.0],"r":0.0},"linear":{"A":{"shape":[6,2],"row":[0,1,1,2,3,4,4,5],"col":[0,0,1,1,0,0,1,1],"val":[1.0,-0.7071067811865476,0.7071067811865476,-1.0,-1.0,0.7071067811865476,-0.7071067811865476,1.0]},"lower":[null,null,null,null,null,null],"upper":[0.7730223286236128,0.4938070665146633,-1.291274557727772,-0.6730203286236127,-0.42309438839600855,1.3912765577277717]},"bounds":{"lower":[null,null],"upper":[null,null]},"lmi":[],"reference":{"status":"optimal","objective":-0.7730223286236128,"x":[0.7730223286236128,1.3912765577277717]}}''')
 FEAS_TOL, OPT_TOL = 1e-06, 1e-06
 CRASH_ONLY = False
 SOLVER = 'OSQP'

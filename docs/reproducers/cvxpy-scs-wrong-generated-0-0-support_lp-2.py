@@ -1,16 +1,16 @@
 #!/usr/bin/env python3
 """cvxpy:SCS (default settings) on one problem of the amcp-drake solver corpus: wrong.
 
-Problem kothare1996-projection-projection_qp-1: projection_qp (12), QP, 1 variables, 2 rows:
+Problem generated-0-0-support_lp-2: support_lp (14), A.1, LP, 1 variables, 2 rows:
     minimise 1/2 x'Px + q'x + r  s.t.  lower <= A x <= upper,  lb <= x <= ub,  mat(g0 + G x) PSD
-Seen: success reported but infeasible by 3.41e-06 (tol 1e-06)
+Seen: success reported but suboptimal by 2.04e-06 (tol 1e-06)
 The reference answer is verified (KKT residuals below 1e-7; an LP's optimal basis in exact rational
 arithmetic; an infeasible problem by a Farkas certificate).
 Exit 1: reproduces; 0: does not; 3: a package is missing. Needs numpy, scipy and cvxpy only.
 """
 import json
 
-DATA = json.loads(r'''{"format":"amcp-solver-corpus","version":1,"id":"kothare1996-projection-projection_qp-1","kind":"projection_qp","equation":"(12)","class":"qp","n":1,"objective":{"P":{"shape":[1,1],"row":[0],"col":[0],"val":[2.0]},"q":[0.0],"r":0.0},"linear":{"A":{"shape":[2,1],"row":[0,1],"col":[0,0],"val":[1.0,-1.0]},"lower":[null,null],"upper":[200.99999999999815,-1.0]},"bounds":{"lower":[null],"upper":[null]},"lmi":[],"reference":{"status":"optimal","objective":1.000000000004007,"x":[1.0000000000020035]}}''')
+DATA = json.loads(r'''{"format":"amcp-solver-corpus","version":1,"id":"generated-0-0-support_lp-2","kind":"support_lp","equation":"(14), A.1","class":"lp","n":1,"objective":{"P":null,"q":[-1.0],"r":0.0},"linear":{"A":{"shape":[2,1],"row":[0,1],"col":[0,0],"val":[1.0,-1.0]},"lower":[null,null],"upper":[0.3,0.4]},"bounds":{"lower":[null],"upper":[null]},"lmi":[],"reference":{"status":"optimal","objective":-0.3,"x":[0.3]}}''')
 FEAS_TOL, OPT_TOL = 1e-06, 1e-06
 CRASH_ONLY = False
 SOLVER = 'SCS'
