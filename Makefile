@@ -32,8 +32,10 @@ lint: $(BIN)/amcp
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports
 
+# in two worker processes (pytest-xdist; the property suite stays in one of them, so that its tests
+# share their closed-loop runs, and its coverage summary is printed by the controller)
 test: lint
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n 2 --dist loadgroup
 
 # re-resolve requirements.lock after a change of pyproject.toml, keeping every pin that still fits
 lock: $(BIN)/amcp

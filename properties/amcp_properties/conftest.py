@@ -7,7 +7,10 @@ coverage summary.
   be imported is skipped with the reason (visible in the ``-ra`` summary).
 * ``runner``: the session's :class:`~amcp_properties.cases.Runner`; ``coverage``: its
   :class:`~amcp_properties.coverage.CoverageRecorder`, printed at the end of the session and
-  written as JSON to ``AMCP_COVERAGE_FILE`` when set.
+  written as JSON to ``AMCP_COVERAGE_FILE`` when set (:mod:`amcp_properties.session_summary`; under
+  pytest-xdist the workers send their counts to the controller, which prints them: properties/conftest.py).
+* Every property test is in one xdist group, so that one worker runs them all and reuses their
+  closed-loop runs (``--dist loadgroup``).
 """
 
 from __future__ import annotations
@@ -17,12 +20,14 @@ import os
 import pytest
 
 from amcp_properties import profiles
+from amcp_properties.session_summary import RECORDER as _RECORDER
+from amcp_properties.session_summary import RUNNER as _RUNNER
+from amcp_properties.session_summary import WORKER_OUTPUT_KEY, local_state, write_summary
 
 PROFILE = profiles.load()
 BACKENDS_ENV = "AMCP_BACKENDS"
-COVERAGE_FILE_ENV = "AMCP_COVERAGE_FILE"
-_RECORDER = pytest.StashKey()
-_RUNNER = pytest.StashKey()
+#: The xdist group of every property test (one worker runs them all).
+XDIST_GROUP = "amcp-properties"
 
 
 def _backend_names() -> list[str]:
@@ -78,44 +83,28 @@ def coverage(request):
     return request.config.stash[_RECORDER]
 
 
+def pytest_collection_modifyitems(config, items) -> None:
+    here = os.path.dirname(__file__)
+    for item in items:
+        if str(item.path).startswith(here):
+            item.add_marker(pytest.mark.xdist_group(XDIST_GROUP))
+
+
+def pytest_sessionfinish(session) -> None:
+    """On a pytest-xdist worker: send this worker's counts to the controller."""
+    workeroutput = getattr(session.config, "workeroutput", None)
+    state = local_state(session.config)
+    if workeroutput is not None and state is not None:
+        import json
+
+        workeroutput[WORKER_OUTPUT_KEY] = json.dumps(state)
+
+
 def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
-    from amcp_properties.strategies import GENERATOR_STATS
-
-    if _RECORDER not in config.stash:
+    """The summary of a run in one process (a worker's terminal is not shown; the controller prints
+    the workers' counts)."""
+    if hasattr(config, "workeroutput"):
         return
-    recorder = config.stash[_RECORDER]
-    summary = recorder.summary()
-    if not summary:
-        return
-    tr = terminalreporter
-    tr.section(f"amcp property coverage (profile {PROFILE})")
-    tr.write_line(f"{'test':70s} {'examples':>8s}  {'Z act':>6s} {'Θ shr':>6s} {'θ*∂':>6s} {'θ*≈∂':>6s} {'done':>6s}"
-                  f" {'Θk↓d':>6s} {'θ*vx':>6s} {'θ*fc':>6s} {'scaled':>6s}")
-    for test, data in sorted(summary.items()):
-        fr = data["fractions"]
-        cells = " ".join(f"{fr[k]:6.2f}" if k in fr else f"{'-':>6s}" for k in
-                         ("constraints_active", "theta_shrank", "theta_star_on_boundary", "theta_star_near_boundary",
-                          "completed", "theta_k_lower_dim", "theta_star_vertex", "theta_star_facet", "scaled_units"))
-        tr.write_line(f"{test[-70:]:70s} {data['examples']:8d}  {cells}")
-    stats = GENERATOR_STATS
-    rate = stats.rejection_rate()
-    distinct = stats.distinct_rejection_rate()
-    tr.write_line(f"generator: {len(stats.distinct)} distinct problems, {distinct:.1%} rejected by the design "
-                  f"({stats.attempts} draws, {rate:.1%} rejected); by reason: "
-                  + ", ".join(f"{k[10:]}={v}" for k, v in sorted(stats.counts.items()) if k.startswith("rejected:")))
-    from amcp_properties.coverage import dimension_line
-
-    tr.write_line(dimension_line(stats.by_dimension(), summary))
-    tr.write_line("Θk↓d = some Θ_k lower-dimensional (Chebyshev radius <= 1e-5); θ*vx / θ*fc = θ* at a vertex / "
-                  "elsewhere on ∂Θ; scaled = in badly scaled state units (fractions of the runs)")
-    run_cache = config.stash[_RUNNER]
-    tr.write_line(f"closed-loop runs: {run_cache.misses} simulated, {run_cache.hits} reused from the cache")
-    path = os.environ.get(COVERAGE_FILE_ENV)
-    if path:
-        recorder.write_json(path, {"profile": PROFILE, "generator": dict(stats.counts),
-                                   "rejection_rate": rate, "distinct_problems": len(stats.distinct),
-                                   "distinct_rejection_rate": distinct, "runs": {"simulated": run_cache.misses,
-                                                                    "reused": run_cache.hits},
-                                   "by_dimension": {str(n): {"draws": d, "accepted": a}
-                                                    for n, (d, a) in stats.by_dimension().items()}})
-
+    state = local_state(config)
+    if state is not None:
+        write_summary(terminalreporter, PROFILE, [state])

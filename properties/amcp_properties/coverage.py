@@ -165,6 +165,25 @@ class CoverageRecorder:
             out[test] = {"examples": n, "fractions": fractions, "labels": dict(self.labels.get(test, {}))}
         return out
 
+    def to_state(self) -> dict:
+        """Every count as plain JSON data (sent from a pytest-xdist worker to the controller)."""
+        return {"examples": dict(self.examples),
+                "flags": {t: dict(c) for t, c in self.flags.items()},
+                "measured": {t: dict(c) for t, c in self.measured.items()},
+                "labels": {t: dict(c) for t, c in self.labels.items()},
+                "answers": {b: {p: dict(c) for p, c in per.items()} for b, per in self.answers.items()}}
+
+    def add_state(self, state: dict) -> None:
+        """Add the counts of another recorder's :meth:`to_state` (every count is a sum)."""
+        self.examples.update(state["examples"])
+        for name in ("flags", "measured", "labels"):
+            mine = getattr(self, name)
+            for test, counts in state[name].items():
+                mine[test].update(counts)
+        for backend, per in state["answers"].items():
+            for problem, counts in per.items():
+                self.answers[backend][problem].update(counts)
+
     def write_json(self, path: str | Path, extra: dict | None = None) -> None:
         data = {"tests": self.summary(), "features": FEATURES,
                 "answers": {b: {p: dict(c) for p, c in per.items()} for b, per in self.answers.items()}}

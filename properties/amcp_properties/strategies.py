@@ -105,6 +105,15 @@ class GeneratorStats:
     def rejections(self) -> int:
         return sum(v for k, v in self.counts.items() if k.startswith("rejected:"))
 
+    def to_state(self) -> dict:
+        """The counts and distinct problems as plain JSON data (sent from a pytest-xdist worker)."""
+        return {"counts": dict(self.counts), "distinct": dict(self.distinct)}
+
+    def add_state(self, state: dict) -> None:
+        """Add another process's :meth:`to_state` (counts summed; a problem drawn in both counted once)."""
+        self.counts.update(state["counts"])
+        self.distinct.update(state["distinct"])
+
     def rejection_rate(self) -> float:
         """Rejected designs / design attempts (nan before any attempt)."""
         return self.rejections / self.attempts if self.attempts else float("nan")
