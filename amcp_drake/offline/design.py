@@ -19,7 +19,7 @@ from amcp_drake.offline import templates as x0_templates
 from amcp_drake.offline.auto import design_auto, template_label
 from amcp_drake.offline.budget import DesignBudget, chunked_row_maxima, chunked_tight_counts, unbounded
 from amcp_drake.offline.checks import verify_design
-from amcp_drake.offline.result import OfflineDesign, closed_loop_vertices, regressor_bound
+from amcp_drake.offline.result import OfflineDesign, closed_loop_vertices, regressor_bound, regressor_sup
 from amcp_drake.offline.support import bounded_vertices, row_maxima
 from amcp_drake.offline.terminal import scaled_terminal_set, terminal_set_kind
 
@@ -131,8 +131,9 @@ def _design_as_written(problem: Problem, options: DesignOptions, backend="drake"
     budget = budget or unbounded()
     be = get_backend(backend)
     # μ, eq. (11), first: it needs no solver and fails fast on a missing state box
-    budget.require_vertices("mu (11): the state region's vertices", len(problem.F) + 2 * problem.n, problem.n)
-    mu_sup, region = regressor_bound(problem, options.mu_state_bound)
+    # (exact over the vertices of the (x, u) region when their estimated count allows, else an upper bound)
+    mu_found = regressor_sup(problem, options.mu_state_bound, budget)
+    mu_sup, region = mu_found.value, mu_found.region
     mu = options.mu_fraction / mu_sup
     theta_vertices = problem.theta_vertices()
 
@@ -204,7 +205,7 @@ def _design_as_written(problem: Problem, options: DesignOptions, backend="drake"
                          lambda_bar=lambda_bar, A_z=A_z, H_T=H_T, h_T=h_T, mu=float(mu), mu_sup=float(mu_sup),
                          mu_region=region, H_theta=H_theta_n, h_theta0=h_theta0, theta_vertices=theta_vertices,
                          terminal_iterations=iterations, backend=be.name, gain_source=source, info=info,
-                         mu_state_bound=options.mu_state_bound)
+                         mu_state_bound=options.mu_state_bound, mu_method=mu_found.detail)
 
 
 def _parallelotope_gain(problem: Problem, options: DesignOptions, K, P, source: str, be, budget: DesignBudget):
