@@ -188,3 +188,24 @@ def test_design_records_how_mu_was_obtained_and_keeps_it_through_json():
     assert OfflineDesign.from_dict(legacy).mu_method == "exact"
     bounded = replace(d, mu_method="bound: test")
     assert OfflineDesign.from_dict(bounded.to_dict()).mu_method == "bound: test"
+
+
+# -- support LPs that answer "unbounded" on a bounded X0 ----------------------------------------------
+def test_a_support_lp_reported_unbounded_on_the_bounded_x0_falls_back_to_the_vertex_maximum():
+    """The design's w̄, f̄, h̄ with a backend whose LPs over X0 report one direction unbounded: X0's
+    vertices were enumerated (it is bounded), so the design uses the exact vertex maxima, counts the
+    failures and equals the design of the untampered backend; the independent checks pass."""
+    from amcp_drake.backends.drake_ import DrakeBackend
+    from amcp_drake.offline.checks import verify_design
+    from amcp_drake.offline.design import design_fixed
+    from tests.tampered_backends import UnboundedSupportDrake
+
+    spec = spec_from_dict(actuated_chain(4))  # W and the parallelotope X0: 8 rows each
+    options = replace(spec.design, x0_template="parallelotope")
+    reference = design_fixed(spec.problem, options, backend=DrakeBackend())
+    tampered = design_fixed(spec.problem, options, backend=UnboundedSupportDrake())
+    assert len(reference.H_x) >= 8 and "support_lp_failures" not in reference.info
+    assert tampered.info["support_lp_failures"] == 2 + len(tampered.theta_vertices)  # w̄, f̄ and each h̄^k
+    for name in ("w_bar", "f_bar", "h_bar", "H_T", "h_T"):
+        np.testing.assert_allclose(getattr(tampered, name), getattr(reference, name), rtol=1e-7, atol=1e-9)
+    assert all(c.status == "pass" for c in verify_design(spec.problem, tampered, None))
