@@ -209,3 +209,28 @@ def test_a_support_lp_reported_unbounded_on_the_bounded_x0_falls_back_to_the_ver
     for name in ("w_bar", "f_bar", "h_bar", "H_T", "h_T"):
         np.testing.assert_allclose(getattr(tampered, name), getattr(reference, name), rtol=1e-7, atol=1e-9)
     assert all(c.status == "pass" for c in verify_design(spec.problem, tampered, None))
+
+
+def test_amcp_design_prints_how_mu_was_obtained():
+    """massera2017: Z is a box in (x, u) of 2^5 corners; the exact value is that of a brute force over them."""
+    from click.testing import CliRunner
+
+    from amcp_drake.cli import main
+    from amcp_drake.model.examples import get_example
+
+    pr = get_example("massera2017").problem
+    H = np.hstack([pr.F, pr.G])
+    lo, hi = [], []
+    for j in range(H.shape[1]):  # a box: each row has one nonzero entry; the bound of z_j is 1 / H_rj
+        col = H[:, j]
+        hi.append(1.0 / col[col > 0].min())
+        lo.append(1.0 / col[col < 0].max())
+    assert np.all(np.count_nonzero(H, axis=1) == 1)
+    corners = np.array([[hi[j] if s > 0 else lo[j] for j, s in enumerate(signs)]
+                        for signs in itertools.product([-1, 1], repeat=H.shape[1])])
+    brute = _brute_force_sup(np.concatenate([pr.A, pr.B], axis=2), corners)
+    result = CliRunner().invoke(main, ["design", "--example", "massera2017"], catch_exceptions=False)
+    assert result.exit_code == 0
+    line = next(text for text in result.output.splitlines() if text.startswith("mu = "))
+    assert "exact: maximum over the 32 vertices" in line
+    assert f"sup ||D||^2 = {brute:.6g} over Z" in line
