@@ -189,6 +189,17 @@ class ReuseIgnoresLastRowDrake(DrakeBackend):
         self._vertex_update = _ReuseIgnoresLastRow()
 
 
+class UnboundedSupportDrake(DrakeBackend):
+    """Support LPs over a set of at least 8 rows (W and X0 of a 4-state chain, not its Θ) report the
+    first direction "unbounded" (+inf), as a solver does on badly scaled rows; the set is bounded."""
+
+    def support(self, H, h, directions):
+        values = np.array(super().support(H, h, directions), float)
+        if len(np.asarray(H)) >= 8 and len(values):
+            values[0] = np.inf
+        return values
+
+
 def use_as_drake(monkeypatch, cls: type) -> None:
     """Register ``cls`` (a class of this module) as the backend named "drake" for one test."""
     monkeypatch.setitem(REGISTRY, "drake", (__name__, cls.__name__, ("pydrake",)))

@@ -77,12 +77,17 @@ def test_minimal_lambda_gain_leaves_no_room_where_the_constraint_rows_do():
     assert len(d.H_x) == 12 and len(d.H_T) == 12
 
 
-@pytest.mark.parametrize("n", [4, 5, 6])
+@pytest.mark.parametrize("n", [4, 5, 6, 7, 8])
 def test_parallelotope_designs_of_generated_chains_pass_every_independent_check(tmp_path, n):
+    """n = 8: Z is a box in 16 dimensions (2^16 vertices, above the exact enumeration's cap), so μ of (11)
+    comes from the upper bound, and the independent (11) check passes with its own bound."""
     spec = _load(tmp_path, actuated_chain(n))
     d = design_fixed(spec.problem, replace(spec.design, x0_template="parallelotope"))
-    failed = [c.name for c in verify_design(spec.problem, d, spec.design.mu_state_bound) if not c.passed]
+    checks = verify_design(spec.problem, d, spec.design.mu_state_bound)
+    failed = [c.name for c in checks if not c.passed]
     assert failed == [] and len(d.H_x) == 2 * n and len(d.X0_vertices) == 2 ** n
+    assert d.mu_method.split(":")[0] == ("bound" if n == 8 else "exact")
+    assert "mu condition (11)" in {c.name for c in checks}
     # Assumption 11's condition of the scaled copy, recomputed from the vertices: α_∞ max f̄ < 1
     W_v, X_v = spec.problem.w_vertices(), d.X0_vertices
     w_bar = np.max(d.H_x @ W_v.T, axis=1)

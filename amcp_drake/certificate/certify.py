@@ -406,6 +406,7 @@ def _run_info(traj: Trajectory, state_bound: float | None) -> dict[str, Any]:
         "theta_hat0": traj.problem.theta_hat0.tolist(),
         "update": traj.options.update, "window": traj.options.window, "projection": traj.options.projection,
         "disturbance": traj.meta.get("disturbance"), "seed": traj.meta.get("seed"),
-        "mu": traj.design.mu, "mu_region": traj.design.mu_region, "mu_state_bound": state_bound,
+        "mu": traj.design.mu, "mu_region": traj.design.mu_region, "mu_method": traj.design.mu_method,
+        "mu_state_bound": state_bound,
         "design_backend": traj.design.backend,
     }

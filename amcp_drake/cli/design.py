@@ -67,7 +67,8 @@ def design_cmd(problem_file, example, x0_template, backend, as_json, max_memory,
         terminal = (d.info or {}).get("terminal_set", "recursion")
         click.echo(f"Xf: {len(d.H_T)} rows, " + (f"recursion of Appendix A.1 ({d.terminal_iterations} iterations)"
                                                  if terminal == "recursion" else "scaled copy of X0 (offline/terminal.py)"))
-        click.echo(f"mu = {d.mu:.6g} (sup ||D||^2 = {d.mu_sup:.6g} over {d.mu_region})")
+        click.echo(f"mu = {d.mu:.6g} (sup ||D||^2 {'=' if d.mu_method.startswith('exact') else '<='} {d.mu_sup:.6g} "
+                   f"over {d.mu_region}; {d.mu_method})")
         click.echo(f"H_theta for (9): {len(d.H_theta)} rows")
         click.echo("")
         click.echo(f"{'check':28s} {'result':8s} {'margin':>12s} {'tol':>9s}  detail")

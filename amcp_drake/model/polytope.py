@@ -145,21 +145,61 @@ def vertices(H: np.ndarray, h: np.ndarray) -> np.ndarray:
     return _unique_rows(pts)
 
 
+#: Seed of the projection direction of :func:`_unique_rows` (any direction gives the same result).
+UNIQUE_ROWS_SEED = 0
+#: Candidate pairs :func:`_unique_rows` judges at once (bounds its memory).
+UNIQUE_ROWS_CHUNK = 2**20
+
+
 def _unique_rows(points: np.ndarray, tol: float = 1e-9) -> np.ndarray:
     """The points with near-duplicates dropped (the first of each group kept, in order): p is a
     duplicate of a kept q when max|p − q| <= tol · max(1, max|q|) (Qhull reports a degenerate
-    vertex once per facet through it)."""
+    vertex once per facet through it).
+
+    O(N log N) plus the candidate pairs: two points within R = tol · max(1, max|q|) over all q in the
+    ∞-norm have projections on a direction v within R ‖v‖₁, so after sorting the projections on one
+    direction (random, seeded by :data:`UNIQUE_ROWS_SEED`: distinct vertices of a box or of a grid
+    do not share it) only the pairs in that window are candidates. Each candidate is judged by the
+    criterion above with the earlier point's scale, in the order of the points, so the result is that
+    of comparing every point with every kept point before it."""
     points = np.asarray(points, float)
-    kept = np.empty_like(points)
-    scale = np.empty(len(points))
-    count = 0
-    for p in points:
-        if count and np.any(np.max(np.abs(kept[:count] - p), axis=1) <= tol * scale[:count]):
-            continue
-        kept[count] = p
-        scale[count] = max(1.0, float(np.max(np.abs(p))))
-        count += 1
-    return kept[:count].copy()
+    count = len(points)
+    if count <= 1:
+        return points.copy()
+    scale = np.maximum(1.0, np.max(np.abs(points), axis=1))
+    direction = np.random.default_rng(UNIQUE_ROWS_SEED).uniform(0.5, 1.5, points.shape[1])
+    window = tol * float(np.max(scale)) * float(np.sum(direction)) * (1.0 + 1e-9)
+    projection = points @ direction
+    order = np.argsort(projection, kind="stable")
+    sorted_projection = projection[order]
+    ends = np.searchsorted(sorted_projection, sorted_projection + window, side="right")
+    widths = ends - np.arange(count) - 1  # candidates after each sorted point
+    firsts, seconds = [], []
+    start = 0
+    while start < count:  # chunks of sorted points with at most UNIQUE_ROWS_CHUNK candidate pairs
+        stop = start + 1
+        total = int(widths[start])
+        while stop < count and total + int(widths[stop]) <= UNIQUE_ROWS_CHUNK:
+            total += int(widths[stop])
+            stop += 1
+        rows = np.repeat(np.arange(start, stop), widths[start:stop])
+        if len(rows):
+            offsets = np.arange(len(rows)) - np.repeat(np.cumsum(widths[start:stop]) - widths[start:stop],
+                                                       widths[start:stop])
+            a, b = order[rows], order[rows + 1 + offsets]
+            first, second = np.minimum(a, b), np.maximum(a, b)
+            close = np.max(np.abs(points[first] - points[second]), axis=1) <= tol * scale[first]
+            firsts.append(first[close])
+            seconds.append(second[close])
+        start = stop
+    keep = np.ones(count, dtype=bool)
+    if firsts:
+        first, second = np.concatenate(firsts), np.concatenate(seconds)
+        by_later = np.lexsort((first, second))  # by the later point: its earlier neighbours are settled
+        for i, j in zip(first[by_later].tolist(), second[by_later].tolist()):
+            if keep[i]:
+                keep[j] = False
+    return points[keep].copy()
 
 
 def remove_redundant(H: np.ndarray, h: np.ndarray, tol: float = REDUNDANCY_TOL) -> tuple[np.ndarray, np.ndarray]:

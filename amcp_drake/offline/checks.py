@@ -12,8 +12,9 @@ import numpy as np
 
 from amcp_drake.model import polytope
 from amcp_drake.model.check_result import CheckResult, judge, not_run
+from amcp_drake.model.errors import DesignError
 from amcp_drake.model.problem import Problem
-from amcp_drake.offline.result import OfflineDesign, closed_loop_vertices, regressor_bound
+from amcp_drake.offline.result import OfflineDesign, closed_loop_vertices, regressor_sup
 
 #: Round-off allowed in the eigenvalue check of (16), relative to the size of its terms
 #: (max of ‖A_clᵀPA_cl‖, ‖P‖, ‖Q + KᵀRK‖ over the vertices): forming the matrix and eigvalsh err by
@@ -125,10 +126,15 @@ def _steady_tube_in_terminal_set(design: OfflineDesign, w_bar: np.ndarray, h_bar
 
 
 def _mu(problem: Problem, design: OfflineDesign, state_bound: float | None) -> CheckResult:
+    """(11) recomputed from the problem, not from the design's ``mu_sup``: S = sup ‖D(x,u)‖₂² over the
+    region, exact from its vertices when their estimated count allows, else the upper bound of
+    :func:`~amcp_drake.offline.result.regressor_upper_bound` (S >= the supremum, so μ S < 1 implies
+    μ ‖D(x,u)‖₂² < 1 on the whole region: (11))."""
     claim = "(11): 1/μ > sup ‖D(x,u)‖₂² over the (x,u) region"
     try:
-        sup, region = regressor_bound(problem, state_bound)
-    except ValueError as exc:
+        found = regressor_sup(problem, state_bound)
+    except (ValueError, DesignError) as exc:
         return not_run("mu condition (11)", claim, str(exc))
-    return judge("mu condition (11)", claim, 1.0 - design.mu * sup, 0.0,
-                 f"μ = {design.mu:.6g}, sup ‖D‖² = {sup:.6g} over {region} (μ·sup ‖D‖² must be < 1)", strict=True)
+    return judge("mu condition (11)", claim, 1.0 - design.mu * found.value, 0.0,
+                 f"μ = {design.mu:.6g}, sup ‖D‖² <= {found.value:.6g} over {found.region} ({found.detail}; "
+                 "μ·sup ‖D‖² must be < 1)", strict=True)

@@ -19,7 +19,7 @@ from amcp_drake.offline import templates as x0_templates
 from amcp_drake.offline.auto import design_auto, template_label
 from amcp_drake.offline.budget import DesignBudget, chunked_row_maxima, chunked_tight_counts, unbounded
 from amcp_drake.offline.checks import verify_design
-from amcp_drake.offline.result import OfflineDesign, closed_loop_vertices, regressor_bound
+from amcp_drake.offline.result import OfflineDesign, closed_loop_vertices, regressor_bound, regressor_sup
 from amcp_drake.offline.support import bounded_vertices, row_maxima
 from amcp_drake.offline.terminal import scaled_terminal_set, terminal_set_kind
 
@@ -131,8 +131,9 @@ def _design_as_written(problem: Problem, options: DesignOptions, backend="drake"
     budget = budget or unbounded()
     be = get_backend(backend)
     # μ, eq. (11), first: it needs no solver and fails fast on a missing state box
-    budget.require_vertices("mu (11): the state region's vertices", len(problem.F) + 2 * problem.n, problem.n)
-    mu_sup, region = regressor_bound(problem, options.mu_state_bound)
+    # (exact over the vertices of the (x, u) region when their estimated count allows, else an upper bound)
+    mu_found = regressor_sup(problem, options.mu_state_bound, budget)
+    mu_sup, region = mu_found.value, mu_found.region
     mu = options.mu_fraction / mu_sup
     theta_vertices = problem.theta_vertices()
 
@@ -160,11 +161,14 @@ def _design_as_written(problem: Problem, options: DesignOptions, backend="drake"
     # of W and X0 are exact, so the larger of the two is a valid bound for either backend (found on
     # parsi2020_siso: the cvxpy backend's f̄ was 1.5e-9 too small and X_f left Z by 2e-8). An LP that
     # fails (NaN) leaves the exact vertex maximum; the count is recorded in info["support_lp_failures"].
-    # An unbounded LP (inf) means X0 is unbounded: that stays an error.
+    # W and X0 are bounded here (their vertices were enumerated, which refuses an unbounded set), so an
+    # LP that reports "unbounded" (inf) contradicts the set it was given: a solver failure on badly
+    # scaled rows, counted with the failures and replaced by the exact vertex maximum as well.
     budget.require_vertices("w_bar: the vertices of W", len(problem.H_w), problem.n)
     w_vx = chunked_row_maxima(H_x, problem.w_vertices(), budget, "w_bar")
     f_vx = chunked_row_maxima(FGK, X0_vertices, budget, "f_bar")
     h_vx = np.array([chunked_row_maxima(H_x @ Ak, X0_vertices, budget, "h_bar") for Ak in A_cl])
+    w_lp, f_lp, h_lp = (_failed_if_unbounded(v) for v in (w_lp, f_lp, h_lp))
     lp_failures = int(sum(np.count_nonzero(np.isnan(v)) for v in (w_lp, f_lp, h_lp)))
     w_bar, f_bar, h_bar = np.fmax(w_lp, w_vx), np.fmax(f_lp, f_vx), np.fmax(h_lp, h_vx)
     _require_finite_support("w_bar", w_bar)
@@ -204,7 +208,7 @@ def _design_as_written(problem: Problem, options: DesignOptions, backend="drake"
                          lambda_bar=lambda_bar, A_z=A_z, H_T=H_T, h_T=h_T, mu=float(mu), mu_sup=float(mu_sup),
                          mu_region=region, H_theta=H_theta_n, h_theta0=h_theta0, theta_vertices=theta_vertices,
                          terminal_iterations=iterations, backend=be.name, gain_source=source, info=info,
-                         mu_state_bound=options.mu_state_bound)
+                         mu_state_bound=options.mu_state_bound, mu_method=mu_found.detail)
 
 
 def _parallelotope_gain(problem: Problem, options: DesignOptions, K, P, source: str, be, budget: DesignBudget):
@@ -242,6 +246,13 @@ def _require_terminal_cost(problem: Problem, K: np.ndarray, P: np.ndarray, A_cl:
     if worst > 0.0:
         raise DesignError(f"gain LMI (16): the solver's K, P violate (16) by {worst:.3e} (largest eigenvalue); "
                           "the robust LMI is (nearly) infeasible for the vertices of Theta (Assumption 8)")
+
+
+def _failed_if_unbounded(values: np.ndarray) -> np.ndarray:
+    """Support-LP values over a set known to be bounded, with +inf ("unbounded") marked as failed (NaN)."""
+    values = np.array(values, float)
+    values[np.isposinf(values)] = np.nan
+    return values
 
 
 def _require_finite_support(name: str, values: np.ndarray) -> None:

@@ -77,7 +77,7 @@ import numpy as np
 from amcp_drake.model.errors import DesignError
 from amcp_drake.model.problem import DesignOptions, Problem
 from amcp_drake.model.state_units import scale_states
-from amcp_drake.offline.result import OfflineDesign, regressor_bound
+from amcp_drake.offline.result import OfflineDesign, regressor_sup
 
 #: W's extents whose ratio to the largest is within this of 1 count as equal (s_i = 1 exactly): the
 #: extents come from Qhull's vertices of W, accurate to ~1e-12 relative; rescaling by less than 1e-9
@@ -187,12 +187,13 @@ def from_normalised(design: OfflineDesign, s: np.ndarray, problem: Problem, opti
         K, P = np.asarray(options.K, float), np.asarray(options.P, float)
     elif gain is not None and gain[2] == "given":
         K, P = np.asarray(gain[0], float), np.asarray(gain[1], float)
-    mu_sup, region = regressor_bound(problem, options.mu_state_bound)
+    mu_found = regressor_sup(problem, options.mu_state_bound)
+    mu_sup, region = mu_found.value, mu_found.region
     info = dict(design.info, state_units={"normalised_by": "W extents", "xi_equals_diag_times_x": s.tolist()})
     return replace(design, K=K, P=P, H_x=design.H_x @ S, X0_vertices=design.X0_vertices @ S_inv,
                    A_z=S_inv @ design.A_z @ S, H_T=design.H_T @ S,
                    mu=float(options.mu_fraction / mu_sup), mu_sup=float(mu_sup), mu_region=region, info=info,
-                   mu_state_bound=options.mu_state_bound)
+                   mu_state_bound=options.mu_state_bound, mu_method=mu_found.detail)
 
 
 __all__ = ["EXTENT_RTOL", "UnitsMappingError", "from_normalised", "gain_to_normalised", "is_identity",
