@@ -655,3 +655,58 @@ def test_a_plain_answer_outside_5b_at_the_vertices_is_solved_again_with_refineme
     assert all("step not solved" not in r.detail for r in traj.records)
     assert all(r.status is SolveStatus.OPTIMAL for r in traj.records)
     assert claims.prediction_tube(traj).passed
+
+
+def test_tube_check_at_negative_alpha_equals_check_tube(example_spec, example_design):
+    """The (5b) rows of TubeCheck take the largest over the vertices x^j of X0 through the α_l term
+    alone: its coefficient's maximum for α_l >= 0 and its minimum for α_l < 0. Answers with α_l of
+    both signs (and all negative) give the values of check_tube, which forms every row (l, j, s)."""
+    from amcp_drake.model import polytope
+
+    ctrl = _controller(example_spec, example_design, "drake", formulation="vertex")
+    data, fast = ctrl.data, answer_checks.TubeCheck(ctrl.data)
+    H, h0 = np.asarray(example_design.H_theta, float), np.asarray(example_design.h_theta0, float)
+    x0 = np.asarray(example_spec.scenario.x0, float)
+    vertices = polytope.theta_vertices(H, h0)
+    sol = ctrl.mpc.solve(x0, h0, np.zeros(len(example_spec.problem.A)))
+    assert sol.status is SolveStatus.OPTIMAL
+    signs = np.where(np.arange(len(sol.alpha)) % 2 == 0, -1.0, 1.0)
+    for alpha in (-sol.alpha, signs * sol.alpha, -sol.alpha - 0.5):
+        wrong = dataclasses.replace(sol, alpha=alpha)
+        ref, got = answer_checks.check_tube(wrong, data, x0, h0, None, vertices), fast.check(wrong, x0, vertices, h0)
+        assert [(c.name, c.ran, c.passed) for c in got] == [(c.name, c.ran, c.passed) for c in ref]
+        np.testing.assert_allclose([c.value for c in got], [c.value for c in ref], rtol=1e-9, atol=1e-12)
+
+
+#: Vertices of the X0 polygon of the memory test of TubeCheck, and the most bytes its (5b) rows may
+#: allocate (measured: 33 MiB, about two blocks of the check's 16 MiB chunks; the rows formed for every
+#: vertex of X0 at once needed about 1 GiB).
+TUBE_POLYGON_VERTICES = 1000
+TUBE_CHECK_BYTES = 64 * 2**20
+
+
+def test_tube_check_memory_does_not_multiply_x0_and_theta_vertices(example_spec, example_design):
+    import tracemalloc
+
+    from amcp_drake.model import polytope
+
+    ctrl = _controller(example_spec, example_design, "drake", formulation="vertex")
+    H, h0 = np.asarray(example_design.H_theta, float), np.asarray(example_design.h_theta0, float)
+    x0 = np.asarray(example_spec.scenario.x0, float)
+    vertices = polytope.theta_vertices(H, h0)
+    sol = ctrl.mpc.solve(x0, h0, np.zeros(len(example_spec.problem.A)))
+    angles = 2 * np.pi * np.arange(TUBE_POLYGON_VERTICES) / TUBE_POLYGON_VERTICES
+    H_x = np.column_stack([np.cos(angles), np.sin(angles)]) / 0.5
+    data = dataclasses.replace(ctrl.data, H_x=H_x, X0_vertices=polytope.vertices(H_x, np.ones(len(H_x))),
+                               w_bar=np.zeros(len(H_x)))
+    fast = answer_checks.TubeCheck(data)
+    tracemalloc.start()
+    try:
+        got = fast.check(sol, x0, vertices, h0)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    ref = answer_checks.check_tube(sol, data, x0, h0, None, vertices)
+    assert [(c.name, c.passed) for c in got] == [(c.name, c.passed) for c in ref]
+    np.testing.assert_allclose([c.value for c in got], [c.value for c in ref], rtol=1e-9, atol=1e-12)
+    assert peak < TUBE_CHECK_BYTES, f"the (5b) rows of TubeCheck allocated {peak / 2**20:.0f} MiB"

@@ -673,3 +673,55 @@ def test_regression_campaign_0_126_lower_inclusion_with_short_delta_rows():
     k = inclusion.data["worst_step"]
     traj.records[k].h_theta = np.asarray(traj.records[k].h_theta) - 1e-5
     assert {c.name: c for c in certify(traj, spec).claims}["Θ_k ∩ Δ_{k+1} ⊆ Θ_{k+1}"].status == "fail"
+
+
+#: Sizes of the memory test of the tube certificate: vertices of the X0 polygon and of W, and the most
+#: bytes the checks may allocate (chunks of 16 MiB; forming every (vertex of X_(l|k), vertex of Θ_k,
+#: vertex of W, row) at once and every pairwise distance of the vertex list needed 553 MiB).
+MEMORY_X0_VERTICES = 300
+MEMORY_W_VERTICES = 50
+TUBE_CERTIFICATE_BYTES = 48 * 2**20
+
+
+def test_tube_certificate_memory_does_not_multiply_the_vertex_counts(spec, controller):
+    """tube propagation (5b) takes the largest over W row by row (max_w [H_x]_i w, exact) and the vertices of
+    X_(l|k) in chunks; the X0 vertex list compares the two sets in chunks: neither forms an array of the product of
+    the vertex counts of X0, Θ_k and W (a generated 6-state design with 3,975 vertices of X0, 8 of Θ and 95 of W
+    needed 4 GiB per prediction step). Checked against a loop over W here."""
+    import tracemalloc
+    from types import SimpleNamespace
+
+    from amcp_drake.certificate.tube import _propagation_margin, x0_vertex_list
+    from amcp_drake.model import polytope
+
+    pr, d0 = spec.problem, controller.design
+    angles = 2 * np.pi * np.arange(MEMORY_X0_VERTICES) / MEMORY_X0_VERTICES
+    H_x = np.column_stack([np.cos(angles), np.sin(angles)]) / 0.5
+    X0v = polytope.vertices(H_x, np.ones(len(H_x)))
+    design = dataclasses.replace(d0, H_x=H_x, X0_vertices=X0v)
+    view = SimpleNamespace(problem=pr, design=design)
+    rng = np.random.default_rng(3)
+    W_v = rng.uniform(-0.1, 0.1, (MEMORY_W_VERTICES, pr.n))
+    w_bar = np.max(H_x @ W_v.T, axis=1)
+    N = 2
+    z, alpha, v = rng.uniform(-0.5, 0.5, (N + 1, pr.n)), rng.uniform(0.1, 1.0, N + 1), rng.uniform(-0.2, 0.2, (N, pr.m))
+    step = SimpleNamespace(N=N, z=z, alpha=alpha, v=v, vertices=lambda l: z[l] + alpha[l] * X0v)
+    theta_v = polytope.vertices(pr.H_theta, pr.h_theta)
+    tracemalloc.start()
+    try:
+        margin = _propagation_margin(view, step, theta_v, W_v, w_bar)
+        vertex_list = x0_vertex_list(view)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    expected = np.inf
+    for l in range(N):
+        X = z[l] + alpha[l] * X0v
+        U = X @ d0.K.T + v[l]
+        for th in theta_v:
+            images = X @ pr.A_of(th).T + U @ pr.B_of(th).T - z[l + 1]
+            for w in W_v:
+                expected = min(expected, alpha[l + 1] - float(np.max((images + w) @ H_x.T)))
+    assert margin == pytest.approx(expected, abs=1e-12)
+    assert vertex_list.passed
+    assert peak < TUBE_CERTIFICATE_BYTES, f"the tube certificate allocated {peak / 2**20:.0f} MiB"

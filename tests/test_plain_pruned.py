@@ -188,3 +188,34 @@ def test_the_bases_of_theta_k_follow_its_offsets(example):
         assert sol.status is SolveStatus.OPTIMAL and "every row" not in sol.detail
         c15, d15, lam_min = _residuals_every_row(sol, shaped, h, H)
         assert c15 <= 1e-7 and d15 <= 1e-9 and lam_min >= -1e-9
+
+
+def _dominance_by_pairs(points: np.ndarray) -> np.ndarray:
+    """Points (v, S) that no other point dominates, by comparing every pair (the definition)."""
+    keep = np.ones(len(points), dtype=bool)
+    for j in range(len(points)):
+        for k in range(len(points)):
+            if k != j and np.all(points[k] >= points[j]) and (np.any(points[k] > points[j]) or k < j):
+                keep[j] = False
+                break
+    return keep
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_kept_vertices_are_those_no_other_dominates(seed):
+    """kept_vertices visits the vertices by decreasing sum and compares each with those kept so far and
+    with those of equal sum: the same mask as comparing every pair, on random facets with ties (equal
+    rows, coordinates on a grid) and without."""
+    from amcp_drake.backends.dominated_rows import _maximal
+
+    rng = np.random.default_rng(seed)
+    for trial in range(60):
+        v, S = int(rng.integers(1, 40)), int(rng.integers(1, 6))
+        if trial % 2:
+            points = rng.integers(-2, 3, (v, S)).astype(float)
+        else:
+            points = rng.standard_normal((v, S)) @ rng.standard_normal((S, S))
+        if trial % 3 == 0 and v > 2:
+            points[1] = points[0]
+            points[-1] = points[0]
+        assert np.array_equal(_maximal(points), _dominance_by_pairs(points)), (seed, trial)

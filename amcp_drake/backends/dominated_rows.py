@@ -36,15 +36,50 @@ def kept_vertices(H_x: np.ndarray, Acl0: np.ndarray, Acl_i: np.ndarray, X0_verti
     A_s = Acl0 + np.tensordot(np.asarray(theta0_vertices, float), Acl_i, axes=1)       # (S, n, n)
     g = np.einsum("ia,sab,jb->isj", np.asarray(H_x, float), A_s, np.asarray(X0_vertices, float))  # (u, S, v)
     u, _, nv = g.shape
-    keep = np.ones((u, nv), dtype=bool)
+    keep = np.zeros((u, nv), dtype=bool)
     for i in range(u):
-        gi = g[i]                                                  # (S, v)
-        geq = np.all(gi[:, :, None] >= gi[:, None, :], axis=0)     # geq[j', j]: g_j' >= g_j on Θ0
-        strict = np.any(gi[:, :, None] > gi[:, None, :], axis=0)
-        earlier = np.arange(nv)[:, None] < np.arange(nv)[None, :]  # j' < j
-        dominates = geq & (strict | earlier)
-        np.fill_diagonal(dominates, False)
-        keep[i] = ~dominates.any(axis=0)
+        keep[i] = _maximal(g[i].T)
+    return keep
+
+
+def _maximal(points: np.ndarray) -> np.ndarray:
+    """Mask of the points (v, S) that no other point dominates (>= in every coordinate, and > in one or
+    earlier in the order), compared exactly. A dominator has a floating-point coordinate sum at least as
+    large (rounding is monotone), and a dominated dominator is itself dominated by a kept point (the
+    relation is transitive): so the points are visited by decreasing sum, each compared only with the
+    points kept so far and with the points of the same sum (visited or not). The work is v times the
+    number kept, not v², and memory stays (v, S)."""
+    nv = len(points)
+    total = points.sum(axis=1)
+    order = np.lexsort((np.arange(nv), -total))         # decreasing sum, then index
+    keep = np.zeros(nv, dtype=bool)
+    kept: list[int] = []
+    kept_points = np.empty_like(points)
+    start = 0
+    while start < nv:
+        stop = start
+        while stop < nv and total[order[stop]] == total[order[start]]:
+            stop += 1
+        group = order[start:stop]
+        for j in group:
+            g_j = points[j]
+            dominated = False
+            if kept:
+                others = kept_points[:len(kept)]
+                geq = np.all(others >= g_j, axis=1)
+                strict = np.any(others > g_j, axis=1)
+                earlier = np.asarray(kept) < j
+                dominated = bool(np.any(geq & (strict | earlier)))
+            if not dominated and len(group) > 1:
+                others = points[group]
+                geq = np.all(others >= g_j, axis=1)
+                strict = np.any(others > g_j, axis=1)
+                dominated = bool(np.any(geq & (strict | (group < j)) & (group != j)))
+            if not dominated:
+                keep[j] = True
+                kept_points[len(kept)] = g_j
+                kept.append(int(j))
+        start = stop
     return keep
 
 

@@ -32,6 +32,10 @@ QP_TOL = 1e-6
 #: states x̃ = 1e8 x has vertices of size 3e7, recomputed to ~1e-8 absolute, and the claim failed).
 VERTEX_TOL = 1e-8
 
+#: Most bytes of one array of the propagation check (5b) (a chunk of the vertices of X_(l|k) times the
+#: vertices of Θ_k times the rows of H_x): 16 MiB.
+PROPAGATION_CHUNK_BYTES = 16 * 2**20
+
 GROUP_TUBE = "tube"
 GROUP_DESIGN = "design"
 
@@ -44,12 +48,24 @@ def x0_vertex_list(view: RunView) -> CheckResult:
     d = view.design
     recorded = np.asarray(d.X0_vertices, float)
     fresh = polytope.vertices(d.H_x, np.ones(len(d.H_x)))
-    dist = np.linalg.norm(recorded[:, None, :] - fresh[None, :, :], axis=2)
-    hausdorff = max(float(np.max(np.min(dist, axis=1))), float(np.max(np.min(dist, axis=0))))
+    hausdorff = max(_directed_distance(recorded, fresh), _directed_distance(fresh, recorded))
     tol = VERTEX_TOL * max(1.0, float(np.max(np.abs(fresh))))
     return tag(judge("X0 vertex list", "(14): the vertices x^j used by the QP are exactly the vertices of X0",
                      0.0 - hausdorff, tol, f"{len(recorded)} recorded, {len(fresh)} recomputed vertices; "
                      "margin = −Hausdorff distance"), "design.x0_vertices", GROUP_DESIGN)
+
+
+def _directed_distance(points: np.ndarray, others: np.ndarray) -> float:
+    """max over ``points`` of the Euclidean distance to the nearest of ``others`` (a directed Hausdorff
+    distance), with the pairwise distances formed in chunks of at most :data:`PROPAGATION_CHUNK_BYTES`."""
+    if len(points) == 0 or len(others) == 0:
+        return 0.0 if len(points) == 0 else float("inf")
+    step = max(1, PROPAGATION_CHUNK_BYTES // (8 * len(others) * max(1, points.shape[1])))
+    worst = 0.0
+    for start in range(0, len(points), step):
+        dist = np.linalg.norm(points[start:start + step, None, :] - others[None, :, :], axis=2)
+        worst = max(worst, float(np.max(np.min(dist, axis=1))))
+    return worst
 
 
 class _TubeStep:
@@ -84,16 +100,23 @@ def _propagation_margin(view: RunView, step: _TubeStep, theta_v: np.ndarray | No
     pr, d = view.problem, view.design
     H_x, K = d.H_x, d.K
     worst = np.inf
+    # the maximum over w of [H_x]_i w separates row by row: max_{x,θ,w} [H_x]_i(A(θ)x + B(θ)u + w − z⁺)
+    # = max_{x,θ} [H_x]_i(A(θ)x + B(θ)u − z⁺) + max_w [H_x]_i w, with the latter from W's vertices
+    HW_max = np.max(W_v @ H_x.T, axis=0)                                      # (u,)
     for l in range(step.N):
         X = step.vertices(l)                                   # (v, n)
         U = X @ K.T + step.v[l]                                # (v, m)
         base = X @ pr.A0.T + U @ pr.B0.T                       # (v, n)
         Dv = np.einsum("pab,vb->vap", pr.A, X) + np.einsum("pab,vb->vap", pr.B, U)  # (v, n, p) = D(x^j, u^j)
         if theta_v is not None:
-            images = base[:, None, :] + np.einsum("vap,tp->vta", Dv, theta_v)        # (v, t, n)
-            images = images[:, :, None, :] + W_v[None, None, :, :]                 # (v, t, w, n)
-            rows = (images - step.z[l + 1]) @ H_x.T                                # (v, t, w, u)
-            top = float(np.max(rows))
+            top = -np.inf
+            t = max(1, len(theta_v))
+            chunk = max(1, PROPAGATION_CHUNK_BYTES // (8 * t * max(len(H_x), len(base[0]))))
+            for start in range(0, len(X), chunk):  # vertices of X_(l|k) in chunks: (chunk, t, u) at a time
+                images = base[start:start + chunk, None, :] + np.einsum("vap,tp->vta", Dv[start:start + chunk],
+                                                                        theta_v)  # (v, t, n)
+                rows = (images - step.z[l + 1]) @ H_x.T                            # (v, t, u)
+                top = max(top, float(np.max(np.max(rows, axis=(0, 1)) + HW_max)))
         else:
             top = -np.inf
             for j in range(len(X)):

@@ -25,6 +25,9 @@ from amcp_drake.offline.result import OfflineDesign, closed_loop_vertices, regre
 EIG_TOL_REL = 1e-12
 #: Round-off allowed in set-inclusion checks evaluated at vertices (qhull accuracy ~1e-12).
 VERTEX_TOL = 1e-8
+#: Most bytes of one array of the Assumption 11 check (a chunk of the vertices of X_f times the rows of
+#: H_x at every vertex of Θ): 16 MiB.
+CHECK_CHUNK_BYTES = 16 * 2**20
 
 
 def verify_design(problem: Problem, design: OfflineDesign, mu_state_bound: float | None = None) -> list[CheckResult]:
@@ -68,6 +71,14 @@ def _prestabilisation(A_cl: np.ndarray) -> CheckResult:
 
 
 def _terminal_set(problem, design, A_cl, X0_v, W_v, w_bar, h_bar) -> list[CheckResult]:
+    """Assumption 11 at every vertex (z, α) of X_f, evaluated exactly and in bounded memory.
+
+    Inclusion: the worst case of row i of H_x over (A_k, x_j, w) of A_k (z + α x_j) + w − z⁺ separates:
+    max_w [H_x]_i w plus max_k ([H_x A_k z]_i − [H_x z⁺]_i + α s^k_i), where s^k_i = max_j [H_x A_k x_j]_i
+    for α >= 0 and min_j for α < 0 (recomputed here from the vertices of X0). The constraint rows
+    separate the same way over x_j. The vertices of X_f are taken in chunks of at most
+    :data:`CHECK_CHUNK_BYTES` per array, so the work is (vertices of X_f) × (vertices of Θ) × rows
+    and never (vertices of X_f) × (vertices of X0) × (vertices of Θ) × rows."""
     claim_inv = "Assumption 11: A_cl(θ)({z} ⊕ αX0) ⊕ W ⊆ {z⁺} ⊕ α⁺X0 with (z⁺, α⁺) ∈ X_f, for all θ ∈ Θ"
     claim_con = "Assumption 11: (x, Kx) ∈ Z for all x ∈ {z} ⊕ αX0, (z, α) ∈ X_f"
     non_empty = _steady_tube_in_terminal_set(design, w_bar, h_bar)
@@ -80,33 +91,53 @@ def _terminal_set(problem, design, A_cl, X0_v, W_v, w_bar, h_bar) -> list[CheckR
                 not_run("X_f invariant", claim_inv, f"X_f is unbounded or flat, vertices not enumerable: {exc}"),
                 not_run("X_f in Z", claim_con, "X_f vertices not enumerable")]
     n = problem.n
-    E = np.array([design.H_x @ (Ak - design.A_z) for Ak in A_cl])
-    inclusion_margin = np.inf
-    member_margin = np.inf
     A_cl = np.asarray(A_cl, float)
     X0_v, W_v = np.asarray(X0_v, float), np.asarray(W_v, float)
-    # max over the vertices w of W of [H_x]_i w, per row i: the worst case of row i over (A_k, x_j, w) is
-    # max_{k,j} [H_x]_i (A_k (z + α x_j) − z⁺) + max_w [H_x]_i w (the sum separates row by row)
-    HW_max = np.max(W_v @ design.H_x.T, axis=0)               # (rows,)
-    for vert in verts:
-        z, alpha = vert[:n], vert[n]
-        alpha_next = float(np.max(E @ z + h_bar * alpha + w_bar))  # φ(z, α)
-        z_next = design.A_z @ z
-        member_margin = min(member_margin, 1.0 - float(np.max(design.H_T @ z_next + design.h_T * alpha_next)),
-                            alpha_next)
-        # H_x (A_k (z + α x_j) + w − z⁺) for every vertex A_k of A_cl(Θ), x_j of X0 and w of W at once
-        images = np.einsum("aij,vj->avi", A_cl, z + alpha * X0_v) - z_next    # (a, v, n)
-        rows = images @ design.H_x.T                                          # (a, v, rows)
-        worst = float(np.max(np.max(rows, axis=(0, 1)) + HW_max))
-        inclusion_margin = min(inclusion_margin, alpha_next - worst)
+    H_x = np.asarray(design.H_x, float)
+    HA = np.array([H_x @ Ak for Ak in A_cl])                     # (a, rows, n): rows of H_x A_k
+    HAz = H_x @ design.A_z                                        # (rows, n)
+    # s^k_i over the vertices x_j of X0, for α >= 0 (max) and α < 0 (min)
+    s_hi, s_lo = _row_extremes(HA.reshape(-1, n), X0_v)
+    s_hi, s_lo = s_hi.reshape(len(A_cl), -1), s_lo.reshape(len(A_cl), -1)  # (a, rows)
+    HW_max = np.max(W_v @ H_x.T, axis=0)                          # (rows,)
     FGK = problem.F + problem.G @ design.K
-    con_margin = min(1.0 - float(np.max(FGK @ (vert[:n] + vert[n] * xj))) for vert in verts for xj in X0_v)
+    f_hi, f_lo = _row_extremes(FGK, X0_v)                        # (constraint rows,)
+    inclusion_margin = member_margin = con_margin = np.inf
+    step = max(1, CHECK_CHUNK_BYTES // (8 * max(1, len(A_cl) * len(H_x), len(design.H_T), len(FGK))))
+    for start in range(0, len(verts), step):
+        Z, alpha = verts[start:start + step, :n], verts[start:start + step, n]
+        up = (alpha >= 0)[None, :, None]
+        a_col = alpha[None, :, None]
+        Zk = np.einsum("kin,cn->kci", HA, Z)                     # (a, c, rows): H_x A_k z
+        Zz = Z @ HAz.T                                            # (c, rows): H_x A_z z = H_x z⁺
+        alpha_next = np.max(Zk - Zz[None] + h_bar[:, None, :] * a_col + w_bar[None, None, :], axis=(0, 2))  # φ(z, α)
+        z_next = Z @ design.A_z.T
+        member = np.minimum(1.0 - np.max(z_next @ design.H_T.T + alpha_next[:, None] * design.h_T[None, :], axis=1),
+                            alpha_next)
+        worst = np.max(np.max(Zk + a_col * np.where(up, s_hi[:, None, :], s_lo[:, None, :]), axis=0) - Zz
+                       + HW_max[None, :], axis=1)
+        cons = np.max(Z @ FGK.T + alpha[:, None] * np.where(alpha[:, None] >= 0, f_hi[None, :], f_lo[None, :]), axis=1)
+        member_margin = min(member_margin, float(np.min(member)))
+        inclusion_margin = min(inclusion_margin, float(np.min(alpha_next - worst)))
+        con_margin = min(con_margin, 1.0 - float(np.max(cons)))
     detail = f"{len(verts)} vertices of X_f, {len(design.H_T)} rows"
     return [
         non_empty,
         judge("X_f invariant", claim_inv, min(inclusion_margin, member_margin), VERTEX_TOL, detail),
         judge("X_f in Z", claim_con, con_margin, VERTEX_TOL, detail),
     ]
+
+
+def _row_extremes(rows: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(max_j rows_i · points_j, min_j rows_i · points_j) for every row i, in chunks of rows of at most
+    :data:`CHECK_CHUNK_BYTES` (the full product is never formed)."""
+    rows, points = np.asarray(rows, float), np.asarray(points, float)
+    hi, lo = np.empty(len(rows)), np.empty(len(rows))
+    step = max(1, CHECK_CHUNK_BYTES // (8 * max(1, len(points))))
+    for start in range(0, len(rows), step):
+        product = rows[start:start + step] @ points.T
+        hi[start:start + step], lo[start:start + step] = np.max(product, axis=1), np.min(product, axis=1)
+    return hi, lo
 
 
 def _steady_tube_in_terminal_set(design: OfflineDesign, w_bar: np.ndarray, h_bar: np.ndarray) -> CheckResult:

@@ -320,6 +320,11 @@ def check_tube(sol, data, x: np.ndarray, h_theta: np.ndarray, H_theta: np.ndarra
     return checks
 
 
+#: Most bytes of one block of the coefficients [H_x A_cl(θ^s) x^j]_i that :class:`TubeCheck` reduces over
+#: the vertices x^j of X0: 16 MiB.
+TUBE_CHUNK_BYTES = 16 * 2**20
+
+
 class TubeCheck:
     """:func:`check_tube` with its rows preassembled: the same rows, check names and values
     (up to round-off), written once as matrices on y = [z (N+1)·n | α (N+1) | v N·m] and on
@@ -327,12 +332,16 @@ class TubeCheck:
     matrices, so the check stays independent of the solver's problem):
 
     * ``fixed`` (dense): −α <= 0; (15b) −H_x z_0 − α_0 <= −H_x x_k (its right side written per
-      step); (15a) (F + G K)(z_l + α_l x^j) + G v_l <= 1 for every (l, j); terminal
-      H_T z_N + h_T α_N <= 1. One matrix-vector product, one maximum per block (``reduceat``).
+      step); (15a) (F + G K)(z_l + α_l x^j) + G v_l <= 1, the largest over j taken exactly through the
+      α_l term (α_l times the maximum of (F + GK) x^j over j for α_l >= 0, the minimum for α_l < 0), so
+      that its rows number N·(rows of F), not N·v·(rows of F); terminal H_T z_N + h_T α_N <= 1. One
+      matrix-vector product, one maximum per block (``reduceat``).
     * vertex form (no Λ), (5b) at (l, j, s): H_x(A_cl(θ^s)(z_l + α_l x^j) + B(θ^s) v_l − z_{l+1})
-      − α_{l+1} <= −w̄ for every vertex x^j of X0 and θ^s of Θ_k (no reduction over j). The
-      coefficients on w_l do not depend on l: one (v·S·u, 2n + 3 + m) matrix, rebuilt only when the
-      vertices of Θ_k change (compared to the bit); all N·v·S·u rows are one product W Cᵀ.
+      − α_{l+1} <= −w̄ for every vertex x^j of X0 and θ^s of Θ_k, the largest over j taken exactly
+      through the α_l term alone (its coefficient's maximum over j for α_l >= 0, minimum for α_l < 0).
+      The coefficients on w_l do not depend on l: one (S·u, 2n + 3 + m) matrix and the two extremes,
+      rebuilt only when the vertices of Θ_k change (compared to the bit); all N·S·u rows are one
+      product W Cᵀ.
     * plain form (Λ): Λ >= 0; (15c) Λ^j_l h_θ(l) + H_x(A0 x^j_l + B0 u^j_l − z_{l+1}) − α_{l+1} <= −w̄
       and (15d) H_x D^j_l = Λ^j_l H_θ, their parts in (z, α, v) again one product with W each.
     """
@@ -356,18 +365,21 @@ class TubeCheck:
         rows15b[:, :n] = -self.H_x
         rows15b[:, a0] = -1.0
         FK = F + G @ K
-        rows15a = np.zeros((N, nv, c, size))
+        # (15a) at (l, j): the rows without their α_l term, one per (l, constraint row); the largest over
+        # the vertices x^j adds α_l times the extreme of (F + GK) x^j over j (max for α_l >= 0, min below)
+        rows15a = np.zeros((N, c, size))
         for l in range(N):
-            rows15a[l, :, :, l * n:(l + 1) * n] = FK
-            rows15a[l, :, :, a0 + l] = self.Xv @ FK.T
-            rows15a[l, :, :, v0 + l * m:v0 + (l + 1) * m] = G
+            rows15a[l, :, l * n:(l + 1) * n] = FK
+            rows15a[l, :, v0 + l * m:v0 + (l + 1) * m] = G
+        FX = self.Xv @ FK.T if nv else np.zeros((1, c))
+        self._f_hi, self._f_lo = np.max(FX, axis=0), np.min(FX, axis=0)  # (c,)
         rowsT = np.zeros((r, size))
         rowsT[:, N * n:(N + 1) * n] = H_T
         rowsT[:, a0 + N] = h_T
-        self.fixed = np.vstack([alpha_rows, rows15b, rows15a.reshape(N * nv * c, size), rowsT])
-        self.b = np.concatenate([np.zeros(N + 1), np.zeros(u), np.ones(N * nv * c), np.ones(r)])
+        self.fixed = np.vstack([alpha_rows, rows15b, rows15a.reshape(N * c, size), rowsT])
+        self.b = np.concatenate([np.zeros(N + 1), np.zeros(u), np.ones(N * c), np.ones(r)])
         self._b15b = self.b[N + 1:N + 1 + u]                          # a view: −H_x x_k, written per step
-        self.starts = np.array([0, N + 1, N + 1 + u, N + 1 + u + N * nv * c])
+        self.starts = np.array([0, N + 1, N + 1 + u, N + 1 + u + N * c])
         self.Acl0 = np.asarray(d.A0, float) + np.asarray(d.B0, float) @ K
         self.Acl = np.asarray(d.A, float) + np.asarray(d.B, float) @ K  # (p, n, n)
         self.B0, self.B = np.asarray(d.B0, float), np.asarray(d.B, float)
@@ -412,19 +424,30 @@ class TubeCheck:
         return C.reshape(nv * u, width).T.copy(), D.reshape(nv * u * p, width).T.copy()
 
     def _tube_rows(self, theta_vertices: np.ndarray) -> None:
-        """C (v·S·u, 2n + 2 + m) and its right side −w̄ for the rows (5b) at Θ_k's vertices."""
+        """Cᵀ (2n + 3 + m, S·u) for the rows (5b) at Θ_k's vertices θ^s without their α_l term, the
+        right side −w̄ moved to the last row, and the extremes over the vertices x^j of X0 of the α_l
+        coefficient [H_x A_cl(θ^s) x^j]_i: the largest over j of row (j, s, i) is the row without that
+        term plus α_l times the maximum (α_l >= 0) or the minimum (α_l < 0), so the rows are never formed
+        for every j (v·S·u rows: 5.7 million at 3,975 vertices of X0, 8 of Θ and 178 facets)."""
         T = np.asarray(theta_vertices, float)
-        n, m, u, nv, S = self.n, self.m, self.H_x.shape[0], len(self.Xv), len(T)
+        n, m, u, S = self.n, self.m, self.H_x.shape[0], len(T)
         HA = self.H_x @ (self.Acl0 + np.tensordot(T, self.Acl, axes=1))   # (S, u, n)
         HB = self.H_x @ (self.B0 + np.tensordot(T, self.B, axes=1))        # (S, u, m)
-        C = np.empty((nv, S, u, 2 * n + 2 + m))
+        C = np.zeros((S, u, 2 * n + 2 + m))
         C[..., :n] = HA
         C[..., n:2 * n] = -self.H_x
-        C[..., 2 * n] = np.einsum("sua,ja->jsu", HA, self.Xv)              # H_x A_cl(θ^s) x^j
         C[..., 2 * n + 1] = -1.0
         C[..., 2 * n + 2:] = HB
         # the last row (on w's constant column 1) moves the right side −w̄ to the left: rows <= 0
-        self._Ct = np.vstack([C.reshape(-1, 2 * n + 2 + m).T, np.tile(self.w_bar, nv * S)[None, :]])
+        self._Ct = np.vstack([C.reshape(-1, 2 * n + 2 + m).T, np.tile(self.w_bar, S)[None, :]])
+        hi, lo = np.full(S * u, -np.inf), np.full(S * u, np.inf)
+        flat = HA.reshape(S * u, n)
+        step = max(1, TUBE_CHUNK_BYTES // (8 * S * u))
+        for start in range(0, len(self.Xv), step):                         # H_x A_cl(θ^s) x^j, in chunks of j
+            coef = self.Xv[start:start + step] @ flat.T                      # (chunk, S·u)
+            np.maximum(hi, np.max(coef, axis=0), out=hi)
+            np.minimum(lo, np.min(coef, axis=0), out=lo)
+        self._alpha_hi, self._alpha_lo = hi, lo
 
     def check(self, sol, x: np.ndarray, theta_vertices: np.ndarray | None = None, h_theta=None,
               H_theta: np.ndarray | None = None) -> list[AnswerCheck]:
@@ -444,6 +467,8 @@ class TubeCheck:
         checks = list(self._finite_rows)
         self._minus_H_x.dot(np.asarray(x, float), out=self._b15b)
         rows = np.subtract(self.fixed.dot(y, out=self._rows), self.b, out=self._rows)
+        a_N = alpha[:self.N, None]                                           # α_l of (15a), l < N
+        rows[self.starts[2]:self.starts[3]] += np.where(a_N >= 0, a_N * self._f_hi, a_N * self._f_lo).reshape(-1)
         worst = np.maximum.reduceat(rows, self.starts).tolist()
         checks += [AnswerCheck("tube alpha >= 0", max(0.0, worst[0]), TUBE_ROW_TOL),
                    AnswerCheck("tube x_k in X_0|k (15b)", worst[1], TUBE_ROW_TOL),
@@ -467,6 +492,8 @@ class TubeCheck:
             self._vertices = np.array(theta_vertices, float)
             self._tube_values = np.empty((self.N, self._Ct.shape[1]))
         tube = w.dot(self._Ct, out=self._tube_values)
+        a_l = w[:, 2 * self.n:2 * self.n + 1]                                # α_l, (N, 1)
+        tube += np.where(a_l >= 0, a_l * self._alpha_hi, a_l * self._alpha_lo)
         checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float(_max(tube, axis=None)), TUBE_ROW_TOL))
         return checks
 
