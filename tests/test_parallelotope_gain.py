@@ -97,3 +97,25 @@ def test_parallelotope_designs_of_generated_chains_pass_every_independent_check(
     f_bar = np.max((spec.problem.F + spec.problem.G @ d.K) @ X_v.T, axis=1)
     alpha_inf = float(np.max(w_bar[None, :] / (1 - h_bar)))
     assert alpha_inf * float(np.max(f_bar)) < 1.0
+
+
+def test_scipys_unconverged_pole_placement_gives_a_gain_without_a_warning():
+    """A random 6-state, 2-input pair (seed 0, the 14th draw) on which scipy's place_poles warns that its
+    iteration stopped above its tolerance: the placed gain is returned (a starting point, rated later by
+    its λ̄) and nothing is printed; the same call to scipy directly does warn."""
+    import warnings
+
+    from scipy.signal import place_poles
+
+    rng = np.random.default_rng(0)
+    for _ in range(14):
+        n, m = int(rng.integers(4, 7)), int(rng.integers(2, 4))
+        A, B = rng.normal(size=(n, n)), rng.normal(size=(n, m))
+    assert (n, m) == (6, 2)
+    with pytest.warns(UserWarning, match="Convergence was not reached"):
+        place_poles(A, B, np.linspace(*par.PLACED_POLES, n))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        K = par.placed_gain(A, B)
+    assert K is not None and K.shape == (2, 6)
+    assert np.all(np.isfinite(np.linalg.eigvals(A + B @ K)))

@@ -180,13 +180,21 @@ def rating(T: np.ndarray, K: np.ndarray, A_v: np.ndarray, B_v: np.ndarray, F: np
 
 def placed_gain(A0: np.ndarray, B0: np.ndarray) -> np.ndarray | None:
     """A gain placing the poles of A0 + B0 K at n distinct real values in :data:`PLACED_POLES`
-    (step 1); None when scipy cannot place them (uncontrollable pair, too few inputs)."""
+    (step 1); None when scipy cannot place them (uncontrollable pair, too few inputs).
+
+    scipy's warning that its iteration (for several inputs) stopped above its own tolerance is not
+    passed on: the gain is only a starting point, whose closed loop is rated by its own λ̄ (step 2)
+    over every vertex of Θ, and a warning per call would fill a campaign's terminal."""
+    import warnings
+
     from scipy.signal import place_poles
 
     n = A0.shape[0]
     poles = np.linspace(PLACED_POLES[0], PLACED_POLES[1], n)
     try:
-        return -np.asarray(place_poles(A0, B0, poles).gain_matrix, float)
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="Convergence was not reached", category=UserWarning)
+            return -np.asarray(place_poles(A0, B0, poles).gain_matrix, float)
     except (ValueError, np.linalg.LinAlgError):
         return None
 
