@@ -232,10 +232,11 @@ def _worst(res):
 
 @pytest.mark.parametrize("factor, passes", [(0.5, True), (2.0, False)])
 def test_kkt_residual_of_a_point_short_of_its_active_row_at_the_tolerance_edge(factor, passes):
-    """min (y − 1)² s.t. y <= 0, judged at y = −δ (the row's slack δ, ∇f = −2(1 + δ)). ω is fitted to both
-    residuals: min_ω (ω − 2(1 + δ))² + (δ ω)², so ω = 2(1 + δ)/(1 + δ²), the stationarity residual
-    2(1 + δ)δ²/(1 + δ²) and the complementarity δ ω, both over s = 2(1 + δ): the worst residual is
-    δ/(1 + δ²) (by hand). At δ = 0.5·OPTIMALITY_TOL the point passes, at 2·OPTIMALITY_TOL it fails."""
+    """min (y − 1)² s.t. y <= 0, judged at y = −δ (the row's slack δ, ∇f = −2(1 + δ)). Fitted to stationarity
+    alone, ω = 2(1 + δ) and the complementarity δ ω over s = 2(1 + δ) is δ; fitted to both residuals
+    (min_ω (ω − 2(1 + δ))² + (δ ω)²), ω = 2(1 + δ)/(1 + δ²) and the worst residual δ/(1 + δ²) (by hand; the
+    two agree to δ², 1e-10 relative here). At δ = 0.5·OPTIMALITY_TOL the point passes, at 2·OPTIMALITY_TOL
+    it fails."""
     delta = factor * OPTIMALITY_TOL
     res = kkt_residuals(np.array([[1.0]]), np.array([0.0]), np.array([-delta]), [np.array([-2.0 * (1.0 + delta)])])
     assert _worst(res) == pytest.approx(delta / (1.0 + delta ** 2), rel=1e-9)
