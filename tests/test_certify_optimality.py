@@ -226,6 +226,35 @@ def test_kkt_residuals_of_a_one_dimensional_qp():
     assert outside["stationarity"] == pytest.approx(0.0, abs=1e-15) and outside["infeasibility"] == pytest.approx(0.5)
 
 
+def _worst(res):
+    return max(res["stationarity"], res["complementarity"], res["infeasibility"])
+
+
+@pytest.mark.parametrize("factor, passes", [(0.5, True), (2.0, False)])
+def test_kkt_residual_of_a_point_short_of_its_active_row_at_the_tolerance_edge(factor, passes):
+    """min (y − 1)² s.t. y <= 0, judged at y = −δ (the row's slack δ, ∇f = −2(1 + δ)). Fitted to stationarity
+    alone, ω = 2(1 + δ) and the complementarity δ ω over s = 2(1 + δ) is δ; fitted to both residuals
+    (min_ω (ω − 2(1 + δ))² + (δ ω)²), ω = 2(1 + δ)/(1 + δ²) and the worst residual δ/(1 + δ²) (by hand; the
+    two agree to δ², 1e-10 relative here). At δ = 0.5·OPTIMALITY_TOL the point passes, at 2·OPTIMALITY_TOL
+    it fails."""
+    delta = factor * OPTIMALITY_TOL
+    res = kkt_residuals(np.array([[1.0]]), np.array([0.0]), np.array([-delta]), [np.array([-2.0 * (1.0 + delta)])])
+    assert _worst(res) == pytest.approx(delta / (1.0 + delta ** 2), rel=1e-9)
+    assert (_worst(res) <= OPTIMALITY_TOL) is passes
+
+
+def test_kkt_multipliers_prefer_active_rows_when_the_dual_is_not_unique():
+    """min (y1 − 1)² + (y2 − 1)² s.t. y1 + y2 <= √2·1e-4 (listed first; unit row (1, 1)/√2 at slack 1e-4),
+    y1 <= 0, y2 <= 0, at its optimum y = 0 (∇f = (−2, −2)). Stationarity alone is met either by ω = 2√2 on
+    the first row, which is not active (complementarity 2√2·1e-4/2 ≈ 1.4e-4, 14x the tolerance, charged to an
+    exact optimum), or by ω = (2, 2) on the active rows (complementarity 0). The fit of both residuals takes
+    the second: the certificate is exact. (The degenerate case of nearly parallel vertex rows on a thin Θ_k:
+    on mass_chain4, n = 8, a Drake answer whose plan is 1.6e-7 from the optimum was charged 1.9e-5.)"""
+    A, b = np.array([[1.0, 1.0], [1.0, 0.0], [0.0, 1.0]]), np.array([np.sqrt(2.0) * 1e-4, 0.0, 0.0])
+    res = kkt_residuals(A, b, np.zeros(2), [np.array([-2.0, -2.0])])
+    assert _worst(res) <= 1e-8
+
+
 @pytest.mark.parametrize("backend", ["drake", "cvxpy"])
 def test_a_generated_minmax_run_certifies_optimal(backend):
     """A generated min–max run (tests/data/minmax-kkt-problem.json: random_case numpy seed 5018, N <= 6,
@@ -242,3 +271,30 @@ def test_a_generated_minmax_run_certifies_optimal(backend):
     assert cert.claim(CLAIM).status == "pass" and cert.claim(CLAIM).data["cost"] == "minmax"
     assert cert.claim(CLAIM).margin > -OPTIMALITY_TOL / 2
     assert cert.verdict == "pass", cert.ids("fail")
+
+
+def test_an_answer_within_the_solvers_tolerance_on_a_degenerate_8_state_step_is_certified_optimal():
+    """mass_chain4 (n = 8, 256 vertices of X0, Θ_k with 8 vertices), step 2 of a Drake run
+    (tests/data/mass-chain4-kkt-step.json): 628 vertex rows within 1e-2 of active, many nearly parallel. The
+    recorded plan is 1.6e-7 from the optimum (Clarabel's default 1e-8; the Drake and cvxpy vertex forms at
+    1e-12 agree on the optimum to 1e-14). Fitting ω to stationarity alone loaded rows at slack ~1e-4 and
+    charged this answer 1.87e-5 (over OPTIMALITY_TOL); the fit of both residuals finds the certificate of the
+    rows the answer actually has active: the worst residual is below 1e-7."""
+    import json
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    from amcp_drake.certificate.claims import theta_vertices
+    from amcp_drake.certificate.optimality import step_residuals
+
+    raw = json.loads((Path(__file__).parent / "data" / "mass-chain4-kkt-step.json").read_text())
+    arrays = {k: (v if k == "N" else np.asarray(v, float)) for k, v in raw["problem"].items()}
+    problem = SimpleNamespace(**arrays, n=arrays["A0"].shape[0], m=arrays["B0"].shape[1])
+    design = SimpleNamespace(**{k: np.asarray(v, float) for k, v in raw["design"].items()})
+    record = SimpleNamespace(**{k: np.asarray(v, float) for k, v in raw["record"].items()}, h_theta_stages=None,
+                             pe_bounds=None)
+    vertices = theta_vertices(record.H_theta, record.h_theta)
+    assert vertices is not None and len(vertices) == 8
+    view = SimpleNamespace(problem=problem, design=design, records=[record], theta_k_vertices=[vertices])
+    res = step_residuals(view, 0, "certainty_equivalence")
+    assert _worst(res) <= 1e-7

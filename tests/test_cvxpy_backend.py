@@ -778,6 +778,46 @@ def test_massera2017_plain_form_on_a_theta_k_1e_4_wide_is_answered_and_verified(
     assert abs(sol.cost - other.cost) <= 1e-6 and np.max(np.abs(sol.v - other.v)) <= 1e-5
 
 
+def _mass_chain3_stall():
+    """(TubeMPCData, x_k, θ̂_k, h_θk, vertices of Θ_k) of mass_chain3's step 3 (tests/data/mass-chain3-plain-stall-step.json)."""
+    data, x, theta_hat, h_theta = _recorded_tube_step("mass-chain3-plain-stall-step.json")
+    lo1, hi1, lo2, hi2 = -h_theta[2], h_theta[0], -h_theta[3], h_theta[1]      # H_θ = [I; −I], by hand
+    np.testing.assert_array_equal(data.H_theta, [[1, 0], [0, 1], [-1, 0], [0, -1]])
+    vertices = np.array([[lo1, lo2], [hi1, lo2], [lo1, hi2], [hi1, hi2]])
+    return data, x, theta_hat, h_theta, vertices
+
+
+def test_mass_chain3_plain_form_stall_is_answered_with_the_tie_break_and_verified():
+    """mass_chain3 (n = 6, a 64-vertex X0: 30 989 variables), step 3, Θ_k 0.02 x 0.009: the plain form ended
+    "AlmostSolved" under the whole retry ladder (the optimal (z, α, Λ) of the cost (17), which depends on v only,
+    is a face on which Λ is unbounded in the free directions of (15d)). With the tie-break ε·Σα the step is
+    answered by the plain form itself: the answer passes the controller's checks ((15a)-(15d), Λ >= 0, (5b) at
+    Θ_k's four vertices) and its plan is the Drake vertex form's (another program, another backend)."""
+    from amcp_drake.online.answer_checks import TubeCheck, failures
+
+    data, x, theta_hat, h_theta, vertices = _mass_chain3_stall()
+    sol = get_backend("cvxpy", formulation="plain").tube_mpc(data).solve(x, h_theta, theta_hat)
+    assert sol.status is SolveStatus.OPTIMAL, sol.detail
+    assert sol.Lambda is not None
+    assert not failures(TubeCheck(data).check(sol, x, vertices, h_theta, None))
+    other = get_backend("drake", formulation="vertex").tube_mpc(data).solve(x, h_theta, theta_hat)
+    assert other.status is SolveStatus.OPTIMAL
+    assert abs(sol.cost - other.cost) <= 1e-7 and np.max(np.abs(sol.v - other.v)) <= 1e-6
+
+
+def test_a_tie_broken_answer_that_moves_the_optimum_is_rejected(monkeypatch):
+    """Tampered: a tie-break weight of 0.1 moves the plan (cost above the vertex form's optimum by far more
+    than its allowance); the check rejects it, the re-solve of (20) without the term stalls again, and the
+    step is "inaccurate" with no answer (the controller then answers it by the other formulation, checked)."""
+    import amcp_reference.tube_mpc as tube_mpc
+
+    monkeypatch.setattr(tube_mpc, "TIE_BREAK_WEIGHT", 0.1)
+    data, x, theta_hat, h_theta, _ = _mass_chain3_stall()
+    sol = get_backend("cvxpy", formulation="plain").tube_mpc(data).solve(x, h_theta, theta_hat)
+    assert sol.status is SolveStatus.INACCURATE and sol.v is None
+    assert "above the vertex form's optimum" in sol.detail
+
+
 # -- the plain form's answer checked against the vertex form's optimum ---------------------------------------
 
 def _suboptimal_step():

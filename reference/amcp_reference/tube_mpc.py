@@ -26,7 +26,7 @@ import cvxpy as cp
 import numpy as np
 
 from amcp_drake.backends.base import MPCSolution, TubeMPCData
-from amcp_drake.backends.clarabel_retry import first_try, solve_with_retries
+from amcp_drake.backends.clarabel_retry import RETRIED, first_try, solve_with_retries
 from amcp_drake.backends.minmax_cost import minmax_plan_cost
 from amcp_drake.model.status import SolveStatus
 
@@ -77,6 +77,20 @@ OPTIMALITY_SLACK = 10.0
 #: The re-solve of an answer that fails that check: Clarabel's feasibility tolerance this many times
 #: the one in effect (tighter), the gap tolerances unchanged. On the case above 1e-12 gave v to 8e-10.
 TIGHTER_FEASIBILITY = 1e-2
+#: Weight ε of the tie-break term ε·Σ_l α_l added to the certainty-equivalence cost (17) for one more
+#: solve when the plain form ends without an answer under the whole retry ladder
+#: (:meth:`CvxpyTubeMPC._tie_broken`). Why: (17) depends on v only, so the optimal (z, α, Λ) of a step is
+#: a whole face, and Λ on it is unbounded in the directions that (15d) leaves free (for a box Θ_k of width w,
+#: Λ_i and Λ_{i+p} grow together until Λ s reaches the row's slack, s ~ w/2); Clarabel's iterates head for
+#: the middle of that face, and on mass_chain3 (n = 6, 64-vertex X0, 30 989 variables, Θ_k 0.02 x 0.009)
+#: the step length collapsed at a gap of 1.2e-6 under every rung of the ladder and with every other
+#: setting tried (QDLDL, equilibration to 1e-8/1e8, 50 equilibration passes, smaller dynamic
+#: regularisation, shorter steps). With ε·Σα the smallest tube is preferred and the step is "Solved":
+#: ε = 1e-9, 1e-8, 1e-7 all solved it with v equal to the vertex form's optimum to 1e-8. The term moves the
+#: optimum of (17) by at most ε·Σα of the optimal plan (~1e-9 here, below Clarabel's 1e-8 gap tolerance),
+#: and the answer is accepted only when its cost (17), without the term, passes the vertex form's optimality
+#: check (:meth:`CvxpyTubeMPC._checked_optimal`); the program whose constraints are checked is (20) itself.
+TIE_BREAK_WEIGHT = 1e-9
 #: Offset of a padded row 0·θ <= PAD_OFFSET: any positive value leaves the program the same; 1 is the
 #: scale of the unit rows.
 PAD_OFFSET = 1.0
@@ -242,7 +256,11 @@ def formulate(data: TubeMPCData, q: int, elastic: bool = False, u0_bounds: bool 
             constraints.append(cp.norm(body, 2, axis=0) <= s_epi[l])
         objective = cp.Minimize(cp.sum_squares(s_epi))
     else:
+        # (17), plus the tie-break ε·Σα whose weight is 0 except in CvxpyTubeMPC._tie_broken (the same
+        # program otherwise: a zero linear term)
+        params["alpha_weight"] = cp.Parameter(nonneg=True, name="alpha_weight", value=0.0)
         objective = certainty_equivalence_cost(data, params, v, constraints)
+        objective = cp.Minimize(objective.args[0] + params["alpha_weight"] * cp.sum(alpha))
     problem = cp.Problem(objective, constraints)
     return _Formulation(problem, params, z, alpha, v, Lam, groups, slacks)
 
@@ -368,13 +386,36 @@ class CvxpyTubeMPC:
         self._set_parameters(form, x, h_theta, theta_hat)
         update_time = time.perf_counter() - start
         status, solver_time, detail = self._solve(form.problem, refine)
+        checked = u0_bounds is None and h_theta.ndim == 1 and self._vertex_check is not None
+        if status in RETRIED and checked and "alpha_weight" in form.params:
+            return self._tie_broken(form, x, h_theta, theta_hat, H_theta, solver_time, update_time, detail)
         if status is not SolveStatus.OPTIMAL:
             names = self._diagnose(x, h_theta, theta_hat) if status is SolveStatus.INFEASIBLE else ()
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names, detail=detail)
         sol = replace(self._read(form, x, theta_hat), solver_time=solver_time, update_time=update_time, detail=detail)
-        if u0_bounds is None and h_theta.ndim == 1 and self._vertex_check is not None:
+        if checked:
             sol = self._checked_optimal(sol, form, x, h_theta, theta_hat, H_theta)
         return sol
+
+    def _tie_broken(self, form: _Formulation, x, h_theta, theta_hat, H_theta, spent: float, update_time: float,
+                    detail: str) -> MPCSolution:
+        """The step solved once more with the tie-break ε·Σα (:data:`TIE_BREAK_WEIGHT`) after the retry ladder
+        gave no answer (status of the last try in RETRIED): the answer is read as usual (its cost is (17) of
+        its v, without the term) and kept only when :meth:`_checked_optimal` accepts it against the vertex
+        form's optimum of the same step; otherwise, or when this solve ends without an answer too, the status
+        is INACCURATE (the controller answers the step by the other formulation, checked)."""
+        form.params["alpha_weight"].value = TIE_BREAK_WEIGHT
+        try:
+            status, elapsed, _ = self._call.solve(form.problem)
+        finally:
+            form.params["alpha_weight"].value = 0.0
+        note = f"{detail}; re-solved with the tie-break {TIE_BREAK_WEIGHT:g}·Σα"
+        if status is not SolveStatus.OPTIMAL:
+            return MPCSolution(SolveStatus.INACCURATE, None, None, None, None, None, spent + elapsed, update_time,
+                               detail=f"{note}: {status.value}")
+        sol = replace(self._read(form, x, theta_hat), solver_time=spent + elapsed, update_time=update_time,
+                      detail=note)
+        return self._checked_optimal(sol, form, x, h_theta, theta_hat, H_theta)
 
     def _checked_optimal(self, sol: MPCSolution, form: _Formulation, x, h_theta, theta_hat, H_theta) -> MPCSolution:
         """``sol`` when its cost is within :data:`OPTIMALITY_SLACK` gap tolerances of the vertex form's
