@@ -438,3 +438,22 @@ def test_claim_texts_are_set_with_html_subscripts(text, html):
     from amcp_drake.certificate.report_groups import math_html
 
     assert str(math_html(text)) == html
+
+
+def test_the_baseline_names_each_ray_as_it_starts_and_how_feasibility_was_decided(bundle):
+    """One progress line per ray, in order, before its search; the record names the method (the LP for
+    θ* constant and no PE constraint), and the QP decides the same radii to the bisection's accuracy."""
+    from amcp_drake.studies.baseline import robust_beside
+
+    traj = bundle["traj"]
+    lines: list[str] = []
+    by_qp = robust_beside(traj, progress=lines.append, by_lp=False)
+    b = bundle["cert"].figures["robust_baseline"]
+    assert b["ray_method"] == "LP (TubeLP)" and by_qp["ray_method"] == "QP (20)"
+    names = [ray["direction"] for ray in b["rays"]]
+    assert lines == [f"  ... robust baseline: feasible radius along {name} ({i}/{len(names)})"
+                     for i, name in enumerate(names, start=1)]
+    tol = b["ray_rel_tol"]
+    for lp_ray, qp_ray in zip(b["rays"], by_qp["rays"]):
+        for key in ("robust", "adaptive"):
+            assert abs(lp_ray[key] - qp_ray[key]) <= tol * max(lp_ray[key], qp_ray[key]), (lp_ray, qp_ray)

@@ -134,7 +134,7 @@ def _with_robust_baseline(traj, cert):
 
     click.echo("robust baseline (--update none) on the same disturbance ...", err=True)
     try:
-        baseline = robust_beside(traj)
+        baseline = robust_beside(traj, progress=lambda line: click.echo(line, err=True))
     except Exception as exc:  # noqa: BLE001 - any failure is shown in the report; the verdict stands
         click.echo(f"warning: the robust baseline could not be run: {type(exc).__name__}: {exc}", err=True)
         baseline = {"error": f"{type(exc).__name__}: {exc}"}

@@ -239,7 +239,7 @@ def feasible_radius(feasible, direction: np.ndarray, start: float) -> tuple[floa
     return lo, False
 
 
-def robust_beside(traj) -> dict:
+def robust_beside(traj, progress=None, by_lp: bool | None = None) -> dict:
     """The robust baseline (``update="none"``: Θ_k ≡ Θ, θ̂_k ≡ θ̂0) run beside the recorded adaptive run
     ``traj``: the same problem, offline design, backend, formulation and other online options, the same
     x0 and θ*, and the *recorded* disturbance sequence w_0..w_{T−1}. Returns a JSON-ready dict:
@@ -248,7 +248,13 @@ def robust_beside(traj) -> dict:
       one-step tube size s_k and its parametric part (:func:`one_step_tube`), ‖x_T‖, and per step s_k's
       parametric part and ‖x_k‖;
     * ``rays``: per direction, the feasible radius of the QP (20) at Θ (robust) and at the adaptive run's
-      final Θ_T; Θ_T ⊆ Θ (Lemma 3) makes the adaptive radius at least the robust one.
+      final Θ_T; Θ_T ⊆ Θ (Lemma 3) makes the adaptive radius at least the robust one. Whether (20) is
+      feasible at a state is decided by the LP of :class:`~amcp_drake.certificate.feasible_region.TubeLP`
+      (its slack >= −:data:`~amcp_drake.certificate.premises.LP_TOL`: the same feasible set, one HiGHS LP
+      instead of a QP whose infeasible answers run the whole retry ladder) when the online options leave
+      the feasible set of (20) as in (5) (θ* constant, no PE constraint), else by the QP itself
+      (``ray_method`` names which; ``by_lp`` forces the choice). ``progress`` (optional) is called with a
+      line of text before each ray.
 
     Not a claim of the paper and not part of the verdict: what adaptation bought on this run. A run that
     applied no input gives ``{"error": reason}``."""
@@ -286,7 +292,16 @@ def robust_beside(traj) -> dict:
     h_T = np.asarray(last.h_theta, float)
     H_T = np.asarray(last.H_theta, float) if traj.options.update == "exact" else None
 
+    if by_lp is None:
+        by_lp = options.d_theta == 0 and options.pe_window is None
+
     def feasible_at(h, H):
+        if by_lp:
+            from amcp_drake.certificate.feasible_region import TubeLP
+            from amcp_drake.certificate.premises import LP_TOL
+
+            lp = TubeLP.build(problem, design, np.asarray(design.H_theta if H is None else H, float), h)
+            return lambda x: bool(lp.margin(np.asarray(x, float)) >= -LP_TOL)  # nan (LP failed): infeasible
         h_arg = ctrl.stage_offsets(h) if options.d_theta > 0 else h
 
         def ok(x) -> bool:
@@ -295,11 +310,14 @@ def robust_beside(traj) -> dict:
 
     start = max(float(np.linalg.norm(traj.x[0])), 1.0)
     rays = []
-    for name, d in ray_directions(np.asarray(traj.x[0], float)):
+    directions = ray_directions(np.asarray(traj.x[0], float))
+    for i, (name, d) in enumerate(directions, start=1):
+        if progress is not None:
+            progress(f"  ... robust baseline: feasible radius along {name} ({i}/{len(directions)})")
         r_rob, cap_rob = feasible_radius(feasible_at(np.asarray(design.h_theta0, float), None), d, start)
         r_ada, cap_ada = feasible_radius(feasible_at(h_T, H_T), d, start)
         rays.append({"direction": name, "unit": d.tolist(), "robust": r_rob, "robust_capped": cap_rob,
                      "adaptive": r_ada, "adaptive_capped": cap_ada})
     return {"update": "none", "disturbance": "the adaptive run's recorded w_0..w_(T-1)", "final_k": int(last.k),
             "adaptive": run_figures(traj), "robust": run_figures(robust), "rays": rays,
-            "ray_rel_tol": RAY_REL_TOL}
+            "ray_rel_tol": RAY_REL_TOL, "ray_method": "LP (TubeLP)" if by_lp else "QP (20)"}
