@@ -33,7 +33,7 @@ lint: $(BIN)/amcp
 	$(BIN)/lint-imports
 
 # in two worker processes (pytest-xdist; the property suite stays in one of them, so that its tests
-# share their closed-loop runs, and its coverage summary is printed by the controller)
+# share their closed-loop runs, and its coverage summary is printed by the controller: properties/conftest.py)
 test: lint
 	$(BIN)/python -m pytest -n 2 --dist loadgroup
 

@@ -395,6 +395,17 @@ def _quiet_worker_logs() -> None:
     drop_drake_info()
 
 
+def _silence_worker_logs_for_shutdown() -> None:
+    """Run in each local worker just before the cluster closes: Dask's loggers report nothing (a
+    worker whose heartbeat reaches a scheduler that has just closed logs "Failed to communicate with
+    scheduler during heartbeat" as an error, with a traceback, although nothing has failed)."""
+    import logging
+
+    names = ["distributed", *(name for name in logging.root.manager.loggerDict if name.startswith("distributed."))]
+    for name in names:
+        logging.getLogger(name).setLevel(logging.CRITICAL)
+
+
 def store_write_error(store_path: str | Path, exc: BaseException):
     """A CampaignStoreError naming ``--store`` for a failed write of the store (a full disk, an I/O
     error): the transaction being written was rolled back, the problems stored before it are kept."""
@@ -492,6 +503,11 @@ def _shut_down(client, cluster) -> None:
     level = quiet.level
     quiet.setLevel(logging.CRITICAL)
     try:
+        if cluster is not None:  # our own workers: their heartbeats to the closing scheduler fail, say nothing
+            try:
+                client.run(_silence_worker_logs_for_shutdown, wait=True)
+            except Exception:  # noqa: BLE001 - a worker already gone needs no silencing
+                pass
         client.close()
         if cluster is not None:
             cluster.close()

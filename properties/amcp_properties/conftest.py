@@ -9,8 +9,8 @@ coverage summary.
   :class:`~amcp_properties.coverage.CoverageRecorder`, printed at the end of the session and
   written as JSON to ``AMCP_COVERAGE_FILE`` when set (:mod:`amcp_properties.session_summary`; under
   pytest-xdist the workers send their counts to the controller, which prints them: properties/conftest.py).
-* Every property test is in one xdist group, so that one worker runs them all and reuses their
-  closed-loop runs (``--dist loadgroup``).
+* Under pytest-xdist one worker runs every property test, so that they reuse their closed-loop runs
+  (the scheduler of properties/conftest.py).
 """
 
 from __future__ import annotations
@@ -26,8 +26,6 @@ from amcp_properties.session_summary import WORKER_OUTPUT_KEY, local_state, writ
 
 PROFILE = profiles.load()
 BACKENDS_ENV = "AMCP_BACKENDS"
-#: The xdist group of every property test (one worker runs them all).
-XDIST_GROUP = "amcp-properties"
 
 
 def _backend_names() -> list[str]:
@@ -81,13 +79,6 @@ def runner(request):
 @pytest.fixture(scope="session")
 def coverage(request):
     return request.config.stash[_RECORDER]
-
-
-def pytest_collection_modifyitems(config, items) -> None:
-    here = os.path.dirname(__file__)
-    for item in items:
-        if str(item.path).startswith(here):
-            item.add_marker(pytest.mark.xdist_group(XDIST_GROUP))
 
 
 def pytest_sessionfinish(session) -> None:
