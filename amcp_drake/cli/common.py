@@ -14,6 +14,7 @@ import click
 from amcp_drake.model.errors import AmcpError, BackendNotFound, ProblemError, TrajectoryError
 from amcp_drake.model.limits import DEFAULT_MAX_MEMORY_MB, MAX_STEPS
 from amcp_drake.model.problem_io import check_output_dir, check_output_file, check_store_path
+from amcp_drake.offline.budget import DEFAULT_CANDIDATE_SECONDS, PROGRESS_SECONDS
 
 EXIT_OK, EXIT_FAIL, EXIT_BAD_INPUT = 0, 1, 2
 #: ``amcp certify``: a premise of the paper's results does not hold on the run (nothing is claimed).
@@ -129,28 +130,24 @@ max_memory_option = click.option(
          "'Size limits') exceeds this many MiB, before anything is built; every stage of the offline design is "
          "sized against the same limit (a design candidate above it is skipped, with the stage named).")
 
-#: Default of ``--candidate-budget`` (CPU seconds per candidate of the automatic design).
-DEFAULT_CANDIDATE_BUDGET = 60.0
 
 candidate_budget_option = click.option(
-    "--candidate-budget", "candidate_budget", type=click.FloatRange(min=0.1), default=DEFAULT_CANDIDATE_BUDGET,
+    "--candidate-budget", "candidate_budget", type=click.FloatRange(min=0.1), default=DEFAULT_CANDIDATE_SECONDS,
     show_default=True,
     help="Time budget of one candidate of the offline design, in CPU seconds (so that the choice does not depend "
          "on the machine's load; automatic mode: a candidate over it is recorded as 'time budget' and the next one "
          "is tried; a fixed template stops with that reason).")
 
 
-#: Default of ``--progress-every`` (seconds of wall time between two progress lines of a long design stage).
-DEFAULT_PROGRESS_EVERY = 3.0
 
 progress_every_option = click.option(
-    "--progress-every", "progress_every", type=FiniteFloatRange(min=0.1, max=3600.0), default=DEFAULT_PROGRESS_EVERY,
+    "--progress-every", "progress_every", type=FiniteFloatRange(min=0.1, max=3600.0), default=PROGRESS_SECONDS,
     show_default=True,
     help="Least wall time in seconds between two progress lines of a long design stage on stderr.")
 
 
-def design_budget(max_memory: float = DEFAULT_MAX_MEMORY_MB, candidate_budget: float | None = DEFAULT_CANDIDATE_BUDGET,
-                  quiet: bool = False, progress_every: float = DEFAULT_PROGRESS_EVERY):
+def design_budget(max_memory: float = DEFAULT_MAX_MEMORY_MB, candidate_budget: float | None = DEFAULT_CANDIDATE_SECONDS,
+                  quiet: bool = False, progress_every: float = PROGRESS_SECONDS):
     """The :class:`~amcp_drake.offline.budget.DesignBudget` of a command: ``--max-memory``,
     ``--candidate-budget`` and progress lines on stderr (each design candidate when it starts and ends,
     long stages every ``--progress-every`` seconds) unless ``quiet``."""
