@@ -194,8 +194,10 @@ def set_inclusions(traj) -> CheckResult:
             rows_h.append(hd)
         left = maxima(np.vstack(rows_H), np.concatenate(rows_h))
         if left.empty:
-            # θ* lies in both sets, so emptiness can only be round-off in Θ_k: its size is the margin
-            radius = signed_chebyshev_radius(np.vstack(rows_H), np.concatenate(rows_h))
+            # θ* lies in both sets, so emptiness can only be round-off in Θ_k: its size is the margin.
+            # The LP's own primal tolerance (1e-7 in HiGHS) is SET_TOL's size, so θ* is a witness:
+            # its largest violation of the unit rows bounds the signed radius from below.
+            radius = _signed_radius_with_witness(np.vstack(rows_H), np.concatenate(rows_h), traj.theta_star)
             if radius < worst:
                 worst, where = radius, f"Θ_{k} ∩ Δ_{k + 1} empty by {-radius:.2e} at step {k + 1} (θ* lies in both)"
             continue
@@ -204,6 +206,15 @@ def set_inclusions(traj) -> CheckResult:
             worst, where = lower, f"Θ_{k} ∩ Δ_{k + 1} ⊆ Θ_{k + 1} at step {k + 1} ({left.method})"
     return judge("Lemma 3", claim, worst, SET_TOL, f"worst inclusion margin: {where}"
                  + (f"; window M = {window}" if window > 1 else ""))
+
+
+def _signed_radius_with_witness(H: np.ndarray, h: np.ndarray, witness: np.ndarray) -> float:
+    """The signed Chebyshev radius of {H θ <= h} (unit rows), never below −(the witness's largest
+    violation): a point that violates every row by at most v puts the rows' common point within v."""
+    Hn, hn = polytope.normalize_rows(H, h)
+    by_witness = -float(np.max(Hn @ np.asarray(witness, float) - hn))
+    radius = signed_chebyshev_radius(H, h)
+    return by_witness if np.isnan(radius) else max(radius, by_witness)
 
 
 # -- Lemma 5 and (11) -----------------------------------------------------------------------------
