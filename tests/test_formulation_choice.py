@@ -131,3 +131,31 @@ def test_fast_path_off_names_why_and_is_empty_while_on(example_spec, example_des
     off = AdaptiveMPC(problem, example_design, formulation="vertex", qp_solver="daqp")
     off.step(np.asarray(sc.x0, float))
     assert off.mpc.fast_path_off.startswith("dense QP of ") and "> 1 (S = 8 vertices)" in off.mpc.fast_path_off
+
+
+# -- the CLI's --formulation auto ------------------------------------------------------------------------
+def test_run_with_formulation_auto_prints_the_form_chosen_and_why():
+    from click.testing import CliRunner
+
+    from amcp_drake.cli import main
+
+    result = CliRunner().invoke(main, ["run", "--formulation", "auto", "--steps", "2"], catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    assert "formulation auto: vertex (vertex form size 64 <= 2.5 x plain size 32 per stage)" in result.output
+    pe = CliRunner().invoke(main, ["run", "--formulation", "auto", "--steps", "2", "--pe", "3"], catch_exceptions=False)
+    assert pe.exit_code == 0, pe.output
+    assert "formulation auto: plain (the PE constraint needs the plain form)" in pe.output
+
+
+def test_certify_with_formulation_auto_records_and_certifies_the_form_it_ran(tmp_path):
+    from click.testing import CliRunner
+
+    from amcp_drake.cli import main
+    from amcp_drake.online.simulate import Trajectory
+
+    out = tmp_path / "out"
+    result = CliRunner().invoke(main, ["certify", "--formulation", "auto", "--steps", "4", "--out", str(out)],
+                                catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    assert "formulation auto: vertex" in result.output
+    assert Trajectory.load(out / "trajectory.json.gz").meta["formulation"] == "vertex"

@@ -109,6 +109,8 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
                        "claimed")
             click.echo(f"                 next: {DESIGN_HINT}")
             sys.exit(EXIT_PREMISE_NOT_MET)
+        if formulation == "auto":
+            click.echo(f"formulation auto: {traj.meta.get('formulation', 'plain')}", err=True)
         if traj.stop_reason.startswith("inconsistent"):
             click.echo(f"warning: the run stopped: {traj.stop_reason}; certifying the partial trajectory", err=True)
     cert = certify(traj, spec)

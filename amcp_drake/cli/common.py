@@ -249,9 +249,12 @@ backend_option = click.option("--backend", type=click.Choice(["drake", "cvxpy"])
 problem_argument = click.argument("problem_file", metavar="[PROBLEM]", required=False, type=click.Path())
 example_option = click.option("--example", default=None, help="Built-in example (default: lorenzen2019).")
 
-formulation_option = click.option("--formulation", type=click.Choice(["plain", "vertex"]), default="plain",
-                                  show_default=True,
-                                  help="Tube QP: plain (15) with multipliers, or the exact vertex form (faster).")
+formulation_option = click.option(
+    "--formulation", type=click.Choice(["plain", "vertex", "auto"]), default="plain", show_default=True,
+    help="Tube QP: plain (15) with multipliers Λ (the paper's form; the certificate checks Λ), the exact vertex "
+         "form (same optimum, no Λ), or auto: the vertex form when its size per stage is at most a measured "
+         "multiple of the plain form's, the plain form when an option needs it (docs/decisions.md, 'The formulation of the tube QP'). "
+         "Use auto or vertex from about 4 states on.")
 
 def update_options(func):
     """--update, --window, --projection (the online set update and LMS projection; defaults: the

@@ -58,6 +58,8 @@ def run_cmd(problem_file, example, x0_template, backend, formulation, steps, see
     check_run_size(spec, steps, options, max_memory, design=d)
     update = options.update
     ctrl = AdaptiveMPC(pr, d, backend=backend, options=options, formulation=formulation)
+    if ctrl.formulation_choice is not None:
+        click.echo(f"formulation auto: {ctrl.formulation_choice.formulation} ({ctrl.formulation_choice.reason})")
     traj = simulate(ctrl, sc.x0, sc.theta_star_for(steps), steps, disturbance or sc.disturbance_for(steps),
                     seed=sc.seed if seed is None else seed, progress=False, mu_state_bound=spec.design.mu_state_bound)
     theta_text = (f"theta*_k sequence from {traj.theta_star_at(0).tolist()} (max step {sc.max_theta_rate():.3g})"

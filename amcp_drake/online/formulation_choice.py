@@ -1,4 +1,4 @@
-"""The default formulation of the tube QP (20): ``formulation="auto"`` picks the plain form (15) with
+"""The automatic formulation of the tube QP (20): ``formulation="auto"`` picks the plain form (15) with
 the multipliers Λ or the vertex form of (5b) by a size rule measured on this machine.
 
 Both forms have the same optimum (:mod:`amcp_drake.backends.vertex_form`); their costs differ:

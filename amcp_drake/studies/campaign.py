@@ -59,7 +59,7 @@ DESIGN_BACKEND = "drake"
 #: The tube QP formulation of campaign runs (``--formulation`` of the replay command).
 FORMULATION = "plain"
 #: The formulation of campaigns over other state dimensions than the default (``--state-dims``): the one
-#: ``amcp certify`` chooses by default (:mod:`amcp_drake.online.formulation_choice`). The cvxpy plain form
+#: ``--formulation auto`` chooses (:mod:`amcp_drake.online.formulation_choice`). The cvxpy plain form
 #: keeps every row of (15c) with its multipliers: on a generated problem of 6 states (X0 with 21 facets and
 #: 199 vertices, N = 10, p = 3) compiling it took more than 4 minutes of CPU and 1.6 GB before its first
 #: step, where the vertex form that "auto" chooses there takes seconds.
