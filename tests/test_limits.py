@@ -200,14 +200,81 @@ def test_a_campaign_problem_whose_design_is_too_large_is_recorded_as_refused(tmp
 
 
 def test_coverage_refuses_a_design_too_large_for_the_limit():
-    """`amcp coverage` on the quadrotor (no design section): before the design its QP is estimated at
-    13 MiB (the parallelotope's 8 facets and 16 vertices), with the design found (102 facets, 318
-    vertices) above the default 2 GiB: exit 2 naming the design's size, before any QP is built."""
+    """`amcp coverage --formulation plain` on the quadrotor (no design section): before the design its QP
+    is estimated at 13 MiB (the parallelotope's 8 facets and 16 vertices), with the design found (102
+    facets, 318 vertices) above the default 2 GiB: exit 2 naming the design's size, before any QP is built."""
     from click.testing import CliRunner
 
     from amcp_drake.cli import main
 
-    result = CliRunner().invoke(main, ["coverage", "--example", "ji2022_quadrotor", "--no-progress"])
+    result = CliRunner().invoke(main, ["coverage", "--example", "ji2022_quadrotor", "--formulation", "plain",
+                                       "--no-progress"])
     assert result.exit_code == 2, result.output
     assert "problem size with the design found" in result.output and "--max-memory" in result.output
     assert "X0 facets = 102 (318 vertices)" in result.output
+
+
+# -- the estimate follows the formulation of (20) ------------------------------------------------------
+def test_the_vertex_form_estimate_counts_the_variables_and_rows_drake_builds(example_spec, example_design):
+    """Example 1 with N = 4 in the vertex form: (N+1)·(n+1) + N·m variables (no Λ) and N·u·S rows of (5b)
+    (u = 8 facets of X0, S = 8 vertices of the box Θ0 in p = 3), counted here by hand."""
+    from amcp_drake.online.controller import AdaptiveMPC
+
+    problem = example_spec.problem.with_changes(N=4)
+    ctrl = AdaptiveMPC(problem, example_design, backend="drake", formulation="vertex")
+    est = estimate_for(problem, example_spec.design, steps=1, design=example_design, formulation="vertex")
+    assert est.formulation == "vertex"
+    assert est.variables == 5 * 3 + 4 * 1 == ctrl.mpc.prog.num_vars()
+    assert est.rows == 4 * 3 + 8 + 4 * 8 * 8 + 3
+    assert est.nonzeros == 4 * 3 * 4 + 8 * 3 + 4 * 8 * 8 * (2 * 2 + 1 + 2) + 3 * 3
+    plain = estimate_for(problem, example_spec.design, steps=1, design=example_design)
+    assert "tube QP (20) in the vertex form" in est.describe() and "tube QP (15)" in plain.describe()
+    auto = estimate_for(problem, example_spec.design, steps=1, formulation="auto")
+    assert auto.memory_bytes == min(estimate_for(problem, example_spec.design, steps=1, formulation=f).memory_bytes
+                                    for f in ("plain", "vertex"))
+    with pytest.raises(ValueError, match="formulation: expected one of plain, vertex, auto; received 'dense'"):
+        estimate_for(problem, example_spec.design, formulation="dense")
+
+
+@pytest.mark.parametrize("formulation, refused", [("plain", True), ("vertex", False)])
+def test_a_design_is_refused_for_the_form_it_runs(formulation, refused):
+    """The quadrotor's 102-facet X0 (318 vertices): at a limit between the two estimates the plain form
+    (15) is refused and the vertex form, whose size does not grow with X0's vertices, is admitted."""
+    from amcp_drake.model.errors import ProblemError
+    from amcp_drake.model.examples import get_example
+    from amcp_drake.model.limits import check_run_size
+
+    spec = get_example("ji2022_quadrotor")
+    offline = _design_with(102, 318, len(spec.problem.H_theta))
+    plain = estimate_for(spec.problem, None, steps=50, design=offline, formulation="plain")
+    vertex = estimate_for(spec.problem, None, steps=50, design=offline, formulation="vertex")
+    assert vertex.memory_bytes * 10 < plain.memory_bytes
+    limit_mb = (vertex.memory_bytes * plain.memory_bytes) ** 0.5 / 2**20
+    if refused:
+        with pytest.raises(ProblemError, match=r"tube QP \(15\)"):
+            check_run_size(spec.problem, spec.design, 50, None, limit_mb, design=offline, formulation=formulation)
+    else:
+        assert check_run_size(spec.problem, spec.design, 50, None, limit_mb, design=offline,
+                              formulation=formulation).memory_bytes == vertex.memory_bytes
+
+
+@pytest.mark.parametrize("factor, answered", [(0.5, False), (2.0, True)])
+def test_the_other_formulation_is_built_only_within_the_memory_limit(monkeypatch, example_spec, example_design,
+                                                                     factor, answered):
+    """A plain form whose every answer is wrong (tests/tampered_backends.py) falls back to the vertex form;
+    with the memory limit at half the vertex form's estimate the fallback is not built: the step is
+    left unsolved, and its record says why. At twice the estimate the fallback answers."""
+    from amcp_drake.online.controller import AdaptiveMPC
+    from tests import tampered_backends as tb
+
+    tb.use_as_drake(monkeypatch, tb.WrongTubeDrake)
+    est = estimate_for(example_spec.problem, None, 1, None, design=example_design, formulation="vertex")
+    ctrl = AdaptiveMPC(example_spec.problem, example_design, backend="drake",
+                       max_memory_mb=factor * est.memory_bytes / 2**20)
+    u, record = ctrl.step(np.asarray(example_spec.scenario.x0, float))
+    if answered:
+        assert u is not None and "fallback: vertex form of (20) (checked)" in record.detail
+    else:
+        assert u is None
+        assert "the vertex form's estimated size exceeds the memory limit" in record.detail
+        assert "step not solved" in record.detail

@@ -93,7 +93,8 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
     else:
         spec, steps, options = prepare_run(problem_file, example, x0_template, steps, online, max_memory,
                                            "a scenario (x0, theta_star, ...) in the problem file to run",
-                                           "Add a \"scenario\" object, or pass --trajectory.")
+                                           "Add a \"scenario\" object, or pass --trajectory.",
+                                           formulation=formulation)
         seed = spec.scenario.seed if seed is None else seed
         try:
             traj = _run(spec, backend, steps, seed, formulation, options, design_backend,

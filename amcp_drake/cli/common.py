@@ -47,14 +47,19 @@ def load_problem_spec(problem_file: str | None, example: str | None):
     return spec
 
 
-def check_run_size(spec, steps: int, online=None, max_memory_mb: float = DEFAULT_MAX_MEMORY_MB, design=None):
+def check_run_size(spec, steps: int, online=None, max_memory_mb: float = DEFAULT_MAX_MEMORY_MB, design=None,
+                   formulation: str = "plain"):
     """Refuse a run whose estimated size exceeds ``--max-memory`` before anything is built, and again with
-    ``design`` (the design found) before the controller is built
-    (:func:`amcp_drake.model.limits.check_run_size`); returns the estimate."""
+    ``design`` (the design found) before the controller is built, for the ``formulation`` of (20) the run
+    uses (:func:`amcp_drake.model.limits.check_run_size`); returns the estimate."""
     from amcp_drake.model.limits import check_run_size as check
 
-    return check(spec.problem, spec.design, steps, online if online is not None else spec.online, max_memory_mb,
-                 design=design)
+    online = online if online is not None else spec.online
+    if design is not None and formulation == "auto":
+        from amcp_drake.online.formulation_choice import resolved_formulation
+
+        formulation = resolved_formulation(formulation, spec.problem, design, online)
+    return check(spec.problem, spec.design, steps, online, max_memory_mb, design=design, formulation=formulation)
 
 
 # -- output paths (checked as soon as the option is parsed) ----------------------------------------
@@ -355,13 +360,13 @@ class RunSetup(NamedTuple):
 
 def prepare_run(problem_file: str | None, example: str | None, x0_template: str | None, steps: int | None,
                 online: dict, max_memory: float, scenario_expected: str = SCENARIO_EXPECTED,
-                scenario_fix: str = "") -> RunSetup:
+                scenario_fix: str = "", formulation: str = "plain") -> RunSetup:
     """The set-up of ``amcp run``, ``certify`` and ``compare``: load the problem, apply --x0-template,
     require a scenario, take the steps from it unless --steps is given, resolve the online options,
-    and refuse a run larger than --max-memory (:func:`check_run_size`), in this order."""
+    and refuse a run larger than --max-memory (:func:`check_run_size`, for ``formulation``), in this order."""
     spec = with_x0_template(load_problem_spec(problem_file, example), x0_template)
     scenario = require_scenario(spec, scenario_expected, scenario_fix)
     steps = scenario.steps if steps is None else steps
     options = resolve_online(spec, **online)
-    check_run_size(spec, steps, options, max_memory)
+    check_run_size(spec, steps, options, max_memory, formulation=formulation)
     return RunSetup(spec, steps, options)

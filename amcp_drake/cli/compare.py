@@ -55,7 +55,8 @@ def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_sol
         raise ProblemError("--accurate", "Clarabel in both backends (--drake-solver clarabel --cvxpy-solver CLARABEL)",
                            f"--drake-solver {drake_solver} --cvxpy-solver {cvxpy_solver}")
 
-    spec, steps, options = prepare_run(problem_file, example, x0_template, steps, online, max_memory)
+    spec, steps, options = prepare_run(problem_file, example, x0_template, steps, online, max_memory,
+                                       formulation=formulation)
     seed = spec.scenario.seed if seed is None else seed
     tolerances = {"solver_options": dict(ACCURATE_CLARABEL)} if accurate else {}
     backend_options = ({"solver": drake_solver, "formulation": formulation, **tolerances},

@@ -91,7 +91,7 @@ def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, po
             raise ProblemError("--adapt-x0", f"{pr.n} numbers separated by commas", f"{len(adapt_x0)} numbers")
     check_run_size(spec, 1, online, max_memory)
     d = design(pr, spec.design, backend=backend, budget=design_budget(max_memory, candidate_budget, quiet=no_progress, progress_every=progress_every))
-    check_run_size(spec, 1, online, max_memory, design=d)  # the QPs' size with the design found
+    check_run_size(spec, 1, online, max_memory, design=d, formulation=formulation)  # the QPs' size with the design found
 
     def progress_factory(total, label):
         if no_progress:

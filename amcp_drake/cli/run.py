@@ -52,12 +52,13 @@ def run_cmd(problem_file, example, x0_template, backend, formulation, steps, see
     from amcp_drake.online.controller import AdaptiveMPC
     from amcp_drake.online.simulate import simulate
 
-    spec, steps, options = prepare_run(problem_file, example, x0_template, steps, online, max_memory)
+    spec, steps, options = prepare_run(problem_file, example, x0_template, steps, online, max_memory,
+                                       formulation=formulation)
     sc, pr = spec.scenario, spec.problem
     d = design(pr, spec.design, backend=backend, budget=design_budget(max_memory, candidate_budget, progress_every=progress_every))
-    check_run_size(spec, steps, options, max_memory, design=d)
+    check_run_size(spec, steps, options, max_memory, design=d, formulation=formulation)
     update = options.update
-    ctrl = AdaptiveMPC(pr, d, backend=backend, options=options, formulation=formulation)
+    ctrl = AdaptiveMPC(pr, d, backend=backend, options=options, formulation=formulation, max_memory_mb=max_memory)
     if ctrl.formulation_choice is not None:
         click.echo(f"formulation auto: {ctrl.formulation_choice.formulation} ({ctrl.formulation_choice.reason})")
     traj = simulate(ctrl, sc.x0, sc.theta_star_for(steps), steps, disturbance or sc.disturbance_for(steps),

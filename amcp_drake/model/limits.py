@@ -25,6 +25,13 @@ H_θ, ``design.theta_extra_directions`` included) and refuses the run before the
 The set update LP (9) adds q + q·r·L variables (r rows of W, L = 1 or the window length of update "window"); every step records Θ_k,
 (v, z, α) and Λ (N·v·u·q numbers), kept in memory for the whole run and written at the end.
 
+The **vertex form** of (20) (``formulation="vertex"``, ``backends/vertex_form.py``) has no multipliers:
+(N+1)·(n+1) + N·m variables; N·c (15a) + u (15b) + N·u·S rows of (5b) at the S vertices of Θ_k (S
+counted on Θ0, at most the upper bound theorem's for q rows in p dimensions) + c; nonzeros
+N·c·(n+m+1) + u·(n+1) + N·u·S·(2n+m+2) + c·(n+1); it records no Λ. The estimate follows the
+formulation the run uses: ``"auto"`` is resolved by the caller once the design is known
+(``online/formulation_choice.py``); before the design it is the smaller of the two estimates.
+
 Memory = :data:`BYTES_PER_NONZERO` × nonzeros + :data:`BYTES_PER_RECORDED_NUMBER` × numbers recorded
 over the run, both measured (peak RSS of Example 1 with N = 10 and 200, 5 to 40 steps: the estimate is
 within 10 % of the measurement). A run whose estimate exceeds the limit (default
@@ -106,6 +113,8 @@ class SizeEstimate:
     memory_bytes: int
     #: True when the sizes of X0 and Θ are those of a design found, False for the estimate before it.
     designed: bool = False
+    #: The formulation of (20) estimated: "plain" (15) or "vertex".
+    formulation: str = "plain"
 
     def describe(self) -> str:
         """One line with the inputs and the estimate."""
@@ -113,7 +122,7 @@ class SizeEstimate:
               else f"design.x0_facets = {self.facets} (<= {self.vertices} vertices)")
         return (f"n = {self.n}, m = {self.m}, p = {self.p}, cost.N = {self.N}, {x0}, "
                 f"{self.theta_rows} rows of Theta, {self.w_rows} rows of W.H, "
-                f"{self.z_rows} rows of Z, {self.steps} steps: tube QP (15) with {self.variables:,} variables, "
+                f"{self.z_rows} rows of Z, {self.steps} steps: tube QP {'(15)' if self.formulation == 'plain' else '(20) in the vertex form'} with {self.variables:,} variables, "
                 f"{self.rows:,} rows, {self.nonzeros:,} nonzeros; {self.recorded_numbers:,} numbers recorded; "
                 f"estimated memory {_mib(self.memory_bytes)}")
 
@@ -123,22 +132,44 @@ def _mib(nbytes: int) -> str:
     return f"{mib / 1024:,.1f} GiB" if mib >= 1024 else f"{mib:,.1f} MiB"
 
 
+#: The formulations of (20) an estimate is made for (``"auto"``: module docstring).
+ESTIMATED_FORMULATIONS = ("plain", "vertex", "auto")
+
+
 def estimate_run_size(n: int, m: int, p: int, N: int, facets: int, theta_rows: int, w_rows: int, z_rows: int,
-                      steps: int = 1, window: int = 1, vertices: int | None = None) -> SizeEstimate:
+                      steps: int = 1, window: int = 1, vertices: int | None = None, formulation: str = "plain",
+                      theta_vertices: int | None = None) -> SizeEstimate:
     """The size of a run (module docstring); Python integers, so absurd inputs cannot overflow.
-    ``vertices``: the number of vertices of X0 when known (default: the upper bound theorem's)."""
+    ``vertices``: the number of vertices of X0 when known (default: the upper bound theorem's);
+    ``formulation``: "plain" (15), "vertex" or "auto" (the smaller of the two); ``theta_vertices``: the
+    number S of vertices of Θ0 when known (default: the upper bound theorem's for q rows in p dimensions)."""
+    if formulation not in ESTIMATED_FORMULATIONS:
+        raise ValueError(f"formulation: expected one of {', '.join(ESTIMATED_FORMULATIONS)}; received {formulation!r}")
+    if formulation == "auto":
+        both = [estimate_run_size(n, m, p, N, facets, theta_rows, w_rows, z_rows, steps, window, vertices, form,
+                                  theta_vertices) for form in ("plain", "vertex")]
+        return min(both, key=lambda est: est.memory_bytes)
     nv = max_vertices(facets, n) if vertices is None else int(vertices)
     u, q, c = facets, theta_rows, z_rows
-    block = N * nv * u
-    variables = (N + 1) * n + (N + 1) + N * m + block * (q - p)
-    rows = N * c + u + block + block * p + c
-    nonzeros = (N * c * (n + m + 1) + u * (n + 1) + block * (2 * n + m + 2 + q) + block * p * (n + m + 1 + q)
-                + c * (n + 1))
     update_nonzeros = q * w_rows * window * (p + 1) + q * (p + 1)
-    per_step = q * (p + 1) + (N + 1) * (n + 1) + N * m + block * q + q * w_rows * window
+    per_step = q * (p + 1) + (N + 1) * (n + 1) + N * m + q * w_rows * window
+    if formulation == "plain":
+        block = N * nv * u
+        variables = (N + 1) * n + (N + 1) + N * m + block * (q - p)
+        rows = N * c + u + block + block * p + c
+        nonzeros = (N * c * (n + m + 1) + u * (n + 1) + block * (2 * n + m + 2 + q) + block * p * (n + m + 1 + q)
+                    + c * (n + 1))
+        per_step += block * q  # the multipliers Λ of every step
+    else:
+        S = max_vertices(max(q, p + 1), p) if theta_vertices is None else int(theta_vertices)
+        block = N * u * S
+        variables = (N + 1) * (n + 1) + N * m
+        rows = N * c + u + block + c
+        nonzeros = N * c * (n + m + 1) + u * (n + 1) + block * (2 * n + m + 2) + c * (n + 1)
     recorded = (steps + 1) * per_step
     memory = BYTES_PER_NONZERO * (nonzeros + update_nonzeros) + BYTES_PER_RECORDED_NUMBER * recorded
-    return SizeEstimate(n, m, p, N, facets, nv, q, w_rows, c, steps, variables, rows, nonzeros, recorded, memory)
+    return SizeEstimate(n, m, p, N, facets, nv, q, w_rows, c, steps, variables, rows, nonzeros, recorded, memory,
+                        formulation=formulation)
 
 
 #: From this dimension on the automatic design tries the parallelotope (2n facets, 2^n vertices) first
@@ -146,10 +177,12 @@ def estimate_run_size(n: int, m: int, p: int, N: int, facets: int, theta_rows: i
 PARALLELOTOPE_FIRST_DIM = 4
 
 
-def estimate_for(problem, design_options=None, steps: int = 1, online=None, design=None) -> SizeEstimate:
+def estimate_for(problem, design_options=None, steps: int = 1, online=None, design=None,
+                 formulation: str = "plain") -> SizeEstimate:
     """:func:`estimate_run_size` for a :class:`~amcp_drake.model.problem.Problem` and its design options
     (``design.x0_facets``, ``design.x0_template``, ``design.theta_extra_directions``); with ``design`` (an
-    OfflineDesign), for that design's X0 (its facets and vertices) and its shape H_θ of (9)."""
+    OfflineDesign), for that design's X0 (its facets and vertices), its shape H_θ of (9) and the vertices
+    of Θ0; ``formulation`` of (20) as in :func:`estimate_run_size`."""
     facets, vertices = max(8, 2 * problem.n), None
     if design_options is not None and getattr(design_options, "x0_facets", None) is not None:
         facets = design_options.x0_facets
@@ -158,22 +191,36 @@ def estimate_for(problem, design_options=None, steps: int = 1, online=None, desi
         facets, vertices = 2 * problem.n, 2 ** problem.n
     extra = getattr(design_options, "theta_extra_directions", None) if design_options is not None else None
     theta_rows = len(problem.H_theta) + (0 if extra is None else len(np.atleast_2d(extra)))
+    theta_vertices = None
     if design is not None:
         facets, vertices, theta_rows = len(design.H_x), len(design.X0_vertices), len(design.H_theta)
+        theta_vertices = _theta0_vertex_count(design)
     window = online.window if online is not None and getattr(online, "update", "") == "window" else 1
     est = estimate_run_size(problem.n, problem.m, problem.p, int(problem.N), int(facets), theta_rows,
-                            len(problem.H_w), len(problem.F), steps=int(steps), window=int(window), vertices=vertices)
+                            len(problem.H_w), len(problem.F), steps=int(steps), window=int(window), vertices=vertices,
+                            formulation=formulation, theta_vertices=theta_vertices)
     return replace(est, designed=design is not None)
+
+
+def _theta0_vertex_count(design) -> int | None:
+    """The number of vertices of Θ0 = {H_θ θ <= h_θ0} of a design (None when they cannot be enumerated:
+    the estimate then takes the upper bound theorem's)."""
+    try:
+        found = polytope.theta_vertices(np.asarray(design.H_theta, float), np.asarray(design.h_theta0, float))
+    except (ValueError, TypeError, AttributeError):
+        return None
+    return None if found is None else len(found)
 
 
 def check_run_size(problem, design_options=None, steps: int = 1, online=None,
                    max_memory_mb: float = DEFAULT_MAX_MEMORY_MB, option: str = "--max-memory",
-                   design=None) -> SizeEstimate:
+                   design=None, formulation: str = "plain") -> SizeEstimate:
     """Refuse a run whose estimated memory exceeds ``max_memory_mb`` (ProblemError naming the stage, the
     sizes, the estimate and the limit). Called twice per run: before the design (``design`` None: the
     estimate from ``design_options``) and once the design is known (``design``: its X0's facets and
-    vertices and its H_θ, so the run is refused before the controller is built)."""
-    est = estimate_for(problem, design_options, steps, online, design=design)
+    vertices and its H_θ, so the run is refused before the controller is built). ``formulation``: the
+    form of (20) the run uses (with a design, "auto" resolved by the caller)."""
+    est = estimate_for(problem, design_options, steps, online, design=design, formulation=formulation)
     if est.memory_bytes <= max_memory_mb * 2**20:
         return est
     if design is None:
@@ -182,6 +229,8 @@ def check_run_size(problem, design_options=None, steps: int = 1, online=None,
     else:
         field = "problem size with the design found (cost.N, the design's X0, rows of Theta and W.H, steps)"
         fix = "Reduce cost.N or the steps, give a design with fewer facets (design.x0_template, design.x0_facets)"
+    if formulation == "plain":
+        fix += ", solve (20) in the vertex form (--formulation auto or vertex: no multipliers)"
     raise ProblemError(field, f"an estimated memory of at most {max_memory_mb:,g} MiB", est.describe(),
                        f"{fix}, or raise the limit with {option} (docs/problem-format.md, 'Size limits').")
 

@@ -17,6 +17,7 @@ from amcp_drake.backends.clarabel_retry import RETRIED
 from amcp_drake.model import polytope
 from amcp_drake.model.arrays import all_finite, same_bits, scalar_operand
 from amcp_drake.model.errors import InconsistentDataError, ProblemError
+from amcp_drake.model.limits import DEFAULT_MAX_MEMORY_MB, estimate_for
 from amcp_drake.model.options import OnlineOptions
 from amcp_drake.model.problem import Problem
 from amcp_drake.model.status import SolveStatus
@@ -133,10 +134,13 @@ class AdaptiveMPC:
     """
 
     def __init__(self, problem: Problem, design: OfflineDesign, backend="drake",
-                 options: OnlineOptions | None = None, **backend_options) -> None:
+                 options: OnlineOptions | None = None, max_memory_mb: float | None = None, **backend_options) -> None:
         self.problem = problem
         self.design = design
         self.options = options or OnlineOptions()
+        # the memory limit of the other formulation, built only when an answer fails its checks
+        self.max_memory_mb = DEFAULT_MAX_MEMORY_MB if max_memory_mb is None else float(max_memory_mb)
+        self._other_refused: str | None = None  # why the other formulation is too large to build
         # formulation="auto": the size rule of amcp_drake.online.formulation_choice picks plain or vertex
         backend_options, self.formulation_choice = resolve_formulation(backend_options, problem, design, self.options)
         self.backend = get_backend(backend, **backend_options)
@@ -554,8 +558,15 @@ class AdaptiveMPC:
         if (not isinstance(name, str) or opts.cost != "certainty_equivalence" or opts.d_theta > 0
                 or opts.pe_window is not None):
             return None
+        if self._other_refused is not None:
+            return None
         if self._other_mpc is None:
             other = "vertex" if getattr(self.backend, "formulation", "plain") == "plain" else "plain"
+            est = estimate_for(self.problem, None, 1, self.options, design=self.design, formulation=other)
+            if est.memory_bytes > self.max_memory_mb * 2**20:
+                self._other_refused = (f"the {other} form's estimated size exceeds the memory limit of "
+                                       f"{self.max_memory_mb:,g} MiB ({est.describe()})")
+                return None
             options = {**backend_options, "formulation": other}
             # the fast path (qp_solver="daqp") is the vertex form's only: the plain form of a fast-path
             # controller is solved by the backend's solver (the fast-path option would raise ValueError there)
@@ -633,7 +644,8 @@ class AdaptiveMPC:
         try:
             other = self._other_formulation()
             if other is None:
-                self._note(record, note + "; no other formulation for these options: step not solved")
+                because = self._other_refused or "no other formulation for these options"
+                self._note(record, note + f"; {because}: step not solved")
                 self._answer(record, "tube_qp", "not_solved", "", why)
                 return None
             form = getattr(other, "formulation", "plain")

@@ -31,6 +31,7 @@ def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: s
     from amcp_drake.model.limits import check_run_size
     from amcp_drake.offline.design import design
     from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_drake.online.formulation_choice import resolved_formulation
     from amcp_drake.online.simulate import simulate
 
     sc = spec.scenario
@@ -44,8 +45,10 @@ def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: s
     if offline is None:
         offline = design(spec.problem, spec.design, backend=design_backend or backend, budget=design_budget)
         if design_budget is not None:  # the run's size with the design found, before the controller is built
-            check_run_size(spec.problem, spec.design, steps, options, design_budget.max_memory_mb, design=offline)
-    ctrl = AdaptiveMPC(spec.problem, offline, backend=backend, options=options, formulation=formulation)
+            check_run_size(spec.problem, spec.design, steps, options, design_budget.max_memory_mb, design=offline,
+                           formulation=resolved_formulation(formulation, spec.problem, offline, options))
+    ctrl = AdaptiveMPC(spec.problem, offline, backend=backend, options=options, formulation=formulation,
+                       max_memory_mb=None if design_budget is None else design_budget.max_memory_mb)
     try:
         return simulate(ctrl, sc.x0, sc.theta_star_for(steps), steps, sc.disturbance_for(steps), seed=seed,
                         progress=progress, mu_state_bound=spec.design.mu_state_bound)

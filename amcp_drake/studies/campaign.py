@@ -248,6 +248,7 @@ def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure
     from amcp_drake.model.limits import check_run_size
     from amcp_drake.offline.budget import DEFAULT_CANDIDATE_SECONDS, DesignBudget
     from amcp_drake.offline.design import design
+    from amcp_drake.online.formulation_choice import resolved_formulation
     from amcp_drake.online.replay import run_scenario
     from amcp_drake.studies.random_problems import DEFAULT_STATE_DIMS, built_scaled
 
@@ -269,7 +270,7 @@ def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure
         offline = design(spec.problem, spec.design, backend=DESIGN_BACKEND, budget=budget)
         # the run's size with the design found, before the controllers are built (as amcp certify)
         check_run_size(spec.problem, spec.design, spec.scenario.steps, spec.online, budget.max_memory_mb,
-                       design=offline)
+                       design=offline, formulation=resolved_formulation(formulation, spec.problem, offline, spec.online))
         trajs = {}
         for backend in backends:
             traj = run_scenario(spec, backend, design_backend=DESIGN_BACKEND, formulation=formulation,
