@@ -426,7 +426,7 @@ class DesignOptions:
         return int(self.x0_facets) if self.x0_facets is not None else default_x0_facets(n)
 
     def _validate_template(self, problem: Problem) -> None:
-        kinds = ("auto", "mrpi", "contractive", "given", "parallelotope")
+        kinds = ("auto", "mrpi", "contractive", "given", "parallelotope", "preimage")
         if not isinstance(self.x0_template, str) or self.x0_template not in kinds:
             raise ProblemError("design.x0_template", f"one of {list(kinds)}", repr(self.x0_template))
         if self.x0_lambda is not None and not (isinstance(self.x0_lambda, (int, float))

@@ -49,6 +49,7 @@ from amcp_drake.model.errors import DesignError
 from amcp_drake.model.problem import DEFAULT_X0_LAMBDA, DesignOptions, Problem
 from amcp_drake.offline import templates as x0_templates
 from amcp_drake.offline.budget import CandidateTimeout, DesignBudget, DesignSizeError, unbounded
+from amcp_drake.offline.preimage import PREIMAGE_LAMBDAS
 
 #: λ of the contractive template, tried in this order: 0.9 leaves the tube room to shrink
 #: (α⁺ <= 0.9 α + w̄); larger λ admit a set where a smaller one is empty (the disturbance uses up
@@ -117,6 +118,10 @@ def candidate_options(problem: Problem, options: DesignOptions) -> list[DesignOp
             out.append(replace(options, x0_template="contractive", x0_lambda=lam, gain_R_scale=scale, x0_H=None))
     if bounded_first:
         out.append(first_mrpi)
+        pre_lambdas = (options.x0_lambda,) if options.x0_lambda is not None else PREIMAGE_LAMBDAS
+        for scale in gains:
+            for lam in pre_lambdas:
+                out.append(replace(options, x0_template="preimage", x0_lambda=lam, gain_R_scale=scale, x0_H=None))
         if problem.n > MRPI_FACETS_MAX_N:
             return out
     limit = x0_templates.max_template_facets(problem.n)
@@ -186,6 +191,10 @@ def template_label(options: DesignOptions, facets: int | None = None, dimension:
         text = f"mrpi, {count if count is not None else 'default'} facets"
     elif kind == "parallelotope":
         text = "parallelotope" + (f", {facets} facets" if facets is not None else "")
+    elif kind == "preimage":
+        text = f"preimage, lambda {options.x0_lambda if options.x0_lambda is not None else PREIMAGE_LAMBDAS[0]:g}"
+        if facets is not None:
+            text += f", {facets} facets"
     elif kind == "contractive":
         text = f"contractive, lambda {options.x0_lambda if options.x0_lambda is not None else DEFAULT_X0_LAMBDA:g}"
         if facets is not None:
