@@ -24,7 +24,10 @@ loop only, where they stay few, and lets the template iteration find the robust 
    (Appendix A.1: the terminal set holds (0, α_∞) only then; :func:`~amcp_drake.offline.terminal.steady_alpha`).
    X0 is the least robustly invariant set with these normals, so when α_∞ max f̄ >= 1 no design with
    them exists for this K: :class:`~amcp_drake.offline.templates.TemplateError` "does not fit Z", with
-   the ratio (``fit_ratio``).
+   the ratio (``fit_ratio``). The iteration stops early when an iterate X(h_j) already reaches
+   max (F + GK) x >= 1 over its vertices: the iterates increase (h_0 = σ_W <= T(h_0), T monotone), and the
+   steady tube α_∞ X0 is a robustly invariant template with the same normals, hence contains the least
+   one and every iterate, so α_∞ max f̄ >= that maximum (then reported as a lower bound).
 
 Nothing here is trusted: the design's independent checks (offline/checks.py) re-verify contractivity,
 robust invariance and Assumption 11 at the vertices.
@@ -36,8 +39,15 @@ import numpy as np
 
 from amcp_drake.model import polytope
 from amcp_drake.offline.budget import DesignBudget, chunked_row_maxima, unbounded
-from amcp_drake.offline.templates import (CONTRACTIVE_REDUNDANCY_TOL, MRPI_RESIDUAL_FRACTION, MRPI_Z_FACTOR,
-                                          X0_INFLATION, TemplateError, _prune, _row_maxima, _unit_rows)
+from amcp_drake.offline.templates import (
+    CONTRACTIVE_REDUNDANCY_TOL,
+    MRPI_RESIDUAL_FRACTION,
+    X0_INFLATION,
+    TemplateError,
+    _prune,
+    _row_maxima,
+    _unit_rows,
+)
 from amcp_drake.offline.terminal import steady_alpha
 
 #: λ₀ of the nominal directions, tried in this order by the automatic design (offline/auto.py): 0.95
@@ -62,6 +72,11 @@ def nominal_directions(FGK: np.ndarray, A_nom: np.ndarray, lam0: float, be, max_
     rows = _unit_rows(FGK)
     if len(rows) == 0:
         raise TemplateError(name, "no constraint", "F + GK has no non-zero row", "x0_template = 'mrpi'")
+    radius = float(np.max(np.abs(np.linalg.eigvals(A_nom))))
+    if not radius < lam0:
+        raise TemplateError(name, "below the spectral radius", f"lambda = {lam0:g} <= {radius:.4g}, the spectral "
+                            "radius of the nominal closed loop: the backward iteration does not terminate",
+                            "a larger lambda (design.x0_lambda)")
     rows = _prune(rows, be, budget)
     new = rows
     for iteration in range(1, PREIMAGE_DIRECTION_ITER + 1):
@@ -83,7 +98,7 @@ def nominal_directions(FGK: np.ndarray, A_nom: np.ndarray, lam0: float, be, max_
                                 f"(cap {max_rows})", "a larger lambda (design.x0_lambda)")
     else:
         raise TemplateError(name, "not converged", f"new nominal directions still appear after "
-                            f"{PREIMAGE_DIRECTION_ITER} iterations (lambda below the nominal spectral radius?)",
+                            f"{PREIMAGE_DIRECTION_ITER} iterations",
                             "a larger lambda (design.x0_lambda)")
     unit = rows / np.linalg.norm(rows, axis=1)[:, None]
     D = _unit_rows(np.vstack([unit, -unit]))
@@ -95,7 +110,7 @@ def nominal_directions(FGK: np.ndarray, A_nom: np.ndarray, lam0: float, be, max_
 
 def preimage_template(FGK: np.ndarray, H_w: np.ndarray, A_cl: np.ndarray, A_nom: np.ndarray, be, lam0: float,
                       max_iter: int, max_rows: int, budget: DesignBudget | None = None) -> np.ndarray:
-    """H_x of X0 (module docstring, steps 1-3); TemplateError "diverged", "not converged", "too complex"
+    """H_x of X0 (module docstring, steps 1-3); TemplateError "not converged", "too complex"
     or "does not fit Z" (with ``fit_ratio`` = α_∞ max f̄ of the least invariant template)."""
     budget = budget or unbounded()
     name = f"preimage (lambda = {lam0:g})"
@@ -114,10 +129,9 @@ def preimage_template(FGK: np.ndarray, H_w: np.ndarray, A_cl: np.ndarray, A_nom:
         verts = polytope.vertices(D, h)
         budget.note_vertices(len(D), n, len(verts))
         reach = float(np.max(chunked_row_maxima(FGK, verts, budget, stage)))
-        if reach > MRPI_Z_FACTOR:
-            raise TemplateError(name, "diverged", f"the template iteration grew past {MRPI_Z_FACTOR:g} x the "
-                                f"constraints at iteration {iteration}; these {len(D)} directions admit no "
-                                "invariant template for A_cl(Theta)", "a smaller lambda (design.x0_lambda)")
+        if not reach < 1.0:  # step 3: every later iterate and the steady tube α_∞ X0 contain this one
+            _no_fit(name, len(D), reach, f"at least {reach:.3g} (iteration {iteration} of the template iteration "
+                    "already reaches it; every later iterate and the steady tube alpha_inf X0 contain it)")
         images = np.max([chunked_row_maxima(D @ Ak, verts, budget, stage) for Ak in A_cl], axis=0)
         h_next = images + w_sup
         residual = float(np.max((h_next - h) / w_sup))
@@ -143,12 +157,17 @@ def _require_fit(H_x, FGK, W_v, A_cl, name: str, budget: DesignBudget) -> None:
     budget.require_vertices(f"X0 template {name}: fit", len(H_x), H_x.shape[1])
     ratio = fit_ratio(H_x, FGK, W_v, A_cl)
     if not ratio < 1.0:
-        err = TemplateError(name, "does not fit Z", f"the least robustly invariant X0 with these {len(H_x)} directions "
-                            f"has alpha_inf * max f_bar = {ratio:.3g} >= 1: its steady tube leaves the constraints "
-                            "under u = Kx, so no terminal set exists (Appendix A.1)",
-                            "a lower-gain K (design.gain_R_scale), another design.x0_lambda, or relax Z / shrink W")
-        err.fit_ratio = ratio
-        raise err
+        _no_fit(name, len(H_x), ratio, f"{ratio:.3g}")
+
+
+def _no_fit(name: str, rows: int, ratio: float, value: str) -> None:
+    """Raise the TemplateError "does not fit Z" with ``fit_ratio`` = ``ratio`` (α_∞ max f̄ or a lower bound)."""
+    err = TemplateError(name, "does not fit Z", f"the least robustly invariant X0 with these {rows} directions has "
+                        f"alpha_inf * max f_bar = {value} >= 1: its steady tube leaves the constraints under "
+                        "u = Kx, so no terminal set exists (Appendix A.1)",
+                        "a lower-gain K (design.gain_R_scale), another design.x0_lambda, or relax Z / shrink W")
+    err.fit_ratio = ratio
+    raise err
 
 
 __all__ = ["PREIMAGE_DIRECTION_ITER", "PREIMAGE_LAMBDAS", "fit_ratio", "nominal_directions", "preimage_max_rows",
