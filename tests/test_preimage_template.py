@@ -77,7 +77,7 @@ def test_the_fit_condition_is_judged_just_inside_and_just_outside(tmp_path):
             design_fixed(outside.problem, _preimage_options(outside))
         # the exact ratio, or the lower bound of the iterate that first reached the constraints
         assert 1.0 <= err.value.fit_ratio <= factor * 1.01
-        assert f"alpha_inf * max f_bar = " in str(err.value) and f"{err.value.fit_ratio:.3g}" in str(err.value)
+        assert "alpha_inf * max f_bar = " in str(err.value) and f"{err.value.fit_ratio:.3g}" in str(err.value)
 
 
 def test_the_direction_cap_at_its_edge(tmp_path):
