@@ -16,7 +16,7 @@ from amcp_drake.model.problem_io import load_spec
 from amcp_drake.offline.auto import Attempt, AutoDesignError
 from amcp_drake.offline.checks import verify_design
 from amcp_drake.offline.design import design, design_fixed, robust_gain
-from amcp_drake.offline.preimage import nominal_directions, preimage_max_rows
+from amcp_drake.offline.preimage import PREIMAGE_STOP_REACH, nominal_directions, preimage_max_rows
 from amcp_drake.offline.templates import TemplateError
 from amcp_drake.studies.chains import integrator_chain
 
@@ -62,8 +62,8 @@ def test_the_fit_condition_is_judged_just_inside_and_just_outside(tmp_path):
     """The least invariant template scales exactly with W (its directions depend on K and Z only, the
     template iteration is homogeneous in σ_W), so the fit ratio r measured at ‖w‖∞ <= 0.01 predicts it at
     any w: at w = 0.01·0.98/r the design passes every check; at w = 0.01·1.02/r it is refused as
-    "does not fit Z" with a ratio in [1, 1.02] (1.02 itself, or the lower bound at which the iteration
-    stopped); at twice the ratio likewise."""
+    "does not fit Z" with the ratio 1.02 (1 % accuracy of the iteration's stopping rule); likewise at 1.5;
+    at 2.2, above PREIMAGE_STOP_REACH, with a lower bound between the stop and 2.2."""
     spec = _load(tmp_path, integrator_chain(4))
     d = design_fixed(spec.problem, _preimage_options(spec))
     r = _fit_ratio_by_numpy(spec.problem, d)
@@ -71,13 +71,16 @@ def test_the_fit_condition_is_judged_just_inside_and_just_outside(tmp_path):
     inside = _load(tmp_path, integrator_chain(4, w=0.01 * 0.98 / r))
     d_in = design_fixed(inside.problem, _preimage_options(inside))
     assert [c.name for c in verify_design(inside.problem, d_in) if not c.passed] == []
-    for factor in (1.02, 2.0):
+    for factor in (1.02, 1.5, 2.2):
         outside = _load(tmp_path, integrator_chain(4, w=0.01 * factor / r))
         with pytest.raises(TemplateError, match="does not fit Z") as err:
             design_fixed(outside.problem, _preimage_options(outside))
-        # the exact ratio, or the lower bound of the iterate that first reached the constraints
-        assert 1.0 <= err.value.fit_ratio <= factor * 1.01
-        assert "alpha_inf * max f_bar = " in str(err.value) and f"{err.value.fit_ratio:.3g}" in str(err.value)
+        if factor < PREIMAGE_STOP_REACH:  # the iteration ran to its fixed point: the exact ratio
+            assert not err.value.fit_bound and err.value.fit_ratio == pytest.approx(factor, rel=1e-2)
+        else:  # stopped at the first iterate reaching PREIMAGE_STOP_REACH: a lower bound
+            assert err.value.fit_bound and PREIMAGE_STOP_REACH <= err.value.fit_ratio <= factor * 1.01
+        assert f"alpha_inf * max f_bar = {'at least ' if err.value.fit_bound else ''}{err.value.fit_ratio:.3g}" \
+            in str(err.value)
 
 
 def test_the_direction_cap_at_its_edge(tmp_path):
@@ -103,8 +106,12 @@ def test_auto_design_error_names_the_closest_fit():
                 Attempt("c", "design failed", "z", 0.3, fit_ratio=1.3)]
     text = str(AutoDesignError(attempts))
     assert "Closest: candidate 3 (c): its least robustly invariant tube reaches 1.3 x the constraints" in text
+    bound = [Attempt("d", "design failed", "w", 0.1, fit_ratio=2.4, fit_bound=True)]
+    assert "Closest: candidate 1 (d): its least robustly invariant tube reaches at least 2.4 x" in str(
+        AutoDesignError(bound))
     assert "Closest" not in str(AutoDesignError(attempts[:1]))
-    assert attempts[2].to_dict()["fit_ratio"] == 1.3 and "fit_ratio" not in attempts[0].to_dict()
+    assert attempts[2].to_dict()["fit_ratio"] == 1.3 and attempts[2].to_dict()["fit_bound"] is False
+    assert "fit_ratio" not in attempts[0].to_dict()
 
 
 def test_a_lambda_at_or_below_the_nominal_spectral_radius_is_refused_at_once(tmp_path):

@@ -77,18 +77,20 @@ class Attempt:
     """One try of the automatic design: ``outcome`` is "pass", "design failed", "check failed",
     "too large" (a stage's size estimate exceeded the memory limit) or "time budget". ``fit_ratio``:
     α_∞ max f̄ of the least robustly invariant template of a candidate that failed because its tube
-    does not fit Z (offline/preimage.py), else None."""
+    does not fit Z (offline/preimage.py), else None; ``fit_bound``: True when it is a lower bound."""
 
     label: str
     outcome: str
     reason: str
     seconds: float
     fit_ratio: float | None = None
+    fit_bound: bool = False
 
     def to_dict(self) -> dict:
         out = {"label": self.label, "outcome": self.outcome, "reason": self.reason, "seconds": round(self.seconds, 3)}
         if self.fit_ratio is not None:
             out["fit_ratio"] = self.fit_ratio
+            out["fit_bound"] = self.fit_bound
         return out
 
     def line(self) -> str:
@@ -108,7 +110,8 @@ class AutoDesignError(DesignError):
         if measured:
             ratio, i, a = min(measured, key=lambda t: (t[0], t[1]))
             closest = (f"Closest: candidate {i + 1} ({a.label}): its least robustly invariant tube reaches "
-                       f"{ratio:.3g} x the constraints (alpha_inf * max f_bar; a design needs < 1).\n")
+                       f"{'at least ' if a.fit_bound else ''}{ratio:.3g} x the constraints (alpha_inf * max f_bar; "
+                       "a design needs < 1).\n")
         super().__init__(
             f"automatic design: none of the {len(attempts)} candidates passed every design check:\n{lines}\n{closest}"
             "Next: give a cross-section yourself (design.x0_template = 'given', design.x0_H), a gain "
@@ -183,7 +186,7 @@ def design_auto(problem: Problem, options: DesignOptions, backend, design_fixed,
             continue
         except DesignError as exc:  # includes TemplateError and TerminalSetError
             _record(attempts, Attempt(label, "design failed", _short(exc), time.perf_counter() - start,
-                                      getattr(exc, "fit_ratio", None)), log, budget)
+                                      getattr(exc, "fit_ratio", None), getattr(exc, "fit_bound", False)), log, budget)
             continue
         checks = verify(problem, d, candidate.mu_state_bound)
         failed = [c for c in checks if not c.passed]

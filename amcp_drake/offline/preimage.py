@@ -25,7 +25,7 @@ loop only, where they stay few, and lets the template iteration find the robust 
    X0 is the least robustly invariant set with these normals, so when α_∞ max f̄ >= 1 no design with
    them exists for this K: :class:`~amcp_drake.offline.templates.TemplateError` "does not fit Z", with
    the ratio (``fit_ratio``). The iteration stops early when an iterate X(h_j) already reaches
-   max (F + GK) x >= 1 over its vertices: the iterates increase (h_0 = σ_W <= T(h_0), T monotone), and the
+   max (F + GK) x >= :data:`PREIMAGE_STOP_REACH` over its vertices: the iterates increase (h_0 = σ_W <= T(h_0), T monotone), and the
    steady tube α_∞ X0 is a robustly invariant template with the same normals, hence contains the least
    one and every iterate, so α_∞ max f̄ >= that maximum (then reported as a lower bound).
 
@@ -54,6 +54,10 @@ from amcp_drake.offline.terminal import steady_alpha
 #: designed the 4-state integrator chain with 90 facets; a larger λ₀ gives fewer directions, a smaller
 #: one more (and below the nominal spectral radius none: the iteration does not terminate).
 PREIMAGE_LAMBDAS = (0.95, 0.97)
+#: The template iteration stops as soon as an iterate reaches this multiple of the constraints (step 3:
+#: then α_∞ max f̄ is at least that much, and the candidate cannot fit); below it the iteration runs to
+#: its fixed point, so that a tube reaching 1 to 2 times Z is reported with its exact ratio.
+PREIMAGE_STOP_REACH = 2.0
 #: Iteration cap of the nominal backward iteration (step 1).
 PREIMAGE_DIRECTION_ITER = 200
 
@@ -129,9 +133,9 @@ def preimage_template(FGK: np.ndarray, H_w: np.ndarray, A_cl: np.ndarray, A_nom:
         verts = polytope.vertices(D, h)
         budget.note_vertices(len(D), n, len(verts))
         reach = float(np.max(chunked_row_maxima(FGK, verts, budget, stage)))
-        if not reach < 1.0:  # step 3: every later iterate and the steady tube α_∞ X0 contain this one
+        if not reach < PREIMAGE_STOP_REACH:  # step 3: later iterates and the steady tube α_∞ X0 contain this one
             _no_fit(name, len(D), reach, f"at least {reach:.3g} (iteration {iteration} of the template iteration "
-                    "already reaches it; every later iterate and the steady tube alpha_inf X0 contain it)")
+                    "already reaches it; every later iterate and the steady tube alpha_inf X0 contain it)", bound=True)
         images = np.max([chunked_row_maxima(D @ Ak, verts, budget, stage) for Ak in A_cl], axis=0)
         h_next = images + w_sup
         residual = float(np.max((h_next - h) / w_sup))
@@ -160,15 +164,16 @@ def _require_fit(H_x, FGK, W_v, A_cl, name: str, budget: DesignBudget) -> None:
         _no_fit(name, len(H_x), ratio, f"{ratio:.3g}")
 
 
-def _no_fit(name: str, rows: int, ratio: float, value: str) -> None:
-    """Raise the TemplateError "does not fit Z" with ``fit_ratio`` = ``ratio`` (α_∞ max f̄ or a lower bound)."""
+def _no_fit(name: str, rows: int, ratio: float, value: str, bound: bool = False) -> None:
+    """Raise the TemplateError "does not fit Z" with ``fit_ratio`` = ``ratio``, α_∞ max f̄ or (``bound``,
+    recorded as ``fit_bound``) a lower bound of it."""
     err = TemplateError(name, "does not fit Z", f"the least robustly invariant X0 with these {rows} directions has "
                         f"alpha_inf * max f_bar = {value} >= 1: its steady tube leaves the constraints under "
                         "u = Kx, so no terminal set exists (Appendix A.1)",
                         "a lower-gain K (design.gain_R_scale), another design.x0_lambda, or relax Z / shrink W")
-    err.fit_ratio = ratio
+    err.fit_ratio, err.fit_bound = ratio, bound
     raise err
 
 
-__all__ = ["PREIMAGE_DIRECTION_ITER", "PREIMAGE_LAMBDAS", "fit_ratio", "nominal_directions", "preimage_max_rows",
+__all__ = ["PREIMAGE_DIRECTION_ITER", "PREIMAGE_LAMBDAS", "PREIMAGE_STOP_REACH", "fit_ratio", "nominal_directions", "preimage_max_rows",
            "preimage_template"]
