@@ -363,7 +363,7 @@ class DesignOptions:
       ``"preimage"`` (normals of the nominal closed loop's maximal ``x0_lambda``-contractive set, the least
       robustly invariant template over Θ's vertices; offline/preimage.py).
     * ``x0_lambda``: λ of the contractive template (None: 0.9 for "contractive"; auto tries its list);
-      λ₀ of the preimage template's directions (None: 0.95).
+      λ₀ of the preimage template's directions (None: 0.97).
     * ``x0_H`` (u, n): the user's X0 for ``"given"``.
     * ``gain_R_scale`` (>= 1): the gain LMI (16) is solved with R multiplied by this (a lower-gain K,
       whose P still satisfies (16) with the true R); 1 = the LMI of the paper.
