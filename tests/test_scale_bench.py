@@ -93,7 +93,7 @@ def test_a_row_over_its_wall_limit_is_killed_and_says_so(monkeypatch):
 
 
 def test_a_design_over_the_memory_limit_is_a_row_with_the_stage_named():
-    row = SizeRow("integrator chain n=4", "chain", integrator_chain(4))
+    row = SizeRow("integrator chain n=5", "chain", integrator_chain(5))  # no design at n = 5 (docs/decisions.md)
     result = run_row(row, steps=3, seed=0, max_memory_mb=1.0, candidate_seconds=5, row_seconds=600)
     assert result["status"].startswith("no design candidate passed; the first: parallelotope: ")
     assert any(a["outcome"] == "too large" and "memory limit of 1.0 MiB" in a["reason"] for a in result["attempts"])

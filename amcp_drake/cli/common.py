@@ -233,7 +233,7 @@ def write_error(option: str, path, exc: OSError) -> ProblemError:
 
 
 x0_template_option = click.option(
-    "--x0-template", "x0_template", type=click.Choice(["auto", "mrpi", "contractive", "given", "parallelotope"]), default=None,
+    "--x0-template", "x0_template", type=click.Choice(["auto", "mrpi", "contractive", "given", "parallelotope", "preimage"]), default=None,
     help="Cross-section template of the tube (docs/decisions.md, 'X0 templates'): auto tries them in a documented "
          "order and keeps the first design passing every check. Default: the problem file's design.x0_template, "
          "else auto. 'given' needs design.x0_H in the file.")

@@ -359,8 +359,11 @@ class DesignOptions:
       ``"mrpi"`` (minimal-RPI outer approximation with ``x0_facets`` directions), ``"contractive"``
       (maximal ``x0_lambda``-contractive set in Z under u = Kx, scaled to be robustly invariant),
       ``"given"`` (``x0_H``, rows of X0 = {x | x0_H x <= 1}), ``"parallelotope"`` ({‖T x‖∞ <= s}
-      with a gain K from a linear program making it λ-contractive; offline/parallelotope.py).
-    * ``x0_lambda``: λ of the contractive template (None: 0.9 for "contractive"; auto tries its list).
+      with a gain K from a linear program making it λ-contractive; offline/parallelotope.py),
+      ``"preimage"`` (normals of the nominal closed loop's maximal ``x0_lambda``-contractive set, the least
+      robustly invariant template over Θ's vertices; offline/preimage.py).
+    * ``x0_lambda``: λ of the contractive template (None: 0.9 for "contractive"; auto tries its list);
+      λ₀ of the preimage template's directions (None: 0.97).
     * ``x0_H`` (u, n): the user's X0 for ``"given"``.
     * ``gain_R_scale`` (>= 1): the gain LMI (16) is solved with R multiplied by this (a lower-gain K,
       whose P still satisfies (16) with the true R); 1 = the LMI of the paper.
@@ -426,7 +429,7 @@ class DesignOptions:
         return int(self.x0_facets) if self.x0_facets is not None else default_x0_facets(n)
 
     def _validate_template(self, problem: Problem) -> None:
-        kinds = ("auto", "mrpi", "contractive", "given", "parallelotope")
+        kinds = ("auto", "mrpi", "contractive", "given", "parallelotope", "preimage")
         if not isinstance(self.x0_template, str) or self.x0_template not in kinds:
             raise ProblemError("design.x0_template", f"one of {list(kinds)}", repr(self.x0_template))
         if self.x0_lambda is not None and not (isinstance(self.x0_lambda, (int, float))

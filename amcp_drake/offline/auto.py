@@ -28,7 +28,12 @@ offline/terminal.py, as many rows as X0) before step 2, whose fixed template dir
 the closed loop in more than three dimensions (every mrpi candidate diverged on the 4- to 6-state
 chains measured), and the many-facet mrpi candidates of step 4 are left out above
 :data:`MRPI_FACETS_MAX_N` (each costs a long template iteration and, when it converges, a tube QP
-with thousands of X0 vertices).
+with thousands of X0 vertices). Last come the ``preimage`` candidates (offline/preimage.py: facet
+normals from the nominal closed loop, the least robustly invariant template over Θ's vertices), with
+the gains of step 3 (lowest first) and each λ₀ of
+:data:`~amcp_drake.offline.preimage.PREIMAGE_LAMBDAS`; they come after every earlier candidate, so a
+system that designed before keeps its design. A preimage candidate whose tube does not fit Z records
+how far it reaches (``fit_ratio``), and :class:`AutoDesignError` names the closest one.
 
 Each attempt is recorded as (label, outcome, reason, seconds); the returned design carries them in
 ``info["attempts"]``; when none passes, :class:`AutoDesignError` lists them all. Every candidate
@@ -49,6 +54,7 @@ from amcp_drake.model.errors import DesignError
 from amcp_drake.model.problem import DEFAULT_X0_LAMBDA, DesignOptions, Problem
 from amcp_drake.offline import templates as x0_templates
 from amcp_drake.offline.budget import CandidateTimeout, DesignBudget, DesignSizeError, unbounded
+from amcp_drake.offline.preimage import PREIMAGE_LAMBDAS
 
 #: λ of the contractive template, tried in this order: 0.9 leaves the tube room to shrink
 #: (α⁺ <= 0.9 α + w̄); larger λ admit a set where a smaller one is empty (the disturbance uses up
@@ -69,28 +75,45 @@ MRPI_FACETS_MAX_N = 3
 @dataclass(frozen=True)
 class Attempt:
     """One try of the automatic design: ``outcome`` is "pass", "design failed", "check failed",
-    "too large" (a stage's size estimate exceeded the memory limit) or "time budget"."""
+    "too large" (a stage's size estimate exceeded the memory limit) or "time budget". ``fit_ratio``:
+    α_∞ max f̄ of the least robustly invariant template of a candidate that failed because its tube
+    does not fit Z (offline/preimage.py), else None; ``fit_bound``: True when it is a lower bound."""
 
     label: str
     outcome: str
     reason: str
     seconds: float
+    fit_ratio: float | None = None
+    fit_bound: bool = False
 
     def to_dict(self) -> dict:
-        return {"label": self.label, "outcome": self.outcome, "reason": self.reason, "seconds": round(self.seconds, 3)}
+        out = {"label": self.label, "outcome": self.outcome, "reason": self.reason, "seconds": round(self.seconds, 3)}
+        if self.fit_ratio is not None:
+            out["fit_ratio"] = self.fit_ratio
+            out["fit_bound"] = self.fit_bound
+        return out
 
     def line(self) -> str:
         return f"{self.label}: {self.outcome}" + (f" ({self.reason})" if self.reason else "") + f" [{self.seconds:.1f} s]"
 
 
 class AutoDesignError(DesignError):
-    """No candidate of the automatic design passed every design check; ``attempts`` lists them."""
+    """No candidate of the automatic design passed every design check; ``attempts`` lists them. When a
+    candidate measured how far its least robustly invariant tube reaches beyond Z (``fit_ratio``), the
+    message names the closest one: the measured reason why no design was found."""
 
     def __init__(self, attempts: list[Attempt]) -> None:
         self.attempts = attempts
         lines = "\n".join(f"  {i + 1}. {a.line()}" for i, a in enumerate(attempts))
+        measured = [(a.fit_ratio, i, a) for i, a in enumerate(attempts) if a.fit_ratio is not None]
+        closest = ""
+        if measured:
+            ratio, i, a = min(measured, key=lambda t: (t[0], t[1]))
+            closest = (f"Closest: candidate {i + 1} ({a.label}): its least robustly invariant tube reaches "
+                       f"{'at least ' if a.fit_bound else ''}{ratio:.3g} x the constraints (alpha_inf * max f_bar; "
+                       "a design needs < 1).\n")
         super().__init__(
-            f"automatic design: none of the {len(attempts)} candidates passed every design check:\n{lines}\n"
+            f"automatic design: none of the {len(attempts)} candidates passed every design check:\n{lines}\n{closest}"
             "Next: give a cross-section yourself (design.x0_template = 'given', design.x0_H), a gain "
             "(design.K, design.P), or relax Z / shrink W or Theta; no design passing every check exists "
             "among the templates tried.")
@@ -117,6 +140,10 @@ def candidate_options(problem: Problem, options: DesignOptions) -> list[DesignOp
             out.append(replace(options, x0_template="contractive", x0_lambda=lam, gain_R_scale=scale, x0_H=None))
     if bounded_first:
         out.append(first_mrpi)
+        pre_lambdas = (options.x0_lambda,) if options.x0_lambda is not None else PREIMAGE_LAMBDAS
+        for scale in gains:
+            for lam in pre_lambdas:
+                out.append(replace(options, x0_template="preimage", x0_lambda=lam, gain_R_scale=scale, x0_H=None))
         if problem.n > MRPI_FACETS_MAX_N:
             return out
     limit = x0_templates.max_template_facets(problem.n)
@@ -158,7 +185,8 @@ def design_auto(problem: Problem, options: DesignOptions, backend, design_fixed,
             _record(attempts, Attempt(label, "time budget", _short(exc), time.perf_counter() - start), log, budget)
             continue
         except DesignError as exc:  # includes TemplateError and TerminalSetError
-            _record(attempts, Attempt(label, "design failed", _short(exc), time.perf_counter() - start), log, budget)
+            _record(attempts, Attempt(label, "design failed", _short(exc), time.perf_counter() - start,
+                                      getattr(exc, "fit_ratio", None), getattr(exc, "fit_bound", False)), log, budget)
             continue
         checks = verify(problem, d, candidate.mu_state_bound)
         failed = [c for c in checks if not c.passed]
@@ -186,6 +214,10 @@ def template_label(options: DesignOptions, facets: int | None = None, dimension:
         text = f"mrpi, {count if count is not None else 'default'} facets"
     elif kind == "parallelotope":
         text = "parallelotope" + (f", {facets} facets" if facets is not None else "")
+    elif kind == "preimage":
+        text = f"preimage, lambda {options.x0_lambda if options.x0_lambda is not None else PREIMAGE_LAMBDAS[0]:g}"
+        if facets is not None:
+            text += f", {facets} facets"
     elif kind == "contractive":
         text = f"contractive, lambda {options.x0_lambda if options.x0_lambda is not None else DEFAULT_X0_LAMBDA:g}"
         if facets is not None:

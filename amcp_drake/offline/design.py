@@ -14,7 +14,7 @@ from amcp_drake.model import polytope
 from amcp_drake.model.errors import DesignError, ProblemError, TerminalSetError
 from amcp_drake.model.problem import DEFAULT_X0_LAMBDA, DesignOptions, Problem
 from amcp_drake.model.status import SolveStatus
-from amcp_drake.offline import parallelotope, units
+from amcp_drake.offline import parallelotope, preimage, units
 from amcp_drake.offline import templates as x0_templates
 from amcp_drake.offline.auto import design_auto, template_label
 from amcp_drake.offline.budget import DesignBudget, chunked_row_maxima, chunked_tight_counts, unbounded
@@ -150,7 +150,7 @@ def _design_as_written(problem: Problem, options: DesignOptions, backend="drake"
     # X0: the cross-section template (offline/templates.py)
     FGK = problem.F + problem.G @ K
     budget.tick("X0 template")
-    H_x = _x0(problem, A_cl, FGK, be, options, budget) if T_par is None else _parallelotope_x0(problem, A_cl, T_par, budget)
+    H_x = _x0(problem, A_cl, FGK, be, options, budget, K) if T_par is None else _parallelotope_x0(problem, A_cl, T_par, budget)
     budget.require_vertices("X0 vertices", len(H_x), problem.n)
     X0_vertices = polytope.vertices(H_x, np.ones(len(H_x)))
     budget.tick("w_bar, f_bar, h_bar")
@@ -261,7 +261,7 @@ def _require_finite_support(name: str, values: np.ndarray) -> None:
 
 
 def _x0(problem: Problem, A_cl: np.ndarray, FGK: np.ndarray, be, options: DesignOptions,
-        budget: DesignBudget | None = None) -> np.ndarray:
+        budget: DesignBudget | None = None, K: np.ndarray | None = None) -> np.ndarray:
     """Tube shape X0 = {H_x x <= 1} by the template of ``options.x0_template`` (offline/templates.py)."""
     kind = options.x0_template
     if kind == "mrpi":
@@ -273,6 +273,11 @@ def _x0(problem: Problem, A_cl: np.ndarray, FGK: np.ndarray, be, options: Design
                                                  max_rows=x0_templates.contractive_max_rows(problem.n), budget=budget)
     if kind == "given":
         return x0_templates.given_template(options.x0_H, problem.H_w, A_cl)
+    if kind == "preimage":
+        lam = options.x0_lambda if options.x0_lambda is not None else preimage.PREIMAGE_LAMBDAS[0]
+        A_nom = problem.A_of(problem.theta_hat0) + problem.B_of(problem.theta_hat0) @ K
+        return preimage.preimage_template(FGK, problem.H_w, A_cl, A_nom, be, lam, options.mrpi_max_iter,
+                                          preimage.preimage_max_rows(problem.n), budget=budget)
     raise ProblemError("design.x0_template", f"one of {list(x0_templates.TEMPLATE_KINDS)}", repr(kind))
 
 

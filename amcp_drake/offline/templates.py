@@ -61,7 +61,7 @@ CONTRACTIVE_CHECK_TOL = 1e-8
 #: falls below this fraction of the radius of the constraint set.
 COLLAPSE_FRACTION = 1e-6
 
-TEMPLATE_KINDS = ("auto", "mrpi", "contractive", "given", "parallelotope")
+TEMPLATE_KINDS = ("auto", "mrpi", "contractive", "given", "parallelotope", "preimage")
 
 
 class TemplateError(DesignError):

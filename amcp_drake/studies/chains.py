@@ -45,9 +45,9 @@ def actuated_chain(n: int, w: float = 0.005, eps: float = 0.1, design_section: d
     return data
 
 
-def integrator_chain(n: int) -> dict:
-    """A chain of n integrators with one input (B uncertain), box Θ on two entries, ‖w‖∞ <= 0.01."""
-    data = actuated_chain(n, w=0.01)
+def integrator_chain(n: int, w: float = 0.01) -> dict:
+    """A chain of n integrators with one input (B uncertain), box Θ on two entries, ‖w‖∞ <= w (0.01)."""
+    data = actuated_chain(n, w=w)
     data["name"] = f"integrator_chain{n}"
     B0 = np.zeros((n, 1))
     B0[-1, 0] = 0.2
