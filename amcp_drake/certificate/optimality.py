@@ -47,16 +47,16 @@ so the claim fails a step only when *no* ω >= 0 certifies it within the toleran
 stages. First, cheaply, ω is the non-negative least-squares fit (:func:`scipy.optimize.nnls`) of the
 stationarity equation over the rows with slack <= τ, for each τ of :data:`ACTIVE_TOLS` (min–max: also the
 quadratics within τ' of t_l, relative, for each τ' of :data:`ACTIVE_COST_TOLS`); the best of these is kept
-when it is within :data:`OPTIMALITY_TOL`. Otherwise, **the LP certificate** (:func:`lp_certificate`) takes
+when it is within :data:`LP_ABOVE` (a tenth of the tolerance). Otherwise, **the LP certificate** (:func:`lp_certificate`) takes
 every row: for a bound τ on the complementarity (Σ ω_i·slack_i <= τ·s0, s0 the scale below without the ω
 terms), the ω minimising the stationarity residual ‖∇f + Σ ω_i ∇g_i‖_∞/s0 is an LP (HiGHS, through
 :func:`scipy.optimize.linprog`); its optimum r(τ) does not increase with τ, and the min–max above is the τ*
 with r(τ*) = τ*. τ = OPTIMALITY_TOL is tried first (which decides the claim), then τ* is bracketed by
 bisection in log τ. HiGHS only proposes ω: every ω, from NNLS or the LP, is made non-negative (and
 scaled onto the complementarity bound), its residuals are recomputed here with numpy, and the smallest
-worst residual is the step's value. Its margin is therefore a genuine certificate (an upper bound of
-the minimum; the minimum itself, to within the bisection's 0.4 %, on the steps the NNLS fits do not
-certify). Why not NNLS alone: it minimises the 2-norm of stationarity over a guessed active set, the
+worst residual is the step's value. Its margin is therefore a genuine certificate: the minimum itself,
+to within the bisection's 0.4 %, whenever it exceeds a tenth of the tolerance, below that an upper bound of
+the minimum. Why not NNLS alone: it minimises the 2-norm of stationarity over a guessed active set, the
 claim judges the ∞-norm of stationarity and the complementarity together, and on a degenerate step
 (hundreds of nearly parallel vertex rows within 1e-2 of active, the dual not unique) the two differ by
 more than the tolerance: on mass_chain4 (n = 8, a Drake plan 1.6e-7 from the optimum) the best NNLS
@@ -134,10 +134,17 @@ SCALE_FLOOR = 1e-2
 #: :data:`LP_TAU_RANGE` below the tolerance leave it within 0.4 %), and the range searched.
 LP_BISECTIONS = 12
 LP_TAU_RANGE = (1e-12, 1e1)
+#: The LP certificate runs when the best NNLS candidate leaves more than this (so that every margin beyond
+#: a tenth of the tolerance is the minimum over ω, not an upper bound of it).
+LP_ABOVE = OPTIMALITY_TOL / 10
 #: HiGHS options of the LP certificate: feasibility tolerances below HiGHS's default 1e-7, since the LP's
 #: rows are the stationarity residual divided by the scale, judged at OPTIMALITY_TOL (its answer is
 #: re-evaluated in any case; a looser answer only makes the certificate worse, never wrongly better).
-LP_OPTIONS = {"primal_feasibility_tolerance": 1e-10, "dual_feasibility_tolerance": 1e-10}
+#: ``maxiter`` caps each attempt (deterministically, unlike a time limit): dual simplex, the first of
+#: :data:`LP_METHODS`, can cycle on these degenerate LPs (measured: 290,000 iterations without an answer on a
+#: mass_chain3 step whose LP it otherwise solves in ~300); the interior-point method then answers.
+LP_OPTIONS = {"primal_feasibility_tolerance": 1e-10, "dual_feasibility_tolerance": 1e-10, "maxiter": 20_000}
+LP_METHODS = ("highs-ds", "highs-ipm")
 
 CE, MINMAX = "certainty_equivalence", "minmax"
 
@@ -336,8 +343,11 @@ def _lp_multipliers(cols: np.ndarray, slacks: np.ndarray, target: np.ndarray, ta
     b_ub = np.concatenate([-target, target, [tau]])
     c = np.zeros(a + 1)
     c[-1] = 1.0
-    res = linprog(c, A_ub=A_ub, b_ub=b_ub, bounds=(0, None), method="highs", options=LP_OPTIONS)
-    if res.x is None:
+    for method in LP_METHODS:  # dual simplex can cycle on these degenerate LPs: capped, then interior point
+        res = linprog(c, A_ub=A_ub, b_ub=b_ub, bounds=(0, None), method=method, options=LP_OPTIONS)
+        if res.status == 0 and res.x is not None:
+            break
+    else:
         return None
     omega = np.maximum(res.x[:a], 0.0)
     total = float(omega @ slacks)
@@ -398,7 +408,7 @@ def kkt_residuals(A: np.ndarray, b: np.ndarray, y: np.ndarray, objective_terms: 
     (``rhs_extra``); the linear rows are then padded with zeros in the t-coordinates.
 
     The multipliers are fitted by NNLS once per candidate active set of :data:`ACTIVE_TOLS`; when none of
-    these certifies within :data:`OPTIMALITY_TOL`, :func:`lp_certificate` minimises the judged residual over
+    these certifies within :data:`LP_ABOVE`, :func:`lp_certificate` minimises the judged residual over
     every row. The best certificate (smallest worst residual) is kept: every candidate is a genuine ω >= 0
     (zero on the rows left out) whose residuals are recomputed here, so the minimum is a valid certificate.
     """
@@ -431,7 +441,7 @@ def kkt_residuals(A: np.ndarray, b: np.ndarray, y: np.ndarray, objective_terms: 
                   "active": int(cols.shape[1]), "active_tol": tol}
         if best is None or _pair(result) < _pair(best):
             best = result
-    if _pair(best) > OPTIMALITY_TOL:
+    if _pair(best) > LP_ABOVE:
         cols, slacks = columns(np.ones(len(slack), dtype=bool))
         result = lp_certificate(cols, slacks, grad, gradient_scale) if cols.shape[1] else None
         if result is not None and _pair(result) < _pair(best):
