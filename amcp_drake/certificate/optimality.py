@@ -54,9 +54,9 @@ terms), the ω minimising the stationarity residual ‖∇f + Σ ω_i ∇g_i‖_
 with r(τ*) = τ*. τ = OPTIMALITY_TOL is tried first (which decides the claim), then τ* is bracketed by
 bisection in log τ. HiGHS only proposes ω: every ω, from NNLS or the LP, is made non-negative (and
 scaled onto the complementarity bound), its residuals are recomputed here with numpy, and the smallest
-worst residual is the step's value. Its margin is therefore a genuine certificate: the minimum itself,
-to within the bisection's 0.4 %, whenever it exceeds a tenth of the tolerance, below that an upper bound of
-the minimum. Why not NNLS alone: it minimises the 2-norm of stationarity over a guessed active set, the
+worst residual is the step's value. Its margin is therefore a genuine certificate; whenever it exceeds
+a tenth of the tolerance it is also at most the LP's minimum (to within the bisection's 0.4 %; the LP holds
+s at its value without the ω terms, which can only be smaller). Why not NNLS alone: it minimises the 2-norm of stationarity over a guessed active set, the
 claim judges the ∞-norm of stationarity and the complementarity together, and on a degenerate step
 (hundreds of nearly parallel vertex rows within 1e-2 of active, the dual not unique) the two differ by
 more than the tolerance: on mass_chain4 (n = 8, a Drake plan 1.6e-7 from the optimum) the best NNLS
