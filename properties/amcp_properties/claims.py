@@ -19,7 +19,7 @@ from scipy.optimize import linprog
 from amcp_drake.model import polytope
 from amcp_drake.model.check_result import CheckResult, judge
 from amcp_drake.model.status import SolveStatus
-from amcp_drake.online.answers import qp_applied
+from amcp_drake.online.answers import qp_applied, rejected
 
 from .geometry import delta_set, maxima, regressor, signed_chebyshev_radius, unit_rows, vertices
 
@@ -126,6 +126,17 @@ def recursive_feasibility(traj) -> CheckResult:
             if not name.startswith("_") and value < worst:
                 worst, where = value, f"step {k}, {name} (Θ_k by {margins['_theta_method']})"
     return judge("Theorem 14 (i)", claim, worst, QP_TOL, f"worst constraint margin of 𝔻(x_k,Θ_k) at {where}")
+
+
+def backend_answers(traj) -> CheckResult:
+    """Not a claim of the paper: every answer of the run was the backend's own (first or re-solved), none
+    rejected by the answer checks (:func:`amcp_drake.online.answers.rejected`). A rejected answer replaced by a
+    checked fallback keeps Theorem 14 (:func:`recursive_feasibility`); it is a backend defect, reported here
+    (the mutants' runner lists it; the certificate's ``solver_answers``). Margin: −(number of rejected answers)."""
+    bad = [(r.k, e["problem"], e["outcome"], e["kind"]) for r in traj.records for e in (r.answers or ()) if rejected(e)]
+    detail = f"{len(bad)} answers rejected by the answer checks" + (f"; first: step {bad[0][0]}, {bad[0][1:]}" if bad else "")
+    return judge("answer checks", "every answer of the run is the backend's own (none rejected by the answer checks)",
+                 float(-len(bad)), 0.0, detail)
 
 
 def theta_star_in_sets(traj) -> CheckResult:
