@@ -66,6 +66,7 @@ from amcp_drake.studies.random_problems import (
     random_theta_star,
 )
 
+from . import profiles
 from .cases import RUN_MEMORY_MB, Case
 
 __all__ = ["BOUNDARY_BACKOFF", "DESIGN_BACKEND", "GENERATOR_STATS", "closed_loop_cases", "designed_problems",
@@ -219,18 +220,30 @@ def spec_digest(spec: ProblemSpec) -> str:
     return hashlib.sha1(json.dumps(spec_to_dict(spec), sort_keys=True).encode()).hexdigest()
 
 
-class _DesignCache:
-    """LRU cache of offline designs by problem-file content; failures are cached too."""
+def timed_from_n(profile: str) -> int:
+    """The least state dimension whose designs get a time budget per candidate
+    (:data:`~amcp_drake.offline.budget.DEFAULT_CANDIDATE_SECONDS` of CPU): every n in the thorough profile
+    (its examples are random anyway; measured: a generated n = 1 problem whose terminal-set recursion
+    grew to 1,047,173 rows and 5.5 GB without ending), above :data:`SMALL_N` otherwise, so that the ci
+    profile's examples never depend on the machine's speed (its designs take 0.1-3 s)."""
+    return 1 if profile == "thorough" else SMALL_N + 1
 
-    def __init__(self, size: int) -> None:
+
+class _DesignCache:
+    """LRU cache of offline designs by problem-file content; failures are cached too. Designs of
+    ``timed_from`` states or more have a time budget per candidate (:func:`timed_from_n`); a design
+    over it is a counted rejection ("CandidateTimeout")."""
+
+    def __init__(self, size: int, timed_from: int = SMALL_N + 1) -> None:
         self.size = size
+        self.timed_from = timed_from
         self.items: OrderedDict[str, OfflineDesign | DesignError] = OrderedDict()
 
     def get(self, spec: ProblemSpec) -> OfflineDesign:
         key = spec_digest(spec)
         if key not in self.items:
-            # above SMALL_N (thorough profile) every candidate of the automatic design has a time budget
-            budget = DesignBudget(candidate_seconds=DEFAULT_CANDIDATE_SECONDS) if spec.problem.n > SMALL_N else None
+            timed = spec.problem.n >= self.timed_from
+            budget = DesignBudget(candidate_seconds=DEFAULT_CANDIDATE_SECONDS) if timed else None
             try:
                 self.items[key] = design(spec.problem, spec.design, backend=DESIGN_BACKEND, budget=budget)
             except DesignError as exc:
@@ -244,7 +257,7 @@ class _DesignCache:
         return value
 
 
-DESIGNS = _DesignCache(DESIGN_CACHE_SIZE)
+DESIGNS = _DesignCache(DESIGN_CACHE_SIZE, timed_from_n(profiles.name()))
 
 
 @st.composite
