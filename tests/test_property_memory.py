@@ -106,3 +106,28 @@ def test_a_dropped_value_in_a_reference_cycle_is_collected_at_once():
         assert ref() is None
     finally:
         gc.enable()
+
+
+def test_thorough_designs_of_every_n_have_the_candidate_time_budget_and_ci_designs_up_to_3_none(monkeypatch, example_spec):
+    """The budget each design gets from the generator's cache: thorough at n = 2 the 60 s candidate budget, ci none
+    (its examples must not depend on the machine's speed); a design over the budget is a rejection (cached error)."""
+    from amcp_drake.offline.budget import DEFAULT_CANDIDATE_SECONDS, CandidateTimeout
+    from amcp_properties import strategies
+
+    seen = []
+
+    def fake_design(problem, options, backend, budget):
+        seen.append(budget)
+        raise CandidateTimeout("terminal set X_f, iteration 25", DEFAULT_CANDIDATE_SECONDS)
+
+    monkeypatch.setattr(strategies, "design", fake_design)
+    thorough = strategies._DesignCache(4, strategies.timed_from_n("thorough"))
+    ci = strategies._DesignCache(4, strategies.timed_from_n("ci"))
+    for cache in (thorough, ci):
+        try:
+            cache.get(example_spec)
+        except CandidateTimeout:
+            pass
+        else:
+            raise AssertionError("the design's timeout must reach the generator as a rejection")
+    assert seen[0].candidate_seconds == DEFAULT_CANDIDATE_SECONDS and seen[1] is None
