@@ -292,8 +292,9 @@ def test_the_dimension_line_counts_draws_accepted_and_runs_per_n():
         stats.add(key)
     summary = {"t[drake]": {"labels": {"n=2": 3, "n=5": 1, "m=1": 4}}, "u[cvxpy]": {"labels": {"n=5": 2}}}
     assert stats.by_dimension() == {2: (2, 1), 4: (1, 0), 5: (1, 1)}
-    assert dimension_line(stats.by_dimension(), summary) == \
-        "state dimension n: draws (accepted) / runs of all tests: n=2: 2 (1) / 3, n=4: 1 (0) / 0, n=5: 1 (1) / 3"
+    assert dimension_line(stats.by_dimension(), summary, {5: (3, 1)}) == \
+        ("state dimension n: draws (accepted) / refused by the run's memory estimate / runs of all tests: "
+         "n=2: 2 (1) / 0 / 3, n=4: 1 (0) / 0 / 0, n=5: 1 (1) / 1 / 3")
 
 
 # -- the generator's boundary LP with the row maxima over X0's vertices ----------------------------------

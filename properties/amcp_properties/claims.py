@@ -19,6 +19,7 @@ from scipy.optimize import linprog
 from amcp_drake.model import polytope
 from amcp_drake.model.check_result import CheckResult, judge
 from amcp_drake.model.status import SolveStatus
+from amcp_drake.online.answers import qp_applied, rejected
 
 from .geometry import delta_set, maxima, regressor, signed_chebyshev_radius, unit_rows, vertices
 
@@ -57,8 +58,10 @@ def _prior_vertices(problem) -> np.ndarray:
 
 
 def _solved(traj) -> list[int]:
-    """Steps k whose record holds an optimal QP solution."""
-    return [r.k for r in traj.records if r.status is SolveStatus.OPTIMAL and r.v is not None]
+    """Steps k whose record holds an applied, checked answer of the QP (20): the backend's own or a checked
+    fallback of the other formulation (:func:`amcp_drake.online.answers.qp_applied`, as the certificate:
+    docs/decisions.md, "Verified solver answers"); its constraints are re-checked by the claims."""
+    return [r.k for r in traj.records if qp_applied(r) and r.v is not None]
 
 
 def _scaled_rows(H: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -105,11 +108,13 @@ def recursive_feasibility(traj) -> CheckResult:
     """Theorem 14 (i): 𝔻(x_k, Θ_k) ≠ ∅ at every step k of the run.
 
     Certified by the recorded QP solution of every step, re-checked without Λ
-    (:func:`tube_constraint_margins`); a step whose QP was not solved to optimality, an
-    inconsistent-data stop or an early end fails the claim."""
+    (:func:`tube_constraint_margins`); a step without an applied, checked answer of (20) (:func:`_solved`:
+    a checked fallback of the other formulation counts, as in the certificate; whose answer it was is
+    counted in the coverage's answers, not here), an inconsistent-data stop or an early end fails the claim."""
     claim = "Theorem 14 (i): the QP (20) is feasible at every step (recursive feasibility)"
     planned = len(traj.x) - 1
-    bad = [r.k for r in traj.records if r.status is not SolveStatus.OPTIMAL]
+    solved = set(_solved(traj))
+    bad = [r.k for r in traj.records if r.k not in solved]
     if traj.stop_reason != "completed" or bad:
         where = f"steps {bad}" if bad else ""
         return judge("Theorem 14 (i)", claim, -np.inf, QP_TOL,
@@ -121,6 +126,17 @@ def recursive_feasibility(traj) -> CheckResult:
             if not name.startswith("_") and value < worst:
                 worst, where = value, f"step {k}, {name} (Θ_k by {margins['_theta_method']})"
     return judge("Theorem 14 (i)", claim, worst, QP_TOL, f"worst constraint margin of 𝔻(x_k,Θ_k) at {where}")
+
+
+def backend_answers(traj) -> CheckResult:
+    """Not a claim of the paper: every answer of the run was the backend's own (first or re-solved), none
+    rejected by the answer checks (:func:`amcp_drake.online.answers.rejected`). A rejected answer replaced by a
+    checked fallback keeps Theorem 14 (:func:`recursive_feasibility`); it is a backend defect, reported here
+    (the mutants' runner lists it; the certificate's ``solver_answers``). Margin: −(number of rejected answers)."""
+    bad = [(r.k, e["problem"], e["outcome"], e["kind"]) for r in traj.records for e in (r.answers or ()) if rejected(e)]
+    detail = f"{len(bad)} answers rejected by the answer checks" + (f"; first: step {bad[0][0]}, {bad[0][1:]}" if bad else "")
+    return judge("answer checks", "every answer of the run is the backend's own (none rejected by the answer checks)",
+                 float(-len(bad)), 0.0, detail)
 
 
 def theta_star_in_sets(traj) -> CheckResult:

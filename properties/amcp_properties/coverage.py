@@ -191,15 +191,31 @@ class CoverageRecorder:
         Path(path).write_text(json.dumps(data, indent=1, sort_keys=True))
 
 
-def dimension_line(by_dimension: dict[int, tuple[int, int]], summary: dict[str, dict]) -> str:
-    """"state dimension n: draws (accepted) / runs" for every n drawn: the generator's design attempts
-    and accepted problems, and the examples of every test whose problem had n states (labels "n=...")."""
+def dimension_line(by_dimension: dict[int, tuple[int, int]], summary: dict[str, dict],
+                   refused: dict[int, tuple[int, int]] | None = None) -> str:
+    """"state dimension n: draws (accepted) / refused / runs" for every n drawn: the generator's design
+    attempts and accepted problems, the closed-loop cases refused before their run by the memory
+    estimate (``refused``: n -> (cases sized, refused)), and the examples of every test whose problem had
+    n states (labels "n=...")."""
     runs: dict[int, int] = {}
     for data in summary.values():
         for label, count in data.get("labels", {}).items():
             if label.startswith("n="):
                 runs[int(label[2:])] = runs.get(int(label[2:]), 0) + count
-    dims = sorted(set(by_dimension) | set(runs))
-    cells = [f"n={n}: {by_dimension.get(n, (0, 0))[0]} ({by_dimension.get(n, (0, 0))[1]}) / {runs.get(n, 0)}"
-             for n in dims]
-    return "state dimension n: draws (accepted) / runs of all tests: " + (", ".join(cells) or "none")
+    refused = refused or {}
+    dims = sorted(set(by_dimension) | set(runs) | set(refused))
+    cells = [f"n={n}: {by_dimension.get(n, (0, 0))[0]} ({by_dimension.get(n, (0, 0))[1]}) / "
+             f"{refused.get(n, (0, 0))[1]} / {runs.get(n, 0)}" for n in dims]
+    return ("state dimension n: draws (accepted) / refused by the run's memory estimate / runs of all tests: "
+            + (", ".join(cells) or "none"))
+
+
+def refusal_line(refused: dict[int, tuple[int, int]], limit_mb: float) -> str:
+    """The closed-loop cases refused before their run (``refused``: n -> (cases sized, refused)), in total
+    and per n, with the rate."""
+    sized = sum(s for s, _ in refused.values())
+    count = sum(r for _, r in refused.values())
+    rate = f"{count / sized:.1%}" if sized else "-"
+    per_n = ", ".join(f"n={n}: {r} of {s}" for n, (s, r) in sorted(refused.items()))
+    return (f"runs refused before they started (estimated memory above {limit_mb:g} MiB): {count} of {sized} "
+            f"closed-loop cases ({rate}); by n: {per_n or 'none'}")

@@ -84,11 +84,13 @@ def require(result: CheckResult, *, test: str, backend: str, case=None, traj: Tr
 
 
 def replay(folder: str | os.PathLike, backend: str | None = None) -> Trajectory:
-    """Re-run a saved failure: the recorded design, options, x0, θ* and disturbance sequence."""
+    """Re-run a saved failure: the recorded design, options, formulation of (20), x0, θ* and disturbance sequence."""
     folder = Path(folder)
     spec = load_spec(folder / "problem.json")
     recorded = Trajectory.load(folder / "trajectory.json.gz")
-    ctrl = AdaptiveMPC(spec.problem, recorded.design, backend or recorded.backend, recorded.options)
+    formulation = recorded.meta.get("formulation")
+    ctrl = AdaptiveMPC(spec.problem, recorded.design, backend or recorded.backend, recorded.options,
+                       **({"formulation": formulation} if formulation else {}))
     return simulate(ctrl, recorded.x[0], recorded.theta_star, len(recorded.w), disturbance=np.asarray(recorded.w))
 
 

@@ -288,7 +288,9 @@ def targeted_scenarios(steps: int = 30, seed: int = 0) -> list[Scenario]:
 
 
 def check_all(traj, case: Case, long: bool) -> dict[str, CheckResult]:
-    """Every claim check on one run (Assumption 11 on its design; Corollary 16 and (22) on long runs)."""
+    """Every claim check on one run (Assumption 11 on its design; Corollary 16 and (22) on long runs), and
+    whether the backend's answers passed the answer checks (a mutant that only breaks answers the
+    controller then replaces by a checked fallback is caught there, not by a claim)."""
     results = {
         "Theorem 14 (i)": claims.recursive_feasibility(traj),
         "Theorem 14 (ii) θ*": claims.theta_star_in_sets(traj),
@@ -299,6 +301,7 @@ def check_all(traj, case: Case, long: bool) -> dict[str, CheckResult]:
         "Lemma 5": claims.lms_inequality(traj),
         "Proposition 9": claims.prediction_tube(traj),
         "Assumption 11": claims.terminal_set_invariance(traj.problem, traj.design),
+        "answer checks": claims.backend_answers(traj),
     }
     if long:
         results["Corollary 16"] = claims.convergence_after_disturbance(traj, case.zero_from)

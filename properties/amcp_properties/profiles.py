@@ -19,7 +19,10 @@
   a longer search, run it repeatedly: the seeds are random and the database keeps what failed.
   thorough draws systems of up to 5 states (``Sizes.max_n``; ci up to 3): a quarter of its problems
   have n = 4 or 5 (:func:`amcp_properties.strategies.problem_shapes`), designed by the automatic
-  design; the coverage report counts the draws and runs per n.
+  design; the coverage report counts the draws and runs per n. With them the hour no longer holds
+  (measured on the shared 2-core machine, 2026-11-27: the seven properties of Theorem 14, Lemmas 3
+  and 5 and Assumption 11 took 28 min on Drake; Theorem 14 (i) alone took 8 min on cvxpy): the whole
+  profile for both backends takes a few hours (docs/how-to/property-suite.md).
 
 Sizes are per kind of property: ``closed_loop`` (the claims checked on one shared run), ``design``
 (Assumption 11), ``long`` (Corollary 16 and the finite gain) and ``lockstep``.

@@ -50,7 +50,8 @@ def merged(states: list[dict]):
 def write_summary(terminalreporter, profile: str, states: list[dict]) -> None:
     """Print the coverage table, the generator's statistics and the run counts of ``states`` (and
     write them as JSON to ``AMCP_COVERAGE_FILE`` when set)."""
-    from amcp_properties.coverage import dimension_line
+    from amcp_properties.cases import RUN_MEMORY_MB
+    from amcp_properties.coverage import dimension_line, refusal_line
 
     recorder, stats, simulated, reused = merged(states)
     summary = recorder.summary()
@@ -71,7 +72,9 @@ def write_summary(terminalreporter, profile: str, states: list[dict]) -> None:
     tr.write_line(f"generator: {len(stats.distinct)} distinct problems, {distinct:.1%} rejected by the design "
                   f"({stats.attempts} draws, {rate:.1%} rejected); by reason: "
                   + ", ".join(f"{k[10:]}={v}" for k, v in sorted(stats.counts.items()) if k.startswith("rejected:")))
-    tr.write_line(dimension_line(stats.by_dimension(), summary))
+    refused = stats.refused_by_dimension()
+    tr.write_line(dimension_line(stats.by_dimension(), summary, refused))
+    tr.write_line(refusal_line(refused, RUN_MEMORY_MB))
     tr.write_line("Θk↓d = some Θ_k lower-dimensional (Chebyshev radius <= 1e-5); θ*vx / θ*fc = θ* at a vertex / "
                   "elsewhere on ∂Θ; scaled = in badly scaled state units (fractions of the runs)")
     workers = f" in {len(states)} worker processes" if len(states) > 1 else ""
@@ -82,5 +85,8 @@ def write_summary(terminalreporter, profile: str, states: list[dict]) -> None:
                                    "rejection_rate": rate, "distinct_problems": len(stats.distinct),
                                    "distinct_rejection_rate": distinct,
                                    "runs": {"simulated": simulated, "reused": reused},
-                                   "by_dimension": {str(n): {"draws": d, "accepted": a}
+                                   "refusal_rate": stats.refusal_rate(), "run_memory_mb": RUN_MEMORY_MB,
+                                   "by_dimension": {str(n): {"draws": d, "accepted": a,
+                                                             "cases": refused.get(n, (0, 0))[0],
+                                                             "refused": refused.get(n, (0, 0))[1]}
                                                     for n, (d, a) in stats.by_dimension().items()}})

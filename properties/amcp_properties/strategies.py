@@ -19,6 +19,10 @@ that pins Θ_1 to {θ*} or into a facet's hyperplane (``pin="point"``), or leave
 the solvers' tolerances (``pin="thin"``), in 3/4 of the runs whose problem allows it (p <= n, θ* on ∂Θ;
 with input uncertainty w_0 is chosen for the controller's first input u_0, :mod:`amcp_drake.studies.pinning`); x0 on the boundary of the feasible set of (20); tight state boxes.
 
+A drawn case whose run is estimated above the per-run memory bound
+(:data:`amcp_properties.cases.RUN_MEMORY_MB`, the estimate of ``amcp certify``'s ``--max-memory``) is
+refused before the run and counted per n (:func:`refuse_oversized_run`; the suite prints the refusals).
+
 Layers:
 
 * :func:`problem_shapes` -> :class:`~amcp_drake.studies.random_problems.ProblemShape`;
@@ -39,7 +43,8 @@ import numpy as np
 from hypothesis import event, reject
 from hypothesis import strategies as st
 
-from amcp_drake.model.errors import DesignError
+from amcp_drake.model.errors import DesignError, ProblemError
+from amcp_drake.model.limits import check_run_size
 from amcp_drake.model.options import OnlineOptions
 from amcp_drake.model.problem import Problem, ProblemSpec
 from amcp_drake.model.problem_io import spec_to_dict
@@ -61,11 +66,12 @@ from amcp_drake.studies.random_problems import (
     random_theta_star,
 )
 
-from .cases import Case
+from . import profiles
+from .cases import RUN_MEMORY_MB, Case
 
 __all__ = ["BOUNDARY_BACKOFF", "DESIGN_BACKEND", "GENERATOR_STATS", "closed_loop_cases", "designed_problems",
            "disturbances", "initial_states", "online_options", "pins", "problem_shapes", "problem_specs",
-           "theta_stars"]
+           "refuse_oversized_run", "theta_stars"]
 
 #: Offline designs kept in memory (a design costs 0.1-2 s; the same problems recur across tests
 #: because every test of the ci profile uses the same seed).
@@ -96,6 +102,17 @@ class GeneratorStats:
         """n -> (design attempts, accepted) of the problems drawn with n states."""
         dims = sorted({int(k.rpartition("=")[2]) for k in self.counts if k.startswith("draws n=")})
         return {n: (self.counts[f"draws n={n}"], self.counts[f"accepted n={n}"]) for n in dims}
+
+    def refused_by_dimension(self) -> dict[int, tuple[int, int]]:
+        """n -> (closed-loop cases sized, refused by the run's memory estimate) of the cases with n states
+        (:func:`refuse_oversized_run`)."""
+        dims = sorted({int(k.rpartition("=")[2]) for k in self.counts if k.startswith("sized n=")})
+        return {n: (self.counts[f"sized n={n}"], self.counts[f"refused n={n}"]) for n in dims}
+
+    def refusal_rate(self) -> float:
+        """Refused / sized closed-loop cases (nan before any)."""
+        sized = self.counts["sized cases"]
+        return self.counts["refused: run size"] / sized if sized else float("nan")
 
     @property
     def attempts(self) -> int:
@@ -203,18 +220,30 @@ def spec_digest(spec: ProblemSpec) -> str:
     return hashlib.sha1(json.dumps(spec_to_dict(spec), sort_keys=True).encode()).hexdigest()
 
 
-class _DesignCache:
-    """LRU cache of offline designs by problem-file content; failures are cached too."""
+def timed_from_n(profile: str) -> int:
+    """The least state dimension whose designs get a time budget per candidate
+    (:data:`~amcp_drake.offline.budget.DEFAULT_CANDIDATE_SECONDS` of CPU): every n in the thorough profile
+    (its examples are random anyway; measured: a generated n = 1 problem whose terminal-set recursion
+    grew to 1,047,173 rows and 5.5 GB without ending), above :data:`SMALL_N` otherwise, so that the ci
+    profile's examples never depend on the machine's speed (its designs take 0.1-3 s)."""
+    return 1 if profile == "thorough" else SMALL_N + 1
 
-    def __init__(self, size: int) -> None:
+
+class _DesignCache:
+    """LRU cache of offline designs by problem-file content; failures are cached too. Designs of
+    ``timed_from`` states or more have a time budget per candidate (:func:`timed_from_n`); a design
+    over it is a counted rejection ("CandidateTimeout")."""
+
+    def __init__(self, size: int, timed_from: int = SMALL_N + 1) -> None:
         self.size = size
+        self.timed_from = timed_from
         self.items: OrderedDict[str, OfflineDesign | DesignError] = OrderedDict()
 
     def get(self, spec: ProblemSpec) -> OfflineDesign:
         key = spec_digest(spec)
         if key not in self.items:
-            # above SMALL_N (thorough profile) every candidate of the automatic design has a time budget
-            budget = DesignBudget(candidate_seconds=DEFAULT_CANDIDATE_SECONDS) if spec.problem.n > SMALL_N else None
+            timed = spec.problem.n >= self.timed_from
+            budget = DesignBudget(candidate_seconds=DEFAULT_CANDIDATE_SECONDS) if timed else None
             try:
                 self.items[key] = design(spec.problem, spec.design, backend=DESIGN_BACKEND, budget=budget)
             except DesignError as exc:
@@ -228,7 +257,7 @@ class _DesignCache:
         return value
 
 
-DESIGNS = _DesignCache(DESIGN_CACHE_SIZE)
+DESIGNS = _DesignCache(DESIGN_CACHE_SIZE, timed_from_n(profiles.name()))
 
 
 @st.composite
@@ -327,13 +356,39 @@ def online_options() -> st.SearchStrategy[OnlineOptions]:
                      projection=st.sampled_from(("Theta", "Theta_k")))
 
 
+def refuse_oversized_run(problem: Problem, spec: ProblemSpec, offline: OfflineDesign, steps: int,
+                         options: OnlineOptions, max_memory_mb: float = RUN_MEMORY_MB,
+                         stats: GeneratorStats | None = None) -> str | None:
+    """The reason a drawn case's run is refused, or None: its estimated memory
+    (:func:`amcp_drake.model.limits.check_run_size` with its design, options and steps) above
+    ``max_memory_mb``. Every case sized and every refusal is counted per n in ``stats`` (default
+    :data:`GENERATOR_STATS`), so the summary prints how many draws were refused, never dropping one silently."""
+    stats = GENERATOR_STATS if stats is None else stats
+    stats.add("sized cases")
+    stats.add(f"sized n={problem.n}")
+    try:
+        check_run_size(problem, spec.design, steps, options, max_memory_mb,
+                       option="amcp_properties.cases.RUN_MEMORY_MB", design=offline)
+    except ProblemError as exc:
+        stats.add("refused: run size")
+        stats.add(f"refused n={problem.n}")
+        if len(stats.messages) < 100:
+            stats.messages.append(str(exc))
+        return str(exc)
+    return None
+
+
 @st.composite
 def closed_loop_cases(draw, steps: int, kinds: st.SearchStrategy[str] | None = None,
-                      zero_after: st.SearchStrategy[int] | None = None, **problem_kwargs):
+                      zero_after: st.SearchStrategy[int] | None = None, max_memory_mb: float = RUN_MEMORY_MB,
+                      **problem_kwargs):
     """Everything for one closed-loop run: a designed problem, θ*, x0, w (w_0 pinning Θ_1 when
     drawn, see :func:`pins`), online options.
 
     ``zero_after``: a strategy for the step after which w = 0 (Corollary 16, finite energy).
+    ``max_memory_mb``: the per-run memory bound; a case whose run is estimated above it is refused
+    (rejected and counted, :func:`refuse_oversized_run`) after every draw, so the draws before it are
+    those of every earlier version.
     """
     # θ*'s kind first: a facet that is not a vertex needs p >= 2 (for p = 1 every boundary point is
     # a vertex), so "facet" draws a problem with p >= 2 (measured in the ci profile with the kind drawn
@@ -353,6 +408,9 @@ def closed_loop_cases(draw, steps: int, kinds: st.SearchStrategy[str] | None = N
     # "none" when D(x_0, u_0) lost rank at this x_0
     w, pin = pin_first_disturbance(problem, gen.design, x0, theta_star, w, pin)
     options = draw(online_options())
+    if refuse_oversized_run(problem, gen.spec, gen.design, len(w), options, max_memory_mb) is not None:
+        event(f"generator: run refused, estimated memory above {max_memory_mb:g} MiB (n={problem.n})")
+        reject()
     labels = dict(gen.labels, theta_star=theta_kind, x0=x0_kind, disturbance=w_kind, pin=pin,
                   update=options.update, projection=options.projection)
     return Case(spec=gen.spec, design=gen.design, x0=x0, theta_star=theta_star, w=w, options=options,
