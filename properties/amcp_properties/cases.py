@@ -33,6 +33,7 @@ import numpy as np
 from amcp_drake.model.errors import InconsistentDataError
 from amcp_drake.model.limits import DEFAULT_MAX_MEMORY_MB, estimate_for
 from amcp_drake.online.controller import AdaptiveMPC
+from amcp_drake.online.formulation_choice import resolved_formulation
 from amcp_drake.online.simulate import Trajectory, simulate
 from amcp_drake.studies.campaign import LARGE_FORMULATION
 from amcp_drake.studies.random_problems import RandomCase
@@ -68,6 +69,14 @@ def formulation_options(case: Case) -> dict[str, str]:
     return {} if case.problem.n <= PLAIN_MAX_N else {"formulation": LARGE_FORMULATION}
 
 
+def run_formulation(problem, design, options) -> str:
+    """The form of (20) a case of ``problem`` runs in ("plain", or what ``auto`` resolves to with its
+    design above :data:`PLAIN_MAX_N` states): the form its size is estimated for."""
+    if problem.n <= PLAIN_MAX_N:
+        return "plain"
+    return resolved_formulation(LARGE_FORMULATION, problem, design, options)
+
+
 def controller_for(case: Case, backend: str) -> AdaptiveMPC:
     """A new controller of ``case`` on ``backend`` in the case's formulation."""
     return AdaptiveMPC(case.problem, case.design, backend=backend, options=case.options, **formulation_options(case))
@@ -94,7 +103,8 @@ def trajectory_bytes(traj: Trajectory) -> int:
 def controller_bytes(case: Case) -> int:
     """Estimated bytes of a controller of ``case``: the tube QP of :func:`~amcp_drake.model.limits.estimate_for`
     with the case's design (one step: nothing recorded yet)."""
-    return estimate_for(case.problem, case.spec.design, 1, case.options, design=case.design).memory_bytes
+    return estimate_for(case.problem, case.spec.design, 1, case.options, design=case.design,
+                        formulation=run_formulation(case.problem, case.design, case.options)).memory_bytes
 
 
 class Memo:

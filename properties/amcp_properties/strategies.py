@@ -67,7 +67,7 @@ from amcp_drake.studies.random_problems import (
 )
 
 from . import profiles
-from .cases import RUN_MEMORY_MB, Case
+from .cases import RUN_MEMORY_MB, Case, run_formulation
 
 __all__ = ["BOUNDARY_BACKOFF", "DESIGN_BACKEND", "GENERATOR_STATS", "closed_loop_cases", "designed_problems",
            "disturbances", "initial_states", "online_options", "pins", "problem_shapes", "problem_specs",
@@ -368,7 +368,8 @@ def refuse_oversized_run(problem: Problem, spec: ProblemSpec, offline: OfflineDe
     stats.add(f"sized n={problem.n}")
     try:
         check_run_size(problem, spec.design, steps, options, max_memory_mb,
-                       option="amcp_properties.cases.RUN_MEMORY_MB", design=offline)
+                       option="amcp_properties.cases.RUN_MEMORY_MB", design=offline,
+                       formulation=run_formulation(problem, offline, options))
     except ProblemError as exc:
         stats.add("refused: run size")
         stats.add(f"refused n={problem.n}")
