@@ -272,3 +272,38 @@ def test_x_f_non_empty_margin_is_that_of_the_tube_steady_state_reached_by_iterat
     check = {c.name: c for c in verify_design(pr, d, 3.0)}["X_f non-empty"]
     assert check.status == "pass"
     assert check.margin == pytest.approx(1.0 - float(np.max(d.h_T)) * alpha, abs=1e-9)
+
+
+@pytest.mark.parametrize("slack, raises", [(0, False), (-1, True)])
+def test_the_terminal_recursion_row_cap_at_its_edge(example_spec, monkeypatch, slack, raises):
+    """The largest X^i of Example 1's recursion (counted here through the recursion's own pruning step)
+    is within a cap equal to it and over a cap one row smaller: "too complex", naming the cap."""
+    import amcp_drake.offline.design as design_module
+
+    sizes: list[int] = []
+    prune = design_module._prune
+
+    def counting_prune(rows, be, budget=None):
+        kept = prune(rows, be, budget)
+        sizes.append(len(kept))
+        return kept
+
+    monkeypatch.setattr(design_module, "_prune", counting_prune)
+    options = replace(example_spec.design, x0_template="mrpi", terminal_set="recursion")
+    design(example_spec.problem, options)
+    largest = max(sizes)
+    assert largest > 3  # the recursion adds rows on Example 1
+    monkeypatch.setattr(design_module, "terminal_max_rows", lambda n: largest + slack)
+    if raises:
+        with pytest.raises(TerminalSetError, match=rf"too complex: {largest} rows after \d+ iterations \(cap {largest - 1} "):
+            design(example_spec.problem, options)
+    else:
+        d = design(example_spec.problem, options)
+        assert len(d.H_T) <= largest
+
+
+def test_the_terminal_recursion_row_cap_scales_with_n():
+    from amcp_drake.offline.design import TERMINAL_MAX_ROWS_PER_DIM, terminal_max_rows
+
+    assert TERMINAL_MAX_ROWS_PER_DIM == 2000  # documented in docs/decisions.md
+    assert [terminal_max_rows(n) for n in (1, 2, 3)] == [4000, 6000, 8000]

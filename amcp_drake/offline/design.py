@@ -29,6 +29,11 @@ __all__ = ["OfflineDesign", "closed_loop_vertices", "regressor_bound", "design",
 #: A candidate row of the terminal-set recursion is redundant if the current set keeps it below
 #: 1 + this (LP accuracy of Clarabel is ~1e-8; looser than that would keep duplicates).
 TERMINAL_REDUNDANCY_TOL = 1e-7
+#: Most rows of X_f in the (z, α) recursion per dimension of (z, α): the recursion stops with a
+#: TerminalSetError ("too complex") once X^i has more than this times n + 1 rows. Every design of the
+#: shipped examples and the size table has at most 102 rows; a generated one-state problem grew to a
+#: million rows (6 GB) without converging, each iteration slower than the last.
+TERMINAL_MAX_ROWS_PER_DIM = 2000
 #: Kept importable from here (moved to offline/templates.py with the template code).
 template_directions = x0_templates.template_directions
 MRPI_RESIDUAL_FRACTION = x0_templates.MRPI_RESIDUAL_FRACTION
@@ -281,6 +286,11 @@ def _x0(problem: Problem, A_cl: np.ndarray, FGK: np.ndarray, be, options: Design
     raise ProblemError("design.x0_template", f"one of {list(x0_templates.TEMPLATE_KINDS)}", repr(kind))
 
 
+def terminal_max_rows(n: int) -> int:
+    """The row cap of the terminal-set recursion for n states (:data:`TERMINAL_MAX_ROWS_PER_DIM` × (n + 1))."""
+    return TERMINAL_MAX_ROWS_PER_DIM * (int(n) + 1)
+
+
 def terminal_set(FGK, f_bar, H_x, A_cl, A_z, w_bar, h_bar, be, max_iter: int, budget: DesignBudget | None = None):
     """X_f by the (z, α) recursion of Appendix A.1 (Assumption 11).
 
@@ -295,7 +305,8 @@ def terminal_set(FGK, f_bar, H_x, A_cl, A_z, w_bar, h_bar, be, max_iter: int, bu
 
     Size: the candidate rows of an iteration (new rows × v_p × u) and every vertex enumeration are
     sized against ``budget`` before they are formed (DesignSizeError naming the stage otherwise), and
-    the rows × vertices products are computed in chunks (offline/budget.py).
+    the rows × vertices products are computed in chunks (offline/budget.py); X^i with more rows than
+    :func:`terminal_max_rows` ends the recursion with TerminalSetError ("too complex").
     Returns (H_T, h_T, iterations).
     """
     budget = budget or unbounded()
@@ -329,6 +340,12 @@ def terminal_set(FGK, f_bar, H_x, A_cl, A_z, w_bar, h_bar, be, max_iter: int, bu
         if not np.any(keep):
             return current[:, :n], current[:, n], iteration
         merged = _prune(np.vstack([current, cand[keep]]), be, budget)
+        cap = terminal_max_rows(n)
+        if len(merged) > cap:
+            raise TerminalSetError(
+                f"terminal set X_f too complex: {len(merged)} rows after {iteration} iterations (cap {cap} = "
+                f"{TERMINAL_MAX_ROWS_PER_DIM} x (n + 1)); the recursion of Appendix A.1 does not settle for this X0 "
+                "and K. Next: design.terminal_set = 'scaled', or another X0 template (design.x0_template).")
         old = {tuple(np.round(r, 10)) for r in current}
         new = np.array([r for r in merged if tuple(np.round(r, 10)) not in old])
         current = merged
