@@ -17,8 +17,8 @@ rare in a process with millions of long-lived objects. A single draw whose run i
 (:func:`amcp_properties.strategies.closed_loop_cases`).
 
 The formulation of (20): the backend's default (the plain form (15)) for problems of up to
-:data:`~amcp_properties.strategies.SMALL_N` states; above, the one ``amcp certify`` and campaigns over
-larger state dimensions use (``formulation="auto"``, :data:`amcp_drake.studies.campaign.LARGE_FORMULATION`).
+:data:`~amcp_properties.strategies.SMALL_N` states; above, the one ``--formulation auto`` chooses, as campaigns over
+larger state dimensions do (``formulation="auto"``, :data:`amcp_drake.studies.campaign.LARGE_FORMULATION`).
 """
 
 from __future__ import annotations
