@@ -328,3 +328,52 @@ def test_amcp_design_runs_on_the_cartpole_example(tmp_path):
     assert result.exit_code == 0, result.output
     assert "states (p [m], phi [rad], v [m/s], omega [rad/s]); inputs (F [N]); sample time dt = 0.1 s" in result.output
     assert "all design checks pass" in result.output
+
+
+def test_certify_lists_names_units_and_sample_time_in_its_output_certificate_and_report(tmp_path):
+    from click.testing import CliRunner
+
+    from amcp_drake.cli import main
+
+    data = {"format": "amcp-problem", "version": 1, "name": "first-order",
+            "states": [{"name": "x", "unit": "m"}], "inputs": [{"name": "u", "unit": "N"}], "dt": 0.5,
+            "system": {"A0": [[1.0]], "B0": [[1.0]], "A": [[[0.2]]], "B": [[[0.0]]]},
+            "W": {"box": [0.05]}, "Theta": {"box": [[-1, 1]]},
+            "bounds": {"x": {"x": [-1, 1]}, "u": {"u": [-1, 1]}},
+            "cost": {"Q": [[1.0]], "R": [[1.0]], "N": 5},
+            "scenario": {"x0": [0.5], "theta_star": [0.5], "steps": 5, "disturbance": "uniform", "seed": 0}}
+    path = tmp_path / "named.json"
+    path.write_text(json.dumps(data))
+    result = CliRunner().invoke(main, ["certify", str(path), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 0, result.output
+    assert "first-order: x_k = (x [m]), u_k = (u [N]), sample time dt = 0.5 s" in result.output
+    cert = json.loads((tmp_path / "out" / "certificate.json").read_text())
+    assert cert["problem"]["states"] == ["x [m]"] and cert["problem"]["inputs"] == ["u [N]"]
+    assert cert["problem"]["dt"] == 0.5
+    html = (tmp_path / "out" / "report.html").read_text()
+    assert '<dd id="signals">states x [m]; inputs u [N]; sample time dt = 0.5 s</dd>' in html
+
+
+def _fenced(text: str, language: str) -> list[str]:
+    import re
+
+    return re.findall(rf"```{language}\n(.*?)```", text, flags=re.S)
+
+
+def test_the_how_to_starts_from_the_cartpole_file_and_its_python_builds_the_same_problem():
+    """docs/how-to/own-system.md: its first JSON block is examples/own-system/cartpole.json, and its Python
+    blocks that build the problem (from matrices, from Drake systems) give the file's problem."""
+    text = (ROOT / "docs" / "how-to" / "own-system.md").read_text()
+    path = ROOT / "examples" / "own-system" / "cartpole.json"
+    assert json.loads(_fenced(text, "json")[0]) == json.loads(path.read_text())
+    namespace: dict = {}
+    blocks = [b for b in _fenced(text, "python") if "amcp.design(" not in b]
+    assert len(blocks) == 2
+    for block in blocks:
+        exec(compile(block, "own-system.md", "exec"), namespace)
+    from_file = load_spec(path).problem
+    for built in (namespace["problem"], namespace["same"]):
+        for name in ("A0", "B0", "A", "B", "H_w", "H_theta", "h_theta", "F", "G", "Q", "R", "theta_hat0"):
+            np.testing.assert_allclose(getattr(built, name), getattr(from_file, name), rtol=1e-12, atol=1e-15,
+                                       err_msg=name)
+        assert built.states == from_file.states and built.inputs == from_file.inputs and built.dt == from_file.dt

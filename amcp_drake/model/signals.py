@@ -54,11 +54,13 @@ def _shown(value: Any) -> str:
 
 
 def as_signal(field: str, value: Any) -> Signal:
-    """One :class:`Signal` from a Signal, a name string or ``{"name": ..., "unit": ...}``."""
+    """One :class:`Signal` from a Signal, a name, a ``(name, unit)`` pair or ``{"name": ..., "unit": ...}``."""
     if isinstance(value, Signal):
         name, unit = value.name, value.unit
     elif isinstance(value, str):
         name, unit = value, ""
+    elif isinstance(value, tuple) and len(value) == 2:
+        name, unit = value
     elif isinstance(value, dict):
         unknown = sorted(set(value) - {"name", "unit"})
         if unknown:
