@@ -19,6 +19,7 @@ import pytest
 from click.testing import CliRunner
 
 from amcp_drake.studies.campaign_store import CampaignStore
+from tests.guards import GUARD_SECONDS
 
 pytest.importorskip("distributed")
 pytest.importorskip("amcp_properties")
@@ -106,13 +107,13 @@ def test_killed_campaign_resumes_with_no_problem_lost_or_run_twice(tmp_path):
     before = _stored(store_path)
     assert 3 <= len(before) < 12, f"the kill should land midway; stored {len(before)}"
     for changes, named in OTHER_SETTINGS:
-        refused = subprocess.run(_with(args, changes) + ["--resume"], check=False, capture_output=True, text=True, timeout=120)
+        refused = subprocess.run(_with(args, changes) + ["--resume"], check=False, capture_output=True, text=True, timeout=GUARD_SECONDS)
         assert refused.returncode == 2, (changes, refused.stdout[-1000:], refused.stderr[-2000:])
         assert "Traceback" not in refused.stderr
         for difference in named:
             assert difference in refused.stderr, (changes, refused.stderr)
         assert _stored(store_path) == before
-    result = subprocess.run(args + ["--resume"], capture_output=True, text=True, timeout=400)
+    result = subprocess.run(args + ["--resume"], capture_output=True, text=True, timeout=GUARD_SECONDS)
     assert result.returncode in (0, 1), result.stderr[-2000:]
     assert f"skipped (already stored) {len(before)}" in result.stdout
     store = CampaignStore(store_path)
@@ -293,7 +294,7 @@ def test_campaign_through_a_separate_scheduler_and_worker_on_loopback(tmp_path):
                                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True))
         store_path = tmp_path / "s.sqlite"
         result = subprocess.run(AMCP + ["--systems", "3", "--backends", "drake", "--steps", "6", "--scheduler", address,
-                                        "--store", str(store_path)], capture_output=True, text=True, timeout=300)
+                                        "--store", str(store_path)], capture_output=True, text=True, timeout=GUARD_SECONDS)
         assert result.returncode in (0, 1), result.stderr[-2000:]
         assert "problems stored: 3" in result.stdout
         assert _stored(store_path) == {0, 1, 2}

@@ -25,6 +25,7 @@ from amcp_drake.model.errors import TrajectoryError
 from amcp_drake.model.examples import lorenzen2019_spec
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.online.simulate import Trajectory
+from tests.guards import GUARD_SECONDS
 from tests.recorded_runs import example_1_recorded, fresh
 
 STEPS = 8
@@ -548,7 +549,7 @@ def test_certify_runs_without_any_backend(recorded, tmp_path):
         "print(c.verdict)\n"
     )
     env_path = f"{ROOT}:{ROOT / 'reference'}:{ROOT / 'properties'}"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=GUARD_SECONDS,
                          env={**os.environ, "PYTHONPATH": env_path})
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "pass"
