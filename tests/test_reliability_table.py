@@ -561,6 +561,7 @@ def test_certify_out_on_a_full_tmpfs_exits_2_naming_out_and_writes_nothing(tmp_p
     assert left == []
 
 
+@pytest.mark.slow
 def test_campaign_on_a_disk_that_fills_up_exits_2_and_resumes_without_running_a_problem_twice(tmp_path):
     """A campaign whose tmpfs is filled to the brim after its first problem is stored: exit 2 naming
     --store (no traceback, whole problems only in the store); ``--report`` onto that full disk: exit 2
