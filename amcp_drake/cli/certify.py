@@ -210,15 +210,17 @@ def _print(cert, out) -> None:
     from amcp_drake.certificate.certify import RELATIVE_TOLERANCES, TOLERANCE_RULE
 
     echo(f"how to read the table: {TOLERANCE_RULE}")
-    echo(f"{'claim':32s} {'status':8s} {'margin':>11s} {'tolerance':>10s} {'step':>5s}  statement")
+    width = 14 if cert.measured else 8  # "not_applicable"
+    echo(f"{'claim':32s} {'status':{width}s} {'margin':>11s} {'tolerance':>10s} {'step':>5s}  statement")
     for c in cert.claims:
         margin = "n/a" if c.margin is None else f"{c.margin:.3e}"
         step = c.data.get("worst_step")
         mark = "r" if c.data["id"] in RELATIVE_TOLERANCES else " "
-        echo(f"{c.data['id']:32s} {c.status:8s} {margin:>11s} {c.tolerance:9.1e}{mark} "
-                   f"{'' if step is None else step:>5}  {c.name}")
+        why = f" ({c.detail})" if c.status == "not_applicable" else ""
+        echo(f"{c.data['id']:32s} {c.status:{width}s} {margin:>11s} {c.tolerance:9.1e}{mark} "
+                   f"{'' if step is None else step:>5}  {c.name}{why}")
     for c in cert.not_claimed:
-        echo(f"{c['id']:32s} {'-':8s} {'':>11s} {'':10s} {'':>5s}  not claimed for this run: {c['reason']}")
+        echo(f"{c['id']:32s} {'-':{width}s} {'':>11s} {'':10s} {'':>5s}  not claimed for this run: {c['reason']}")
     echo("")
     for p in cert.premises_not_met:
         margin = "n/a" if p["margin"] is None else f"{p['margin']:.3e}"
@@ -226,18 +228,23 @@ def _print(cert, out) -> None:
                    f"{p['detail']}")
         echo(f"                 next: {p['hint']}")
     counts = cert.counts()
+    for line in _consistency_lines(cert):
+        echo(line)
+    kind = " (measured run)" if cert.measured else ""
+    need = f"; {counts['not_applicable']} need θ* and w" if cert.measured else ""
     if cert.premises_not_met and not counts["fail"]:
         echo(f"NOT CERTIFIED (premise not met): the paper's results assume {', '.join(p['name'] for p in cert.premises_not_met)}, "
                    f"which does not hold on this run; nothing is claimed for it ({counts['pass']} checks passed, "
                    f"{len(cert.not_claimed)} not claimed)")
     elif cert.passed:
-        echo(f"CERTIFIED: all {counts['pass']} claims hold")
+        echo(f"CERTIFIED{kind}: all {counts['pass']} {'applicable ' if cert.measured else ''}claims hold{need}")
     elif counts["fail"]:
-        echo(f"NOT CERTIFIED: {counts['fail']} claim(s) failed: {', '.join(cert.ids('fail'))}"
-                   + (f"; {counts['not_run']} not run: {', '.join(cert.ids('not_run'))}" if counts["not_run"] else ""))
+        echo(f"NOT CERTIFIED{kind}: {counts['fail']} claim(s) failed: {', '.join(cert.ids('fail'))}"
+                   + (f"; {counts['not_run']} not run: {', '.join(cert.ids('not_run'))}" if counts["not_run"] else "")
+                   + need)
     else:
-        echo(f"NOT CERTIFIED (incomplete): {counts['not_run']} claim(s) could not be checked: "
-                   f"{', '.join(cert.ids('not_run'))}")
+        echo(f"NOT CERTIFIED{' (incomplete, measured run)' if cert.measured else ' (incomplete)'}: "
+                   f"{counts['not_run']} claim(s) could not be checked: {', '.join(cert.ids('not_run'))}{need}")
     answers = cert.solver_answers
     for line in answers.get("summary", []):
         echo(f"solver answers: {line}" if not line.startswith(" ") else f"               {line}")
@@ -255,6 +262,19 @@ def _print(cert, out) -> None:
         echo(f"robust baseline (not part of the verdict): cost {_g(a['cost'])} adaptive vs {_g(r['cost'])} robust; "
                    f"mean one-step tube {_g(a['mean_one_step_tube'])} vs {_g(r['mean_one_step_tube'])} (report.html)")
     echo(f"wrote {out}/certificate.json, {out}/report.html, {out}/trajectory.json.gz")
+
+
+def _consistency_lines(cert) -> list[str]:
+    """The model-consistency line when ``data_consistency`` failed: the first step and what it means."""
+    try:
+        c = cert.claim("data_consistency")
+    except KeyError:
+        return []
+    if c.status != "fail":
+        return []
+    return [f"DATA CONTRADICT THE MODEL: Θ_(k−1) ∩ Δ_k is empty first at step {c.data['first_failing_step']} "
+            f"(signed Chebyshev radius {c.margin:.3e} < −{c.tolerance:.0e}): the disturbance left W, θ* is not in Θ, or "
+            "the model (A_i, B_i) is wrong; the claims that rest on it are not run"]
 
 
 def _g(value) -> str:
