@@ -76,10 +76,26 @@ def _callback(check: Callable[[str, str], Path]) -> Callable:
     return callback
 
 
+def check_nonempty_path(option: str, path) -> Path:
+    """``path`` as a Path unless it is empty or blank (``Path("")`` is ".", the current folder, which no
+    path option means): ProblemError naming ``option``."""
+    if path is None or not str(path).strip():
+        raise ProblemError(option, "a path", "an empty string")
+    return Path(path)
+
+
 #: click callbacks: the option is checked as soon as it is parsed (exit 2, click's "Invalid value for '--out'").
 output_dir_callback = _callback(check_output_dir)
 output_file_callback = _callback(check_output_file)
 store_path_callback = _callback(check_store_path)
+_nonempty_callback = _callback(check_nonempty_path)
+
+
+def nonempty_path_callback(ctx: click.Context, param: click.Parameter, value):
+    """click callback of an input path option (repeatable or not): every value given must be non-empty."""
+    for item in value if isinstance(value, (tuple, list)) else (value,):
+        _nonempty_callback(ctx, param, item)
+    return value
 
 
 def steps_option(help_text: str, default=None, minimum: int = 1, show_default: bool = False):
