@@ -12,7 +12,7 @@ from typing import NamedTuple, NoReturn
 import click
 
 from amcp_drake.model.errors import AmcpError, BackendNotFound, ProblemError, TrajectoryError
-from amcp_drake.model.limits import DEFAULT_MAX_MEMORY_MB, MAX_STEPS
+from amcp_drake.model.limits import DEFAULT_MAX_MEMORY_MB, MAX_MEMORY_MB, MAX_STEPS
 from amcp_drake.model.problem_io import check_output_dir, check_output_file, check_store_path
 from amcp_drake.offline.budget import DEFAULT_CANDIDATE_SECONDS, PROGRESS_SECONDS
 
@@ -146,7 +146,8 @@ def parse_range(option: str, text: str, low: int, high: int) -> tuple[int, ...]:
 
 
 max_memory_option = click.option(
-    "--max-memory", "max_memory", type=FiniteFloatRange(min=1.0), default=DEFAULT_MAX_MEMORY_MB, show_default=True,
+    "--max-memory", "max_memory", type=FiniteFloatRange(min=1.0, max=MAX_MEMORY_MB), default=DEFAULT_MAX_MEMORY_MB,
+    show_default=True,
     help="Refuse a run whose estimated size (tube QP nonzeros, recorded steps; docs/problem-format.md, "
          "'Size limits') exceeds this many MiB, before anything is built; every stage of the offline design is "
          "sized against the same limit (a design candidate above it is skipped, with the stage named).")

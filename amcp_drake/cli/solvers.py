@@ -74,7 +74,8 @@ def solvers_cmd(corpus, solvers, settings, kinds, time_limit, out_dir, no_reprod
     if export_dir is not None:
         _export(Path(export_dir), steps, Path(hard_cases), Path(examples_dir), generated, generated_seed)
     from amcp_drake.model.problem_io import check_output_dir
-    from amcp_drake.studies.solver_matrix.corpus import KINDS, load_corpus, shipped_corpus_dir
+    from amcp_drake.studies.solver_matrix.corpus import KINDS, shipped_corpus_dir
+    from amcp_drake.studies.solver_matrix.reference import load_checked_corpus
     from amcp_drake.studies.solver_matrix.report import terminal_table, to_json, write_outputs
     from amcp_drake.studies.solver_matrix.reproducers import write_reproducers
     from amcp_drake.studies.solver_matrix.runner import run_matrix
@@ -91,7 +92,7 @@ def solvers_cmd(corpus, solvers, settings, kinds, time_limit, out_dir, no_reprod
         stack, _, name = config.partition(":")
         if stack not in ("drake", "cvxpy", "py") or not name:
             raise ProblemError("--solvers", "drake:NAME, cvxpy:NAME or py:MODULE:FUNCTION, comma-separated", repr(config))
-    problems = load_corpus(list(corpus) or shipped_corpus_dir())
+    problems = load_checked_corpus(list(corpus) or shipped_corpus_dir())
     if kinds:
         problems = [p for p in problems if p.kind in kinds]
     if configs is None:

@@ -19,7 +19,8 @@ A file is read strictly (:func:`amcp_drake.model.json_strict.load_json_strict`):
 field raises :class:`~amcp_drake.model.errors.ProblemFileError` naming it. A corpus file is data from
 someone else: its ``id`` must match :data:`ID_PATTERN` (it names the files derived from it, never a
 path), and its ``reference`` must have the layout of :func:`check_reference_layout`; whether the
-reference is right is checked again by :func:`.reference.check_reference` when the matrix loads it.
+reference is right is checked again by :func:`.reference.check_reference` when the matrix loads it
+(:func:`.reference.load_checked_corpus`).
 """
 
 from __future__ import annotations
@@ -311,10 +312,9 @@ def load_problem(path: str | os.PathLike) -> CorpusProblem:
     return CorpusProblem.from_dict(data, source=str(path))
 
 
-def load_corpus(paths: list[str | os.PathLike] | str | os.PathLike, verify: bool = True) -> list[CorpusProblem]:
-    """Every ``*.json`` corpus problem under the given files/folders, sorted by id. Two files with one
-    id are refused; with ``verify`` every reference is checked again from the data
-    (:func:`.reference.check_reference`), so a corpus whose answers do not check is refused."""
+def load_corpus(paths: list[str | os.PathLike] | str | os.PathLike) -> list[CorpusProblem]:
+    """Every ``*.json`` corpus problem under the given files/folders, sorted by id; two files with one id
+    are refused. Whether the references are right: :func:`.reference.load_checked_corpus`."""
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]
     files: list[Path] = []
@@ -334,11 +334,6 @@ def load_corpus(paths: list[str | os.PathLike] | str | os.PathLike, verify: bool
         if pr.id in seen:
             raise ProblemFileError(f"{f}: id", "an id no other corpus file has", f"{pr.id!r}, also the id of {seen[pr.id]}")
         seen[pr.id] = f
-    if verify:
-        from amcp_drake.studies.solver_matrix.reference import check_reference
-
-        for f, pr in zip(files, problems):
-            check_reference(pr, str(f))
     if not problems:
         raise ProblemFileError("--corpus", "at least one corpus problem (*.json, *.json.gz)", f"none under {[str(p) for p in paths]}")
     return sorted(problems, key=lambda pr: pr.id)

@@ -38,7 +38,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from amcp_drake.model.errors import ProblemFileError
-from amcp_drake.studies.solver_matrix.corpus import CorpusProblem, check_reference_layout
+from amcp_drake.studies.solver_matrix.corpus import CorpusProblem, check_reference_layout, load_corpus
 
 #: Relative KKT residual (primal, dual, gap, cone) below which a tight answer is accepted as the reference.
 KKT_TOL = 1e-7
@@ -390,5 +390,14 @@ def check_reference(pr: CorpusProblem, source: str = "corpus problem") -> None:
                                f"the optimum {f_star:.17g} verified again here (relative tolerance {KKT_TOL:g})", f"{f:.17g}")
 
 
-__all__ = ["CONSISTENCY_TOL", "EXACT_LP_MAX", "KKT_TOL", "check_reference", "REFERENCE_FEAS_TOL", "REFERENCE_SETTINGS", "ConicForm", "clarabel_solve", "conic_form",
+def load_checked_corpus(paths) -> list[CorpusProblem]:
+    """The corpus problems under ``paths`` (:func:`.corpus.load_corpus`), each reference verified again
+    (:func:`check_reference`): a corpus whose answers do not check is refused (ProblemFileError)."""
+    problems = load_corpus(paths)
+    for pr in problems:
+        check_reference(pr, f"corpus problem {pr.id}")
+    return problems
+
+
+__all__ = ["CONSISTENCY_TOL", "EXACT_LP_MAX", "KKT_TOL", "check_reference", "load_checked_corpus", "REFERENCE_FEAS_TOL", "REFERENCE_SETTINGS", "ConicForm", "clarabel_solve", "conic_form",
            "exact_lp_certificate", "kkt_residuals", "verify_reference"]
