@@ -377,3 +377,15 @@ def test_the_how_to_starts_from_the_cartpole_file_and_its_python_builds_the_same
             np.testing.assert_allclose(getattr(built, name), getattr(from_file, name), rtol=1e-12, atol=1e-15,
                                        err_msg=name)
         assert built.states == from_file.states and built.inputs == from_file.inputs and built.dt == from_file.dt
+
+
+def test_with_changes_keeps_names_at_the_same_size_and_drops_them_when_n_changes():
+    problem = spec_from_dict(_data()).problem
+    assert problem.with_changes(N=7).states == problem.states
+    bigger = problem.with_changes(A0=np.eye(3), B0=np.zeros((3, 1)) + 0.1, A=np.zeros((1, 3, 3)),
+                                  B=np.full((1, 3, 1), 0.01), H_w=np.vstack([np.eye(3), -np.eye(3)]),
+                                  F=np.vstack([np.eye(3), -np.eye(3)]), G=np.zeros((6, 1)), Q=np.eye(3))
+    assert bigger.states == () and bigger.state_names == ("x1", "x2", "x3") and bigger.inputs == problem.inputs
+    with pytest.raises(ProblemError) as info:
+        problem.with_changes(states=["p"])
+    assert info.value.field == "states"
