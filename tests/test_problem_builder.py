@@ -182,6 +182,8 @@ BAD = [
     ({"bounds": {"y": {}}}, "bounds.y", "one of the keys"),
     ({"bounds": None}, "Z", "constraints"),
     ({"W": {"box": [0.1, 0.0]}}, "W.box[1]", "half-width > 0"),
+    ({"W": {"box": [0.1, 0.5e-9]}}, "W.box[1]", "at least 1e-09"),
+    ({"bounds": {"x": {"p": [-0.5e-9, 1.0]}}}, "bounds.x.p[0]", "at least 1e-09"),
     ({"W": {"box": [0.1]}}, "W.box", "length 2"),
     ({"W": {"box": [0.1, 0.1], "H": [[1.0, 0.0]]}}, "W", "exactly one"),
     ({"Theta": {"box": [[1.0, -1.0]]}}, "Theta.box[0]", "lo < hi"),
@@ -389,3 +391,11 @@ def test_with_changes_keeps_names_at_the_same_size_and_drops_them_when_n_changes
     with pytest.raises(ProblemError) as info:
         problem.with_changes(states=["p"])
     assert info.value.field == "states"
+
+
+def test_the_smallest_bound_is_1e_9_just_inside_and_just_outside():
+    inside = spec_from_dict(_data(bounds={"x": {"p": [-2e-9, 1.0]}}, W={"box": [2e-9, 0.25]}), reduce_rows=False)
+    assert inside.problem.F[1][0] == pytest.approx(-5e8) and inside.problem.H_w[0][0] == pytest.approx(5e8)
+    with pytest.raises(ProblemError) as info:
+        spec_from_dict(_data(bounds={"x": {"p": [-0.5e-9, 1.0]}}))
+    assert info.value.field == "bounds.x.p[0]"

@@ -33,7 +33,10 @@ import numpy as np
 
 from amcp_drake.model.errors import ProblemError
 from amcp_drake.model.signals import as_signals, default_names
-from amcp_drake.model.validate import as_matrix, as_vector, reject_booleans
+from amcp_drake.model.validate import MAX_ABS_ENTRY, as_matrix, as_vector, reject_booleans
+
+#: Smallest magnitude of a bound or half-width: its row 1/bound must stay within MAX_ABS_ENTRY.
+MIN_ABS_BOUND = 1.0 / MAX_ABS_ENTRY
 
 
 def _shown(value: Any) -> str:
@@ -120,6 +123,14 @@ def _named_bounds(field: str, spec: Any, names: tuple[str, ...]) -> list[tuple]:
     return out
 
 
+def _require_resolvable(field: str, bound: float) -> None:
+    """A bound (half-width) of magnitude at least MIN_ABS_BOUND: its row 1/bound stays within the entry
+    bound of problem data (docs/decisions.md, "Strict input files")."""
+    if abs(bound) < MIN_ABS_BOUND:
+        raise ProblemError(field, f"a magnitude of at least {MIN_ABS_BOUND:g} (its row 1/bound has entries of magnitude "
+                           f"at most {MAX_ABS_ENTRY:g}; rescale the units)", f"{bound:g}")
+
+
 def bound_rows(field: str, spec: Any, names: tuple[str, ...]) -> np.ndarray:
     """Rows r with r·v <= 1 for the bounds ``spec`` on the signals ``names`` (module docstring): per
     signal in index order, e_iᵀ/hi for v_i <= hi, then e_iᵀ/lo for v_i >= lo; lo < 0 < hi required."""
@@ -135,12 +146,14 @@ def bound_rows(field: str, spec: Any, names: tuple[str, ...]) -> np.ndarray:
                 raise ProblemError(hi_field, "an upper bound > 0: the origin must lie strictly inside Z (eq. (4), "
                                    "rows F x + G u <= 1)", f"{hi:g}",
                                    "Shift the coordinates so that the equilibrium 0 lies strictly between the bounds")
+            _require_resolvable(hi_field, hi)
             rows.append(np.eye(len(names))[i] / hi)
         if lo is not None:
             if not lo < 0:
                 raise ProblemError(lo_field, "a lower bound < 0: the origin must lie strictly inside Z (eq. (4), "
                                    "rows F x + G u <= 1)", f"{lo:g}",
                                    "Shift the coordinates so that the equilibrium 0 lies strictly between the bounds")
+            _require_resolvable(lo_field, lo)
             rows.append(np.eye(len(names))[i] / lo)
     return np.array(rows).reshape(-1, len(names)) + 0.0  # + 0.0: no -0.0 in the rows written back
 
@@ -152,6 +165,8 @@ def box_W(field: str, half_widths: Any, n: int) -> np.ndarray:
     if bad.size:
         raise ProblemError(f"{field}[{bad[0]}]", "a half-width > 0 (0 must lie in the interior of W, Assumption 1)",
                            f"{c[bad[0]]:g}")
+    for i in range(n):
+        _require_resolvable(f"{field}[{i}]", c[i])
     rows = []
     for i in range(n):
         e = np.eye(n)[i] / c[i]
