@@ -399,3 +399,12 @@ def test_the_smallest_bound_is_1e_9_just_inside_and_just_outside():
     with pytest.raises(ProblemError) as info:
         spec_from_dict(_data(bounds={"x": {"p": [-0.5e-9, 1.0]}}))
     assert info.value.field == "bounds.x.p[0]"
+
+
+def test_a_continuous_time_problem_is_written_back_in_discrete_time_and_not_discretised_twice(tmp_path):
+    spec = load_spec(ROOT / "examples" / "own-system" / "cartpole.json")
+    written = json.loads(save_spec(spec, tmp_path / "p.json").read_text())
+    assert "continuous" not in written["system"] and written["dt"] == 0.1
+    again = load_spec(tmp_path / "p.json")
+    _same_rows(again.problem, spec.problem)
+    assert again.notes == ()
