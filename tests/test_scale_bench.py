@@ -372,3 +372,20 @@ def test_the_ray_length_with_row_maxima_equals_the_one_with_every_vertex(example
     rows_reduced = _rows(geo, np.array([1.0, 0.0]), None, row_maxima=True)[0].shape[0]
     per_block = pr.N * len(geo.A_cl) * len(geo.H_x)
     assert rows_full - rows_reduced == per_block * (q - 1)
+
+
+def test_mass_chain_generator_gives_the_built_in_chains_data():
+    """mass_chain(3), mass_chain(4) load to the built-in files' problems and scenarios (every matrix equal)."""
+    from amcp_drake.model.examples import get_example
+    from amcp_drake.model.problem_io import spec_from_dict
+    from amcp_drake.studies.chains import mass_chain
+
+    for masses in (3, 4):
+        made, shipped = spec_from_dict(mass_chain(masses)), get_example(f"mass_chain{masses}")
+        for field in ("A0", "B0", "A", "B", "H_w", "H_theta", "h_theta", "F", "G", "Q", "R", "theta_hat0"):
+            np.testing.assert_array_equal(getattr(made.problem, field), getattr(shipped.problem, field), err_msg=field)
+        assert made.problem.N == shipped.problem.N
+        np.testing.assert_array_equal(made.scenario.x0, shipped.scenario.x0)
+        np.testing.assert_array_equal(made.scenario.theta_star, shipped.scenario.theta_star)
+    big = spec_from_dict(mass_chain(8)).problem
+    assert (big.n, big.m, big.p) == (16, 8, 7)

@@ -146,8 +146,9 @@ class Backend(Protocol):
     name: str
 
     def robust_gain(self, A_vertices: np.ndarray, B_vertices: np.ndarray, Q: np.ndarray, R: np.ndarray,
-                    margin: float) -> GainResult:
-        """LMI for K, P with A_cl(θ^k)ᵀ P A_cl(θ^k) + Q + KᵀRK ⪯ P at every vertex, eq. (16)."""
+                    margin: float, tick=None) -> GainResult:
+        """LMI for K, P with A_cl(θ^k)ᵀ P A_cl(θ^k) + Q + KᵀRK ⪯ P at every vertex, eq. (16). ``tick(stage)``
+        (optional): the design's time budget, called between solves (it raises to stop the design)."""
         ...
 
     def support(self, H: np.ndarray, h: np.ndarray, directions: np.ndarray) -> np.ndarray:

@@ -176,7 +176,7 @@ def design_auto(problem: Problem, options: DesignOptions, backend, design_fixed,
         try:
             key = candidate.gain_R_scale
             if key not in gains:
-                gains[key] = robust_gain(problem, candidate, be)
+                gains[key] = robust_gain(problem, candidate, be, cand_budget)
             d = design_fixed(problem, candidate, backend=be, gain=gains[key], budget=cand_budget)
         except DesignSizeError as exc:
             _record(attempts, Attempt(label, "too large", _short(exc), time.perf_counter() - start), log, budget)

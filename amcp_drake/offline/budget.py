@@ -72,9 +72,10 @@ class DesignSizeError(DesignError):
 class CandidateTimeout(DesignError):
     """A candidate of the design used up its time budget (``stage`` names where)."""
 
-    def __init__(self, stage: str, seconds: float) -> None:
+    def __init__(self, stage: str, seconds: float, used: float | None = None) -> None:
         self.stage, self.seconds = stage, float(seconds)
-        super().__init__(f"time budget: {seconds:g} s of CPU used up in {stage}; moving on "
+        self.used = float(used) if used is not None else float(seconds)
+        super().__init__(f"time budget: {seconds:g} s of CPU used up in {stage} ({self.used:.1f} s used); moving on "
                          "(--candidate-budget sets the budget)")
 
 
@@ -89,12 +90,13 @@ class DesignBudget:
     ``max_memory_mb``: the limit in MiB (default the CLI's ``--max-memory`` default);
     ``candidate_seconds``: time budget of one candidate (None: unbounded); ``progress``: called with
     one line of text (the CLI prints it to stderr); ``label``: the candidate's name in those lines;
-    ``progress_seconds``: the least wall time between two progress lines.
+    ``progress_seconds``: the least wall time between two progress lines; ``clock``: the CPU-time clock
+    of the budget (default ``time.process_time``; tests pass a deterministic counter).
     """
 
     def __init__(self, max_memory_mb: float = DEFAULT_MAX_MEMORY_MB, candidate_seconds: float | None = None,
                  progress: Callable[[str], None] | None = None, label: str = "design",
-                 progress_seconds: float = PROGRESS_SECONDS) -> None:
+                 progress_seconds: float = PROGRESS_SECONDS, clock: Callable[[], float] | None = None) -> None:
         if not (isinstance(max_memory_mb, (int, float)) and np.isfinite(max_memory_mb) and max_memory_mb > 0):
             raise ValueError(f"max_memory_mb: expected a positive finite number; received {max_memory_mb!r}")
         if candidate_seconds is not None and not (np.isfinite(candidate_seconds) and candidate_seconds > 0):
@@ -106,7 +108,8 @@ class DesignBudget:
         self.candidate_seconds = candidate_seconds
         self.progress = progress
         self.label = label
-        self._start = time.process_time()  # the budget: CPU time of this process
+        self.clock = clock
+        self._start = self._cpu()  # the budget: CPU time of this process
         self._last_report = time.perf_counter()  # progress: wall time
         self._measured: dict[int, tuple[int, int]] = {}  # dimension -> (rows, vertices) of the last enumeration
 
@@ -116,11 +119,15 @@ class DesignBudget:
 
     def for_candidate(self, label: str) -> DesignBudget:
         """A fresh budget (clock restarted) for one candidate of the automatic design."""
-        return DesignBudget(self.max_memory_mb, self.candidate_seconds, self.progress, label, self.progress_seconds)
+        return DesignBudget(self.max_memory_mb, self.candidate_seconds, self.progress, label, self.progress_seconds,
+                            self.clock)
 
     def elapsed(self) -> float:
         """CPU seconds used by the process since this budget started."""
-        return time.process_time() - self._start
+        return self._cpu() - self._start
+
+    def _cpu(self) -> float:
+        return self.clock() if self.clock is not None else time.process_time()
 
     def require(self, stage: str, nbytes: float, detail: str = "") -> None:
         """Refuse (DesignSizeError) a stage whose estimate ``nbytes`` exceeds the memory limit."""
@@ -156,7 +163,7 @@ class DesignBudget:
         """Check the time budget (CandidateTimeout) and report progress every ``progress_seconds``."""
         used = self.elapsed()
         if self.candidate_seconds is not None and used > self.candidate_seconds:
-            raise CandidateTimeout(stage, self.candidate_seconds)
+            raise CandidateTimeout(stage, self.candidate_seconds, used)
         now = time.perf_counter()
         if self.progress is not None and now - self._last_report >= self.progress_seconds:
             self._last_report = now

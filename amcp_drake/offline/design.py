@@ -19,11 +19,12 @@ from amcp_drake.offline import templates as x0_templates
 from amcp_drake.offline.auto import design_auto, template_label
 from amcp_drake.offline.budget import DesignBudget, chunked_row_maxima, chunked_tight_counts, unbounded
 from amcp_drake.offline.checks import verify_design
+from amcp_drake.offline.gain import gain_lmi
 from amcp_drake.offline.result import OfflineDesign, closed_loop_vertices, regressor_bound, regressor_sup
 from amcp_drake.offline.support import bounded_vertices, row_maxima
 from amcp_drake.offline.terminal import scaled_terminal_set, terminal_set_kind
 
-__all__ = ["OfflineDesign", "closed_loop_vertices", "regressor_bound", "design", "design_fixed", "robust_gain",
+__all__ = ["OfflineDesign", "closed_loop_vertices", "regressor_bound", "design", "design_fixed", "gain_lmi", "robust_gain",
            "template_label", "terminal_set", "template_directions"]
 
 #: A candidate row of the terminal-set recursion is redundant if the current set keeps it below
@@ -78,11 +79,13 @@ def design(problem: Problem, options: DesignOptions | None = None, backend="drak
     return units.from_normalised(found, s, problem, options)
 
 
-def robust_gain(problem: Problem, options: DesignOptions, be) -> tuple[np.ndarray, np.ndarray, str]:
+def robust_gain(problem: Problem, options: DesignOptions, be,
+                budget: DesignBudget | None = None) -> tuple[np.ndarray, np.ndarray, str]:
     """K and P of Assumption 8 and (16): given, or from the robust LMI with R scaled by
     ``options.gain_R_scale`` (>= 1). A larger R gives a lower-gain K; the P of that LMI satisfies
     A_clᵀPA_cl + Q + c KᵀRK ⪯ P, hence (16) with the true R as well (c KᵀRK ⪰ KᵀRK for c >= 1).
-    Returns (K, P, source) with source "given", "lmi" or "lmi (R x c)"."""
+    Returns (K, P, source) with source "given", "lmi" or "lmi (R x c)". ``budget``: its time budget is
+    checked (and progress reported) before every solve of the LMI (CandidateTimeout names the gain LMI)."""
     if options.K is not None and options.P is not None:
         return np.asarray(options.K), np.asarray(options.P), "given"
     if options.K is not None or options.P is not None:
@@ -91,7 +94,7 @@ def robust_gain(problem: Problem, options: DesignOptions, be) -> tuple[np.ndarra
     A_v = np.array([problem.A_of(t) for t in theta_vertices])
     B_v = np.array([problem.B_of(t) for t in theta_vertices])
     scale = float(options.gain_R_scale)
-    gain = be.robust_gain(A_v, B_v, problem.Q, scale * problem.R, options.lmi_margin)
+    gain = gain_lmi(be, A_v, B_v, problem.Q, scale * problem.R, options.lmi_margin, budget)
     if gain.status is not SolveStatus.OPTIMAL:
         raise DesignError(f"gain LMI (16) for K, P: solver status {gain.status.value}; no robustly "
                           "stabilising state feedback with a common quadratic Lyapunov function was found "
@@ -143,7 +146,7 @@ def _design_as_written(problem: Problem, options: DesignOptions, backend="drake"
     theta_vertices = problem.theta_vertices()
 
     # K and P: Assumption 8 and (16)
-    K, P, source = gain if gain is not None else robust_gain(problem, options, be)
+    K, P, source = gain if gain is not None else robust_gain(problem, options, be, budget)
     T_par = None
     if options.x0_template == "parallelotope":  # K from the LP of offline/parallelotope.py, P from (16) for it
         K, P, source, T_par = _parallelotope_gain(problem, options, K, P, source, be, budget)
@@ -225,7 +228,7 @@ def _parallelotope_gain(problem: Problem, options: DesignOptions, K, P, source: 
         T = np.linalg.inv(parallelotope.real_eigenbasis(A0 + B0 @ K))
         return K, P, source, parallelotope.perron_scaled(T, closed_loop_vertices(problem, K, problem.theta_vertices()))
     K_lp, T, _ = parallelotope.parallelotope_gain(problem, K, budget)
-    P_lp = parallelotope.fixed_gain_terminal_weight(problem, K_lp, be, options.lmi_margin)
+    P_lp = parallelotope.fixed_gain_terminal_weight(problem, K_lp, be, options.lmi_margin, budget)
     return K_lp, P_lp, "lp (parallelotope)" if source == "lmi" else f"lp (parallelotope, from {source})", T
 
 

@@ -52,6 +52,7 @@ from scipy.optimize import linprog
 from amcp_drake.model.errors import DesignError
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.offline.budget import DesignBudget, unbounded
+from amcp_drake.offline.gain import gain_lmi
 
 #: Rounds of (basis, Perron scaling, LPs for K) from each starting gain.
 ROUNDS = 4
@@ -240,12 +241,13 @@ def parallelotope_gain(problem, K0: np.ndarray, budget: DesignBudget | None = No
     return best[1], best[2], best[3]
 
 
-def fixed_gain_terminal_weight(problem, K: np.ndarray, be, margin: float) -> np.ndarray:
-    """P of (16) for a given K (module docstring, step 4), or DesignError."""
+def fixed_gain_terminal_weight(problem, K: np.ndarray, be, margin: float, budget: DesignBudget | None = None) -> np.ndarray:
+    """P of (16) for a given K (module docstring, step 4), or DesignError; ``budget`` is checked before
+    every solve."""
     theta_v = problem.theta_vertices()
     A_cl = np.array([problem.A_of(t) + problem.B_of(t) @ K for t in theta_v])
     B_none = np.zeros((len(A_cl), problem.n, 1))
-    gain = be.robust_gain(A_cl, B_none, problem.Q + K.T @ problem.R @ K, np.eye(1), margin)
+    gain = gain_lmi(be, A_cl, B_none, problem.Q + K.T @ problem.R @ K, np.eye(1), margin, budget)
     if gain.status is not SolveStatus.OPTIMAL or gain.P is None:
         raise DesignError(f"parallelotope: the LMI (16) for P with the LP's K: solver status {gain.status.value}")
     return np.asarray(gain.P, float)

@@ -122,10 +122,13 @@ class CvxpyBackend:
         self._project = ProblemCache(ProjectionQP)
 
     # -- offline -----------------------------------------------------------------------------
-    def robust_gain(self, A_vertices, B_vertices, Q, R, margin):
-        """Gain LMI for Assumption 8 and (16); see :func:`amcp_reference.offline.robust_gain`."""
+    def robust_gain(self, A_vertices, B_vertices, Q, R, margin, tick=None):
+        """Gain LMI for Assumption 8 and (16); see :func:`amcp_reference.offline.robust_gain`.
+        ``tick(stage)`` (the design's time budget) is called before the solves."""
         from .offline import robust_gain
 
+        if tick is not None:
+            tick("gain LMI (16)")
         return robust_gain(self._call, A_vertices, B_vertices, Q, R, margin)
 
     def support(self, H, h, directions):
