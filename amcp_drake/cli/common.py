@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import errno
 import functools
+import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -25,6 +26,24 @@ MAX_SEED = 2**63 - 1
 MAX_SEEDS = 10_000
 
 
+#: Characters a terminal interprets rather than shows: the C0 controls but newline and tab (ESC starts escape
+#: sequences, CR overwrites the line, BEL rings), DEL and the C1 controls (CSI U+009B is ESC [ on some terminals).
+_CONTROL_CHARACTERS = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f]")
+
+
+def terminal_safe(text: str) -> str:
+    """``text`` with every control character but newline and tab written as a visible escape (``\\x1b``,
+    ``\\r``): a problem name or file content printed to the terminal cannot move the cursor, clear the screen or
+    rewrite the line."""
+    named = {"\r": "\\r", "\x1b": "\\x1b"}
+    return _CONTROL_CHARACTERS.sub(lambda m: named.get(m.group(), f"\\x{ord(m.group()):02x}"), text)
+
+
+def echo(message: object = "", err: bool = False, nl: bool = True) -> None:
+    """``click.echo`` of :func:`terminal_safe` text: every line the subcommands print goes through here."""
+    click.echo(terminal_safe(str(message)), err=err, nl=nl)
+
+
 def exit_verdict(passed: bool) -> NoReturn:
     """End a command: exit code 0 when what it checks holds, 1 otherwise (2, bad input, is
     :func:`bad_input_exits_2`'s)."""
@@ -43,7 +62,7 @@ def load_problem_spec(problem_file: str | None, example: str | None):
         raise ProblemError("PROBLEM", "the path of a problem file", "an empty string")
     spec = load_spec(problem_file) if problem_file else get_example(example or "lorenzen2019")
     for note in spec.notes:
-        click.echo(f"note: {note}", err=True)
+        echo(f"note: {note}", err=True)
     return spec
 
 
@@ -175,7 +194,7 @@ def design_budget(max_memory: float = DEFAULT_MAX_MEMORY_MB, candidate_budget: f
     long stages every ``--progress-every`` seconds) unless ``quiet``."""
     from amcp_drake.offline.budget import DesignBudget
 
-    progress = None if quiet else (lambda line: click.echo(line, err=True))
+    progress = None if quiet else (lambda line: echo(line, err=True))
     return DesignBudget(max_memory, candidate_budget, progress, progress_seconds=progress_every)
 
 
@@ -187,10 +206,10 @@ def bad_input_exits_2(func: Callable) -> Callable:
         try:
             return func(*args, **kwargs)
         except (ProblemError, BackendNotFound, TrajectoryError) as exc:
-            click.echo(f"error: {exc}", err=True)
+            echo(f"error: {exc}", err=True)
             sys.exit(EXIT_BAD_INPUT)
         except AmcpError as exc:
-            click.echo(f"error: {exc}", err=True)
+            echo(f"error: {exc}", err=True)
             sys.exit(EXIT_FAIL)
 
     return wrapper
@@ -227,7 +246,7 @@ def interruptible(describe: Callable[[dict, BaseException], str]) -> Callable:
                     text = describe(kwargs, exc)
                 except Exception:  # noqa: BLE001 - the line is said even if the description fails
                     text = "stopped"
-                click.echo(f"interrupted ({signum.name}): {text}", err=True)
+                echo(f"interrupted ({signum.name}): {text}", err=True)
                 sys.exit(128 + signum)
             finally:
                 if main:
