@@ -466,3 +466,38 @@ def test_a_non_finite_overflowing_or_non_positive_limit_is_refused(tmp_path, mon
     result = invoke([command, option, value])
     assert_refused(result, option)
     assert files_below(tmp_path) == set()
+
+
+def test_a_new_run_replaces_its_own_earlier_reproducers_and_keeps_other_files(tmp_path):
+    """reproducers/ holds an earlier run's script (listed, unchanged) and a user's file: a new run with a
+    Drake configuration writes its own and removes only the earlier script."""
+    corpus = corpus_dir(tmp_path, lp().to_dict())
+    folder = tmp_path / "out" / "reproducers"
+    folder.mkdir(parents=True)
+    repro.write_reproducer_folder(folder, [(lp(), "cvxpy:CLARABEL", "default", "wrong", "earlier")])
+    (folder / "notes.txt").write_text("mine")
+    result = invoke(["solvers", "--corpus", str(corpus), "--solvers", "drake:clarabel", "--out", str(tmp_path / "out")])
+    assert result.exit_code == 0, result.output
+    assert files_below(folder) == {repro.NONFINITE_NAME, repro.MANIFEST_NAME, "notes.txt"}
+    assert set(json.loads((folder / repro.MANIFEST_NAME).read_text())["files"]) == {repro.NONFINITE_NAME}
+
+
+def test_recheck_prints_file_names_without_terminal_escapes(tmp_path):
+    written_folder(tmp_path)
+    (tmp_path / "\x1b]0;title\x07x.py").write_text("print('hi')\n")
+    result = invoke(["solvers", "--recheck", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    assert "\x1b" not in result.output and "\x07" not in result.output
+    assert "\\x1b]0;title\\x07x.py" in result.output and "refused" in result.output
+
+
+def test_verifying_an_lp_reference_prints_nothing(tmp_path):
+    """The exact LP check builds a HiGHS model, whose constructor prints a banner once per process."""
+    code = ("import numpy as np, scipy.sparse as sp\n"
+            "from tests.test_solvers_hostile import lp\n"
+            "from amcp_drake.studies.solver_matrix.reference import check_reference\n"
+            "check_reference(lp())\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                          cwd=Path(__file__).resolve().parents[1])
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout == ""

@@ -31,6 +31,8 @@ turn correct answers into "wrong", a raised one wrong answers into "correct").
 
 from __future__ import annotations
 
+import os
+import sys
 from dataclasses import dataclass
 from fractions import Fraction
 
@@ -179,11 +181,28 @@ def clarabel_solve(cf: ConicForm, settings: dict | None = None):
 
 # -- exact LP check -----------------------------------------------------------------------------
 
+def _quiet_highs():
+    """A ``highspy.Highs`` with its output off; the banner its constructor writes to the process's stdout
+    (file descriptor 1, from C++) is dropped, so ``amcp solvers`` prints only its own lines."""
+    import highspy
+
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 1)
+            h = highspy.Highs()
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+    h.setOptionValue("output_flag", False)
+    return h
+
+
 def _highs_basis(pr: CorpusProblem):
     import highspy
 
-    h = highspy.Highs()
-    h.setOptionValue("output_flag", False)
+    h = _quiet_highs()
     h.setOptionValue("solver", "simplex")
     inf = highspy.kHighsInf
     A = sp.csc_matrix(pr.A)

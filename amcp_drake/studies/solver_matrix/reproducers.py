@@ -449,6 +449,23 @@ def _vet(folder: Path, files: dict[str, dict[str, Any]]) -> tuple[list[tuple[str
     return runnable, refused
 
 
+def previous_reproducers(folder: Path) -> list[Path]:
+    """The scripts of an earlier run in ``folder`` that this version wrote and nobody changed since (each
+    one :func:`recheck` would run): the ones a new run replaces. Any other file is not among them; an
+    unreadable folder or manifest gives none."""
+    try:
+        runnable, _ = _vet(Path(folder), read_manifest(Path(folder)))
+    except (OSError, ProblemFileError, ValueError):
+        return []
+    return [Path(folder) / name for name, _, _ in runnable]
+
+
+def printable(text: str) -> str:
+    """``text`` with every non-printable character (a terminal escape sequence, a newline) written as its
+    Python escape, for a terminal line about a file name from someone else's folder."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 def clean_environment(home: str) -> dict[str, str]:
     """The environment of a reproducer: PATH and (when set) PYTHONPATH of the caller, HOME and TMPDIR a
     private temporary folder, a UTF-8 locale; nothing else of the caller's environment."""
@@ -513,5 +530,6 @@ def recheck(folder: Path, time_limit: float = RECHECK_TIME_LIMIT) -> list[Rechec
 
 
 __all__ = ["CRASH_SIGNALS", "DOES_NOT", "MANIFEST_NAME", "MISSING", "OUTCOMES", "RECHECK_TIME_LIMIT", "REPRODUCES", "Recheck",
-           "Reproducer", "clean_environment", "expected_script", "manifest_entry", "outcome_of", "read_manifest", "recheck",
+           "Reproducer", "clean_environment", "expected_script", "manifest_entry", "outcome_of", "previous_reproducers", "printable",
+           "read_manifest", "recheck",
            "reproducer_name", "run_isolated", "script_text", "write_reproducer_folder", "write_reproducers"]
