@@ -501,3 +501,31 @@ def test_verifying_an_lp_reference_prints_nothing(tmp_path):
                           cwd=Path(__file__).resolve().parents[1])
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout == ""
+
+
+def lmi_problem(s: int) -> CorpusProblem:
+    """minimise x s.t. x·I_s ⪰ 0: optimum x = 0 (by hand), one LMI block of size s."""
+    G = sp.csr_matrix(np.eye(s).reshape(-1, order="F")[:, None])
+    return CorpusProblem(id=f"lmi-{s}", kind="gain_sdp", P=None, q=np.array([1.0]), r=0.0, A=sp.csr_matrix((0, 1)),
+                         lower=np.zeros(0), upper=np.zeros(0), lb=np.array([-np.inf]), ub=np.array([np.inf]),
+                         lmis=[(s, G, np.zeros(s * s))], reference={"status": "optimal", "x": [0.0], "objective": 0.0})
+
+
+def test_a_problem_too_large_to_verify_on_load_is_refused_before_solving(monkeypatch):
+    from amcp_drake.studies.solver_matrix import reference
+    from amcp_drake.studies.solver_matrix.reference import MAX_CHECK_LMI, MAX_CHECK_SIZE
+
+    check_reference(lmi_problem(MAX_CHECK_LMI))   # at the limit: verified
+
+    def no_solve(pr):
+        raise AssertionError("a problem above the limit was solved")
+
+    monkeypatch.setattr(reference, "verify_reference", no_solve)
+    with pytest.raises(ProblemFileError, match="LMI block 201"):
+        check_reference(lmi_problem(MAX_CHECK_LMI + 1))
+    n = MAX_CHECK_SIZE // 2 + 1   # n nonzeros of A plus n variables: just above the limit
+    big = CorpusProblem(id="big", kind="support_lp", P=None, q=np.ones(n), r=0.0, A=sp.identity(n, format="csr"),
+                        lower=np.zeros(n), upper=np.full(n, np.inf), lb=np.full(n, -np.inf), ub=np.full(n, np.inf),
+                        reference={"status": "optimal", "x": [0.0] * n, "objective": 0.0})
+    with pytest.raises(ProblemFileError, match="nonzeros"):
+        check_reference(big)
