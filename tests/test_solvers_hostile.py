@@ -227,6 +227,19 @@ def test_recheck_without_a_manifest_exits_2(tmp_path):
     assert not marker.exists()
 
 
+@pytest.mark.parametrize(("manifest", "field"), [
+    ("not json", "manifest.json"), ("[]", "format"), ('{"format": "amcp-reproducers", "version": 2, "files": {}}', "format"),
+    ('{"format": "amcp-reproducers", "version": 1, "files": []}', "files"),
+    ('{"format": "amcp-reproducers", "version": 1, "files": {"a.py": 1}}', "files"),
+])
+def test_a_malformed_manifest_exits_2_naming_it(tmp_path, manifest, field):
+    marker = tmp_path / "ran"
+    (tmp_path / "a.py").write_text(evil_script(marker))
+    (tmp_path / "manifest.json").write_text(manifest)
+    assert_refused(invoke(["solvers", "--recheck", str(tmp_path)]), field)
+    assert not marker.exists()
+
+
 @pytest.mark.parametrize(("rc", "verdict", "outcome"), [
     (3, "wrong", "reproduces"), (0, "wrong", "no longer reproduces"), (4, "wrong", "cannot run"),
     (1, "wrong", "error"), (2, "wrong", "error"), (5, "wrong", "error"), (None, "wrong", "timeout"),
