@@ -427,8 +427,9 @@ def test_an_export_on_a_full_disk_leaves_nothing(tmp_path, monkeypatch, code):
 
 
 @pytest.mark.parametrize("folder", ["/proc/amcp-corpus", "/proc/self/amcp-corpus"])
-def test_export_into_proc_exits_2(folder):
-    assert_refused(invoke(["solvers", "--export-corpus", folder]), "--export-corpus")
+@pytest.mark.parametrize("option", ["--export-corpus", "--out"])
+def test_export_or_matrix_into_proc_exits_2_before_anything_runs(folder, option):
+    assert_refused(invoke(["solvers", "--solvers", STUB, option, folder]), option)
 
 
 def test_run_save_on_a_full_disk_exits_2_and_leaves_nothing(tmp_path, monkeypatch):
