@@ -362,6 +362,17 @@ def test_the_nonfinite_reproducer_runs_standalone(tmp_path):
     assert result.last_line.startswith(("REPRODUCES", "does not reproduce"))
 
 
+def test_the_shipped_reproducers_are_what_this_version_writes():
+    """docs/reproducers: every script is vouched for by its manifest (written by the current template from
+    its entry, references verified), so `amcp solvers --recheck docs/reproducers` runs all of them."""
+    from amcp_drake.studies.solver_matrix.reproducers import read_manifest, vet
+
+    folder = ROOT / "docs" / "reproducers"
+    runnable, refused = vet(folder, read_manifest(folder))
+    assert refused == []
+    assert sorted(name for name, _, _ in runnable) == sorted(p.name for p in folder.glob("*.py"))
+
+
 def test_markdown_tables_count_what_the_cells_say():
     from amcp_drake.studies.solver_matrix.report import markdown, to_json
     from amcp_drake.studies.solver_matrix.runner import Cell, MatrixRun

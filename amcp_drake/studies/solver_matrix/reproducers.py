@@ -406,7 +406,7 @@ def expected_script(name: str, entry: dict[str, Any]) -> str:
     return text
 
 
-def _vet(folder: Path, files: dict[str, dict[str, Any]]) -> tuple[list[tuple[str, str, str]], list[Recheck]]:
+def vet(folder: Path, files: dict[str, dict[str, Any]]) -> tuple[list[tuple[str, str, str]], list[Recheck]]:
     """(runnable: (name, text, verdict), refused) of ``folder``: every entry of the folder other than the
     manifest is either a manifest script that checks or refused with the reason."""
     runnable, refused = [], []
@@ -454,7 +454,7 @@ def previous_reproducers(folder: Path) -> list[Path]:
     one :func:`recheck` would run): the ones a new run replaces. Any other file is not among them; an
     unreadable folder or manifest gives none."""
     try:
-        runnable, _ = _vet(Path(folder), read_manifest(Path(folder)))
+        runnable, _ = vet(Path(folder), read_manifest(Path(folder)))
     except (OSError, ProblemFileError, ValueError):
         return []
     return [Path(folder) / name for name, _, _ in runnable]
@@ -513,7 +513,7 @@ def recheck(folder: Path, time_limit: float = RECHECK_TIME_LIMIT) -> list[Rechec
     """Run every reproducer of ``folder`` that its manifest vouches for (module docstring) and report the
     rest as refused; never raises for what a script does. ProblemFileError without a readable manifest."""
     folder = Path(folder)
-    runnable, out = _vet(folder, read_manifest(folder))
+    runnable, out = vet(folder, read_manifest(folder))
     for name, text, verdict in runnable:
         rc, output = run_isolated(text, name, time_limit)
         lines = [ln for ln in output.splitlines() if ln.strip()]
@@ -531,5 +531,5 @@ def recheck(folder: Path, time_limit: float = RECHECK_TIME_LIMIT) -> list[Rechec
 
 __all__ = ["CRASH_SIGNALS", "DOES_NOT", "MANIFEST_NAME", "MISSING", "OUTCOMES", "RECHECK_TIME_LIMIT", "REPRODUCES", "Recheck",
            "Reproducer", "clean_environment", "expected_script", "manifest_entry", "outcome_of", "previous_reproducers", "printable",
-           "read_manifest", "recheck",
+           "read_manifest", "recheck", "vet",
            "reproducer_name", "run_isolated", "script_text", "write_reproducer_folder", "write_reproducers"]
