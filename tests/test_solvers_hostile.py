@@ -543,3 +543,21 @@ def test_a_problem_too_large_to_verify_on_load_is_refused_before_solving(monkeyp
                         reference={"status": "optimal", "x": [0.0] * n, "objective": 0.0})
     with pytest.raises(ProblemFileError, match="nonzeros"):
         check_reference(big)
+
+
+def test_a_folder_of_an_earlier_template_is_written_again_from_its_manifest(tmp_path):
+    """A script under an old name with an old text (its manifest consistent with it) is refused by recheck;
+    rewrite_folder writes it again from the entry's data, removes the old name, keeps other files."""
+    good = written_folder(tmp_path)
+    manifest = json.loads((tmp_path / repro.MANIFEST_NAME).read_text())
+    old_text = (tmp_path / good).read_text().replace("sys.exit(3)", "sys.exit(1)")
+    (tmp_path / good).unlink()
+    (tmp_path / "old-name.py").write_text(old_text)
+    manifest["files"] = {"old-name.py": {**manifest["files"][good], "sha256": repro._sha256(old_text.encode())}}
+    (tmp_path / repro.MANIFEST_NAME).write_text(json.dumps(manifest))
+    (tmp_path / "notes.txt").write_text("mine")
+    assert [r.outcome for r in repro.vet(tmp_path, repro.read_manifest(tmp_path))[1]] == ["refused", "refused"]
+    repro.rewrite_folder(tmp_path)
+    runnable, refused = repro.vet(tmp_path, repro.read_manifest(tmp_path))
+    assert [name for name, _, _ in runnable] == [good] and [r.script for r in refused] == ["notes.txt"]
+    assert files_below(tmp_path) == {good, repro.MANIFEST_NAME, "notes.txt"}
