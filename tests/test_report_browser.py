@@ -40,7 +40,7 @@ EXPECTED_SECTIONS = {
     "proposition9": ["tube_contains_state", "tube_contains_next_state", "tube_propagation", "tube_constraints",
                      "tube_alpha_nonneg", "terminal_set", "multipliers_nonneg", "multipliers_15c", "multipliers_15d"],
     "qp20": ["cost_value", "qp_optimality"],
-    "assumptions": ["theta_star_in_Theta", "w_in_W", "model_consistent", "control_law", "mu_precondition"],
+    "assumptions": ["theta_star_in_Theta", "w_in_W", "model_consistent", "data_consistency", "control_law", "mu_precondition"],
     "design": ["design.terminal_cost_16", "design.assumption_8", "design.x0_contractive",
                "design.x0_robustly_invariant", "design.w_bar_f_bar_recomputed", "design.x_f_non_empty",
                "design.x_f_invariant", "design.x_f_in_z", "design.mu_condition_11", "design.x0_vertices"],
