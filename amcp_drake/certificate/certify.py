@@ -105,6 +105,8 @@ class Certificate:
     solver_answers: dict[str, Any] = field(default_factory=dict)
     #: the ``premises`` section (:mod:`amcp_drake.certificate.premises`)
     premises: list[dict[str, Any]] = field(default_factory=list)
+    #: the ``provenance`` section (:mod:`amcp_drake.certificate.provenance`), set when the bundle is written
+    provenance: dict[str, Any] = field(default_factory=dict)
 
     @property
     def premises_not_met(self) -> list[dict[str, Any]]:
@@ -170,6 +172,7 @@ class Certificate:
             "premises": self.premises, "claims": [claim_to_dict(c) for c in self.claims],
             "backend_conformance": self.conformance, "solver_answers": self.solver_answers,
             "figures": self.figures, "series": self.series,
+            **({"provenance": self.provenance} if self.provenance else {}),
         })
 
 

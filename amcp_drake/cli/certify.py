@@ -118,7 +118,8 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
     if trajectory_file is None and traj.options.update != "none":
         cert = _with_robust_baseline(traj, cert)
     try:
-        out = write_outputs(out_dir, traj, cert)
+        out = write_outputs(out_dir, traj, cert, inputs=_provenance_inputs(problem_file, example, trajectory_file),
+                            command_line=["amcp", *sys.argv[1:]])
     except OSError as exc:  # a full disk or a failing medium: write_outputs removed what it had staged
         raise write_error("--out", out_dir, exc) from None
     _print(cert, out)
@@ -165,6 +166,23 @@ def _assumption_8_broken_by_the_given_gain(exc: Exception, spec) -> str | None:
     if reasons and all(r.startswith(prefix) for r in reasons):
         return reasons[0][len(prefix):]
     return None
+
+
+def _provenance_inputs(problem_file, example, trajectory_file) -> dict:
+    """The input files a certificate records the SHA-256 of: the problem file (a built-in example's packaged
+    file when no PROBLEM is given) and the trajectory file certified with --trajectory."""
+    from importlib import resources
+
+    files = {}
+    if problem_file:
+        files["problem"] = problem_file
+    elif example or trajectory_file is None:
+        packaged = resources.files("amcp_drake") / "data" / f"{example or 'lorenzen2019'}.json"
+        if packaged.is_file():
+            files["problem"] = packaged
+    if trajectory_file:
+        files["input_trajectory"] = trajectory_file
+    return files
 
 
 def _load_trajectory(path: str, problem_file, example):
