@@ -228,3 +228,18 @@ def test_records_that_do_not_form_one_run_are_refused_naming_the_record(example_
         measured_trajectory(ctrl, [records[0], records[2]])
     with pytest.raises(ProblemError, match="records"):
         measured_trajectory(ctrl, [])
+
+
+def test_the_how_to_loop_runs_as_written_and_certifies(tmp_path, monkeypatch):
+    """The Python block of docs/how-to/certify-measured-run.md, run as written (in a scratch folder)."""
+    from pathlib import Path
+
+    page = Path(__file__).resolve().parents[1] / "docs" / "how-to" / "certify-measured-run.md"
+    (block,) = re.findall(r"```python\n(.*?)```", page.read_text(encoding="utf-8"), flags=re.S)
+    monkeypatch.chdir(tmp_path)
+    scope: dict = {}
+    exec(compile(block, str(page), "exec"), scope)  # noqa: S102 - the documented snippet itself
+    cert = scope["cert"]
+    assert cert.verdict == "pass" and cert.counts()["not_applicable"] == len(NEEDS_THETA_STAR_OR_W)
+    assert cert.counts() == {"pass": 31, "fail": 0, "not_run": 0, "not_applicable": 5}  # as the page prints
+    assert Trajectory.load(tmp_path / "measured.json.gz").measured
