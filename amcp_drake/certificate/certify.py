@@ -430,7 +430,8 @@ def _run_info(traj: Trajectory, state_bound: float | None) -> dict[str, Any]:
     return extra | {
         "backend": traj.backend, "steps": len(traj.u), "records": len(traj.records), "stop_reason": traj.stop_reason,
         "x0": traj.x[0].tolist(), "theta_star": None if traj.measured else traj.theta_star_at(0).tolist(),
-        "measured": traj.measured, "simulator": traj.meta.get("simulator", "amcp"),
+        "measured": traj.measured,
+        "simulator": traj.meta.get("simulator") or ("not recorded" if traj.measured else "amcp"),
         "theta_hat0": traj.problem.theta_hat0.tolist(),
         "update": traj.options.update, "window": traj.options.window, "projection": traj.options.projection,
         "disturbance": traj.meta.get("disturbance"), "seed": traj.meta.get("seed"),
