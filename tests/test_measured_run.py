@@ -244,3 +244,16 @@ def test_the_how_to_loop_runs_as_written_and_certifies(tmp_path, monkeypatch):
     assert cert.verdict == "pass" and cert.counts()["not_applicable"] == len(NEEDS_THETA_STAR_OR_W)
     assert cert.counts() == {"pass": 31, "fail": 0, "not_run": 0, "not_applicable": 5}  # as the page prints
     assert Trajectory.load(tmp_path / "measured.json.gz").measured
+
+
+def test_a_recorded_inconsistent_step_with_an_input_is_refused_naming_the_field(example_spec, example_design):
+    """The file layout: "inconsistent data at step K" with K + 1 records needs the last one without an input."""
+    steps, k = 6, 3
+    jump = 10 * w_size(example_spec.problem) * np.array([1.0, 0.0])
+    ctrl, records = user_loop(example_spec, example_design, steps, np.zeros((steps, 2)), (k - 1, jump))
+    data = as_recorded(measured_trajectory(ctrl, records))
+    assert data["stop_reason"] == f"inconsistent data at step {k}" and len(data["records"]) == k + 1
+    Trajectory.from_dict(json.loads(json.dumps(data)))  # as written: accepted
+    data["records"][k]["u"] = [0.0]
+    with pytest.raises(TrajectoryError, match=rf"records\[{k}\]\.u"):
+        Trajectory.from_dict(data)
