@@ -140,3 +140,16 @@ def test_the_laundering_tamper_exits_1_with_the_data_claim_failing(recorded, tmp
     failed = {c["id"] for c in cert["claims"] if c["status"] == "fail"}
     assert "model_consistent" in failed
     assert "model_consistent" not in {c["id"] for c in cert["run"]["not_claimed"]}
+
+
+def test_an_infeasible_start_never_excuses_a_design_claim(spec, controller):
+    """The run from x_0 1e-7 outside Z with the recorded X0 vertex list moved by 1e-3 at one vertex: the premise
+    x_0 ∈ 𝔻 is not met, but the design's claims do not rest on x_0, so the wrong vertex list fails (verdict
+    fail), never "not claimed"."""
+    data = run_from(spec, controller, [2.0, X2_MIN - 1e-7])
+    data["design"]["X0_vertices"][0][0] += 1e-3
+    cert = certify(Trajectory.from_dict(data), spec)
+    assert premise(cert)["status"] == "not_met"
+    assert "design.x0_vertices" in cert.ids("fail")
+    assert "design.x0_vertices" not in {c["id"] for c in cert.not_claimed}
+    assert cert.verdict == "fail"
