@@ -29,6 +29,7 @@ import pytest
 from click.testing import CliRunner
 
 from amcp_drake.cli import main
+from tests.guards import GUARD_SECONDS
 from tests.recorded_runs import TRAJECTORY_DATA, trajectory
 
 STALE = ".certify-staging-" + "0123456789abcdef" * 2
@@ -491,7 +492,7 @@ def test_a_killed_certify_leaves_a_staging_folder_that_the_next_run_removes(tmp_
     proc = subprocess.Popen([sys.executable, "-m", "amcp_drake", "certify", "--trajectory", str(TRAJECTORY_DATA),
                              "--out", str(out)], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        deadline = time.monotonic() + 300
+        deadline = time.monotonic() + GUARD_SECONDS
         while not list(out.glob(".certify-staging-*/.lock")):
             assert proc.poll() is None, "certify ended before its staging folder was seen"
             assert time.monotonic() < deadline

@@ -28,6 +28,7 @@ from amcp_drake.cli.common import (
     interruptible,
     load_problem_spec,
     max_memory_option,
+    nonempty_path_callback,
     online_options,
     output_dir_callback,
     prepare_run,
@@ -50,7 +51,7 @@ from amcp_drake.cli.common import (
 @seed_option("Seed of the disturbance sequence (default: the scenario's; 0 for Example 1).")
 @click.option("--out", "out_dir", default="amcp-out", show_default=True, type=click.Path(), callback=output_dir_callback,
               help="Output directory (its other files are left alone).")
-@click.option("--trajectory", "trajectory_file", default=None, type=click.Path(),
+@click.option("--trajectory", "trajectory_file", default=None, type=click.Path(), callback=nonempty_path_callback,
               help="Re-check a saved trajectory (.json or .json.gz) instead of running the loop.")
 @online_options
 @max_memory_option

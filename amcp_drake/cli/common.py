@@ -13,7 +13,7 @@ from typing import NamedTuple, NoReturn
 import click
 
 from amcp_drake.model.errors import AmcpError, BackendNotFound, ProblemError, TrajectoryError
-from amcp_drake.model.limits import DEFAULT_MAX_MEMORY_MB, MAX_STEPS
+from amcp_drake.model.limits import DEFAULT_MAX_MEMORY_MB, MAX_MEMORY_MB, MAX_STEPS
 from amcp_drake.model.problem_io import check_output_dir, check_output_file, check_store_path
 from amcp_drake.offline.budget import DEFAULT_CANDIDATE_SECONDS, PROGRESS_SECONDS
 
@@ -95,10 +95,26 @@ def _callback(check: Callable[[str, str], Path]) -> Callable:
     return callback
 
 
+def check_nonempty_path(option: str, path) -> Path:
+    """``path`` as a Path unless it is empty or blank (``Path("")`` is ".", the current folder, which no
+    path option means): ProblemError naming ``option``."""
+    if path is None or not str(path).strip():
+        raise ProblemError(option, "a path", "an empty string")
+    return Path(path)
+
+
 #: click callbacks: the option is checked as soon as it is parsed (exit 2, click's "Invalid value for '--out'").
 output_dir_callback = _callback(check_output_dir)
 output_file_callback = _callback(check_output_file)
 store_path_callback = _callback(check_store_path)
+_nonempty_callback = _callback(check_nonempty_path)
+
+
+def nonempty_path_callback(ctx: click.Context, param: click.Parameter, value):
+    """click callback of an input path option (repeatable or not): every value given must be non-empty."""
+    for item in value if isinstance(value, (tuple, list)) else (value,):
+        _nonempty_callback(ctx, param, item)
+    return value
 
 
 def steps_option(help_text: str, default=None, minimum: int = 1, show_default: bool = False):
@@ -149,7 +165,8 @@ def parse_range(option: str, text: str, low: int, high: int) -> tuple[int, ...]:
 
 
 max_memory_option = click.option(
-    "--max-memory", "max_memory", type=FiniteFloatRange(min=1.0), default=DEFAULT_MAX_MEMORY_MB, show_default=True,
+    "--max-memory", "max_memory", type=FiniteFloatRange(min=1.0, max=MAX_MEMORY_MB), default=DEFAULT_MAX_MEMORY_MB,
+    show_default=True,
     help="Refuse a run whose estimated size (tube QP nonzeros, recorded steps; docs/problem-format.md, "
          "'Size limits') exceeds this many MiB, before anything is built; every stage of the offline design is "
          "sized against the same limit (a design candidate above it is skipped, with the stage named).")

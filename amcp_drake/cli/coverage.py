@@ -18,6 +18,8 @@ from amcp_drake.cli.common import (
     interruptible,
     load_problem_spec,
     max_memory_option,
+    nonempty_path_callback,
+    output_dir_callback,
     problem_options,
     progress_every_option,
     update_options,
@@ -33,7 +35,7 @@ from amcp_drake.cli.common import (
               help="Grid values per axis (default 21; with --points FILE holding a polytope, its grid).")
 @click.option("--box", "box_text", default=None, metavar="LO:HI,LO:HI,...",
               help="Grid box, one interval per state (default: the state bounds of Z, else design.mu_state_bound).")
-@click.option("--points", "points_file", default=None, type=click.Path(dir_okay=False),
+@click.option("--points", "points_file", default=None, type=click.Path(dir_okay=False), callback=nonempty_path_callback,
               help='JSON file: {"points": [[..], ..]} or {"polytope": {"H": [[..]], "h": [..]}} (grid points inside).')
 @click.option("--adapt", "adapt_steps", type=click.IntRange(min=1), default=None,
               help="Also evaluate the region for Θ_T learned on a closed loop of this many steps (the scenario).")
@@ -41,6 +43,7 @@ from amcp_drake.cli.common import (
               help="Initial state of the --adapt run (default: the problem file's scenario x0).")
 @update_options
 @click.option("--out", "out_dir", default="amcp-out", show_default=True, type=click.Path(file_okay=False),
+              callback=output_dir_callback,
               help="Folder for coverage.json and coverage.png.")
 @click.option("--no-progress", is_flag=True, help="No progress bar (and no design progress lines).")
 @max_memory_option

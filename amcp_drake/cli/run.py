@@ -25,6 +25,7 @@ from amcp_drake.cli.common import (
     progress_every_option,
     seed_option,
     steps_option,
+    write_error,
 )
 
 
@@ -79,6 +80,9 @@ def run_cmd(problem_file, example, x0_template, backend, formulation, steps, see
                f"(<= 0: θ*_k ∈ Θ_k); median QP solve {1e3 * np.nanmedian(solver):.1f} ms")
     echo(f"stop: {traj.stop_reason}")
     if save:
-        traj.save(save)
+        try:
+            traj.save(save)
+        except OSError as exc:  # a full disk or a read-only folder: the atomic write left nothing behind
+            raise write_error("--save", save, exc) from None
         echo(f"trajectory saved to {save}")
     exit_verdict(traj.all_solved and traj.stop_reason == "completed")

@@ -421,10 +421,20 @@ def write_text_atomic(text: str, path: str | os.PathLike) -> Path:
 
 def write_bytes_atomic(data: bytes, path: str | os.PathLike) -> Path:
     """Write bytes to ``path`` through a temporary file in the same folder and a rename: a reader
-    sees the old file or the whole new one, never a half-written one."""
+    sees the old file or the whole new one, never a half-written one. On a failure (a full disk) the
+    temporary file and the folders created for it are removed."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    created = []
+    probe = path.parent
+    while not (probe.exists() or probe.is_symlink()) and probe.parent != probe:
+        created.append(probe)
+        probe = probe.parent
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    except BaseException:
+        _remove_empty_dirs(created)
+        raise
     try:
         with os.fdopen(fd, "wb") as handle:
             handle.write(data)
@@ -435,8 +445,18 @@ def write_bytes_atomic(data: bytes, path: str | os.PathLike) -> Path:
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        _remove_empty_dirs(created)
         raise
     return path
+
+
+def _remove_empty_dirs(folders: list[Path]) -> None:
+    """Remove the folders (innermost first) while they are empty."""
+    for folder in folders:
+        try:
+            folder.rmdir()
+        except OSError:
+            return
 
 
 __all__ = [
