@@ -168,7 +168,7 @@ def qp_feasible(controller, x0) -> bool:
 @pytest.fixture(scope="module")
 def region_edge(controller) -> np.ndarray:
     """The edge of the feasible region of (20) on the line x_2 = 3 beyond x_0 = (2, 3), by bisection of the
-    QP's feasibility (to 1e-11), and that x_2 = 3 is far inside Z (x_2 >= −0.3)."""
+    QP's feasibility (to 1e-11); x_2 = 3 is far inside Z (x_2 >= −0.3)."""
     inside, outside = 2.0, 40.0
     assert qp_feasible(controller, [inside, 3.0]) and not qp_feasible(controller, [outside, 3.0])
     while outside - inside > 1e-11:
