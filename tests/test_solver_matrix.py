@@ -277,26 +277,26 @@ def test_a_drake_program_is_read_into_the_neutral_form():
 # -- reproducers -----------------------------------------------------------------------------------------
 
 def test_reproducer_scripts_say_whether_the_defect_reproduces(tmp_path):
-    """cvxpy's Clarabel on x >= 1: with the true optimum recorded it does not reproduce; with a recorded
-    optimum 0.5 below the true one the same answer is 'suboptimal' and it does."""
+    """cvxpy's Clarabel on x >= 1 with the true optimum recorded does not reproduce; a crash's script
+    reproduces only by an exception or an abort, not by the answer it returns; a manifest entry whose
+    recorded optimum is 0.5 below the true one is refused (its reference does not verify), never run."""
     pytest.importorskip("cvxpy")
-    from amcp_drake.studies.solver_matrix.reproducers import recheck, script_text
+    from amcp_drake.studies.solver_matrix.reproducers import recheck, reproducer_name, write_reproducer_folder
 
     fine = lp_x_geq_1()
     lying = lp_x_geq_1({"status": "optimal", "x": [0.5], "objective": 0.5})
     lying.id = "x-geq-1-lying"
-
-    for p in (fine, lying):
-        (tmp_path / f"{p.id}.py").write_text(script_text(p, "cvxpy:CLARABEL", "default", "wrong", "stub"))
-    # a crash's script reproduces only by an exception or an abort, not by the wrong answer it may return
-    (tmp_path / "crash-check.py").write_text(script_text(lying, "cvxpy:CLARABEL", "default", "crash", "stub"))
-    (tmp_path / "aborts.py").write_text("import os\nos.abort()\n")
+    write_reproducer_folder(tmp_path, [(fine, "cvxpy:CLARABEL", "default", "wrong", "stub"),
+                                       (lying, "cvxpy:CLARABEL", "default", "crash", "stub"),
+                                       (lying, "cvxpy:CLARABEL", "default", "wrong", "stub")])
     results = {r.script: r for r in recheck(tmp_path)}
-    assert results["x-geq-1.py"].outcome == "no longer reproduces"
-    assert results["x-geq-1-lying.py"].outcome == "reproduces" and "suboptimal" in results["x-geq-1-lying.py"].last_line
-    assert results["aborts.py"].outcome == "reproduces" and "signal 6" in results["aborts.py"].last_line
-    assert results["crash-check.py"].outcome == "no longer reproduces" and "without an exception" in results["crash-check.py"].last_line
-    imports = [ln for ln in (tmp_path / "x-geq-1.py").read_text().splitlines() if ln.lstrip().startswith(("import ", "from "))]
+    name = reproducer_name("cvxpy:CLARABEL", "wrong", "x-geq-1")
+    assert results[name].outcome == "no longer reproduces"
+    crash = results[reproducer_name("cvxpy:CLARABEL", "crash", "x-geq-1-lying")]
+    assert crash.outcome == "no longer reproduces" and "without an exception" in crash.last_line
+    lied = results[reproducer_name("cvxpy:CLARABEL", "wrong", "x-geq-1-lying")]
+    assert lied.outcome == "refused" and lied.returncode is None and "reference.x" in lied.last_line
+    imports = [ln for ln in (tmp_path / name).read_text().splitlines() if ln.lstrip().startswith(("import ", "from "))]
     assert imports and not any("amcp" in ln for ln in imports)   # nothing imported from this project
 
 
@@ -353,9 +353,9 @@ def test_a_cvxpy_problem_is_read_from_its_conic_data():
 
 
 def test_the_nonfinite_reproducer_runs_standalone(tmp_path):
-    from amcp_drake.studies.solver_matrix.reproducers import NONFINITE_NAME, NONFINITE_SCRIPT, recheck
+    from amcp_drake.studies.solver_matrix.reproducers import recheck, write_reproducer_folder
 
-    (tmp_path / NONFINITE_NAME).write_text(NONFINITE_SCRIPT)
+    write_reproducer_folder(tmp_path, [(None, "drake", "default", "crash", "")])
     (result,) = recheck(tmp_path)
     # either verdict is a statement about the installed Drake; the script must reach one of them
     assert result.outcome in ("reproduces", "no longer reproduces")
