@@ -32,6 +32,7 @@ from amcp_drake.studies.solver_matrix.corpus import CorpusProblem, is_valid_id, 
 from amcp_drake.studies.solver_matrix.reference import check_reference
 from amcp_drake.studies.solver_matrix.runner import Cell, MatrixRun
 from amcp_drake.studies.solver_matrix.staging import STAGING_PREFIX, staged
+from tests.guards import GUARD_SECONDS
 
 STUB = "py:tests.solver_stubs:correct"
 
@@ -148,7 +149,7 @@ def test_text_with_quotes_is_only_data_in_the_generated_script(tmp_path, quote):
     assert json.loads(data_literal)["id"] == pr.id
     script = tmp_path / "script.py"
     script.write_text(text)
-    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=GUARD_SECONDS, cwd=tmp_path)
     assert done.returncode == repro.DOES_NOT, done.stdout + done.stderr
     assert not marker.exists()
 
@@ -275,7 +276,7 @@ def test_processes_a_reproducer_starts_are_killed_when_it_ends_or_times_out(tmp_
     rc, _ = repro.run_isolated(text, "spawn.py", limit)
     assert rc == (0 if limit > 10 else None)
     pid = int(pid_file.read_text())
-    deadline = time.monotonic() + 10
+    deadline = time.monotonic() + GUARD_SECONDS   # only a guard: a killed sleeper is gone at once
     while _alive(pid) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not _alive(pid)
