@@ -512,7 +512,7 @@ def test_verifying_an_lp_reference_prints_nothing(tmp_path):
             "from tests.test_solvers_hostile import lp\n"
             "from amcp_drake.studies.solver_matrix.reference import check_reference\n"
             "check_reference(lp())\n")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=GUARD_SECONDS,
                           cwd=Path(__file__).resolve().parents[1])
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout == ""
