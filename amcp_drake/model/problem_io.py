@@ -98,7 +98,10 @@ def _schema_validator():
             return
         yield from standard_items(validator, item_schema, instance, parent_schema)
 
-    fast = jsonschema.validators.extend(jsonschema.Draft202012Validator, {"items": items})
+    # an integer is an integer literal: 10.0 is a number (JSON Schema would accept it as an integer)
+    types = jsonschema.Draft202012Validator.TYPE_CHECKER.redefine(
+        "integer", lambda checker, x: isinstance(x, (int, np.integer)) and not isinstance(x, bool))
+    fast = jsonschema.validators.extend(jsonschema.Draft202012Validator, {"items": items}, type_checker=types)
     return fast(schema)
 
 
@@ -118,12 +121,20 @@ def _json_type(value: Any) -> str:
     return "null" if value is None else type(value).__name__
 
 
-def _shown(value: Any) -> str:
+#: Longest shown text of a received string or number in a message (a field may hold megabytes).
+SHOWN_CHARS = 60
+
+
+def shown(value: Any) -> str:
+    """A received value for a message: JSON text (control characters escaped), cut to a few dozen characters
+    with its full length said, and its JSON type."""
+    text = json.dumps(value)
     if isinstance(value, (dict, list)):
-        text = json.dumps(value)
         text = text if len(text) <= 40 else text[:37] + "..."
-        return f"{text} ({_json_type(value)})"
-    return f"{json.dumps(value)} ({_json_type(value)})"
+    elif len(text) > SHOWN_CHARS:
+        length = f", {len(value):,} characters" if isinstance(value, str) else ""
+        text = f"{text[:SHOWN_CHARS - 3]}...{length}"
+    return f"{text} ({_json_type(value)})"
 
 
 def _schema_error(error) -> ProblemFileError:
@@ -146,22 +157,23 @@ def _schema_error(error) -> ProblemFileError:
         expected = " or ".join(_JSON_TYPES.get(t, t) for t in types)
         if "number" in types or "integer" in types:
             expected += " (booleans are not numbers)" if isinstance(value, bool) else ""
-        return ProblemFileError(field, expected, _shown(value))
+        return ProblemFileError(field, expected, shown(value))
     if kind in ("minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum"):
         op = {"minimum": ">=", "maximum": "<=", "exclusiveMinimum": ">", "exclusiveMaximum": "<"}[kind]
         if "magnitude" in error.schema.get("description", ""):
-            return ProblemFileError(field, f"{error.schema['description']}; rescale the units", _shown(value))
+            return ProblemFileError(field, f"{error.schema['description']}; rescale the units", shown(value))
         return ProblemFileError(field, f"a value {op} {spec:g}" if isinstance(spec, float) else f"a value {op} {spec}",
-                                _shown(value))
+                                shown(value))
     if kind in ("enum", "const"):
         options = spec if kind == "enum" else [spec]
-        return ProblemFileError(field, "one of " + ", ".join(json.dumps(o) for o in options), _shown(value))
+        return ProblemFileError(field, "one of " + ", ".join(json.dumps(o) for o in options), shown(value))
     if kind == "minItems":
-        return ProblemFileError(field, f"a list of at least {spec} item(s)", _shown(value))
+        return ProblemFileError(field, f"a list of at least {spec} item(s)", shown(value))
     if kind in ("minLength", "maxLength"):
         return ProblemFileError(field, f"a string of {'at least' if kind == 'minLength' else 'at most'} {spec} "
-                                "characters", _shown(value))
-    return ProblemFileError(field, f"a value matching the problem schema ({kind})", f"{_shown(value)}: {error.message}")
+                                "characters", shown(value))
+    message = error.message if len(error.message) <= 200 else error.message[:197] + "..."
+    return ProblemFileError(field, f"a value matching the problem schema ({kind})", f"{shown(value)}: {message}")
 
 
 def _deepest(error):
@@ -182,13 +194,13 @@ def _deepest(error):
 def validate_layout(data: Any) -> None:
     """Check ``data`` against the problem schema; raise ProblemFileError naming the first bad field."""
     if not isinstance(data, dict):
-        raise ProblemFileError("file", "a JSON object at top level", _shown(data))
+        raise ProblemFileError("file", "a JSON object at top level", shown(data))
     fmt = data.get("format")
     if fmt != FORMAT:
-        raise ProblemFileError("format", f"'{FORMAT}'", repr(fmt))
-    if data.get("version") != VERSION or isinstance(data.get("version"), bool):
+        raise ProblemFileError("format", f"'{FORMAT}'", shown(fmt))
+    if type(data.get("version")) is not int or data.get("version") != VERSION:  # 1.0 and true are not 1
         raise ProblemFileError("version", f"{VERSION} (the only problem-file version this amcp reads)",
-                               repr(data.get("version")))
+                               shown(data.get("version")))
     errors = sorted(_schema_validator().iter_errors(data), key=lambda e: [str(p) for p in e.absolute_path])
     if errors:
         raise _schema_error(_deepest(errors[0]))
@@ -409,10 +421,20 @@ def write_text_atomic(text: str, path: str | os.PathLike) -> Path:
 
 def write_bytes_atomic(data: bytes, path: str | os.PathLike) -> Path:
     """Write bytes to ``path`` through a temporary file in the same folder and a rename: a reader
-    sees the old file or the whole new one, never a half-written one."""
+    sees the old file or the whole new one, never a half-written one. On a failure (a full disk) the
+    temporary file and the folders created for it are removed."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    created = []
+    probe = path.parent
+    while not (probe.exists() or probe.is_symlink()) and probe.parent != probe:
+        created.append(probe)
+        probe = probe.parent
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    except BaseException:
+        _remove_empty_dirs(created)
+        raise
     try:
         with os.fdopen(fd, "wb") as handle:
             handle.write(data)
@@ -423,8 +445,18 @@ def write_bytes_atomic(data: bytes, path: str | os.PathLike) -> Path:
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        _remove_empty_dirs(created)
         raise
     return path
+
+
+def _remove_empty_dirs(folders: list[Path]) -> None:
+    """Remove the folders (innermost first) while they are empty."""
+    for folder in folders:
+        try:
+            folder.rmdir()
+        except OSError:
+            return
 
 
 __all__ = [
