@@ -55,7 +55,7 @@ def test_a_drake_diagram_reproduces_simulate_and_its_certificate(example_spec, e
     drake = simulate_in_drake(ctrl, sc.x0, sc.theta_star, STEPS, "uniform", seed=0)
     _assert_same_run(drake, builtin_run)
     assert np.array_equal(drake.w, builtin_run.w)
-    assert drake.meta["simulator"] == "drake" and "simulator" not in builtin_run.meta
+    assert drake.meta["simulator"] == "drake" and builtin_run.meta.get("simulator", "amcp") == "amcp"
     a, b = certify(drake), certify(builtin_run)
     assert a.verdict == b.verdict == "pass"
     assert [(c.name, c.status) for c in a.claims] == [(c.name, c.status) for c in b.claims]
@@ -177,3 +177,29 @@ def test_inconsistent_data_stop_the_run_cleanly_and_the_partial_run_is_certifiab
     with pytest.raises(InconsistentDataError) as err:
         simulate_in_drake(AdaptiveMPC(pr, example_design, "drake"), sc.x0, sc.theta_star, 8, W)
     assert err.value.trajectory.stop_reason == "inconsistent data at step 4"
+
+
+@pytest.mark.slow
+def test_the_cli_runs_the_plant_in_drake_on_request(tmp_path):
+    """``--simulator drake``: run and certify exit 0 with the trajectory saying Drake ran it; compare in
+    independent mode runs both loops in Drake; lockstep refuses it (exit 2, naming the option)."""
+    import json
+
+    from click.testing import CliRunner
+
+    from amcp_drake.cli import main
+    from amcp_drake.online.simulate import Trajectory
+
+    runner = CliRunner()
+    run = runner.invoke(main, ["run", "--steps", "4", "--simulator", "drake", "--save", str(tmp_path / "t.json")])
+    assert run.exit_code == 0, run.output
+    assert Trajectory.load(tmp_path / "t.json").meta["simulator"] == "drake"
+    cert = runner.invoke(main, ["certify", "--steps", "4", "--simulator", "drake", "--out", str(tmp_path / "c")])
+    assert cert.exit_code == 0, cert.output
+    assert json.loads((tmp_path / "c" / "certificate.json").read_text())["run"]["simulator"] == "drake"
+    indep = runner.invoke(main, ["compare", "--mode", "independent", "--steps", "3", "--simulator", "drake",
+                                 "--quiet", "--out", str(tmp_path / "cmp.json")])
+    assert indep.exit_code == 0, indep.output
+    assert json.loads((tmp_path / "cmp.json").read_text())["simulator"] == "drake"
+    lock = runner.invoke(main, ["compare", "--steps", "3", "--simulator", "drake", "--out", str(tmp_path / "l.json")])
+    assert lock.exit_code == 2 and "--simulator" in lock.output and not (tmp_path / "l.json").exists()

@@ -285,9 +285,11 @@ def _sync(target: AdaptiveMPC, source: AdaptiveMPC) -> None:
 
 def independent(spec: ProblemSpec, steps: int, seed: int, backends=("drake", "cvxpy"),
                 options: OnlineOptions | None = None, backend_options: tuple[dict, dict] = ({}, {}),
-                allow_fallbacks: bool = False) -> Comparison:
-    """Two closed loops, each with its own design, on the same disturbance sequence."""
-    from amcp_drake.online.simulate import simulate
+                allow_fallbacks: bool = False, simulate=None) -> Comparison:
+    """Two closed loops, each with its own design, on the same disturbance sequence. ``simulate``: the
+    closed-loop function (default :func:`amcp_drake.online.simulate.simulate`; same arguments)."""
+    if simulate is None:
+        from amcp_drake.online.simulate import simulate
 
     pr, sc = spec.problem, spec.scenario
     comp = Comparison("independent", (backends[0], backends[1]), allow_fallbacks=allow_fallbacks)
