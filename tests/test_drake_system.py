@@ -203,3 +203,14 @@ def test_the_cli_runs_the_plant_in_drake_on_request(tmp_path):
     assert json.loads((tmp_path / "cmp.json").read_text())["simulator"] == "drake"
     lock = runner.invoke(main, ["compare", "--steps", "3", "--simulator", "drake", "--out", str(tmp_path / "l.json")])
     assert lock.exit_code == 2 and "--simulator" in lock.output and not (tmp_path / "l.json").exists()
+
+
+def test_the_how_to_loop_runs_and_certifies(capsys):
+    """The Python block of docs/how-to/drake-plant.md runs as written and prints the verdict "pass"."""
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "how-to" / "drake-plant.md").read_text()
+    [block] = re.findall(r"```python\n(.*?)```", text, flags=re.DOTALL)
+    exec(compile(block, "drake-plant.md", "exec"), {})
+    assert capsys.readouterr().out.split() == ["pass"]
