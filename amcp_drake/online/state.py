@@ -86,7 +86,8 @@ class ControllerState:
         """The mutable working copy of one step, starting from this state."""
         return StepState(k=self.k, H_theta=self.H_theta, h_theta=self.h_theta, theta_hat=self.theta_hat,
                          prev=self.prev, window=list(self.window), u_hist=list(self.u_hist),
-                         exact_rows_irredundant=self.exact_rows_irredundant, checked_vertices=self.checked_vertices)
+                         exact_rows_irredundant=self.exact_rows_irredundant, checked_vertices=self.checked_vertices,
+                         origin=self)
 
     def same_as(self, other: ControllerState) -> bool:
         """Equal field by field, arrays to the bit (shape and every float)."""
@@ -116,13 +117,35 @@ class StepState:
     checked_vertices: tuple | None
     #: (x_prev, u_prev, x, D, d) of this step (the arguments compared by identity), or None
     regression: tuple | None = None
+    #: the state this working copy started from (its values are frozen already)
+    origin: ControllerState | None = None
 
     def freeze(self) -> ControllerState:
-        """The state after the step (arrays not changed by the step are shared, not copied)."""
-        return ControllerState(k=self.k, H_theta=self.H_theta, h_theta=self.h_theta, theta_hat=self.theta_hat,
-                               prev=self.prev, window=tuple(self.window), u_hist=tuple(self.u_hist),
-                               exact_rows_irredundant=self.exact_rows_irredundant,
-                               checked_vertices=self.checked_vertices)
+        """The state after the step: the values the step did not replace are the origin's (shared, not
+        copied), the others are frozen as by the constructor (the same result, without re-checking the
+        origin's values at every step)."""
+        o = self.origin
+        if o is None:
+            return ControllerState(k=self.k, H_theta=self.H_theta, h_theta=self.h_theta, theta_hat=self.theta_hat,
+                                   prev=self.prev, window=tuple(self.window), u_hist=tuple(self.u_hist),
+                                   exact_rows_irredundant=self.exact_rows_irredundant,
+                                   checked_vertices=self.checked_vertices)
+        window = self.window
+        same_window = len(window) == len(o.window) and all(a is b for a, b in zip(window, o.window))
+        cv = self.checked_vertices
+        new = object.__new__(ControllerState)
+        new.__dict__.update(
+            k=int(self.k),
+            H_theta=o.H_theta if self.H_theta is o.H_theta else frozen_array(self.H_theta),
+            h_theta=o.h_theta if self.h_theta is o.h_theta else frozen_array(self.h_theta),
+            theta_hat=o.theta_hat if self.theta_hat is o.theta_hat else frozen_array(self.theta_hat),
+            prev=o.prev if self.prev is o.prev else _frozen_pair(self.prev),
+            window=o.window if same_window else tuple(_frozen_pair(w) for w in window),
+            u_hist=tuple(float(u) for u in self.u_hist) if self.u_hist else (),
+            exact_rows_irredundant=bool(self.exact_rows_irredundant),
+            checked_vertices=(cv if cv is o.checked_vertices or cv is None else
+                              (frozen_array(cv[0]), frozen_array(cv[1]), None if cv[2] is None else frozen_array(cv[2]))))
+        return new
 
 
 __all__ = ["ControllerState", "StepState", "frozen_array"]
