@@ -223,9 +223,21 @@ def certify(traj: Trajectory, problem_spec: ProblemSpec | None = None) -> Certif
     claims, premises, unclaimed = premise_checks.apply(claims, view)
     info["not_claimed"] += unclaimed
     return Certificate(claims=claims, figures=figures, series=series, run=info, premises=premises,
-                       problem={"name": traj.problem.name, "n": traj.problem.n, "m": traj.problem.m,
-                                "p": traj.problem.p, "N": traj.problem.N},
+                       problem=_problem_summary(traj.problem),
                        solver_answers=answers.summarize(traj.records, traj.backend))
+
+
+def _problem_summary(pr) -> dict:
+    """Dimensions of the problem, and the names, units and sample time when the problem gives them
+    (descriptive: ``states``/``inputs`` as ``name [unit]``, ``dt`` in seconds)."""
+    out = {"name": pr.name, "n": pr.n, "m": pr.m, "p": pr.p, "N": pr.N}
+    if pr.states:
+        out["states"] = [pr.state_label(i) for i in range(pr.n)]
+    if pr.inputs:
+        out["inputs"] = [pr.input_label(j) for j in range(pr.m)]
+    if pr.dt is not None:
+        out["dt"] = pr.dt
+    return out
 
 
 # -- design ------------------------------------------------------------------------------------------

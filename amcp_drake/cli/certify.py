@@ -127,7 +127,7 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
                             command_line=["amcp", *sys.argv[1:]])
     except OSError as exc:  # a full disk or a failing medium: write_outputs removed what it had staged
         raise write_error("--out", out_dir, exc) from None
-    _print(cert, out)
+    _print(cert, out, traj.problem)
     if cert.verdict == VERDICT_PREMISE_NOT_MET and cert.conformance != "fail":
         sys.exit(EXIT_PREMISE_NOT_MET)
     exit_verdict(cert.passed and cert.conformance != "fail")
@@ -212,9 +212,12 @@ def _load_trajectory(path: str, problem_file, example):
     return traj, None
 
 
-def _print(cert, out) -> None:
+def _print(cert, out, problem) -> None:
     from amcp_drake.certificate.certify import RELATIVE_TOLERANCES, TOLERANCE_RULE
+    from amcp_drake.cli.summary import signals_header
 
+    for line in signals_header(problem):
+        echo(f"{problem.name}: {line}")
     echo(f"how to read the table: {TOLERANCE_RULE}")
     width = 14 if cert.measured else 8  # "not_applicable"
     echo(f"{'claim':32s} {'status':{width}s} {'margin':>11s} {'tolerance':>10s} {'step':>5s}  statement")

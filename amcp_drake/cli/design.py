@@ -52,6 +52,8 @@ def design_cmd(problem_file, example, x0_template, backend, as_json, max_memory,
         echo(json.dumps({"design": d.to_dict(), "checks": [c.to_dict() for c in checks], "passed": ok}, indent=1))
     else:
         echo(f"problem {pr.name}: n={pr.n}, m={pr.m}, p={pr.p}, N={pr.N}; backend {backend}")
+        if pr.describe_signals():
+            echo(f"problem {pr.name}: {pr.describe_signals()}")
         echo(f"K ({d.gain_source}) = {_fmt(d.K)}")
         echo(f"P = {_fmt(d.P)}")
         for i, attempt in enumerate((d.info or {}).get("attempts", [])):

@@ -71,7 +71,7 @@ def run_cmd(problem_file, example, x0_template, backend, formulation, steps, see
     echo(f"{pr.name}: x0 = {np.asarray(sc.x0).tolist()}, {theta_text}, "
                f"{traj.steps} steps, disturbance {disturbance or ('array' if sc.explicit_disturbance else sc.disturbance)} (seed {sc.seed if seed is None else seed}), "
                f"backend {backend}, update {update}, simulator {simulator}")
-    echo(format_table(step_table(traj, every)))
+    echo(format_table(step_table(traj, every), pr))
     z_margin = max(pr.in_Z(x, u) for x, u in zip(traj.x, traj.u)) if traj.steps else float("nan")
     theta_margin = max(float(np.max(r.H_theta @ traj.theta_star_at(r.k) - r.h_theta)) for r in traj.records)
     solver = np.array([r.times.get("solver", np.nan) for r in traj.records])
