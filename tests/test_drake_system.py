@@ -214,3 +214,17 @@ def test_the_how_to_loop_runs_and_certifies(capsys):
     [block] = re.findall(r"```python\n(.*?)```", text, flags=re.DOTALL)
     exec(compile(block, "drake-plant.md", "exec"), {})
     assert capsys.readouterr().out.split() == ["pass"]
+
+
+def test_the_period_is_the_problems_sample_time_when_it_has_one(example_spec, example_design):
+    """Problem.dt = 0.05: the controller's update and the plant's update run every 0.05 s; without dt, 1 s."""
+    from dataclasses import replace
+
+    timed = replace(example_spec.problem, dt=0.05)
+    assert AdaptiveMPCSystem(timed, example_design).period == 0.05
+    assert AdaptiveMPCSystem(example_spec.problem, example_design).period == 1.0
+    plant = drake_plant(timed, example_spec.scenario.theta_star)
+    affine = plant.GetSubsystemByName("affine")
+    assert affine.time_period() == 0.05
+    with pytest.raises(ProblemError, match="period"):
+        AdaptiveMPCSystem(example_spec.problem, example_design, period=0.0)

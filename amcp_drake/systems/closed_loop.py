@@ -88,7 +88,7 @@ def simulate_in_drake(controller: AdaptiveMPC, x0, theta_star, steps: int, distu
         theta = theta[0]
     W = disturbance_sequence(problem, disturbance, steps, seed)
     system = AdaptiveMPCSystem(controller=controller, period=period)
-    loop = closed_loop(system, drake_plant(problem, theta, period), RecordedDisturbance(W, period))
+    loop = closed_loop(system, drake_plant(problem, theta, system.period), RecordedDisturbance(W, system.period))
     simulator = Simulator(loop.diagram)
     root = simulator.get_mutable_context()
     loop.plant.GetMyMutableContextFromRoot(root).SetDiscreteState(x)

@@ -39,7 +39,8 @@ from amcp_drake.online.measured import measured_trajectory
 from amcp_drake.online.simulate import Trajectory
 from amcp_drake.online.state import ControllerState, frozen_array
 
-#: The period of the update when none is given: the model (1) counts steps, not seconds.
+#: The period of the update when neither the call nor the problem (``Problem.dt``) gives one: the model (1)
+#: then counts steps, not seconds.
 DEFAULT_PERIOD = 1.0
 #: ``meta["simulator"]`` of a trajectory whose plant ran in a Drake Diagram.
 DRAKE_SIMULATOR = "drake"
@@ -85,8 +86,8 @@ class AdaptiveMPCSystem(LeafSystem):
 
     ``problem``, ``design``, ``options``, ``backend`` and ``backend_options`` as for
     :class:`~amcp_drake.online.controller.AdaptiveMPC`, which is built once here (its programs are built
-    once and updated in place at every step). ``period``: the sample period of the update (default
-    :data:`DEFAULT_PERIOD`; the problem's model (1) is in steps). ``controller``: an AdaptiveMPC to use
+    once and updated in place at every step). ``period``: the sample period of the update (default: the
+    problem's sample time ``Problem.dt``, else :data:`DEFAULT_PERIOD`). ``controller``: an AdaptiveMPC to use
     instead of building one (``problem``, ``design``, ``options``, ``backend`` are then taken from it).
     """
 
@@ -99,7 +100,9 @@ class AdaptiveMPCSystem(LeafSystem):
                 raise ProblemError("AdaptiveMPCSystem", "a problem and its design (or controller=AdaptiveMPC)",
                                    "problem=None" if problem is None else "design=None")
             controller = AdaptiveMPC(problem, design, backend, options, **backend_options)
-        period = DEFAULT_PERIOD if period is None else period
+        if period is None:
+            dt = getattr(controller.problem, "dt", None)
+            period = DEFAULT_PERIOD if dt is None else dt
         if (isinstance(period, bool) or not isinstance(period, (int, float, np.floating))
                 or not np.isfinite(period) or period <= 0):
             raise ProblemError("period", "a finite sample period > 0 (seconds per step)", repr(period))

@@ -27,8 +27,9 @@ def _period(period) -> float:
 
 def drake_plant(problem: Problem, theta_star, period: float | None = None):
     """x_{k+1} = A(θ*) x_k + B(θ*) u_k + w_k of (1)-(2) as a Drake Diagram: a discrete ``AffineSystem``
-    (period ``period``, default 1.0) with input ports ``u`` (m) and ``w`` (n, the disturbance) and the
-    output port ``x`` (n, the state, no feedthrough). Set its initial state with
+    with input ports ``u`` (m) and ``w`` (n, the disturbance) and the
+    output port ``x`` (n, the state, no feedthrough); ``period`` defaults to the problem's sample time
+    ``Problem.dt``, else 1.0. Set its initial state with
     ``plant.GetMyMutableContextFromRoot(root_context).SetDiscreteState(x0)``.
 
     ``theta_star``: the true parameter θ* (p,), a point of Θ (ProblemError otherwise)."""
@@ -40,7 +41,8 @@ def drake_plant(problem: Problem, theta_star, period: float | None = None):
         raise ProblemError("theta_star", "a point of Theta (Assumption 1)", f"{theta.tolist()}")
     n, m = problem.n, problem.m
     affine = AffineSystem(A=problem.A_of(theta), B=np.hstack([problem.B_of(theta), np.eye(n)]), f0=np.zeros(n),
-                          C=np.eye(n), D=np.zeros((n, m + n)), y0=np.zeros(n), time_period=_period(period))
+                          C=np.eye(n), D=np.zeros((n, m + n)), y0=np.zeros(n),
+                          time_period=_period(getattr(problem, "dt", None) if period is None else period))
     builder = DiagramBuilder()
     builder.AddNamedSystem("affine", affine)
     mux = builder.AddNamedSystem("inputs", Multiplexer([m, n]))
