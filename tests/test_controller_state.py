@@ -118,3 +118,22 @@ def test_a_state_is_copied_read_only_when_made(example_design):
     assert not state.window[0][0].flags.writeable and state.u_hist == (1.0,)
     assert state.replace(k=3).k == 3 and state.k == 0
     assert not state.replace(h_theta=h).same_as(state)
+
+
+def test_a_step_with_inconsistent_data_recorded_returns_the_state_it_was_given(example_spec, example_design):
+    """on_inconsistent="record": a step whose data contradict Θ and W returns u = None, the very state it
+    was given (Θ_(k−1), θ̂_(k−1) and k unchanged) and a record of the event; "raise" raises."""
+    from amcp_drake.model.errors import InconsistentDataError
+    from amcp_drake.online.controller import is_inconsistent
+
+    pr = example_spec.problem
+    ctrl = AdaptiveMPC(pr, example_design, "drake")
+    x0 = np.array([2.0, 3.0])
+    u0, _ = ctrl.step(x0)
+    x1 = pr.step(x0, u0, np.asarray(example_spec.scenario.theta_star, float), 10.0 * pr.w_vertices()[0])
+    state = ctrl.state
+    u, nxt, record = ctrl.step_from(state, x1, on_inconsistent="record")
+    assert u is None and nxt is state and is_inconsistent(record) and record.k == state.k == 1
+    with pytest.raises(InconsistentDataError):
+        ctrl.step_from(state, x1)
+    assert ctrl.state is state
