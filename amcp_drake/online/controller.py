@@ -143,6 +143,10 @@ class AdaptiveMPC:
     ``step(x)`` returns ``(u, record)``; ``u`` is None when the QP (20) was not solved to
     optimality (the status is on the record: a solver failure is data, not an exception).
     Raises InconsistentDataError when Θ_{k-1} ∩ Δ_k is empty.
+
+    The controller holds what is built once (problem, design, backend, the programs of (9), (12), (20))
+    and the current state ``state`` (:class:`~amcp_drake.online.state.ControllerState`), which ``step``
+    replaces; ``step_from(state, x)`` steps any state without changing the controller.
     """
 
     def __init__(self, problem: Problem, design: OfflineDesign, backend="drake",
@@ -233,7 +237,7 @@ class AdaptiveMPC:
 
     def _regression(self, s: StepState, x_prev, u_prev, x) -> tuple[np.ndarray, np.ndarray]:
         """(D_{k−1}, d_k) of (6): D(x_{k−1}, u_{k−1}) (n, p) and d_k = A0 x_{k−1} + B0 u_{k−1} − x_k,
-        computed once per step for Δ_k and the LMS (12) (``step`` clears the cache; the arguments
+        computed once per step for Δ_k and the LMS (12) (kept in the step's working state ``s``; the arguments
         are compared by identity, they are the step's own arrays)."""
         cached = s.regression
         if cached is not None and cached[0] is x_prev and cached[1] is u_prev and cached[2] is x:
