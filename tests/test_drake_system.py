@@ -228,3 +228,16 @@ def test_the_period_is_the_problems_sample_time_when_it_has_one(example_spec, ex
     assert affine.time_period() == 0.05
     with pytest.raises(ProblemError, match="period"):
         AdaptiveMPCSystem(example_spec.problem, example_design, period=0.0)
+
+
+def test_bench_runs_the_drake_diagram_beside_amcps_simulator():
+    """``amcp bench --only drake``: both loops complete in lockstep, their states agree (the same closed
+    loop), and the CPU ratio and the QP solver's ratio are reported (not asserted: CPU time varies)."""
+    from amcp_drake.studies.bench import BenchSettings, format_summary, run_benchmarks
+
+    result = run_benchmarks(BenchSettings.quick_settings(only="drake", steps=4))
+    loop = result["drake_loop"]
+    assert result["example"] is None and loop["status"] == "completed" and loop["max_abs_dx"] <= SAME_RUN
+    assert loop["builtin_cpu_ms"]["n"] == loop["drake_cpu_ms"]["n"] == 3
+    assert loop["cpu_ratio"] > 0 and loop["qp_solver_ratio"] > 0 and loop["met"] in (True, False)
+    assert len(format_summary(result).splitlines()) == 1   # the summary has the Drake loop's line and no other
