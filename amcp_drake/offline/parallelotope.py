@@ -47,6 +47,7 @@ X0 at its vertices, Assumption 11 for X_f, (11) for μ).
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 from scipy.optimize import linprog
 
 from amcp_drake.model.errors import DesignError
@@ -124,14 +125,14 @@ def lp_gain(T: np.ndarray, A_v: np.ndarray, B_v: np.ndarray, F: np.ndarray | Non
         dM = np.einsum("ia,bj->ijab", T @ B_v[k], T_inv).reshape(nn, nk)  # d[T B K T⁻¹]_ij / dK_ab
         base = nk + k * nn
         _abs_rows(rows, rhs, dM, M0, base, nvar)  # ±[T (A_k + B_k K) T⁻¹]_ij <= s_ij
-        sums = np.zeros((n, nvar))
+        sums = sp.lil_matrix((n, nvar))
         for i in range(n):
             sums[i, base + i * n: base + (i + 1) * n] = 1.0
         if with_z:
             rows.append(sums)
             rhs.append(np.full(n, float(lam)))  # Σ_j s_ij <= λ
         else:
-            sums[:, -1] = -1.0  # Σ_j s_ij <= t, t minimised
+            sums[:, nvar - 1] = -1.0  # Σ_j s_ij <= t, t minimised
             rows.append(sums)
             rhs.append(np.zeros(n))
     if with_z:
@@ -139,15 +140,15 @@ def lp_gain(T: np.ndarray, A_v: np.ndarray, B_v: np.ndarray, F: np.ndarray | Non
         C0 = (np.asarray(F, float) @ T_inv).reshape(nc * n)
         dC = np.einsum("ja,bl->jlab", np.asarray(G, float), T_inv).reshape(nc * n, nk)  # d[G K T⁻¹]_jl / dK_ab
         _abs_rows(rows, rhs, dC, C0, base, nvar)
-        sums = np.zeros((nc, nvar))
+        sums = sp.lil_matrix((nc, nvar))
         for j in range(nc):
             sums[j, base + j * n: base + (j + 1) * n] = 1.0
-        sums[:, -1] = -1.0  # Σ_l |[(F + GK) T⁻¹]_jl| <= γ
+        sums[:, nvar - 1] = -1.0  # Σ_l |[(F + GK) T⁻¹]_jl| <= γ
         rows.append(sums)
         rhs.append(np.zeros(nc))
     c = np.zeros(nvar)
     c[-1] = 1.0
-    res = linprog(c, A_ub=np.vstack(rows), b_ub=np.concatenate(rhs),
+    res = linprog(c, A_ub=sp.vstack([sp.csr_matrix(r) for r in rows]).tocsr(), b_ub=np.concatenate(rhs),
                   bounds=[(None, None)] * nk + [(0, None)] * (nvar - nk), method="highs")
     if res.status != 0:
         return None
@@ -155,15 +156,16 @@ def lp_gain(T: np.ndarray, A_v: np.ndarray, B_v: np.ndarray, F: np.ndarray | Non
 
 
 def _abs_rows(rows: list, rhs: list, dM: np.ndarray, M0: np.ndarray, base: int, nvar: int) -> None:
-    """Append ±(M0 + dM·vec K) <= s (slacks s at ``base``) to the LP rows."""
-    size = len(M0)
-    slack = np.zeros((size, nvar))
-    slack[:, base:base + size] = -np.eye(size)
-    upper = slack.copy()
-    upper[:, :dM.shape[1]] = dM
-    lower = slack.copy()
-    lower[:, :dM.shape[1]] = -dM
-    rows += [upper, lower]
+    """Append ±(M0 + dM·vec K) <= s (slacks s at ``base``) to the LP rows (sparse: the rows of every
+    vertex are n² × (mn + 1) non-zeros, the dense matrix would be n² × v n² per vertex)."""
+    size, nk = len(M0), dM.shape[1]
+    for sign in (1.0, -1.0):
+        gain = sp.coo_matrix(sign * dM)
+        slack_rows = np.arange(size)
+        data = np.concatenate([gain.data, -np.ones(size)])
+        r = np.concatenate([gain.row, slack_rows])
+        c = np.concatenate([gain.col, base + slack_rows])
+        rows.append(sp.csr_matrix((data, (r, c)), shape=(size, nvar)))
     rhs += [-M0, M0]
 
 
@@ -224,6 +226,7 @@ def parallelotope_gain(problem, K0: np.ndarray, budget: DesignBudget | None = No
             T = perron_scaled(np.linalg.inv(basis), A_v + B_v @ K)
             round_best: tuple[float, np.ndarray, np.ndarray, float] | None = None
             for lam in (None, *LAMBDA_GRID):
+                budget.tick(f"X0 template parallelotope, start {number}, round {round_}: gain LP")
                 found = lp_gain(T, A_v, B_v) if lam is None else lp_gain(T, A_v, B_v, F, G, lam)
                 if found is None:
                     continue
