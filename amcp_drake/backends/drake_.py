@@ -78,6 +78,8 @@ class DrakeBackend:
         lp_options.update(solver_options or {})
         self._lp = DrakeSolver(solver, lp_options)
         self._lp_fallback = DrakeSolver("clp", None) if solver.lower() == "clarabel" else None
+        #: the status of every direction of the last :meth:`support` call that got no answer
+        self.last_support_failures: list[str] = []
         self._sdp = DrakeSolver(sdp_solver, None)
         if qp_solver not in (None, "daqp"):
             raise ValueError(f"qp_solver {qp_solver!r} unknown; choose None (the solver above) or 'daqp' (fast path)")
@@ -204,7 +206,9 @@ class DrakeBackend:
 
     # -- offline: support-function LPs ------------------------------------------------------
     def support(self, H, h, directions):
-        """max{d·x | H x <= h} for each row d, one program with its cost updated per direction."""
+        """max{d·x | H x <= h} for each row d, one program with its cost updated per direction: +inf when
+        unbounded, NaN when no solver answered (a direction Clarabel does not answer is solved again by
+        CLP; the statuses of the NaN directions are in ``last_support_failures``)."""
         H = np.asarray(H, float)
         h = np.asarray(h, float)
         directions = np.atleast_2d(np.asarray(directions, float))
@@ -215,16 +219,25 @@ class DrakeBackend:
         prog.AddLinearConstraint(sp.csc_matrix(H), np.full(len(h), -np.inf), h, x).evaluator().set_description("H x <= h")
         cost = prog.AddLinearCost(np.zeros(n), 0.0, x).evaluator()
         values = np.empty(len(directions))
+        self.last_support_failures = []
         for i, d in enumerate(directions):
             cost.UpdateCoefficients(-d, 0.0)
-            result, _ = self._lp.solve(prog)
-            status = self._lp.status(result)
+            solver = self._lp
+            result, _ = solver.solve(prog)
+            status = solver.status(result)
+            if status not in (SolveStatus.OPTIMAL, SolveStatus.UNBOUNDED) and self._lp_fallback is not None:
+                # Clarabel ends some unbounded LPs "NumericalError" (an input-only Z leaves X_f^0 unbounded);
+                # the simplex method (CLP) tells unbounded from failed
+                solver = self._lp_fallback
+                result, _ = solver.solve(prog)
+                status = solver.status(result)
             if status is SolveStatus.OPTIMAL:
                 values[i] = float(d @ result.GetSolution(x))
             elif status is SolveStatus.UNBOUNDED:
                 values[i] = np.inf
             else:
                 values[i] = np.nan
+                self.last_support_failures.append(f"{status.value} ({solver.describe(result)})")
         return values
 
     # -- online: fixed-complexity set-membership update, LP (9) ------------------------------

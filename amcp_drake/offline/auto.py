@@ -102,9 +102,10 @@ class AutoDesignError(DesignError):
     candidate measured how far its least robustly invariant tube reaches beyond Z (``fit_ratio``), the
     message names the closest one: the measured reason why no design was found."""
 
-    def __init__(self, attempts: list[Attempt]) -> None:
+    def __init__(self, attempts: list[Attempt], advice: str | None = None) -> None:
         self.attempts = attempts
-        lines = "\n".join(f"  {i + 1}. {a.line()}" for i, a in enumerate(attempts))
+        self.advice = advice
+        lines = "\n".join(grouped_lines(attempts))
         measured = [(a.fit_ratio, i, a) for i, a in enumerate(attempts) if a.fit_ratio is not None]
         closest = ""
         if measured:
@@ -112,11 +113,62 @@ class AutoDesignError(DesignError):
             closest = (f"Closest: candidate {i + 1} ({a.label}): its least robustly invariant tube reaches "
                        f"{'at least ' if a.fit_bound else ''}{ratio:.3g} x the constraints (alpha_inf * max f_bar; "
                        "a design needs < 1).\n")
+        nxt = advice or ("give a cross-section yourself (design.x0_template = 'given', design.x0_H), a gain "
+                         "(design.K, design.P), or relax Z / shrink W or Theta; no design passing every check exists "
+                         "among the templates tried.")
         super().__init__(
             f"automatic design: none of the {len(attempts)} candidates passed every design check:\n{lines}\n{closest}"
-            "Next: give a cross-section yourself (design.x0_template = 'given', design.x0_H), a gain "
-            "(design.K, design.P), or relax Z / shrink W or Theta; no design passing every check exists "
-            "among the templates tried.")
+            f"Next: {nxt}")
+
+
+def grouped_lines(attempts: list[Attempt]) -> list[str]:
+    """One line per distinct (outcome, reason), in order of first appearance, with the candidates that
+    ended that way and their count (a failure shared by 13 candidates is printed once, "13 x")."""
+    groups: dict[tuple[str, str], list[int]] = {}
+    for i, a in enumerate(attempts):
+        groups.setdefault((a.outcome, a.reason), []).append(i)
+    out = []
+    for (outcome, reason), members in groups.items():
+        first = attempts[members[0]]
+        if len(members) == 1:
+            out.append(f"  {members[0] + 1}. {first.line()}")
+        else:
+            seconds = sum(attempts[i].seconds for i in members)
+            numbers = ", ".join(str(i + 1) for i in members)
+            out.append(f"  {numbers} ({len(members)} x; first: {first.label}): {outcome}"
+                       + (f" ({reason})" if reason else "") + f" [{seconds:.1f} s]")
+    return out
+
+
+def vanishing_input_advice(problem: Problem) -> str | None:
+    """The advice when the input gain can vanish on Θ where the system needs it: a θ ∈ Θ with B(θ) = 0 and
+    A(θ) not Schur (found by a linear program on the equalities B(θ) = 0), or a vertex of Θ at which an
+    unstable mode cannot be reached (PBH test). No gain K then satisfies Assumption 8 and (16) (a common
+    Lyapunov function for every θ ∈ Θ, that one included) whatever the template, and only a smaller Θ can
+    help. None otherwise."""
+    import numpy as np
+    from scipy.optimize import linprog
+
+    from amcp_drake.backends.gain_scaling import unstabilisable_vertex
+
+    B_i = np.array(problem.B, float).reshape(problem.p, -1)  # row i: vec B_i
+    res = linprog(np.zeros(problem.p), A_ub=problem.H_theta, b_ub=problem.h_theta, A_eq=B_i.T,
+                  b_eq=-np.asarray(problem.B0, float).ravel(), bounds=[(None, None)] * problem.p, method="highs")
+    if res.status == 0:
+        theta = np.asarray(res.x, float)
+        radius = float(np.max(np.abs(np.linalg.eigvals(problem.A_of(theta)))))
+        if radius >= 1.0:
+            said = ", ".join(f"{v:.4g}" for v in theta)
+            return (f"shrink Theta: at theta = [{said}] in Theta the input gain vanishes (B(theta) = 0) while A(theta) "
+                    f"is unstable (spectral radius {radius:.4g}), so no gain K meets Assumption 8 and (16) with any "
+                    "cross-section; a Theta on which B(theta) stays away from 0 can be designed.")
+    vertices = problem.theta_vertices()
+    i = unstabilisable_vertex(np.array([problem.A_of(t) for t in vertices]), np.array([problem.B_of(t) for t in vertices]))
+    if i is None:
+        return None
+    said = ", ".join(f"{v:.4g}" for v in vertices[i])
+    return (f"shrink Theta: at its vertex theta = [{said}] the input cannot reach an unstable mode of A(theta), so no "
+            "gain K meets Assumption 8 and (16) with any cross-section; a Theta without that vertex can be designed.")
 
 
 def candidate_options(problem: Problem, options: DesignOptions) -> list[DesignOptions]:
@@ -202,7 +254,7 @@ def design_auto(problem: Problem, options: DesignOptions, backend, design_fixed,
                            "x0_lambda": candidate.x0_lambda, "gain_R_scale": candidate.gain_R_scale}
         info["attempts"] = [a.to_dict() for a in attempts]
         return replace(d, info=info)
-    raise AutoDesignError(attempts)
+    raise AutoDesignError(attempts, vanishing_input_advice(problem))
 
 
 def template_label(options: DesignOptions, facets: int | None = None, dimension: int | None = None) -> str:
@@ -251,8 +303,15 @@ def _emit(log, attempt: Attempt) -> None:
 
 
 def _record(attempts: list[Attempt], attempt: Attempt, log, budget: DesignBudget) -> None:
-    """Append ``attempt``, hand it to ``log`` and report its end through the budget's progress callback."""
+    """Append ``attempt``, hand it to ``log`` and report its end through the budget's progress callback;
+    a failure identical to an earlier candidate's (outcome and reason) is reported by reference to it,
+    with the count so far, instead of its full text."""
+    same = [i for i, a in enumerate(attempts) if (a.outcome, a.reason) == (attempt.outcome, attempt.reason)]
     attempts.append(attempt)
     _emit(log, attempt)
     if budget.progress is not None:
-        budget.progress(f"design candidate {len(attempts)}: {attempt.line()}")
+        if same and attempt.outcome != "pass":
+            budget.progress(f"design candidate {len(attempts)}: {attempt.label}: {attempt.outcome}, the same as "
+                            f"candidate {same[0] + 1} ({len(same) + 1} x) [{attempt.seconds:.1f} s]")
+        else:
+            budget.progress(f"design candidate {len(attempts)}: {attempt.line()}")

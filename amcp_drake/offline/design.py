@@ -336,9 +336,11 @@ def terminal_set(FGK, f_bar, H_x, A_cl, A_z, w_bar, h_bar, be, max_iter: int, bu
                 lhs_a = b * h_bar[k]                 # (u,)
                 candidates.append(np.column_stack([lhs_z, lhs_a]) / rhs[:, None])
         cand = _dedupe(np.vstack(candidates))
-        values = _row_maxima(current, cand, be, budget, stage)
+        failures: list[str] = []
+        values = _row_maxima(current, cand, be, budget, stage, failures)
         if np.any(np.isnan(values)):
-            raise TerminalSetError(f"terminal set recursion: an LP failed at iteration {iteration}")
+            raise TerminalSetError(terminal_lp_failure(iteration, int(np.count_nonzero(np.isnan(values))), len(values),
+                                                       failures))
         keep = ~(values <= 1.0 + TERMINAL_REDUNDANCY_TOL)
         if not np.any(keep):
             return current[:, :n], current[:, n], iteration
@@ -380,9 +382,22 @@ def _bounded_vertices(rows: np.ndarray, be, budget: DesignBudget | None = None,
 
 
 def _row_maxima(rows: np.ndarray, directions: np.ndarray, be, budget: DesignBudget | None = None,
-                stage: str = "terminal set X_f") -> np.ndarray:
+                stage: str = "terminal set X_f", failures: list[str] | None = None) -> np.ndarray:
     """max of each direction over {rows · y <= 1, α >= 0}: by vertices when bounded, else by LPs."""
-    return row_maxima(*_with_alpha_nonneg(rows), directions, be, budget, stage)
+    return row_maxima(*_with_alpha_nonneg(rows), directions, be, budget, stage, failures)
+
+
+def terminal_lp_failure(iteration: int, failed: int, total: int, statuses: list[str]) -> str:
+    """The message of a support LP of the terminal-set recursion that gave no answer: how many, the solver
+    statuses (each once, with its count) and what it means."""
+    from collections import Counter
+
+    counts = Counter(statuses)
+    said = "; ".join(f"{k} x {text}" if k > 1 else text for text, k in counts.items()) or "status not reported"
+    return (f"terminal set recursion: {failed} of {total} support LPs gave no answer at iteration {iteration} "
+            f"(solver status: {said}). The LP decides whether a candidate row of X_f is redundant over a set that is "
+            "still unbounded (Z does not bound every direction of (z, alpha)); with no answer the row cannot be "
+            "judged. Next: design.terminal_set = 'scaled', or bound the state in Z")
 
 
 def _prune(rows: np.ndarray, be, budget: DesignBudget | None = None) -> np.ndarray:

@@ -38,9 +38,10 @@ def bounded_vertices(H: np.ndarray, h: np.ndarray, be, budget: DesignBudget | No
 
 
 def row_maxima(H: np.ndarray, h: np.ndarray, directions: np.ndarray, be, budget: DesignBudget | None = None,
-               stage: str = "support values") -> np.ndarray:
+               stage: str = "support values", failures: list[str] | None = None) -> np.ndarray:
     """max over {H y <= h} of each row of ``directions``: by the vertices when the set is bounded
-    (in chunks of rows), else by the backend's support LPs (NaN where an LP fails)."""
+    (in chunks of rows), else by the backend's support LPs (NaN where an LP fails; the solver status
+    of each failed LP, where the backend reports it, is appended to ``failures``)."""
     budget = budget or unbounded()
     verts = bounded_vertices(H, h, be, budget, stage)
     if verts is not None:
@@ -50,4 +51,6 @@ def row_maxima(H: np.ndarray, h: np.ndarray, directions: np.ndarray, be, budget:
     for start in range(0, len(directions), step):
         budget.tick(stage)
         out[start:start + step] = be.support(H, h, directions[start:start + step])
+        if failures is not None:
+            failures.extend(getattr(be, "last_support_failures", None) or [])
     return out
