@@ -60,6 +60,11 @@ from amcp_drake.offline.gain import gain_lmi
 #: chain (n = 10) that the interior-point method solves in 0.3 s. Below, the choice of scipy stays, so
 #: the designs of the shipped examples (n <= 8) are unchanged.
 IPM_FROM_N = 9
+#: From IPM_FROM_N states on, a round whose least λ̄ is >= 1 but below this still hands its gain to the
+#: next round (a new eigenbasis): on the 5-mass chain in the units normalised by W the placed gain's first
+#: round reaches λ̄ = 1.007 and the second 0.87 (r = 0.42 in the file's units). Below IPM_FROM_N a round
+#: without λ̄ < 1 ends the start, so the shipped designs are unchanged.
+CONTINUE_BELOW = 1.1
 #: Rounds of (basis, Perron scaling, LPs for K) from each starting gain.
 ROUNDS = 4
 #: Contraction factors λ of the constraint-aware linear program (step 2); the minimal-λ program is
@@ -67,6 +72,10 @@ ROUNDS = 4
 LAMBDA_GRID = (0.6, 0.75, 0.85, 0.9, 0.94, 0.97)
 #: Range of the distinct real nominal poles of the placed starting gain (step 1).
 PLACED_POLES = (0.5, 0.9)
+#: From IPM_FROM_N states on, further ranges of the placed poles (more starts): scipy's placement of n
+#: poles with several inputs is not unique and depends on the state units, and on the 5-mass chain in the
+#: units normalised by W the first range leads to no parallelotope that fits Z.
+EXTRA_PLACED_POLES = ((0.3, 0.8), (0.6, 0.95))
 #: An eigenbasis whose condition number exceeds this is not used (its T would amplify round-off).
 MAX_CONDITION = 1e8
 #: Added to every entry of max_k |T A_cl T⁻¹| before its Perron vector is taken (irreducibility).
@@ -187,7 +196,7 @@ def rating(T: np.ndarray, K: np.ndarray, A_v: np.ndarray, B_v: np.ndarray, F: np
     return gamma * sigma_w / (1.0 - lam), lam
 
 
-def placed_gain(A0: np.ndarray, B0: np.ndarray) -> np.ndarray | None:
+def placed_gain(A0: np.ndarray, B0: np.ndarray, poles_range: tuple[float, float] = PLACED_POLES) -> np.ndarray | None:
     """A gain placing the poles of A0 + B0 K at n distinct real values in :data:`PLACED_POLES`
     (step 1); None when scipy cannot place them (uncontrollable pair, too few inputs).
 
@@ -199,7 +208,7 @@ def placed_gain(A0: np.ndarray, B0: np.ndarray) -> np.ndarray | None:
     from scipy.signal import place_poles
 
     n = A0.shape[0]
-    poles = np.linspace(PLACED_POLES[0], PLACED_POLES[1], n)
+    poles = np.linspace(poles_range[0], poles_range[1], n)
     try:
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="Convergence was not reached", category=UserWarning)
@@ -219,9 +228,10 @@ def parallelotope_gain(problem, K0: np.ndarray, budget: DesignBudget | None = No
     F, G = np.asarray(problem.F, float), np.asarray(problem.G, float)
     W_v = problem.w_vertices()
     starts = [np.asarray(K0, float)]
-    placed = placed_gain(A0, B0)
-    if placed is not None:
-        starts.append(placed)
+    for poles_range in (PLACED_POLES, *(EXTRA_PLACED_POLES if problem.n >= IPM_FROM_N else ())):
+        placed = placed_gain(A0, B0, poles_range)
+        if placed is not None:
+            starts.append(placed)
     best: tuple[float, np.ndarray, np.ndarray, float] | None = None
     for number, K in enumerate(starts, start=1):
         for round_ in range(1, ROUNDS + 1):
@@ -231,15 +241,21 @@ def parallelotope_gain(problem, K0: np.ndarray, budget: DesignBudget | None = No
                 break
             T = perron_scaled(np.linalg.inv(basis), A_v + B_v @ K)
             round_best: tuple[float, np.ndarray, np.ndarray, float] | None = None
+            least: tuple[float, np.ndarray] | None = None  # the least λ̄ of the round, < 1 or not
             for lam in (None, *LAMBDA_GRID):
                 budget.tick(f"X0 template parallelotope, start {number}, round {round_}: gain LP")
                 found = lp_gain(T, A_v, B_v) if lam is None else lp_gain(T, A_v, B_v, F, G, lam)
                 if found is None:
                     continue
                 r, lam_bar = rating(T, found[0], A_v, B_v, F, G, W_v)  # recomputed, not the LP's values
+                if least is None or lam_bar < least[0]:
+                    least = (lam_bar, found[0])
                 if lam_bar < 1.0 and (round_best is None or (r, lam_bar) < (round_best[0], round_best[3])):
                     round_best = (r, found[0], T, lam_bar)
             if round_best is None:
+                if problem.n >= IPM_FROM_N and least is not None and least[0] < CONTINUE_BELOW:
+                    K = least[1]  # not contractive in this basis yet: the next round's basis starts from it
+                    continue
                 break
             if best is None or (round_best[0], round_best[3]) < (best[0], best[3]):
                 best = round_best
