@@ -11,15 +11,25 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from amcp_drake.certificate.certify import certify
 from amcp_drake.model.errors import ProblemError
+from amcp_drake.online.simulate import Trajectory
 from amcp_drake.systems.controller_system import AdaptiveMPCSystem
-from amcp_drake.systems.pendulum import Pendulum, PendulumSpec, affine_family, linearisation_error, pendulum_problem, run_pendulum
+from amcp_drake.systems.pendulum import (
+    Pendulum,
+    PendulumSpec,
+    affine_family,
+    linearisation_error,
+    pendulum_problem,
+    run_pendulum,
+)
 
+ROOT = Path(__file__).resolve().parents[1]
 NEEDS_THETA_STAR_OR_W = {"theta_star_in_Theta", "w_in_W", "model_consistent", "theta_star_in_Theta_k", "lemma5"}
 STEPS = 25
 #: W as a fraction of the covering W at which the data contradict the model on this run, and a fraction
@@ -153,7 +163,7 @@ def test_a_W_three_times_larger_keeps_the_data_consistent():
     assert cert.claim("data_consistency").status == "pass"
 
 
-def test_the_reset_recovery_goes_on_and_the_certificate_reports_the_contradiction(too_small):
+def test_the_reset_recovery_goes_on_and_the_certificate_reports_the_contradiction(too_small, tmp_path):
     run = run_pendulum(STEPS, w_scale=W_TOO_SMALL, on_inconsistent="reset")
     traj = run.trajectory
     k = too_small.trajectory.steps
@@ -165,7 +175,22 @@ def test_the_reset_recovery_goes_on_and_the_certificate_reports_the_contradictio
     cert = certify(traj)
     consistency = cert.claim("data_consistency")
     assert consistency.status == "fail" and consistency.data["worst_step"] == k
+    assert cert.claim("Theta_k_nested").status == "fail"
     assert cert.verdict == "fail"
+    # the file keeps the reset steps, and certifies the same
+    path = tmp_path / "reset.json.gz"
+    traj.save(path)
+    again = Trajectory.load(path)
+    assert again.meta["theta_resets"] == traj.meta["theta_resets"]
+    assert certify(again).claim("data_consistency").data["worst_step"] == k
+
+
+@pytest.mark.parametrize(("args", "code"), [(["25", "0.001"], 1), (["many"], 2), (["25", "1", "ignore"], 2)])
+def test_the_example_script_exits_with_the_certificate_s_code(args, code):
+    done = subprocess.run([sys.executable, str(ROOT / "examples" / "pendulum_in_drake.py"), *args],
+                          capture_output=True, text=True)
+    assert done.returncode == code, done.stderr
+    assert "Traceback" not in done.stderr + done.stdout
 
 
 def test_on_inconsistent_is_checked(covered):

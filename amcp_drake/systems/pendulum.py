@@ -2,7 +2,7 @@
 its model for the controller (a linearisation affine in two uncertain physical parameters, eq. (2)), a
 disturbance set W that covers the linearisation error over the constraint set, and the closed loop with
 :class:`~amcp_drake.systems.controller_system.AdaptiveMPCSystem` run by Drake's Simulator and certified as
-a measured run (docs/how-to/nonlinear-plant.md).
+a measured run (docs/how-to/nonlinear-plant.md; the script examples/pendulum_in_drake.py).
 
 The plant: a point mass ``mass`` on a massless rod of length ``length`` above a hinge about the y axis
 (q = 0 upright, an unstable equilibrium), viscous hinge damping ``damping``, a torque actuator. The
@@ -38,7 +38,7 @@ from amcp_drake.offline.design import OfflineDesign
 from amcp_drake.offline.design import design as offline_design
 from amcp_drake.online.simulate import Trajectory
 from amcp_drake.systems.closed_loop import ClosedLoop, closed_loop
-from amcp_drake.systems.controller_system import AdaptiveMPCSystem
+from amcp_drake.systems.controller_system import ON_INCONSISTENT, AdaptiveMPCSystem
 
 
 @dataclass(frozen=True)
@@ -218,6 +218,8 @@ def run_pendulum(steps: int = 25, *, x0=(0.25, 0.0), theta_true=(0.5, 0.6), w_sc
     spec = spec or PendulumSpec()
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
         raise ProblemError("steps", "an integer >= 1", repr(steps))
+    if on_inconsistent not in ON_INCONSISTENT:
+        raise ProblemError("on_inconsistent", " or ".join(repr(o) for o in ON_INCONSISTENT), repr(on_inconsistent))
     problem, pend, err = pendulum_problem(spec, w_scale)
     theta = np.asarray(theta_true, float)
     if theta.shape != (2,) or not np.all(np.abs(theta) <= 1.0):
@@ -238,5 +240,20 @@ def run_pendulum(steps: int = 25, *, x0=(0.25, 0.0), theta_true=(0.5, 0.6), w_sc
     return PendulumRun(problem, offline, err, traj, loop, theta)
 
 
+def summary(run: PendulumRun, certificate) -> dict:
+    """The numbers of a run and its certificate (docs/results.md): steps, stop reason, W and the error
+    estimate behind it, the verdict and claim counts, and each claim's status, margin and worst step."""
+    half = 1.0 / np.abs(run.problem.H_w).max(axis=0)
+    return {
+        "steps": run.trajectory.steps, "stop_reason": run.trajectory.stop_reason,
+        "theta_resets": run.trajectory.meta.get("theta_resets", []),
+        "error_max_abs": run.error.max_abs.tolist(), "error_points": run.error.points, "W_half_widths": half.tolist(),
+        "theta_hat_T": run.trajectory.records[-1].theta_hat.tolist(),
+        "verdict": certificate.verdict, "counts": certificate.counts(),
+        "claims": {c.data["id"]: {"status": c.status, "margin": c.margin, "worst_step": c.data.get("worst_step")}
+                   for c in certificate.claims},
+    }
+
+
 __all__ = ["ErrorEstimate", "Pendulum", "PendulumRun", "PendulumSpec", "affine_family", "linearisation_error",
-           "pendulum_loop", "pendulum_problem", "run_pendulum"]
+           "pendulum_loop", "pendulum_problem", "run_pendulum", "summary"]
