@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from pydrake.systems.analysis import SimulatorStatus
 
 from amcp_drake.certificate.certify import certify
 from amcp_drake.model.errors import ProblemError
@@ -120,6 +121,7 @@ def test_the_closed_loop_in_drake_certifies_as_a_measured_run(covered):
     assert traj.theta_star is None and traj.w is None
     assert traj.steps == STEPS and traj.stop_reason == "completed"
     assert traj.meta["simulator"] == "drake"
+    assert covered.reason == SimulatorStatus.ReturnReason.kReachedBoundaryTime
     cert = certify(traj)
     assert cert.verdict == "pass"
     consistency = cert.claim("data_consistency")
@@ -143,6 +145,9 @@ def test_a_W_that_does_not_cover_the_error_stops_cleanly_and_the_certificate_say
     assert traj.stop_reason.startswith("inconsistent data at step ")
     k = int(traj.stop_reason.rsplit(" ", 1)[1])
     assert 1 <= k < STEPS and traj.steps == k
+    # the Simulator returned early at t_k, by the controller's termination, not an exception
+    assert too_small.reason == SimulatorStatus.ReturnReason.kReachedTerminationCondition
+    assert too_small.time == pytest.approx(k * PendulumSpec().dt, abs=1e-12)
     cert = certify(traj)
     assert cert.verdict == "fail"
     consistency = cert.claim("data_consistency")

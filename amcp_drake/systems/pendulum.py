@@ -197,7 +197,8 @@ def pendulum_loop(controller: AdaptiveMPCSystem, pendulum: Pendulum) -> ClosedLo
 @dataclass
 class PendulumRun:
     """A closed-loop run of :func:`run_pendulum`: the problem, its design, the estimate behind W, the
-    measured-run trajectory (θ* and w unknown to the controller) and the Drake closed loop."""
+    measured-run trajectory (θ* and w unknown to the controller), the Drake closed loop and how the
+    Simulator returned."""
 
     problem: Problem
     design: OfflineDesign
@@ -205,6 +206,10 @@ class PendulumRun:
     trajectory: Trajectory
     loop: ClosedLoop
     theta_true: np.ndarray
+    #: the Simulator's answer: ``SimulatorStatus.ReturnReason`` of ``AdvanceTo``, its message, the time reached
+    reason: object = None
+    message: str = ""
+    time: float = 0.0
 
 
 def run_pendulum(steps: int = 25, *, x0=(0.25, 0.0), theta_true=(0.5, 0.6), w_scale: float = 1.0,
@@ -234,10 +239,11 @@ def run_pendulum(steps: int = 25, *, x0=(0.25, 0.0), theta_true=(0.5, 0.6), w_sc
     pend.set_parameters(plant_ctx, theta)
     pend.plant.SetPositionsAndVelocities(plant_ctx, np.asarray(x0, float))
     simulator.Initialize()
-    simulator.AdvanceTo(steps * spec.dt)
+    status = simulator.AdvanceTo(steps * spec.dt)
     meta = {"plant": "pendulum (Drake MultibodyPlant, discrete)", "w_scale": float(w_scale)}
     traj = controller.trajectory(root, meta=meta)
-    return PendulumRun(problem, offline, err, traj, loop, theta)
+    return PendulumRun(problem, offline, err, traj, loop, theta, status.reason(), status.message(),
+                       simulator.get_context().get_time())
 
 
 def summary(run: PendulumRun, certificate) -> dict:
