@@ -203,3 +203,19 @@ def test_the_example_script_exits_with_the_certificate_s_code(args, code):
 def test_on_inconsistent_is_checked(covered):
     with pytest.raises(ProblemError, match="on_inconsistent"):
         AdaptiveMPCSystem(controller=None, problem=covered.problem, design=covered.design, on_inconsistent="ignore")
+
+
+def test_the_how_to_blocks_run_as_written_and_build_the_module_s_problem(capsys):
+    """The Python blocks of docs/how-to/nonlinear-plant.md, run in order, build the problem that
+    pendulum_problem() builds (an implementation of their own) and certify the run: "pass"."""
+    import re
+
+    text = (ROOT / "docs" / "how-to" / "nonlinear-plant.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.DOTALL)
+    assert len(blocks) == 4
+    ns: dict = {}
+    exec(compile("\n".join(blocks), "nonlinear-plant.md", "exec"), ns)
+    problem, _, _ = pendulum_problem()
+    for name in ("A0", "B0", "A", "B", "H_w", "H_theta", "h_theta", "F", "G"):
+        assert np.allclose(getattr(ns["problem"], name), getattr(problem, name), rtol=1e-12, atol=1e-15), name
+    assert capsys.readouterr().out.split()[0] == "pass"
