@@ -154,7 +154,7 @@ def test_a_W_that_does_not_cover_the_error_stops_cleanly_and_the_certificate_say
     assert cert.verdict == "fail"
     consistency = cert.claim("data_consistency")
     assert consistency.status == "fail" and consistency.margin < 0
-    assert consistency.data["worst_step"] == k
+    assert consistency.data["worst_step"] == k and consistency.data["failing_steps"] == [k]
     assert cert.claim("recursive_feasibility").status == "not_run"
     # the command line certifies the saved partial run: exit 1, no traceback
     path = tmp_path / "pendulum.json.gz"
@@ -182,6 +182,9 @@ def test_the_reset_recovery_goes_on_and_the_certificate_reports_the_contradictio
     cert = certify(traj)
     consistency = cert.claim("data_consistency")
     assert consistency.status == "fail" and consistency.data["worst_step"] == k
+    # the certificate, recomputing Θ_(k−1) ∩ Δ_k from the records, finds the contradictions exactly where the
+    # controller reset Θ_k
+    assert consistency.data["failing_steps"] == traj.meta["theta_resets"]
     assert cert.claim("Theta_k_nested").status == "fail"
     assert cert.verdict == "fail"
     # the file keeps the reset steps, and certifies the same
