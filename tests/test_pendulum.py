@@ -203,6 +203,14 @@ def test_the_example_script_exits_with_the_certificate_s_code(args, code):
     assert "Traceback" not in done.stderr + done.stdout
 
 
+@pytest.mark.parametrize(("field", "kwargs"), [("x0", {"x0": (np.nan, 0.0)}), ("theta_true", {"theta_true": (1.5, 0.0)}),
+                                               ("steps", {"steps": 0}), ("w_scale", {"w_scale": -1.0})])
+def test_bad_arguments_of_the_example_name_the_field(field, kwargs):
+    args = {"steps": 5, **kwargs}
+    with pytest.raises(ProblemError, match=field):
+        run_pendulum(args.pop("steps"), **args)
+
+
 def test_on_inconsistent_is_checked(covered):
     with pytest.raises(ProblemError, match="on_inconsistent"):
         AdaptiveMPCSystem(controller=None, problem=covered.problem, design=covered.design, on_inconsistent="ignore")

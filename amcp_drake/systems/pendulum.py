@@ -229,6 +229,9 @@ def run_pendulum(steps: int = 25, *, x0=(0.25, 0.0), theta_true=(0.5, 0.6), w_sc
     theta = np.asarray(theta_true, float)
     if theta.shape != (2,) or not np.all(np.abs(theta) <= 1.0):
         raise ProblemError("theta_true", "a point of [-1, 1]^2 (the parameter box)", repr(theta_true))
+    x_init = np.asarray(x0, float)
+    if x_init.shape != (2,) or not np.all(np.isfinite(x_init)):
+        raise ProblemError("x0", "a finite state (q, v)", repr(x0))
     offline = offline_design(problem, None, backend=backend)
     controller = AdaptiveMPCSystem(problem, offline, OnlineOptions(update=update), backend=backend, period=spec.dt,
                                    on_inconsistent=on_inconsistent)
@@ -237,7 +240,7 @@ def run_pendulum(steps: int = 25, *, x0=(0.25, 0.0), theta_true=(0.5, 0.6), w_sc
     root = simulator.get_mutable_context()
     plant_ctx = pend.plant.GetMyMutableContextFromRoot(root)
     pend.set_parameters(plant_ctx, theta)
-    pend.plant.SetPositionsAndVelocities(plant_ctx, np.asarray(x0, float))
+    pend.plant.SetPositionsAndVelocities(plant_ctx, x_init)
     simulator.Initialize()
     status = simulator.AdvanceTo(steps * spec.dt)
     meta = {"plant": "pendulum (Drake MultibodyPlant, discrete)", "w_scale": float(w_scale)}
