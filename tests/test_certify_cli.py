@@ -20,6 +20,7 @@ from amcp_drake.certificate.report import OUTPUT_FILES
 from amcp_drake.cli import main
 from amcp_drake.model.examples import lorenzen2019_spec
 from amcp_drake.model.problem_io import save_spec, spec_to_dict
+from tests.guards import GUARD_SECONDS
 
 ROOT = Path(__file__).resolve().parents[1]
 STEPS = 6
@@ -77,7 +78,7 @@ def test_default_run_certifies_example_1(tmp_path):
     run = data["run"]
     assert (run["steps"], run["seed"], run["backend"]) == (50, 0, "drake")
     assert run["x0"] == [2.0, 3.0] and run["theta_star"] == [0.8, 0.2, -0.5]
-    assert "CERTIFIED: all 35 claims hold" in result.stdout
+    assert "CERTIFIED: all 36 claims hold" in result.stdout
     for claim in data["claims"]:
         assert claim["id"] in result.stdout
     # the robust baseline beside the run: recorded apart from the claims, its adaptive cost that of the
@@ -307,7 +308,7 @@ def test_command_module_imports_no_backend_or_plotting():
             "bad = [m for m in ('pydrake', 'cvxpy', 'matplotlib') if m in sys.modules]\n"
             "assert not bad, bad\n")
     env_path = f"{ROOT}:{ROOT / 'reference'}:{ROOT / 'properties'}"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=GUARD_SECONDS,
                          env={**os.environ, "PYTHONPATH": env_path})
     assert out.returncode == 0, out.stderr
 

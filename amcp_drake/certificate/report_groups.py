@@ -55,9 +55,11 @@ PAPER_RESULTS = (
                 "When the run enforces PE, the applied inputs keep the window level and the input bounds.",
                 ("pe_level", "pe_bounds"), ("excitation",)),
     PaperResult("assumptions", "Assumptions: the premises of the run",
-                "Assumption 1 (θ* ∈ Θ, w_k ∈ W), the model (1), the control law (21) and the precondition "
-                "μ‖D(x_k, u_k)‖² ≤ 1 of Lemma 5 on the visited points.",
-                ("theta_star_in_Theta", "w_in_W", "model_consistent", "control_law", "mu_precondition"),
+                "Assumption 1 (θ* ∈ Θ, w_k ∈ W), the model (1), its consequence on the data Θ_{k−1} ∩ Δ_k ≠ ∅ "
+                "(model consistency), the control law (21) and the precondition μ‖D(x_k, u_k)‖² ≤ 1 of Lemma 5 "
+                "on the visited points.",
+                ("theta_star_in_Theta", "w_in_W", "model_consistent", "data_consistency", "control_law",
+                 "mu_precondition"),
                 ("assumptions",)),
     PaperResult("design", "Design: the offline ingredients",
                 "The terminal cost (16), Assumptions 8 and 11 (X0, X_f), the constants w̄, f̄ of Proposition 9, "
@@ -141,3 +143,34 @@ def regressor_gram_lambda_min(traj, window: int) -> tuple[float | None, float | 
         return float(np.linalg.eigvalsh(gram)[0])
 
     return lam(range(window)), lam(range(T - window, T))
+
+
+#: θ̂_k counts as outside Θ_k when max_i ([H_θ,k]_i θ̂_k − [h_θ,k]_i) exceeds this (the rows of Θ_k's
+#: description as recorded; a LMS projection onto Θ_k lands on its boundary up to solver round-off)
+THETA_HAT_OUTSIDE_TOL = 1e-7
+
+
+@dataclass(frozen=True)
+class ThetaHatOutside:
+    """How often the estimate θ̂_k lay outside the set estimate Θ_k over a run's records."""
+
+    steps: int  #: records checked (those with Θ_k and θ̂_k recorded)
+    outside: int  #: records with θ̂_k ∉ Θ_k
+    worst: float | None  #: the largest violation max_i([H_θ,k]_i θ̂_k − [h_θ,k]_i), None when nothing was checked
+
+
+def theta_hat_outside_theta_k(traj, tol: float = THETA_HAT_OUTSIDE_TOL) -> ThetaHatOutside:
+    """Count the records whose θ̂_k lies outside Θ_k = {θ | H_θ,k θ ≤ h_θ,k}: allowed by (12) (the projection
+    is onto Θ) and removed by Remark 7 (``--projection Theta_k``); the report says how often it happened."""
+    steps, outside, worst = 0, 0, None
+    for r in traj.records:
+        if r.H_theta is None or r.h_theta is None or r.theta_hat is None:
+            continue
+        H, h, th = (np.asarray(v, float) for v in (r.H_theta, r.h_theta, r.theta_hat))
+        if H.size == 0 or not np.all(np.isfinite(th)):
+            continue
+        violation = float(np.max(H @ th - h))
+        steps += 1
+        outside += violation > tol
+        worst = violation if worst is None else max(worst, violation)
+    return ThetaHatOutside(steps, outside, worst)

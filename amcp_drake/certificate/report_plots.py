@@ -121,6 +121,16 @@ def _hull2d(points: np.ndarray) -> np.ndarray:
 
 
 # -- states and inputs -----------------------------------------------------------------------------------
+def signal_label(pr, i: int, on_state: bool = True) -> str:
+    """Text of state (input) i on an axis or in a legend: ``name [unit]`` when the problem names it, else
+    $x_{i+1}$ ($u_{i+1}$). Names and units are restricted to a character set without ``$`` or markup
+    (model/signals.py), so they are shown as plain text."""
+    named = pr.states if on_state else pr.inputs
+    if named:
+        return pr.state_label(i) if on_state else pr.input_label(i)
+    return f"${'x' if on_state else 'u'}_{{{i + 1}}}$"
+
+
 def _plot_states(traj: Trajectory, cert: Certificate):
     return (_plot_signal(traj, on_state=True),
             "Dashed: constraints of Z that bound a single state (mixed rows of Z are not drawn).")
@@ -133,13 +143,13 @@ def _plot_input(traj: Trajectory, cert: Certificate):
 def _plot_signal(traj: Trajectory, on_state: bool) -> str:
     """x_k (dots) or u_k (held over the step) against k, each with the rows of Z that bound it alone."""
     pr = traj.problem
-    values, symbol, width = (traj.x, "x", pr.n) if on_state else (traj.u, "u", pr.m)
+    values, width = (traj.x, pr.n) if on_state else (traj.u, pr.m)
     bounds = _single_bounds(pr.F, pr.G, on_state)
     fig = _figure()
     ax = fig.add_subplot()
     k = np.arange(len(values))
     for j in range(width):
-        label = f"${symbol}_{{{j + 1}}}$"
+        label = signal_label(pr, j, on_state)
         if on_state:
             line, = ax.plot(k, values[:, j], marker=".", label=label)
         else:
@@ -148,7 +158,7 @@ def _plot_signal(traj: Trajectory, on_state: bool) -> str:
         for idx, bound in bounds:
             if idx == j:
                 ax.axhline(bound, ls="--", color=line.get_color(), lw=1,
-                           label=None if labelled else f"bound on ${symbol}_{{{j + 1}}}$ (Z)")
+                           label=None if labelled else f"bound on {label} (Z)")
                 labelled = True
     _include_bounds(ax, values, [b for _, b in bounds])
     _finish(ax, "state" if on_state else "input", ncol=2)
@@ -250,8 +260,8 @@ def _plot_tubes(traj: Trajectory, cert: Certificate):
         drawn = _z_boundary(axis, pr, lx, ly)
         axis.set_xlim(lx)
         axis.set_ylim(ly)
-        axis.set_xlabel("$x_1$")
-        axis.set_ylabel("$x_2$")
+        axis.set_xlabel(signal_label(pr, 0))
+        axis.set_ylabel(signal_label(pr, 1))
         axis.set_title(title, fontsize="medium")
         axis.grid(alpha=0.3)
         handles, labels = axis.get_legend_handles_labels()
@@ -291,7 +301,7 @@ def _plot_projections(traj: Trajectory, cert: Certificate):
 
     pr = traj.problem
     first, last = traj.records[0], traj.records[-1]
-    star = traj.theta_star_at(last.k)
+    star = None if traj.measured else traj.theta_star_at(last.k)  # a measured run: θ* unknown, not drawn
     if pr.p == 1:
         s = cert.series
         fig = _figure()
@@ -301,8 +311,9 @@ def _plot_projections(traj: Trajectory, cert: Certificate):
         ax.fill_between(k, lo, hi, step="mid", color="tab:blue", alpha=0.25, label=r"$\Theta_k$ (interval)")
         ax.step(k, lo, where="mid", color="tab:blue", lw=1)
         ax.step(k, hi, where="mid", color="tab:blue", lw=1)
-        stars = [traj.theta_star_at(int(j))[0] for j in k]
-        ax.plot(k, stars, "r--", lw=1.2, label=r"$\theta^*$")
+        if star is not None:
+            stars = [traj.theta_star_at(int(j))[0] for j in k]
+            ax.plot(k, stars, "r--", lw=1.2, label=r"$\theta^*$")
         ax.plot(k, np.asarray(s["theta_hat"], float)[:, 0], "k.", ms=4, label=r"$\hat\theta_k$")
         _finish(ax, r"$\theta_1$")
         return _png(fig), (f"p = 1: Θ_k is an interval; its bounds against k, from [{lo[0]:.4g}, {hi[0]:.4g}] to "
@@ -321,14 +332,16 @@ def _plot_projections(traj: Trajectory, cert: Certificate):
             ring = _hull2d(v[:, [i, j]])
             ax.fill(ring[:, 0], ring[:, 1], color=color, alpha=0.15)
             ax.plot(ring[:, 0], ring[:, 1], color=color, lw=1.4, label=name)
-        ax.plot(star[i], star[j], "r*", ms=11, label=r"$\theta^*$")
+        if star is not None:
+            ax.plot(star[i], star[j], "r*", ms=11, label=r"$\theta^*$")
         ax.plot(last.theta_hat[i], last.theta_hat[j], "kx", ms=8, mew=2, label=f"$\\hat\\theta_{{{last.k}}}$")
         ax.set_xlabel(f"$\\theta_{{{i + 1}}}$")
         ax.set_ylabel(f"$\\theta_{{{j + 1}}}$")
         ax.grid(alpha=0.3)
         if idx == 0:
             ax.legend(fontsize="x-small")
-    return _png(fig), (f"Projections of Θ_{first.k} and Θ_{last.k} onto each pair of parameters, with θ* and the "
+    with_star = "" if star is None else "θ* and "
+    return _png(fig), (f"Projections of Θ_{first.k} and Θ_{last.k} onto each pair of parameters, with {with_star}the "
                        f"last point estimate θ̂_{last.k}.")
 
 
@@ -339,6 +352,8 @@ def _plot_theta_hat(traj: Trajectory, cert: Certificate):
     ax = fig.add_subplot()
     varying = np.ndim(traj.theta_star) == 2
     for i, line in enumerate(_dotted_columns(ax, s["k"], th, r"\hat\theta")):
+        if traj.measured:  # θ* unknown: the estimates alone
+            continue
         label = f"$\\theta^*_{{{i + 1}}}$" + (" (varying)" if varying else "")
         if varying:
             ax.plot(range(len(traj.theta_star)), np.asarray(traj.theta_star)[:, i], ls="--", lw=1,
@@ -347,11 +362,15 @@ def _plot_theta_hat(traj: Trajectory, cert: Certificate):
             ax.axhline(traj.theta_star[i], ls="--", lw=1, color=line.get_color(), label=label)
     _finish(ax, "parameter", ncol=2, loc="center left")
     ax.legend(fontsize="small", ncol=2, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    if traj.measured:
+        return _png(fig), "Dots: θ̂_k (a measured run: the true parameter θ* is unknown)."
     return _png(fig), "Dots: θ̂_k; dashed, same colour: the true parameter θ*_i."
 
 
 def _plot_lemma5(traj: Trajectory, cert: Certificate):
     s = cert.series
+    if traj.measured:
+        return None, "A measured run: Lemma 5's sums need θ* and the disturbances w_k, which are unknown."
     if not s["lemma5_lhs"]:
         return None, "No transition recorded: Lemma 5 has no terms."
     m = np.arange(len(s["lemma5_lhs"]))
