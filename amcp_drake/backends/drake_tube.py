@@ -4,7 +4,7 @@ The program is built once per controller with sparse matrix constraints, reduced
 
 * (15d) is solved for p of the q multipliers of each row (:mod:`.multiplier_basis`): the program
   holds the other q − p (Λ_N >= 0), the rows Λ_B = c M − Λ_N H_N M >= 0, and (15c) in the form
-  c κ + Λ_N s + H_x d^j_l − α_{l+1} <= −w̄, with no equality rows;
+  c κ + Λ_N s + H_x d^j_l − α_{l+1} <= −w̄, with no equality rows for (15d);
 * the rows (l, j, i) of (15c) that another vertex of X0 implies on all of Θ0 are left out
   (:mod:`.dominated_rows`; when Θ_k is not inside Θ0, H_θ changes or no Θ0 is given, the step is
   solved by the program with every row, ``prune=False``).
@@ -16,11 +16,14 @@ Both keep the feasible set in (z, α, v). Example 1, 8 facets, N = 10: 303 varia
 nominal dynamics (N·n more variables and as many equality rows, the same feasible set in (z, α, v)): a
 row of (15c) then reads α_l [H_x A_cl(0) x^j]_i + c κ + Λ_N s − [H_x]_i e_l − α_{l+1} <= −w̄_i, without
 the nominal parts [H_x A_cl(0)]_i z_l + [H_x B_0]_i v_l and −[H_x]_i z_{l+1}, which cancel to round-off on
-every row and are large where X0 is thin (‖[H_x]_i‖ up to 93 on ``mass_chain3``, A_cl(0) near I). Written
+every row and are large where X0 is thin (‖[H_x]_i‖ from 4.8 to 146 on ``mass_chain3``, A_cl(0) near I). Written
 with them, the programs of ``mass_chain3``/``mass_chain4`` (n = 6, 8) stalled "AlmostSolved" under
-Clarabel settings that vary by machine (see :data:`NOMINAL_DEVIATION_FORM` and docs/decisions.md). The full Λ is recovered (kept rows from the solution, left-out rows
-from their own LPs), so the answer checks and certificates re-check (15c), (15d) and Λ >= 0 on
-every row as before. Each step updates:
+Clarabel settings that vary by machine (see :data:`NOMINAL_DEVIATION_FORM` and docs/decisions.md). Each
+row of (15c) is divided by ‖[H_x]_i‖ (the distance form of the facet), so that rows of facets of norm 4.8
+and 146 (``mass_chain3``) reach Clarabel at one scale whatever its equilibration does.
+
+The full Λ is recovered (kept rows from the solution, left-out rows from their own LPs), so the answer
+checks and certificates re-check (15c), (15d) and Λ >= 0 on every row as before. Each step updates:
 
 * the right-hand side of (15b) (it holds x_k),
 * the (15c) coefficients from h_θk (``LinearConstraint.UpdateCoefficients`` on a preallocated
@@ -70,12 +73,13 @@ ROW_CAPACITY_STEP = 1
 #: program is the same in (z, α, v)); 1 is the scale of the unit rows.
 PAD_OFFSET = 1.0
 #: Description of the rows e_l = z_{l+1} − A_cl(0) z_l − B_0 v_l that define the deviations used by (15c)
-#: (module docstring). Why this form: on ``mass_chain3`` (n = 6, ‖[H_x]_i‖ up to 93) the program with
+#: (module docstring). Why this form: on ``mass_chain3`` (n = 6, ‖[H_x]_i‖ up to 146) the program with
 #: z_{l+1} in (15c) ended "AlmostSolved" (step length collapsing with the dual residual growing from 3e-8
 #: to 4e-6 in one iteration) at 1 to 3 of 5 steps under Clarabel settings that emulate another machine
 #: (max_step_fraction 0.95, equilibrate_max_iter 5, tolerances 1e-9 with max_iter 400, iterative
 #: refinement on): a fallback answered those steps. Fixing z alone made it "Solved" under every one of
-#: 9 settings; tie-breaks (ε·Σα, ε·ΣΛ_N, ε‖(z, α, Λ_N)‖² below 1e-4) did not. docs/results.md, "The Drake
+#: 9 settings; tie-breaks (ε·Σα, ε·ΣΛ_N, ε‖(z, α, Λ_N)‖² below 1e-4) did not. With e_l and the rows of
+#: (15c) divided by ‖[H_x]_i‖: no fallback under 7 settings profiles (10 before). docs/results.md, "The Drake
 #: plain form under other Clarabel settings".
 NOMINAL_DEVIATION_FORM = "(15c) tube centre deviations e_l = z_{l+1} - A_cl(0) z_l - B_0 v_l"
 
@@ -275,7 +279,9 @@ class DrakeTubeMPC:
         A.sort_indices()
         self._perm15c = A.data.astype(np.int64) - 1
         self._A15c = A
-        self._ub15c = -np.asarray(d.w_bar, float)[i_all[kept]]
+        # each row of (15c) divided by ‖[H_x]_i‖ (module docstring): coefficients, multiplier terms and bound
+        self._scale15c = 1.0 / np.linalg.norm(np.asarray(d.H_x, float)[i_all[kept]], axis=1)
+        self._ub15c = -np.asarray(d.w_bar, float)[i_all[kept]] * self._scale15c
         self._lb15c = np.full(rows, -np.inf)
         self._c15c = prog.AddLinearConstraint(self._matrix_15c(np.zeros(basis.q)), self._lb15c, self._ub15c, y
                                               ).evaluator()
@@ -381,10 +387,11 @@ class DrakeTubeMPC:
         if np.ndim(h_theta) == 2:
             kappa, slack = kappa[self._stage_of_row], slack[self._stage_of_row]
             base = self._C_vals + np.einsum("rep,rp->re", self._G_vals, kappa)
-            lam = slack
+            lam = slack * self._scale15c[:, None]
         else:
             base = self._C_vals + self._G_vals @ kappa
-            lam = np.broadcast_to(slack, (self._rows15c, len(slack)))
+            lam = slack[None, :] * self._scale15c[:, None]
+        base = base * self._scale15c[:, None]
         self._A15c.data[:] = np.concatenate([base.ravel(), lam.ravel()])[self._perm15c]
         return self._A15c
 

@@ -23,8 +23,13 @@ CLARABEL_PROFILES: dict[str, dict] = {
 }
 
 #: Settings measured but not required (docs/results.md, "The Drake plain form under other Clarabel
-#: settings"): a 10x smaller static regularisation still leaves one mass_chain3 step to the fallback.
-MEASURED_ONLY_PROFILES: dict[str, dict] = {"small_regularisation": {"static_regularization_constant": 1e-9}}
+#: settings").
+MEASURED_ONLY_PROFILES: dict[str, dict] = {
+    "small_regularisation": {"static_regularization_constant": 1e-9},
+    "short_small_reg": {"max_step_fraction": 0.95, "iterative_refinement_enable": True,
+                        "static_regularization_constant": 1e-9},
+    "unequilibrated": {"equilibrate_enable": False},
+}
 
 #: The shipped examples of four to eight states whose plain form (15) is large (n = 6, 8 and the 102-facet
 #: quadrotor X0), and the closed-loop steps each runs under every profile (the first steps, from x0 on
