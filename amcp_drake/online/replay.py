@@ -15,7 +15,8 @@ from amcp_drake.model.problem import ProblemSpec
 
 def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: str | None = None,
                  formulation: str = "plain", steps: int | None = None, seed: int | None = None, options=None,
-                 offline=None, progress: bool = False, design_budget=None, backend_options: dict | None = None):
+                 offline=None, progress: bool = False, design_budget=None, simulate=None,
+                 backend_options: dict | None = None):
     """The closed loop of ``spec.scenario`` on ``backend``; returns the Trajectory (a partial one when
     Θ_{k-1} ∩ Δ_k = ∅ stops the run, with ``stop_reason`` saying so).
 
@@ -25,16 +26,19 @@ def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: s
     ``design_budget``: the :class:`~amcp_drake.offline.budget.DesignBudget` of the design (memory limit,
     time budget per candidate, progress lines; None: the default limit, silent); with a budget, the run's
     size is estimated again for the design found and refused above its memory limit
-    (:func:`~amcp_drake.model.limits.check_run_size` with the design); ``backend_options``: keyword
-    options of the backend's constructor (e.g. ``{"solver_options": {...}}``, the solver's settings for
-    every problem of the run), passed to the controller; ``formulation`` is given on its own.
+    (:func:`~amcp_drake.model.limits.check_run_size` with the design). ``simulate``: the closed-loop function
+    (default :func:`~amcp_drake.online.simulate.simulate`; ``amcp_drake.systems.closed_loop.simulate_in_drake``
+    runs the plant in Drake), called with the same arguments. ``backend_options``: keyword options of the
+    backend's constructor (e.g. ``{"solver_options": {...}}``, the solver's settings for every problem of
+    the run), passed to the controller; ``formulation`` is given on its own.
     """
     from amcp_drake.model.errors import InconsistentDataError, ProblemError
     from amcp_drake.model.limits import check_run_size
     from amcp_drake.offline.design import design
     from amcp_drake.online.controller import AdaptiveMPC
     from amcp_drake.online.formulation_choice import resolved_formulation
-    from amcp_drake.online.simulate import simulate
+    if simulate is None:
+        from amcp_drake.online.simulate import simulate
 
     sc = spec.scenario
     if sc is None:
