@@ -51,6 +51,7 @@ _SUBMODULES = {
     "polytope": "amcp_drake.model.polytope",
     "checks": "amcp_drake.model.check_result",
     "backends": "amcp_drake.backends",
+    "plots": "amcp_drake.certificate.plots",
 }
 
 
