@@ -40,7 +40,8 @@ def terminal_safe(text: str) -> str:
 
 
 def echo(message: object = "", err: bool = False, nl: bool = True) -> None:
-    """``click.echo`` of :func:`terminal_safe` text: every line the subcommands print goes through here."""
+    """``click.echo`` of :func:`terminal_safe` text: the lines of design, run, certify, baseline, coverage, compare,
+    pe-figure and campaign go through here."""
     click.echo(terminal_safe(str(message)), err=err, nl=nl)
 
 
