@@ -16,10 +16,12 @@ from pathlib import Path
 
 import pytest
 
+from tests.guards import GUARD_SECONDS
+
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = "explanation/paper.html"
 #: a browser or a site build on a loaded machine can take long; this only guards against a hung child
-CHILD_GUARD_S = 3600
+CHILD_GUARD_S = GUARD_SECONDS
 
 
 @pytest.fixture(scope="module")
