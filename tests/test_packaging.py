@@ -17,13 +17,13 @@ from pathlib import Path
 
 import pytest
 
+from tests.guards import GUARD_SECONDS
+
 ROOT = Path(__file__).resolve().parents[1]
-#: a wheel build, an install and a short certify on a loaded machine; only guards against a hung child
-CHILD_GUARD_S = 3600
 
 
 def _run(cmd, **kw) -> subprocess.CompletedProcess:
-    return subprocess.run([str(c) for c in cmd], capture_output=True, text=True, timeout=CHILD_GUARD_S, **kw)
+    return subprocess.run([str(c) for c in cmd], capture_output=True, text=True, timeout=GUARD_SECONDS, **kw)
 
 
 @pytest.mark.slow

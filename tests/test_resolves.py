@@ -18,7 +18,7 @@ def _outside_theta0_step(example_spec, example_design, backend):
     program does not apply and it solves the program with every row)."""
     ctrl = AdaptiveMPC(example_spec.problem, example_design, backend=backend, formulation="plain",
                        options=OnlineOptions(update="none"))
-    ctrl.h_theta = 1.2 * np.asarray(example_design.h_theta0, float)
+    ctrl.state = ctrl.state.replace(h_theta=1.2 * np.asarray(example_design.h_theta0, float))
     u, record = ctrl.step(np.array([1.0, 0.5]))
     assert u is not None, record.status
     return record
