@@ -278,3 +278,12 @@ def test_headless_chromium_paints_the_svg_tube_plot_of_a_chosen_plane(run, tmp_p
     painted, without = counts
     assert painted - without >= 200, counts
     assert json.loads((out / "certificate.json").read_text())["verdict"] == "pass"
+
+
+def test_the_svg_figures_are_reproducible(run):
+    """The same run gives byte-identical figures (fixed id salt, no date), so two reports can be compared."""
+    traj, cert = run
+    first, second = render_report(traj, cert, (0, 2)), render_report(traj, cert, (0, 2))
+    for plot_id in ("plot-tubes", "plot-states", "plot-theta-hat"):
+        assert _img_src(first, plot_id) == _img_src(second, plot_id), plot_id
+    assert _img_src(first, "plot-tubes") != _img_src(render_report(traj, cert, (0, 1)), "plot-tubes")
