@@ -175,3 +175,20 @@ def test_bad_slice_options_exit_2_without_output(problem_file, tmp_path, args, f
     assert r.exit_code == 2, r.output
     assert field in r.output and "Traceback" not in r.output
     assert not out.exists()
+
+
+def test_the_region_draws_into_a_given_axes():
+    from matplotlib.figure import Figure
+
+    from amcp_drake.studies.coverage import CoverageResult, PointVerdict, draw_region
+
+    points = np.array([[0.0, 0.0, 0.5], [1.0, -1.0, 0.5]])
+    res = CoverageResult(problem="p", n=3, points=points, source="s", axes=None, backend="drake", formulation="vertex",
+                         robust=[PointVerdict("optimal", 0.5), PointVerdict("infeasible", -0.5)], labels=list(LABELS),
+                         plane=(0, 1), fixed=np.array([0.0, 0.0, 0.5]))
+    fig = Figure()
+    left, right = fig.subplots(1, 2)
+    assert draw_region(res, ax=right) is fig and not left.collections
+    offsets = np.vstack([c.get_offsets() for c in right.collections])
+    assert sorted(map(tuple, offsets.tolist())) == [(0.0, 0.0), (1.0, -1.0)]
+    assert (right.get_xlabel(), right.get_ylabel()) == LABELS[:2]

@@ -461,10 +461,11 @@ LABELS = {ROBUST: "feasible robustly (Θ)", ADAPTIVE_ONLY: "feasible only after 
           INFEASIBLE: "infeasible"}
 
 
-def draw_region(result: CoverageResult):
+def draw_region(result: CoverageResult, ax=None):
     """A matplotlib Figure of the region (object API, no pyplot): a map of the points in the plane of a slice
     (any n) or for n = 2, a strip for n = 1; None for n >= 3 without a slice. Axes carry the states' names
-    and units. Disagreements are marked with a black ×."""
+    and units. Disagreements are marked with a black ×. Drawn into ``ax`` when given (its Figure is
+    returned), as the functions of ``amcp.plots``."""
     if result.n > 2 and result.plane is None:
         return None
     from matplotlib.figure import Figure
@@ -472,8 +473,11 @@ def draw_region(result: CoverageResult):
     classes = np.array(result.classes())
     plane = result.plane or ((0, 1) if result.n == 2 else None)
     pts = result.points[:, list(plane)] if plane else np.column_stack([result.points[:, 0], np.zeros(len(result.points))])
-    fig = Figure(figsize=(6.4, 5.2) if plane else (6.4, 2.2))
-    ax = fig.add_subplot(1, 1, 1)
+    if ax is None:
+        fig = Figure(figsize=(6.4, 5.2) if plane else (6.4, 2.2), layout="constrained")
+        ax = fig.add_subplot(1, 1, 1)
+    else:
+        fig = ax.figure
     size = max(4.0, min(60.0, 9000.0 / max(len(pts), 1)))
     for kind in (INFEASIBLE, ADAPTIVE_ONLY, ROBUST):
         sel = classes == kind
@@ -497,7 +501,6 @@ def draw_region(result: CoverageResult):
     ax.set_title(title, fontsize=9)
     ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14 if plane else -0.35), ncol=2,
               frameon=False)
-    fig.tight_layout()
     return fig
 
 
