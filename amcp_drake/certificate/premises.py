@@ -46,7 +46,8 @@ MET, NOT_MET, UNKNOWN = "met", "not_met", "unknown"
 #: Design claims that are premises of the paper's results (claim id -> premise id).
 DESIGN_PREMISES = {"design.assumption_8": "assumption_8", "design.mu_condition_11": "mu_condition_11"}
 COVERAGE_HINT = ("choose x_0 inside the feasible region of (20): measure it with `amcp coverage PROBLEM` "
-                 "(docs/how-to/own-system.md, section 4)")
+                 "(from n = 3 on, slices through x_0: `--plane I,J --fix NAME=VALUE,...`; docs/how-to/own-system.md, "
+                 "section 5)")
 DESIGN_HINT = ("let `amcp design` compute K and P (its design meets Assumption 8 and (11) by construction), "
                "or give a gain that stabilises every vertex of Θ (docs/how-to/own-system.md, section 3)")
 
