@@ -33,18 +33,20 @@ from typing import Any
 import numpy as np
 
 from amcp_drake.model.check_result import FAIL, PASS, CheckResult
+from amcp_drake.model.claim_table import CLAIMS
+from amcp_drake.model.tolerances import PREMISE_LP_TOL as LP_TOL
 
 #: HiGHS options of the premise's LP: primal and dual feasibility 1e-10 (the LP has unit rows, so its
 #: slack t is accurate to about that).
 LP_OPTIONS = {"primal_feasibility_tolerance": 1e-10, "dual_feasibility_tolerance": 1e-10}
-#: The LP slack t below which x_0 is outside the feasible region of (20) (rows of unit norm): ten times
-#: the LP's own feasibility tolerance (:data:`LP_OPTIONS`), so that a start 1e-7 outside is not met.
-LP_TOL = 1e-9
-#: Claims about the recorded data alone (claim ids): checked and kept whatever the premises say.
-DATA_CLAIMS = frozenset({"model_consistent", "w_in_W", "theta_star_in_Theta", "control_law", "data_consistency"})
+# LP_TOL (model.tolerances.PREMISE_LP_TOL): the LP slack t below which x_0 is outside the feasible region of
+# (20) (rows of unit norm), ten times the LP's own feasibility tolerance (:data:`LP_OPTIONS`).
+#: Claims about the recorded data alone (claim ids, the rows marked ``data`` in the table of claims): checked
+#: and kept whatever the premises say.
+DATA_CLAIMS = frozenset(c.id for c in CLAIMS if c.data)
 MET, NOT_MET, UNKNOWN = "met", "not_met", "unknown"
-#: Design claims that are premises of the paper's results (claim id -> premise id).
-DESIGN_PREMISES = {"design.assumption_8": "assumption_8", "design.mu_condition_11": "mu_condition_11"}
+#: Design claims that are premises of the paper's results (claim id -> premise id; the rows' ``premise``).
+DESIGN_PREMISES = {c.id: c.premise for c in CLAIMS if c.premise}
 COVERAGE_HINT = ("choose x_0 inside the feasible region of (20): measure it with `amcp coverage PROBLEM` "
                  "(docs/how-to/own-system.md, section 4)")
 DESIGN_HINT = ("let `amcp design` compute K and P (its design meets Assumption 8 and (11) by construction), "
