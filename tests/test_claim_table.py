@@ -113,3 +113,37 @@ def test_no_gate_of_the_answer_checks_is_looser_than_the_claim_it_feeds():
     assert answer_checks.SET_NESTED_TOL == GATES["set_nested"][1]
     assert answer_checks.SET_TOL == GATES["set_outer"][1]
     assert answer_checks.TUBE_TOL == GATES["tube_rows"][1]
+
+
+def test_every_property_recheck_is_a_second_method_of_a_claim_with_a_certificate_method():
+    """The N-version registry of the property suite: each re-check names a claim of the table, and each of those
+    claims has the certificate's check as its first method and at least one re-check as its second."""
+    from amcp_properties import nversion
+
+    ids = [cid for cid in BY_ID if cid in nversion.FIRST_METHODS]
+    assert ids and all(len(nversion.methods(cid)) >= 2 for cid in ids)
+    assert set(nversion.SECOND_METHODS) <= set(BY_ID), sorted(set(nversion.SECOND_METHODS) - set(BY_ID))
+    assert set(nversion.SECOND_METHODS) == set(nversion.FIRST_METHODS)
+    with pytest.raises(KeyError, match="not_a_claim"):
+        nversion.second_method("not_a_claim")
+
+
+def test_both_methods_of_a_claim_fail_on_the_same_tampered_run(example_spec, example_design):
+    """theta_star_in_Theta_k on a run whose recorded Θ_6 excludes θ* by 1e-3 (unit rows): the certificate's method
+    and the property re-checks each fail, and each passes on the run as recorded."""
+    import numpy as np
+
+    from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_properties import nversion
+
+    recorded = example_1_recorded(example_spec, AdaptiveMPC(example_spec.problem, example_design, backend="drake"),
+                                  STEPS)
+    traj = fresh(recorded)
+    assert all(r.passed for r in nversion.check("theta_star_in_Theta_k", traj))
+    r = traj.records[STEPS]
+    H = np.asarray(r.H_theta, float)
+    n = np.linalg.norm(H, axis=1)
+    r.h_theta = np.array(r.h_theta, float)
+    r.h_theta[0] = float(H[0] @ np.asarray(traj.theta_star, float)) - 1e-3 * n[0]
+    results = nversion.check("theta_star_in_Theta_k", traj)
+    assert len(results) == 3 and not any(r.passed for r in results), [(r.name, r.status) for r in results]

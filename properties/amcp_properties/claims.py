@@ -23,6 +23,7 @@ from amcp_drake.model.tolerances import LEMMA5_REL_TOL, PROJECTION_TOL, SET_TOL,
 from amcp_drake.online.answers import qp_applied, rejected
 
 from .geometry import delta_set, maxima, regressor, signed_chebyshev_radius, unit_rows, vertices
+from .nversion import second_method
 
 # Tolerances (model.tolerances, shared with the certificate's claims of the same ids): TUBE_TOL for the
 # constraint margins of the QP (20) solution re-evaluated at the vertices of the tube, Θ_k, X0 and W (worst
@@ -98,6 +99,7 @@ def tube_constraint_margins(traj, k: int, w_vertices: np.ndarray | None = None) 
     return out
 
 
+@second_method("recursive_feasibility")
 def recursive_feasibility(traj) -> CheckResult:
     """Theorem 14 (i): 𝔻(x_k, Θ_k) ≠ ∅ at every step k of the run.
 
@@ -133,6 +135,7 @@ def backend_answers(traj) -> CheckResult:
                  float(-len(bad)), 0.0, detail)
 
 
+@second_method("theta_star_in_Theta_k")
 def theta_star_in_sets(traj) -> CheckResult:
     """Theorem 14 (ii), first part: θ* ∈ Θ_k for every recorded k (unit rows, distance margin).
     A stop on "inconsistent data" (Θ_{k-1} ∩ Δ_k = ∅) contradicts it: θ* lies in both."""
@@ -143,12 +146,13 @@ def theta_star_in_sets(traj) -> CheckResult:
     worst, at = np.inf, -1
     for r in traj.records:
         H, h = unit_rows(*_theta_k(r))
-        margin = float(np.min(h - H @ traj.theta_star))
+        margin = float(np.min(h - H @ traj.theta_star_at(r.k)))
         if margin < worst:
             worst, at = margin, r.k
     return judge("Theorem 14 (ii) θ*", claim, worst, SET_TOL, f"min distance of θ* inside Θ_k, at step {at}")
 
 
+@second_method("theta_hat_in_Theta")
 def theta_hat_in_prior(traj) -> CheckResult:
     """Theorem 14 (ii), second part: θ̂_k ∈ Θ for every recorded k (the problem's Θ, unit rows)."""
     pr = traj.problem
@@ -159,6 +163,7 @@ def theta_hat_in_prior(traj) -> CheckResult:
                  f"min distance of θ̂_k inside Θ, at step {at}")
 
 
+@second_method("state_input_constraints")
 def constraints_satisfied(traj) -> CheckResult:
     """Theorem 14 (iii): F x_k + G u_k <= 1 for every applied input, eq. (4)."""
     pr = traj.problem
@@ -176,6 +181,7 @@ def _valid_set(traj, k: int) -> bool:
     return k == 0 or r.set_status is SolveStatus.OPTIMAL
 
 
+@second_method("Theta0_contains_Theta", "Theta_k_nested", "Theta_k_lower_inclusion")
 def set_inclusions(traj) -> CheckResult:
     """Lemma 3, (10): Θ_k ∩ Δ_{k+1} ⊆ Θ_{k+1} ⊆ Θ_k, and its premise Θ ⊆ Θ_0.
 
@@ -228,6 +234,7 @@ def _signed_radius_with_witness(H: np.ndarray, h: np.ndarray, witness: np.ndarra
 
 
 # -- Lemma 5 and (11) -----------------------------------------------------------------------------
+@second_method("mu_precondition")
 def lms_precondition(traj) -> CheckResult:
     """The gain condition used by Lemma 5: μ ‖D(x,u)‖₂² < 1 on Z, eq. (11) (recomputed at the
     vertices of Z, ‖D‖₂ being convex in (x,u)), and μ ‖D_k‖₂² <= 1 at every visited (x_k, u_k)."""
@@ -247,6 +254,7 @@ def lms_precondition(traj) -> CheckResult:
     return judge("(11)", claim, margin, 0.0, detail, strict=strict)
 
 
+@second_method("lemma5")
 def lms_inequality(traj) -> CheckResult:
     """Lemma 5, the exact inequality proved by (13), for every m:
 
@@ -273,6 +281,7 @@ def lms_inequality(traj) -> CheckResult:
 
 
 # -- Proposition 9 --------------------------------------------------------------------------------
+@second_method("tube_contains_state", "tube_contains_next_state", "tube_propagation", "tube_constraints")
 def prediction_tube(traj) -> CheckResult:
     """Proposition 9 ("⇐": (15) implies (5a)-(5c)) on every solved step k:
 
@@ -316,6 +325,7 @@ def prediction_tube(traj) -> CheckResult:
 
 
 # -- Assumption 11 --------------------------------------------------------------------------------
+@second_method("design.x_f_non_empty", "design.x_f_invariant", "design.x_f_in_z")
 def terminal_set_invariance(problem, design) -> CheckResult:
     """Assumption 11 for X_f = {(z, α) | H_T z + h_T α <= 1, α >= 0}, without the design's witness:
 

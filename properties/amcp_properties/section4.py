@@ -39,6 +39,7 @@ from amcp_drake.studies.random_problems import complete_spec
 from . import profiles
 from .cases import Case, Memo
 from .feasible import TubeGeometry, max_ray_length
+from .nversion import second_method
 from .strategies import _grid, designed_problems, disturbances, initial_states, theta_stars
 
 # -- sizes per profile ---------------------------------------------------------------------------------
@@ -388,6 +389,7 @@ def theta_distances(traj) -> np.ndarray:
     return np.array(out)
 
 
+@second_method("theta_star_in_Theta_k")
 def theta_star_in_theta_k(traj) -> CheckResult:
     """Theorem 14 (ii) / Proposition 19: θ*_k ∈ Θ_k at every k; an inconsistent-data stop fails."""
     claim = "θ*_k ∈ Θ_k for all k (Theorem 14 (ii) / Proposition 19)"
@@ -442,6 +444,7 @@ def minmax_cost(design, problem, z, alpha, v, reduce=np.max) -> float:
     return float(np.sum(reduce(stage, axis=1)) + reduce(terminal))
 
 
+@second_method("cost_value")  # of a min–max run
 def minmax_cost_matches(traj, formula=None, cost_of=None) -> CheckResult:
     """record.cost equals (19) evaluated by numpy from the recorded z, α, v at every step.
     ``formula`` (a function of (design, problem, z, alpha, v)) and ``cost_of(record)`` override the
@@ -497,6 +500,7 @@ def pe_realised(traj) -> list[tuple[int, str, float, float]]:
     return out
 
 
+@second_method("pe_level")
 def pe_levels_met(traj, realised=None) -> CheckResult:
     """At every enforced step the realised window Gram of the trajectory's inputs has λ_min >=
     record.pe_level (up to PE_LEVEL_TOL); ``realised`` overrides :func:`pe_realised` (negative controls)."""
@@ -532,6 +536,7 @@ def same_inputs(traj, reference) -> CheckResult:
                  SAME_INPUT_TOL, "margin = −max_k |u_k − u_k(no PE)|")
 
 
+@second_method("pe_bounds")
 def pe_bounds_respected(traj, bounds_of=None) -> CheckResult:
     """u_k within record.pe_bounds at every step that records bounds; enforced steps record bounds.
     (The status set itself is not checked: it may grow while the PE rule evolves.)"""
