@@ -32,6 +32,7 @@ from amcp_drake.studies.solver_matrix.corpus import CorpusProblem, is_valid_id, 
 from amcp_drake.studies.solver_matrix.reference import check_reference
 from amcp_drake.studies.solver_matrix.runner import Cell, MatrixRun
 from amcp_drake.studies.solver_matrix.staging import STAGING_PREFIX, staged
+from tests.guards import GUARD_SECONDS
 
 STUB = "py:tests.solver_stubs:correct"
 
@@ -148,7 +149,7 @@ def test_text_with_quotes_is_only_data_in_the_generated_script(tmp_path, quote):
     assert json.loads(data_literal)["id"] == pr.id
     script = tmp_path / "script.py"
     script.write_text(text)
-    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=GUARD_SECONDS, cwd=tmp_path)
     assert done.returncode == repro.DOES_NOT, done.stdout + done.stderr
     assert not marker.exists()
 
@@ -177,7 +178,7 @@ def test_recheck_refuses_foreign_edited_linked_hidden_and_folder_entries(tmp_pat
     (folder / "dir.py" / "__main__.py").write_text(evil_script(marker))
     (tmp_path / "outside.py").write_text(evil_script(marker))
     (folder / "link.py").symlink_to(tmp_path / "outside.py")
-    results = {r.script: r for r in repro.recheck(folder, time_limit=120)}
+    results = {r.script: r for r in repro.recheck(folder, time_limit=GUARD_SECONDS)}
     assert results[good].outcome == "no longer reproduces"
     for name, reason in [("foreign.py", "not in manifest.json"), (".hidden.py", "hidden"), ("dir.py", "a folder"),
                          ("link.py", "symbolic link")]:
@@ -277,7 +278,7 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
-@pytest.mark.parametrize("limit", [60.0, 2.0])
+@pytest.mark.parametrize("limit", [GUARD_SECONDS, 2.0])   # no limit that a loaded machine reaches; a 2 s limit on a hang
 def test_processes_a_reproducer_starts_are_killed_when_it_ends_or_times_out(tmp_path, limit):
     """The script starts a 300 s sleeper and exits (or, at the 2 s limit, hangs): after run_isolated the
     sleeper is gone."""
@@ -288,7 +289,7 @@ def test_processes_a_reproducer_starts_are_killed_when_it_ends_or_times_out(tmp_
     rc, _ = repro.run_isolated(text, "spawn.py", limit)
     assert rc == (0 if limit > 10 else None)
     pid = int(pid_file.read_text())
-    deadline = time.monotonic() + 10
+    deadline = time.monotonic() + GUARD_SECONDS   # only a guard: a killed sleeper is gone at once
     while _alive(pid) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not _alive(pid)
@@ -511,7 +512,7 @@ def test_verifying_an_lp_reference_prints_nothing(tmp_path):
             "from tests.test_solvers_hostile import lp\n"
             "from amcp_drake.studies.solver_matrix.reference import check_reference\n"
             "check_reference(lp())\n")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=GUARD_SECONDS,
                           cwd=Path(__file__).resolve().parents[1])
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout == ""

@@ -35,6 +35,8 @@ from amcp_drake.cli.common import (
     problem_options,
     progress_every_option,
     seed_option,
+    simulate_function,
+    simulator_option,
     steps_option,
     write_error,
 )
@@ -57,12 +59,13 @@ from amcp_drake.cli.common import (
 @max_memory_option
 @candidate_budget_option
 @progress_every_option
+@simulator_option
 @click.pass_context
 @interruptible(lambda kw, exc: f"nothing written to {kw['out_dir']} (its staging folder was removed); "
                "run the command again")
 @bad_input_exits_2
 def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend, formulation, steps, seed, out_dir,
-                trajectory_file, online, max_memory, candidate_budget, progress_every):
+                trajectory_file, online, max_memory, candidate_budget, progress_every, simulator):
     """Run a closed loop and check every claim of the paper independently.
 
     Runs the adaptive MPC on PROBLEM (default: --example lorenzen2019, x0 = [2, 3],
@@ -85,7 +88,7 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
         from click.core import ParameterSource
 
         run_options = ("backend", "design_backend", "steps", "seed", *ONLINE_OPTION_NAMES, "max_memory", "x0_template",
-                       "candidate_budget", "progress_every")
+                       "candidate_budget", "progress_every", "simulator")
         given = [f"--{name.replace('_', '-')}" for name in run_options
                  if ctx.get_parameter_source(name) is ParameterSource.COMMANDLINE]
         if given:
@@ -100,7 +103,7 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
         seed = spec.scenario.seed if seed is None else seed
         try:
             traj = _run(spec, backend, steps, seed, formulation, options, design_backend,
-                        design_budget(max_memory, candidate_budget, progress_every=progress_every))
+                        design_budget(max_memory, candidate_budget, progress_every=progress_every), simulator)
         except DesignError as exc:
             broken = _assumption_8_broken_by_the_given_gain(exc, spec)
             if broken is None:
@@ -148,13 +151,15 @@ def _with_robust_baseline(traj, cert):
 
 
 def _run(spec, backend: str, steps: int, seed: int, formulation: str = "plain", options=None,
-         design_backend: str | None = None, budget=None):
+         design_backend: str | None = None, budget=None, simulator: str = "builtin"):
     """Offline design, then the closed loop with a progress bar (Drake/cvxpy imported only here); the
-    same path as a campaign run (:func:`amcp_drake.online.replay.run_scenario`), so a replay is exact."""
+    same path as a campaign run (:func:`amcp_drake.online.replay.run_scenario`), so a replay is exact.
+    ``simulator``: who runs the plant (``--simulator``: builtin or drake)."""
     from amcp_drake.online.replay import run_scenario
 
     return run_scenario(spec, backend, design_backend=design_backend, formulation=formulation, steps=steps,
-                        seed=seed, options=options, progress=True, design_budget=budget)
+                        seed=seed, options=options, progress=True, design_budget=budget,
+                        simulate=simulate_function(simulator))
 
 
 def _assumption_8_broken_by_the_given_gain(exc: Exception, spec) -> str | None:

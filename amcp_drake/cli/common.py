@@ -298,6 +298,25 @@ formulation_option = click.option(
          "multiple of the plain form's, the plain form when an option needs it (docs/decisions.md, 'The formulation of the tube QP'). "
          "Use auto or vertex from about 4 states on.")
 
+simulator_option = click.option(
+    "--simulator", type=click.Choice(["builtin", "drake"]), default="builtin", show_default=True,
+    help="Who runs the plant (1): amcp's simulator, or Drake's Simulator with the plant as a Drake AffineSystem "
+         "and the controller as AdaptiveMPCSystem (the same closed loop; the trajectory records which ran it; "
+         "docs/how-to/drake-plant.md).")
+
+
+def simulate_function(simulator: str) -> Callable:
+    """The closed-loop function of ``--simulator``: :func:`amcp_drake.online.simulate.simulate` (builtin) or
+    :func:`amcp_drake.systems.closed_loop.simulate_in_drake` (drake: pydrake imported only here)."""
+    if simulator == "drake":
+        from amcp_drake.systems.closed_loop import simulate_in_drake
+
+        return simulate_in_drake
+    from amcp_drake.online.simulate import simulate
+
+    return simulate
+
+
 def update_options(func):
     """--update, --window, --projection (the online set update and LMS projection; defaults: the
     file's online section). ``--update none`` is the robust baseline (Θ_k ≡ Θ, θ̂_k ≡ θ̂0)."""

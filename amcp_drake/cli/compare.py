@@ -19,6 +19,8 @@ from amcp_drake.cli.common import (
     prepare_run,
     problem_options,
     seed_option,
+    simulate_function,
+    simulator_option,
     steps_option,
 )
 
@@ -44,9 +46,10 @@ from amcp_drake.cli.common import (
                    "(by default such a step is a disagreement, exit 1, naming the step, the backend and the check).")
 @click.option("--quiet", is_flag=True, help="Only the summary, no per-step table.")
 @max_memory_option
+@simulator_option
 @bad_input_exits_2
 def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_solver, cvxpy_solver, accurate, online,
-                out_file, formulation, allow_fallbacks, quiet, max_memory):
+                out_file, formulation, allow_fallbacks, quiet, max_memory, simulator):
     """Compare u, v, cost, h_theta and theta_hat (and report z, alpha) of both backends per step."""
     from amcp_drake.comparison.compare import ACCURATE_CLARABEL, INFORMATIONAL, TOLERANCES, independent, lockstep
     from amcp_drake.model.errors import ProblemError
@@ -55,6 +58,9 @@ def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_sol
     if accurate and (drake_solver.lower(), cvxpy_solver.upper()) != ("clarabel", "CLARABEL"):
         raise ProblemError("--accurate", "Clarabel in both backends (--drake-solver clarabel --cvxpy-solver CLARABEL)",
                            f"--drake-solver {drake_solver} --cvxpy-solver {cvxpy_solver}")
+    if simulator != "builtin" and mode == "lockstep":
+        raise ProblemError("--simulator", "builtin with --mode lockstep (both controllers are fed one state of amcp's "
+                           "simulator; --mode independent runs each closed loop in Drake)", simulator)
 
     spec, steps, options = prepare_run(problem_file, example, x0_template, steps, online, max_memory,
                                        formulation=formulation)
@@ -62,8 +68,12 @@ def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_sol
     tolerances = {"solver_options": dict(ACCURATE_CLARABEL)} if accurate else {}
     backend_options = ({"solver": drake_solver, "formulation": formulation, **tolerances},
                        {"solver": cvxpy_solver, "formulation": formulation, **tolerances})
-    run = lockstep if mode == "lockstep" else independent
-    comp = run(spec, steps, seed, options=options, backend_options=backend_options, allow_fallbacks=allow_fallbacks)
+    if mode == "lockstep":
+        comp = lockstep(spec, steps, seed, options=options, backend_options=backend_options,
+                        allow_fallbacks=allow_fallbacks)
+    else:
+        comp = independent(spec, steps, seed, options=options, backend_options=backend_options,
+                           allow_fallbacks=allow_fallbacks, simulate=simulate_function(simulator))
 
     if not quiet:
         per_step: dict[int, dict[str, float]] = defaultdict(dict)
@@ -137,7 +147,7 @@ def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_sol
         echo(f"hint: at step {listed} v differs while the cost agrees: the optimum may be flat, where the "
                    "solvers' default tolerances fix the cost but not v; --accurate compares both backends with "
                    "Clarabel at 1e-10 (the property suite's setting)")
-    write_json_atomic(comp.to_dict(), out_file)
+    write_json_atomic({**comp.to_dict(), "simulator": simulator}, out_file)
     echo(f"all differences written to {out_file}")
     echo("backends agree" if comp.agree else "backends DISAGREE")
     exit_verdict(comp.agree)
