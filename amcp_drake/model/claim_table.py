@@ -61,9 +61,10 @@ class Claim:
 
     @property
     def excused_by(self) -> tuple[str, ...]:
-        """The premises whose failure moves this claim, when it did not pass, to ``not_claimed``: none for
-        a data claim, the design premises for a design claim (X0, X_f, (16) are built on the same K), every
-        premise otherwise (certificate.premises.apply)."""
+        """The premises whose failure moves a failure of this claim to ``not_claimed`` (certificate.premises.apply):
+        none for a data claim (no premise excuses data that contradict each other; a data claim with nothing to
+        check is moved like any claim that could not run), the design premises for a design claim (X0, X_f and
+        (16) are built on the same K), every premise otherwise."""
         if self.data:
             return ()
         if self.family == "design":
