@@ -60,7 +60,7 @@ from amcp_drake.online.simulate import simulate
 
 #: A QP verdict is confirmed when the LP slack t agrees in sign; within ±AGREEMENT_TOL of the
 #: boundary the two solvers may legitimately differ (Clarabel's and HiGHS's feasibility
-#: tolerances are ~1e-8 on rows of unit norm; the certificate's QP_TOL 1e-6 leaves room for the
+#: tolerances are ~1e-8 on rows of unit norm; the certificate's TUBE_TOL 1e-6 leaves room for the
 #: QP's scaling), so such points are "borderline", listed but not counted as disagreements.
 AGREEMENT_TOL = 1e-6
 #: Default grid resolution per axis.
