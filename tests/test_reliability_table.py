@@ -689,8 +689,8 @@ def test_a_truncated_store_without_a_write_ahead_log_is_still_refused(tmp_path):
 
 def test_a_long_design_prints_progress_while_it_runs(tmp_path):
     """``amcp design --progress-every 0.5`` of Example 1 with an mrpi template of 160 facets (3 to 11 s of
-    work, depending on the machine; the limit raised so that the size estimate of the later run does not
-    refuse it before the design): progress lines ("  ... design: <stage> (<t> s CPU)") on stderr while it
+    work, depending on the machine; the memory limit raised for the design's own stages): progress lines
+    ("  ... design: <stage> (<t> s CPU)") on stderr while it
     runs, at least three of them spread over at least 1 s, and no silence longer than 3/4 of the
     command's wall time (a silent design prints everything at its end: a silence of the whole run). The
     interval itself is tested with a fake clock in tests/test_scale_design.py."""

@@ -46,8 +46,10 @@ def baseline_cmd(problem_file, example, backend, seeds, steps, update, formulati
         raise ProblemError("problem", "a problem with n = 2 (the feasible region is gridded in the plane)",
                            f"n = {spec.problem.n}")
     require_scenario(spec)
-    check_run_size(spec, spec.scenario.steps if steps is None else steps, None, max_memory)
+    run_steps = spec.scenario.steps if steps is None else steps
+    check_run_size(spec, run_steps, None, max_memory, formulation=formulation)
     d = design(spec.problem, spec.design, backend=backend)
+    check_run_size(spec, run_steps, None, max_memory, design=d, formulation=formulation)
     res = run_baseline(spec, d, seeds=seeds, steps=steps, backend=backend, formulation=formulation, update=update,
                        grid=grid or DEFAULT_GRID)
     (a1, b1), (a2, b2) = DEFAULT_BOX

@@ -49,16 +49,14 @@ def load_problem_spec(problem_file: str | None, example: str | None):
 
 def check_run_size(spec, steps: int, online=None, max_memory_mb: float = DEFAULT_MAX_MEMORY_MB, design=None,
                    formulation: str = "plain"):
-    """Refuse a run whose estimated size exceeds ``--max-memory`` before anything is built, and again with
-    ``design`` (the design found) before the controller is built, for the ``formulation`` of (20) the run
-    uses (:func:`amcp_drake.model.limits.check_run_size`); returns the estimate."""
-    from amcp_drake.model.limits import check_run_size as check
+    """The run-size check of every command that runs the tube QP (20): refuse a run whose estimated size
+    exceeds ``--max-memory``, before the design (``design`` None) and again with the design found before
+    the controller is built, for the form of (20) the run will use (``formulation``, "auto" resolved
+    first: :func:`amcp_drake.online.run_size.check_run_size`); returns the estimate. ``amcp design``
+    builds no run and does not call it."""
+    from amcp_drake.online.run_size import check_run_size as check
 
     online = online if online is not None else spec.online
-    if design is not None and formulation == "auto":
-        from amcp_drake.online.formulation_choice import resolved_formulation
-
-        formulation = resolved_formulation(formulation, spec.problem, design, online)
     return check(spec.problem, spec.design, steps, online, max_memory_mb, design=design, formulation=formulation)
 
 
@@ -131,9 +129,17 @@ def parse_range(option: str, text: str, low: int, high: int) -> tuple[int, ...]:
 
 max_memory_option = click.option(
     "--max-memory", "max_memory", type=FiniteFloatRange(min=1.0), default=DEFAULT_MAX_MEMORY_MB, show_default=True,
-    help="Refuse a run whose estimated size (tube QP nonzeros, recorded steps; docs/problem-format.md, "
-         "'Size limits') exceeds this many MiB, before anything is built; every stage of the offline design is "
-         "sized against the same limit (a design candidate above it is skipped, with the stage named).")
+    help="Refuse a run whose estimated size (tube QP nonzeros in the form of (20) the run uses, recorded steps; "
+         "docs/problem-format.md, 'Size limits') exceeds this many MiB, before anything is built; every stage of "
+         "the offline design is sized against the same limit (a design candidate above it is skipped, with the "
+         "stage named).")
+
+#: ``amcp design``'s --max-memory: the design builds no run, so only its own stages are sized.
+design_max_memory_option = click.option(
+    "--max-memory", "max_memory", type=FiniteFloatRange(min=1.0), default=DEFAULT_MAX_MEMORY_MB, show_default=True,
+    help="Memory limit of the offline design in MiB: every stage of it is sized against this limit before it "
+         "allocates (a candidate above it is skipped, with the stage named). The size of a later run is checked "
+         "by the command that runs it, in the form of (20) it uses.")
 
 
 candidate_budget_option = click.option(

@@ -89,7 +89,7 @@ def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, po
             raise ProblemError("--adapt-x0", f"{pr.n} numbers separated by commas", repr(adapt_x0)) from None
         if len(adapt_x0) != pr.n:
             raise ProblemError("--adapt-x0", f"{pr.n} numbers separated by commas", f"{len(adapt_x0)} numbers")
-    check_run_size(spec, 1, online, max_memory)
+    check_run_size(spec, 1, online, max_memory, formulation=formulation)
     d = design(pr, spec.design, backend=backend, budget=design_budget(max_memory, candidate_budget, quiet=no_progress, progress_every=progress_every))
     check_run_size(spec, 1, online, max_memory, design=d, formulation=formulation)  # the QPs' size with the design found
 

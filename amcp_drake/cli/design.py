@@ -13,11 +13,10 @@ from amcp_drake.cli.common import (
     backend_option,
     bad_input_exits_2,
     candidate_budget_option,
-    check_run_size,
     design_budget,
+    design_max_memory_option,
     exit_verdict,
     load_problem_spec,
-    max_memory_option,
     problem_options,
     progress_every_option,
     with_x0_template,
@@ -32,7 +31,7 @@ def _fmt(a) -> str:
 @problem_options()
 @backend_option
 @click.option("--json", "as_json", is_flag=True, help="Print the design and checks as JSON.")
-@max_memory_option
+@design_max_memory_option
 @candidate_budget_option
 @progress_every_option
 @bad_input_exits_2
@@ -43,7 +42,6 @@ def design_cmd(problem_file, example, x0_template, backend, as_json, max_memory,
 
     spec = with_x0_template(load_problem_spec(problem_file, example), x0_template)
     pr = spec.problem
-    check_run_size(spec, 1, None, max_memory)  # the design builds the tube QP's sets, not a run
     d = design(pr, spec.design, backend=backend, budget=design_budget(max_memory, candidate_budget, progress_every=progress_every))
     checks = verify_design(pr, d, spec.design.mu_state_bound)
     ok = all(c.passed for c in checks)

@@ -25,13 +25,12 @@ def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: s
     ``design_budget``: the :class:`~amcp_drake.offline.budget.DesignBudget` of the design (memory limit,
     time budget per candidate, progress lines; None: the default limit, silent); with a budget, the run's
     size is estimated again for the design found and refused above its memory limit
-    (:func:`~amcp_drake.model.limits.check_run_size` with the design).
+    (:func:`~amcp_drake.online.run_size.check_run_size` with the design, in the form it will use).
     """
     from amcp_drake.model.errors import InconsistentDataError, ProblemError
-    from amcp_drake.model.limits import check_run_size
     from amcp_drake.offline.design import design
     from amcp_drake.online.controller import AdaptiveMPC
-    from amcp_drake.online.formulation_choice import resolved_formulation
+    from amcp_drake.online.run_size import check_run_size
     from amcp_drake.online.simulate import simulate
 
     sc = spec.scenario
@@ -46,7 +45,7 @@ def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: s
         offline = design(spec.problem, spec.design, backend=design_backend or backend, budget=design_budget)
         if design_budget is not None:  # the run's size with the design found, before the controller is built
             check_run_size(spec.problem, spec.design, steps, options, design_budget.max_memory_mb, design=offline,
-                           formulation=resolved_formulation(formulation, spec.problem, offline, options))
+                           formulation=formulation)
     ctrl = AdaptiveMPC(spec.problem, offline, backend=backend, options=options, formulation=formulation,
                        max_memory_mb=None if design_budget is None else design_budget.max_memory_mb)
     try:
