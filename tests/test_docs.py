@@ -102,3 +102,32 @@ def test_plain_math_escapes_subscript_bars_in_table_rows_outside_code():
     row = "| `tube` | x_k ∈ X_{0|k} and X_{l+1|k} | `{a|b}` | min |"
     assert pm.escape_subscript_bars(row) == r"| `tube` | x_k ∈ X_{0\|k} and X_{l+1\|k} | `{a|b}` | min |"
     assert pm.escape_subscript_bars(r"| X_{0\|k} |") == r"| X_{0\|k} |"  # already escaped: unchanged
+
+
+EXIT_CODE_PAGES = [ROOT / "README.md", ROOT / "docs" / "getting-started.md", ROOT / "docs" / "reference" / "cli.md",
+                   ROOT / "docs" / "certificate.md"]
+
+
+@pytest.mark.parametrize("path", EXIT_CODE_PAGES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_page_that_lists_exit_codes_lists_all_four(path):
+    """The CLI's exit codes (cli/common.py) are 0, 1, 2 and 3 (certify's premise not met); a page that
+    explains them names each one with its meaning."""
+    from amcp_drake.cli import common
+
+    text = " ".join(path.read_text(encoding="utf-8").split())
+    assert common.EXIT_PREMISE_NOT_MET == 3
+    for code, word in [(0, "claim"), (1, "fail"), (2, "bad"), (3, "premise")]:
+        assert re.search(rf"(\b{code}\b.{{0,80}}{word})|({word}.{{0,80}}\b{code}\b)", text, re.IGNORECASE), \
+            f"{path.name} does not explain exit code {code}"
+
+
+def test_license_and_citation_files_exist_and_agree_with_the_project_metadata():
+    """LICENSE holds the licence pyproject.toml declares; CITATION.cff names the paper's DOI and the version."""
+    import tomllib
+
+    meta = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]
+    assert meta["license"] == "BSD-3-Clause"
+    assert "BSD 3-Clause License" in (ROOT / "LICENSE").read_text(encoding="utf-8")
+    cff = (ROOT / "CITATION.cff").read_text(encoding="utf-8")
+    assert f"version: {meta['version']}" in cff
+    assert "doi: 10.1016/j.automatica.2019.02.023" in cff
