@@ -10,7 +10,9 @@ from amcp_drake.cli.common import (
     backend_option,
     bad_input_exits_2,
     check_run_size,
+    design_file_option,
     exit_verdict,
+    load_design_file,
     load_problem_spec,
     max_memory_option,
     problem_options,
@@ -22,6 +24,7 @@ from amcp_drake.cli.common import (
 
 @click.command("baseline")
 @problem_options(x0_template=False)
+@design_file_option
 @backend_option
 @seeds_option("Number of disturbance seeds (0..seeds-1).", default=20)
 @steps_option("Steps per run (default: the problem's scenario).")
@@ -33,7 +36,7 @@ from amcp_drake.cli.common import (
               help="Grid points per axis for the feasible region (default 31).")
 @max_memory_option
 @bad_input_exits_2
-def baseline_cmd(problem_file, example, backend, seeds, steps, update, formulation, grid, max_memory):
+def baseline_cmd(problem_file, example, design_file, backend, seeds, steps, update, formulation, grid, max_memory):
     """Closed-loop cost, tube size and feasible region of x0: adaptive vs robust, over many seeds."""
     import numpy as np
 
@@ -47,8 +50,10 @@ def baseline_cmd(problem_file, example, backend, seeds, steps, update, formulati
                            f"n = {spec.problem.n}")
     require_scenario(spec)
     run_steps = spec.scenario.steps if steps is None else steps
-    check_run_size(spec, run_steps, None, max_memory, formulation=formulation)
-    d = design(spec.problem, spec.design, backend=backend)
+    d = load_design_file(spec, design_file)
+    if d is None:
+        check_run_size(spec, run_steps, None, max_memory, formulation=formulation)
+        d = design(spec.problem, spec.design, backend=backend)
     check_run_size(spec, run_steps, None, max_memory, design=d, formulation=formulation)
     res = run_baseline(spec, d, seeds=seeds, steps=steps, backend=backend, formulation=formulation, update=update,
                        grid=grid or DEFAULT_GRID)

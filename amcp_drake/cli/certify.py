@@ -22,6 +22,7 @@ from amcp_drake.cli.common import (
     bad_input_exits_2,
     candidate_budget_option,
     design_budget,
+    design_file_option,
     exit_verdict,
     formulation_option,
     interruptible,
@@ -32,6 +33,7 @@ from amcp_drake.cli.common import (
     prepare_run,
     problem_options,
     progress_every_option,
+    scenario_options,
     seed_option,
     steps_option,
     write_error,
@@ -40,11 +42,13 @@ from amcp_drake.cli.common import (
 
 @click.command("certify")
 @problem_options()
+@design_file_option
 @backend_option
 @click.option("--design-backend", "design_backend", type=click.Choice(["drake", "cvxpy"]), default=None,
               help="Backend of the offline design (default: --backend). A campaign replay names the one the "
                    "campaign used.")
 @formulation_option
+@scenario_options
 @steps_option("Closed-loop steps (default: the scenario's; 50 for Example 1).")
 @seed_option("Seed of the disturbance sequence (default: the scenario's; 0 for Example 1).")
 @click.option("--out", "out_dir", default="amcp-out", show_default=True, type=click.Path(), callback=output_dir_callback,
@@ -59,8 +63,9 @@ from amcp_drake.cli.common import (
 @interruptible(lambda kw, exc: f"nothing written to {kw['out_dir']} (its staging folder was removed); "
                "run the command again")
 @bad_input_exits_2
-def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend, formulation, steps, seed, out_dir,
-                trajectory_file, online, max_memory, candidate_budget, progress_every):
+def certify_cmd(ctx, problem_file, example, x0_template, design_file, backend, design_backend, formulation, x0,
+                theta_star, steps, seed, out_dir, trajectory_file, online, max_memory, candidate_budget,
+                progress_every):
     """Run a closed loop and check every claim of the paper independently.
 
     Runs the adaptive MPC on PROBLEM (default: --example lorenzen2019, x0 = [2, 3],
@@ -83,22 +88,27 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
         from click.core import ParameterSource
 
         run_options = ("backend", "design_backend", "steps", "seed", *ONLINE_OPTION_NAMES, "max_memory", "x0_template",
-                       "candidate_budget", "progress_every")
-        given = [f"--{name.replace('_', '-')}" for name in run_options
+                       "candidate_budget", "progress_every", "design_file", "x0", "theta_star")
+        flag = {"design_file": "design", "theta_star": "theta-star"}
+        given = [f"--{flag.get(name, name.replace('_', '-'))}" for name in run_options
                  if ctx.get_parameter_source(name) is ParameterSource.COMMANDLINE]
         if given:
             raise ProblemError(", ".join(given), "no run options together with --trajectory (the run is not repeated)",
                                "both")
         traj, spec = _load_trajectory(trajectory_file, problem_file, example)
     else:
-        spec, steps, options = prepare_run(problem_file, example, x0_template, steps, online, max_memory,
-                                           "a scenario (x0, theta_star, ...) in the problem file to run",
-                                           "Add a \"scenario\" object, or pass --trajectory.",
-                                           formulation=formulation)
+        if design_file is not None and design_backend is not None:
+            raise ProblemError("--design-backend, --design", "at most one of them (the design file is not designed "
+                               "again)", "both")
+        spec, steps, options, offline = prepare_run(
+            problem_file, example, x0_template, steps, online, max_memory,
+            "a scenario (x0, theta_star, ...) in the problem file to run",
+            "Add a \"scenario\" object, pass --x0 and --theta-star, or pass --trajectory.",
+            formulation=formulation, design_file=design_file, x0=x0, theta_star=theta_star)
         seed = spec.scenario.seed if seed is None else seed
         try:
             traj = _run(spec, backend, steps, seed, formulation, options, design_backend,
-                        design_budget(max_memory, candidate_budget, progress_every=progress_every))
+                        design_budget(max_memory, candidate_budget, progress_every=progress_every), offline)
         except DesignError as exc:
             broken = _assumption_8_broken_by_the_given_gain(exc, spec)
             if broken is None:
@@ -145,13 +155,14 @@ def _with_robust_baseline(traj, cert):
 
 
 def _run(spec, backend: str, steps: int, seed: int, formulation: str = "plain", options=None,
-         design_backend: str | None = None, budget=None):
-    """Offline design, then the closed loop with a progress bar (Drake/cvxpy imported only here); the
-    same path as a campaign run (:func:`amcp_drake.online.replay.run_scenario`), so a replay is exact."""
+         design_backend: str | None = None, budget=None, offline=None):
+    """Offline design (unless ``offline``, a loaded --design, is given), then the closed loop with a
+    progress bar (Drake/cvxpy imported only here); the same path as a campaign run
+    (:func:`amcp_drake.online.replay.run_scenario`), so a replay is exact."""
     from amcp_drake.online.replay import run_scenario
 
     return run_scenario(spec, backend, design_backend=design_backend, formulation=formulation, steps=steps,
-                        seed=seed, options=options, progress=True, design_budget=budget)
+                        seed=seed, options=options, progress=True, design_budget=budget, offline=offline)
 
 
 def _assumption_8_broken_by_the_given_gain(exc: Exception, spec) -> str | None:

@@ -267,6 +267,92 @@ formulation_option = click.option(
          "multiple of the plain form's, the plain form when an option needs it (docs/decisions.md, 'The formulation of the tube QP'). "
          "Use auto or vertex from about 4 states on.")
 
+design_file_option = click.option(
+    "--design", "design_file", default=None, type=click.Path(dir_okay=False),
+    help="Use the design saved by 'amcp design PROBLEM --out FILE' instead of designing: refused (exit 2) when it "
+         "was made for another problem (SHA-256 of the canonical problem) or fails any independent check of the "
+         "offline design, which are run again on loading. Nothing is redesigned.")
+
+
+def load_design_file(spec, design_file: str | None, quiet: bool = False):
+    """The OfflineDesign of ``--design`` for ``spec`` (checked: :func:`amcp_drake.offline.design_file.load_design`),
+    or None when no file is given; one line on stderr says it is used."""
+    if design_file is None:
+        return None
+    from amcp_drake.offline.design_file import load_design
+
+    if not str(design_file).strip():
+        raise ProblemError("--design", "the path of a design file", "an empty string")
+    d = load_design(design_file, spec)
+    if not quiet:
+        click.echo(f"design: {design_file} (problem SHA-256 matches; every design check passes; not redesigned)",
+                   err=True)
+    return d
+
+
+def parse_vector(option: str, text: str | None, size: int):
+    """``text`` ("1.5,-2,0") as a float vector of length ``size``, every entry finite; ProblemError naming
+    ``option`` otherwise. None stays None."""
+    import math
+
+    import numpy as np
+
+    if text is None:
+        return None
+    expected = f"{size} finite numbers separated by commas"
+    try:
+        values = [float(part) for part in str(text).split(",")]
+    except ValueError:
+        raise ProblemError(option, expected, repr(text)) from None
+    if len(values) != size:
+        raise ProblemError(option, expected, f"{len(values)} number(s): {text!r}")
+    bad = [v for v in values if not math.isfinite(v)]
+    if bad:
+        raise ProblemError(option, expected, f"{text!r} (not finite: {bad[0]!r})")
+    return np.array(values, dtype=float)
+
+
+def scenario_options(func: Callable) -> Callable:
+    """``--x0`` and ``--theta-star``: the initial state and the true parameter of the run, replacing the
+    problem file's scenario values (:func:`with_scenario`)."""
+    func = click.option("--theta-star", "theta_star", default=None, metavar="T1,T2,...",
+                        help="True parameter θ* of the run (p comma-separated numbers, a point of Θ); default: "
+                             "the problem file's scenario.")(func)
+    return click.option("--x0", "x0", default=None, metavar="X1,X2,...",
+                        help="Initial state of the run (n comma-separated numbers); default: the problem file's "
+                             "scenario.")(func)
+
+
+def with_scenario(spec, x0: str | None, theta_star: str | None):
+    """``spec`` with ``--x0`` / ``--theta-star`` replacing its scenario's x0 / θ* (a constant θ*), each
+    checked (length, finite, θ* ∈ Θ) with errors naming the option. Without a scenario in the file both
+    options make one (50 steps, uniform disturbance, seed 0)."""
+    import dataclasses
+
+    from amcp_drake.model import polytope
+    from amcp_drake.model.problem import THETA_HAT0_TOL, Scenario
+
+    if x0 is None and theta_star is None:
+        return spec
+    pr = spec.problem
+    x0_vec = parse_vector("--x0", x0, pr.n)
+    theta_vec = parse_vector("--theta-star", theta_star, pr.p)
+    if theta_vec is not None:
+        violation = polytope.max_violation(pr.H_theta, pr.h_theta, theta_vec)
+        if violation > THETA_HAT0_TOL:
+            raise ProblemError("--theta-star", "a point of Theta (Assumption 1)", f"{theta_star!r}, outside by {violation:.3g}")
+    sc = spec.scenario
+    if sc is None:
+        if x0_vec is None or theta_vec is None:
+            raise ProblemError("scenario", SCENARIO_EXPECTED, "none", "Add a \"scenario\" object, or pass both --x0 "
+                               "and --theta-star.")
+        scenario = Scenario(x0_vec, theta_vec)
+    else:
+        scenario = dataclasses.replace(sc, x0=sc.x0 if x0_vec is None else x0_vec,
+                                       theta_star=sc.theta_star if theta_vec is None else theta_vec)
+    return dataclasses.replace(spec, scenario=scenario)
+
+
 def update_options(func):
     """--update, --window, --projection (the online set update and LMS projection; defaults: the
     file's online section). ``--update none`` is the robust baseline (Θ_k ≡ Θ, θ̂_k ≡ θ̂0)."""
@@ -359,20 +445,28 @@ def require_scenario(spec, expected: str = SCENARIO_EXPECTED, fix: str = ""):
 class RunSetup(NamedTuple):
     """What a closed-loop command has decided before anything is built (:func:`prepare_run`)."""
 
-    spec: object  #: the ProblemSpec (PROBLEM or --example, with --x0-template applied)
+    spec: object  #: the ProblemSpec (PROBLEM or --example, with --x0-template, --x0, --theta-star applied)
     steps: int  #: --steps, else the scenario's
     options: object  #: the OnlineOptions: the file's online section with the options given replacing it
+    design: object = None  #: the OfflineDesign of --design (checked), or None: the command designs
 
 
 def prepare_run(problem_file: str | None, example: str | None, x0_template: str | None, steps: int | None,
                 online: dict, max_memory: float, scenario_expected: str = SCENARIO_EXPECTED,
-                scenario_fix: str = "", formulation: str = "plain") -> RunSetup:
-    """The set-up of ``amcp run``, ``certify`` and ``compare``: load the problem, apply --x0-template,
-    require a scenario, take the steps from it unless --steps is given, resolve the online options,
-    and refuse a run larger than --max-memory (:func:`check_run_size`, for ``formulation``), in this order."""
+                scenario_fix: str = "", formulation: str = "plain", design_file: str | None = None,
+                x0: str | None = None, theta_star: str | None = None) -> RunSetup:
+    """The set-up of ``amcp run``, ``certify`` and ``compare``: load the problem, apply --x0-template
+    (refused together with --design), --x0 and --theta-star, require a scenario, take the steps from it
+    unless --steps is given, resolve the online options, load and check --design, and refuse a run
+    larger than --max-memory (:func:`check_run_size`, for ``formulation``, with the design when one is
+    given), in this order."""
+    if design_file is not None and x0_template is not None:
+        raise ProblemError("--x0-template, --design", "at most one of them (the design file fixes X0)", "both")
     spec = with_x0_template(load_problem_spec(problem_file, example), x0_template)
+    spec = with_scenario(spec, x0, theta_star)
     scenario = require_scenario(spec, scenario_expected, scenario_fix)
     steps = scenario.steps if steps is None else steps
     options = resolve_online(spec, **online)
-    check_run_size(spec, steps, options, max_memory, formulation=formulation)
-    return RunSetup(spec, steps, options)
+    d = load_design_file(spec, design_file)
+    check_run_size(spec, steps, options, max_memory, design=d, formulation=formulation)
+    return RunSetup(spec, steps, options, d)

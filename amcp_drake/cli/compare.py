@@ -10,6 +10,7 @@ import click
 # list and the decorators below only name it, with this command's own defaults and help texts.
 from amcp_drake.cli.common import (
     bad_input_exits_2,
+    design_file_option,
     exit_verdict,
     formulation_option,
     max_memory_option,
@@ -17,6 +18,7 @@ from amcp_drake.cli.common import (
     output_file_callback,
     prepare_run,
     problem_options,
+    scenario_options,
     seed_option,
     steps_option,
 )
@@ -24,6 +26,8 @@ from amcp_drake.cli.common import (
 
 @click.command("compare")
 @problem_options()
+@design_file_option
+@scenario_options
 @steps_option("Steps (default: the scenario's).")
 @seed_option("Disturbance seed (default: the scenario's).")
 @click.option("--mode", type=click.Choice(["lockstep", "independent"]), default="lockstep", show_default=True)
@@ -44,8 +48,8 @@ from amcp_drake.cli.common import (
 @click.option("--quiet", is_flag=True, help="Only the summary, no per-step table.")
 @max_memory_option
 @bad_input_exits_2
-def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_solver, cvxpy_solver, accurate, online,
-                out_file, formulation, allow_fallbacks, quiet, max_memory):
+def compare_cmd(problem_file, example, x0_template, design_file, x0, theta_star, steps, seed, mode, drake_solver,
+                cvxpy_solver, accurate, online, out_file, formulation, allow_fallbacks, quiet, max_memory):
     """Compare u, v, cost, h_theta and theta_hat (and report z, alpha) of both backends per step."""
     from amcp_drake.comparison.compare import ACCURATE_CLARABEL, INFORMATIONAL, TOLERANCES, independent, lockstep
     from amcp_drake.model.errors import ProblemError
@@ -55,14 +59,16 @@ def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_sol
         raise ProblemError("--accurate", "Clarabel in both backends (--drake-solver clarabel --cvxpy-solver CLARABEL)",
                            f"--drake-solver {drake_solver} --cvxpy-solver {cvxpy_solver}")
 
-    spec, steps, options = prepare_run(problem_file, example, x0_template, steps, online, max_memory,
-                                       formulation=formulation)
+    spec, steps, options, offline = prepare_run(problem_file, example, x0_template, steps, online, max_memory,
+                                                formulation=formulation, design_file=design_file, x0=x0,
+                                                theta_star=theta_star)
     seed = spec.scenario.seed if seed is None else seed
     tolerances = {"solver_options": dict(ACCURATE_CLARABEL)} if accurate else {}
     backend_options = ({"solver": drake_solver, "formulation": formulation, **tolerances},
                        {"solver": cvxpy_solver, "formulation": formulation, **tolerances})
     run = lockstep if mode == "lockstep" else independent
-    comp = run(spec, steps, seed, options=options, backend_options=backend_options, allow_fallbacks=allow_fallbacks)
+    comp = run(spec, steps, seed, options=options, backend_options=backend_options, allow_fallbacks=allow_fallbacks,
+               offline=offline)
 
     if not quiet:
         per_step: dict[int, dict[str, float]] = defaultdict(dict)

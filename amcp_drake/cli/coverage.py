@@ -13,8 +13,10 @@ from amcp_drake.cli.common import (
     candidate_budget_option,
     check_run_size,
     design_budget,
+    design_file_option,
     exit_verdict,
     interruptible,
+    load_design_file,
     load_problem_spec,
     max_memory_option,
     problem_options,
@@ -25,6 +27,7 @@ from amcp_drake.cli.common import (
 
 @click.command("coverage")
 @problem_options(x0_template=False)
+@design_file_option
 @backend_option
 @click.option("--formulation", type=click.Choice(["plain", "vertex"]), default="vertex", show_default=True,
               help="Tube QP: plain (15) with multipliers, or the exact vertex form.")
@@ -48,7 +51,7 @@ from amcp_drake.cli.common import (
 @interruptible(lambda kw, exc: f"nothing new written to {kw['out_dir']} (each file is written whole or not at all); "
                "run the command again")
 @bad_input_exits_2
-def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, points_file, adapt_steps, adapt_x0,
+def coverage_cmd(problem_file, example, design_file, backend, formulation, grid, box_text, points_file, adapt_steps, adapt_x0,
                  update, window, projection, out_dir, no_progress, max_memory, candidate_budget, progress_every):
     """Feasible fraction of a grid of initial states (QP (20), confirmed by an LP).
 
@@ -89,9 +92,12 @@ def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, po
             raise ProblemError("--adapt-x0", f"{pr.n} numbers separated by commas", repr(adapt_x0)) from None
         if len(adapt_x0) != pr.n:
             raise ProblemError("--adapt-x0", f"{pr.n} numbers separated by commas", f"{len(adapt_x0)} numbers")
-    check_run_size(spec, 1, online, max_memory, formulation=formulation)
-    d = design(pr, spec.design, backend=backend, budget=design_budget(max_memory, candidate_budget, quiet=no_progress, progress_every=progress_every))
-    check_run_size(spec, 1, online, max_memory, design=d, formulation=formulation)  # the QPs' size with the design found
+    d = load_design_file(spec, design_file, quiet=no_progress)
+    if d is None:
+        check_run_size(spec, 1, online, max_memory, formulation=formulation)
+        d = design(pr, spec.design, backend=backend,
+                   budget=design_budget(max_memory, candidate_budget, quiet=no_progress, progress_every=progress_every))
+    check_run_size(spec, 1, online, max_memory, design=d, formulation=formulation)  # the QPs' size with the design
 
     def progress_factory(total, label):
         if no_progress:

@@ -17,6 +17,7 @@ from amcp_drake.cli.common import (
     design_max_memory_option,
     exit_verdict,
     load_problem_spec,
+    output_file_callback,
     problem_options,
     progress_every_option,
     with_x0_template,
@@ -31,11 +32,15 @@ def _fmt(a) -> str:
 @problem_options()
 @backend_option
 @click.option("--json", "as_json", is_flag=True, help="Print the design and checks as JSON.")
+@click.option("--out", "out_file", type=click.Path(), default=None, callback=output_file_callback,
+              help="Write the design, with the SHA-256 of the canonical problem it belongs to, to this JSON file "
+                   "when every design check passes (run, certify, compare, coverage and baseline reuse it with "
+                   "--design FILE).")
 @design_max_memory_option
 @candidate_budget_option
 @progress_every_option
 @bad_input_exits_2
-def design_cmd(problem_file, example, x0_template, backend, as_json, max_memory, candidate_budget, progress_every):
+def design_cmd(problem_file, example, x0_template, backend, as_json, out_file, max_memory, candidate_budget, progress_every):
     """Compute K, P, X0, w_bar, f_bar, Xf and mu ((11), (14), (16), Appendix A.1) and verify them independently."""
     from amcp_drake.offline.checks import verify_design
     from amcp_drake.offline.design import design
@@ -75,4 +80,22 @@ def design_cmd(problem_file, example, x0_template, backend, as_json, max_memory,
             click.echo(f"{c.name:28s} {c.status:8s} {margin:>12s} {c.tolerance:9.1e}  {c.detail}")
         click.echo("")
         click.echo("all design checks pass" if ok else "SOME DESIGN CHECKS FAILED")
+    if out_file is not None:
+        _save(spec, d, out_file, ok)
     exit_verdict(ok)
+
+
+def _save(spec, d, out_file: str, ok: bool) -> None:
+    """Write the design file (offline/design_file.py) when every check passed; say so on stderr."""
+    from amcp_drake.cli.common import write_error
+    from amcp_drake.model.problem_hash import spec_hash
+    from amcp_drake.offline.design_file import save_design
+
+    if not ok:
+        click.echo(f"design not written to {out_file}: a design check failed", err=True)
+        return
+    try:
+        save_design(spec, d, out_file)
+    except OSError as exc:
+        raise write_error("--out", out_file, exc) from None
+    click.echo(f"design written to {out_file} (problem SHA-256 {spec_hash(spec)})", err=True)
