@@ -38,6 +38,7 @@ _LAZY = {
     "OnlineOptions": "amcp_drake.model.options",
     "simulate": "amcp_drake.online.simulate",
     "Trajectory": "amcp_drake.online.simulate",
+    "measured_trajectory": "amcp_drake.online.measured",
     "certify": "amcp_drake.certificate.certify",
     "available_backends": "amcp_drake.backends",
     "get_backend": "amcp_drake.backends",

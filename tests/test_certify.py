@@ -35,7 +35,7 @@ ALL_IDS = [
     "design.terminal_cost_16", "design.assumption_8", "design.x0_contractive", "design.x0_robustly_invariant",
     "design.w_bar_f_bar_recomputed", "design.x_f_non_empty", "design.x_f_invariant", "design.x_f_in_z",
     "design.mu_condition_11", "design.x0_vertices",
-    "theta_star_in_Theta", "w_in_W", "model_consistent", "control_law", "mu_precondition",
+    "theta_star_in_Theta", "w_in_W", "model_consistent", "data_consistency", "control_law", "mu_precondition",
     "recursive_feasibility", "theta_star_in_Theta_k", "theta_hat_in_Theta", "state_input_constraints",
     "Theta0_contains_Theta", "Theta_k_nested", "Theta_k_lower_inclusion",
     "lms_update", "lemma5",
@@ -165,7 +165,9 @@ def test_state_pushed_outside_z(recorded, spec):
     * the recorded cost of step T is no longer (17): the nominal prediction (18) starts at x_T;
     * the recorded tube of step T is not a minimiser of the QP (20) at the new x_T: it is not even
       feasible for it ((15b) holds x_T), so qp_optimality fails on primal infeasibility.
-    Θ_(T-1) ∩ Δ_T is then empty, so the Lemma 3 inclusion holds vacuously (reported in its detail).
+    Θ_(T-1) ∩ Δ_T is then empty, so the Lemma 3 inclusion holds vacuously (reported in its detail), and the
+    model-consistency claim fails at T. The two guarantees that rest on consistent data, (x_k, u_k) ∈ Z and
+    x_T ∈ X_1|T-1, are then not run, their own check's failure at T kept in their data (found_status).
     """
     tr = fresh(recorded)
     T, last = STEPS, tr.records[-1]
@@ -176,12 +178,17 @@ def test_state_pushed_outside_z(recorded, spec):
     last.x = x.copy()
     last.u = tr.design.K @ x + last.v[0]
     cert = certify(tr, spec)
-    assert_fails_exactly(cert, {"state_input_constraints", "tube_contains_state", "tube_contains_next_state",
-                                "model_consistent", "lms_update", "cost_value", "qp_optimality"})
+    rests = {"state_input_constraints", "tube_contains_next_state"}
+    failed = {"tube_contains_state", "model_consistent", "data_consistency", "lms_update", "cost_value", "qp_optimality"}
+    assert set(cert.ids("fail")) == failed and set(cert.ids("not_run")) == rests
+    assert set(cert.ids("pass")) == set(ALL_IDS) - failed - rests and cert.verdict == "fail"
+    assert cert.claim("data_consistency").data["first_failing_step"] == T
     assert cert.claim("qp_optimality").data["worst_step"] == T
+    for claim_id in rests:
+        assert cert.claim(claim_id).data["found_status"] == "fail"
     z_claim = cert.claim("state_input_constraints")
-    assert z_claim.data["worst_step"] == T
-    assert z_claim.margin == pytest.approx(1.0 + x[1] / 0.3, abs=1e-9)  # row x2 >= −0.3 is −x2/0.3 <= 1
+    assert z_claim.data["per_step"][-1][0] == T
+    assert z_claim.data["found_margin"] == pytest.approx(1.0 + x[1] / 0.3, abs=1e-9)  # row x2 >= −0.3: −x2/0.3 <= 1
     assert cert.claim("Theta_k_lower_inclusion").data["empty_steps"] == [T]
 
 

@@ -77,7 +77,7 @@ def test_default_run_certifies_example_1(tmp_path):
     run = data["run"]
     assert (run["steps"], run["seed"], run["backend"]) == (50, 0, "drake")
     assert run["x0"] == [2.0, 3.0] and run["theta_star"] == [0.8, 0.2, -0.5]
-    assert "CERTIFIED: all 35 claims hold" in result.stdout
+    assert "CERTIFIED: all 36 claims hold" in result.stdout
     for claim in data["claims"]:
         assert claim["id"] in result.stdout
     # the robust baseline beside the run: recorded apart from the claims, its adaptive cost that of the

@@ -47,12 +47,13 @@ from typing import Any
 import numpy as np
 
 from amcp_drake import __version__
+from amcp_drake.certificate import consistency
 from amcp_drake.certificate import premises as premise_checks
 from amcp_drake.certificate.claims import RunView, run_checks, tag
 from amcp_drake.certificate.optimality import qp_optimality
 from amcp_drake.certificate.section4 import cost_value, excitation_checks, pe_figure
 from amcp_drake.certificate.tube import GROUP_DESIGN, tube_checks, x0_vertex_list
-from amcp_drake.model.check_result import FAIL, NOT_RUN, PASS, CheckResult, not_run
+from amcp_drake.model.check_result import FAIL, NOT_APPLICABLE, NOT_RUN, PASS, CheckResult, not_run
 from amcp_drake.model.errors import TrajectoryError
 from amcp_drake.model.problem import ProblemSpec
 from amcp_drake.model.problem_io import jsonable
@@ -104,6 +105,8 @@ class Certificate:
     solver_answers: dict[str, Any] = field(default_factory=dict)
     #: the ``premises`` section (:mod:`amcp_drake.certificate.premises`)
     premises: list[dict[str, Any]] = field(default_factory=list)
+    #: the ``provenance`` section (:mod:`amcp_drake.certificate.provenance`), set when the bundle is written
+    provenance: dict[str, Any] = field(default_factory=dict)
 
     @property
     def premises_not_met(self) -> list[dict[str, Any]]:
@@ -124,9 +127,16 @@ class Certificate:
         return list(self.run.get("not_claimed", []))
 
     @property
+    def measured(self) -> bool:
+        """True for a measured run (θ* and w unknown): its θ*/w claims are ``not_applicable``."""
+        return bool(self.run.get("measured"))
+
+    @property
     def passed(self) -> bool:
-        """True only when every claim passed (``not_run`` is not a pass) and every premise is met."""
-        return bool(self.claims) and all(c.status == PASS for c in self.claims) and not self.premises_not_met
+        """True only when every applicable claim passed (``not_run`` is not a pass; ``not_applicable``, a
+        θ*/w claim of a measured run, is neither) and every premise is met."""
+        applicable = [c for c in self.claims if c.status != NOT_APPLICABLE]
+        return bool(applicable) and all(c.status == PASS for c in applicable) and not self.premises_not_met
 
     @property
     def verdict(self) -> str:
@@ -151,7 +161,7 @@ class Certificate:
         return [c.data["id"] for c in self.claims if status is None or c.status == status]
 
     def counts(self) -> dict[str, int]:
-        return {s: sum(c.status == s for c in self.claims) for s in (PASS, FAIL, NOT_RUN)}
+        return {s: sum(c.status == s for c in self.claims) for s in (PASS, FAIL, NOT_RUN, NOT_APPLICABLE)}
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON layout of certificate.json (schema: ``data/certificate.schema.json``)."""
@@ -162,6 +172,7 @@ class Certificate:
             "premises": self.premises, "claims": [claim_to_dict(c) for c in self.claims],
             "backend_conformance": self.conformance, "solver_answers": self.solver_answers,
             "figures": self.figures, "series": self.series,
+            **({"provenance": self.provenance} if self.provenance else {}),
         })
 
 
@@ -200,7 +211,10 @@ def certify(traj: Trajectory, problem_spec: ProblemSpec | None = None) -> Certif
     claims = _design_claims(traj, state_bound)
     view = RunView(traj)
     run, lemma = run_checks(view, state_bound)
+    at = next(i for i, c in enumerate(run) if c.data["id"] == "model_consistent") + 1
+    run.insert(at, consistency.data_consistency(view))
     claims += run + tube_checks(view) + [cost_value(view), qp_optimality(view)] + excitation_checks(view)
+    claims = consistency.apply(claims)
     figures, series = _figures(view, lemma)
     info = _run_info(traj, state_bound)
     info["not_claimed"] = [{"id": c.data["id"], "name": c.name, "reason": c.detail}
@@ -255,10 +269,15 @@ def validate_trajectory(traj: Trajectory) -> None:
 
     arr("x", traj.x, (T + 1, n))
     arr("u", traj.u, (T, m))
-    arr("w", traj.w, (T, n))
-    star = arr("theta_star", traj.theta_star, None)
-    if star.shape not in ((p,), (T + 1, p)):
-        raise TrajectoryError(f"trajectory: theta_star has shape {star.shape}; expected ({p},) or ({T + 1}, {p})")
+    if (traj.theta_star is None) != (traj.w is None):
+        missing = "theta_star" if traj.theta_star is None else "w"
+        raise TrajectoryError(f"trajectory: {missing} is missing; expected theta_star and w both recorded (a simulated "
+                              "run) or both null (a measured run)")
+    if not traj.measured:
+        arr("w", traj.w, (T, n))
+        star = arr("theta_star", traj.theta_star, None)
+        if star.shape not in ((p,), (T + 1, p)):
+            raise TrajectoryError(f"trajectory: theta_star has shape {star.shape}; expected ({p},) or ({T + 1}, {p})")
     arr("design.K", d.K, (m, n))
     H_x = arr("design.H_x", d.H_x, None)
     if H_x.ndim != 2 or H_x.shape[1] != n:
@@ -345,7 +364,9 @@ def _figures(view: RunView, lemma) -> tuple[dict[str, Any], dict[str, Any]]:
     hi = np.array([b[1] for b in boxes])
     widths = hi - lo
     diam = [b[2] for b in boxes]
-    err = [float(np.linalg.norm(r.theta_hat - tr.theta_star_at(r.k))) for r in view.records]
+    # a measured run: θ* and w unknown, so the estimation error and the disturbance figures are null
+    err = (None if tr.measured else
+           [float(np.linalg.norm(r.theta_hat - tr.theta_star_at(r.k))) for r in view.records])
     mu = view.design.mu
     mu_d2 = [float(mu * np.linalg.norm(view.problem.regressor(x, u), 2) ** 2) for _, x, u in view.inputs]
     figures = {
@@ -355,10 +376,10 @@ def _figures(view: RunView, lemma) -> tuple[dict[str, Any], dict[str, Any]]:
         "theta_width_final": widths[-1].tolist(),
         "theta_diameter_initial": diam[0],
         "theta_diameter_final": diam[-1],
-        "theta_hat_error_initial": err[0],
-        "theta_hat_error_final": err[-1],
+        "theta_hat_error_initial": None if err is None else err[0],
+        "theta_hat_error_final": None if err is None else err[-1],
         "sum_state_norm_sq": float(np.sum(tr.x ** 2)),
-        "sum_disturbance_norm_sq": float(np.sum(tr.w ** 2)),
+        "sum_disturbance_norm_sq": None if tr.measured else float(np.sum(tr.w ** 2)),
         "max_mu_D_sq": max(mu_d2) if mu_d2 else None,
         "median_solver_time_s": _median([r.times.get("solver") for r in view.records]),
         "max_solver_time_s": _max([r.times.get("solver") for r in view.records]),
@@ -368,7 +389,7 @@ def _figures(view: RunView, lemma) -> tuple[dict[str, Any], dict[str, Any]]:
         figures["persistent_excitation"] = pe
     series = {
         "k": [r.k for r in view.records],
-        "x": tr.x.tolist(), "u": tr.u.tolist(), "w": tr.w.tolist(),
+        "x": tr.x.tolist(), "u": tr.u.tolist(), "w": None if tr.measured else tr.w.tolist(),
         "theta_lower": lo.tolist(), "theta_upper": hi.tolist(), "theta_width": widths.tolist(),
         "theta_diameter": diam,
         "theta_hat": [r.theta_hat.tolist() for r in view.records], "theta_hat_error": err,
@@ -402,7 +423,8 @@ def _run_info(traj: Trajectory, state_bound: float | None) -> dict[str, Any]:
         extra["theta_star_sequence"] = np.asarray(traj.theta_star).tolist()
     return extra | {
         "backend": traj.backend, "steps": len(traj.u), "records": len(traj.records), "stop_reason": traj.stop_reason,
-        "x0": traj.x[0].tolist(), "theta_star": traj.theta_star_at(0).tolist(),
+        "x0": traj.x[0].tolist(), "theta_star": None if traj.measured else traj.theta_star_at(0).tolist(),
+        "measured": traj.measured, "simulator": traj.meta.get("simulator", "amcp"),
         "theta_hat0": traj.problem.theta_hat0.tolist(),
         "update": traj.options.update, "window": traj.options.window, "projection": traj.options.projection,
         "disturbance": traj.meta.get("disturbance"), "seed": traj.meta.get("seed"),

@@ -19,7 +19,7 @@ from functools import cached_property
 import numpy as np
 
 from amcp_drake.model import polytope
-from amcp_drake.model.check_result import CheckResult, judge, not_run
+from amcp_drake.model.check_result import NOT_APPLICABLE, CheckResult, judge, not_run
 from amcp_drake.model.polytope import theta_vertices
 from amcp_drake.online import answers
 from amcp_drake.online.simulate import Trajectory
@@ -109,6 +109,18 @@ def not_claimed(check_id: str, name: str, claim: str, group: str, reason: str) -
     return CheckResult(result.name, result.claim, result.status, None, 0.0, reason, {**result.data, "not_claimed": True})
 
 
+#: Why a claim that needs θ* or the disturbances is not applicable to a measured run.
+UNKNOWN_THETA_STAR_AND_W = "θ* and w unknown"
+
+
+def not_applicable(check_id: str, name: str, claim: str, group: str, needs: str) -> CheckResult:
+    """A claim that needs θ* or w_k on a measured run (θ* and w unknown): status ``not_applicable``,
+    never a pass; ``needs`` names what it would need."""
+    return CheckResult(name, claim, NOT_APPLICABLE, None, 0.0,
+                       f"{UNKNOWN_THETA_STAR_AND_W} (a measured run): this claim needs {needs}",
+                       {"id": check_id, "group": group, "worst_step": None, "per_step": None})
+
+
 def _not_adaptive(check_id: str, name: str, claim: str, group: str = "point_estimate") -> CheckResult:
     return not_claimed(check_id, name, claim, group, "update mode 'none' is the robust baseline (θ̂_k ≡ θ̂0, no LMS "
                                                      "update (12))")
@@ -177,18 +189,23 @@ class RunView:
 # -- Assumption 1 and the control law (the premises of Theorem 14 on this run) -----------------
 def theta_star_in_theta(view: RunView) -> CheckResult:
     """Assumption 1, eq. (3): θ* ∈ Θ. Margin: min_i (h_θ − H_θ θ*)_i / ‖[H_θ]_i‖."""
+    name, claim = "θ* ∈ Θ", "Assumption 1, (3) (Assumption 17 for a sequence θ*_k): the true parameter lies in the prior set Θ"
+    if view.traj.measured:
+        return not_applicable("theta_star_in_Theta", name, claim, GROUP_ASSUMPTIONS, "θ*")
     pr = view.problem
     H, h = polytope.normalize_rows(pr.H_theta, pr.h_theta)
     # time-varying θ*_k (Section 4.1, Assumption 17): every θ*_k must lie in Θ
     stars = np.atleast_2d(view.traj.theta_star)
     margin = float(np.min(h[None, :] - stars @ H.T))
-    return tag(judge("θ* ∈ Θ", "Assumption 1, (3) (Assumption 17 for a sequence θ*_k): the true parameter lies in the prior set Θ", margin,
-                     MEMBERSHIP_TOL, "margin = min_i (h_θ − H_θ θ*)_i, unit rows"), "theta_star_in_Theta",
+    return tag(judge(name, claim, margin, MEMBERSHIP_TOL, "margin = min_i (h_θ − H_θ θ*)_i, unit rows"), "theta_star_in_Theta",
                GROUP_ASSUMPTIONS)
 
 
 def disturbances_in_w(view: RunView) -> CheckResult:
     """Assumption 1: every recorded w_k ∈ W = {H_w w <= 1}. Margin: min_i (1 − H_w w_k)_i."""
+    if view.traj.measured:
+        return not_applicable("w_in_W", "w_k ∈ W", "Assumption 1: every recorded disturbance lies in W", GROUP_ASSUMPTIONS,
+                              "the disturbances w_k")
     H_w = view.problem.H_w
     per = {k: float(np.min(1.0 - H_w @ view.traj.w[k])) for k in view.transitions}
     return step_check("w_in_W", GROUP_ASSUMPTIONS, "w_k ∈ W", "Assumption 1: every recorded disturbance lies in W",
@@ -197,6 +214,9 @@ def disturbances_in_w(view: RunView) -> CheckResult:
 
 def model_consistency(view: RunView) -> CheckResult:
     """System (1): x_{k+1} = A(θ*) x_k + B(θ*) u_k + w_k. Margin: −‖residual‖_∞."""
+    if view.traj.measured:
+        return not_applicable("model_consistent", "states follow (1)", "(1): x_{k+1} = A(θ*)x_k + B(θ*)u_k + w_k for the "
+                              "recorded θ*, u_k and w_k", GROUP_ASSUMPTIONS, "θ* and the disturbances w_k")
     pr, tr = view.problem, view.traj
     per = {k: -float(np.max(np.abs(tr.x[k + 1] - pr.step(tr.x[k], tr.u[k], tr.theta_star_at(k), tr.w[k]))))
            for k in view.transitions}
@@ -263,6 +283,9 @@ def recursive_feasibility(view: RunView) -> CheckResult:
 
 def theta_star_in_theta_k(view: RunView) -> CheckResult:
     """Theorem 14 (ii), Lemma 3: θ* ∈ Θ_k for every recorded Θ_k. Margin: min_i (h_k − H_k θ*)_i, unit rows."""
+    if view.traj.measured:
+        return not_applicable("theta_star_in_Theta_k", "θ* ∈ Θ_k", "Theorem 14 (ii), Lemma 3: the true parameter lies "
+                              "in every set estimate Θ_k", GROUP_THEOREM, "θ*")
     per = {}
     for r in view.records:
         H, h = polytope.normalize_rows(r.H_theta, r.h_theta)
@@ -482,7 +505,7 @@ def lemma5_series(view: RunView) -> Lemma5Series:
     tr = view.traj
     mu = view.design.mu
     M = min(view.T, len(view.records) - 1)
-    if M <= 0:
+    if M <= 0 or tr.measured:  # a measured run: θ* and w unknown, no series
         empty = np.zeros(0)
         return Lemma5Series(empty, empty, empty, empty)
     star = tr.theta_star_at  # θ*_k (constant unless time-varying, Section 4.1)
@@ -501,6 +524,9 @@ def lemma5(view: RunView, series: Lemma5Series) -> CheckResult:
     if view.traj.time_varying:
         return not_claimed("lemma5", "Lemma 5 inequality", "Lemma 5: the ℓ2 bound of the point estimate",
                            GROUP_ESTIMATE, "θ* varies with k: Section 4.1 claims no ℓ2 bound for the LMS")
+    if view.traj.measured:
+        return not_applicable("lemma5", "Lemma 5 inequality", "Lemma 5: the ℓ2 bound of the point estimate",
+                              GROUP_ESTIMATE, "θ* and the disturbances w_k")
     per = {m: float(series.rhs[m] - series.lhs[m]) for m in range(len(series.lhs))}
     return step_check("lemma5", GROUP_ESTIMATE, "Lemma 5 inequality",
                       "Lemma 5: (1/μ)‖θ̂_(m+1) − θ*‖² + Σ_(k<=m) ‖x̃_(1|k)‖² <= (1/μ)‖θ̂_0 − θ*‖² + Σ_(k<=m) ‖w_k‖², every m",

@@ -30,12 +30,15 @@ import re
 import shutil
 import time
 import uuid
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from amcp_drake.certificate.certify import Certificate, claim_to_dict
+from amcp_drake.certificate.provenance import provenance
 from amcp_drake.certificate.report_groups import grouped, math_html, regressor_gram_lambda_min
 from amcp_drake.certificate.report_plots import PLOTS, draw
 from amcp_drake.model.problem_io import check_output_dir
@@ -93,8 +96,14 @@ def _staging_in_use(staging: Path) -> bool:
         return True  # unreadable: leave it alone
 
 
-def write_outputs(out_dir: str | os.PathLike, traj: Trajectory, cert: Certificate) -> Path:
-    """Write certificate.json, report.html and trajectory.json.gz into ``out_dir`` atomically."""
+def write_outputs(out_dir: str | os.PathLike, traj: Trajectory, cert: Certificate, *,
+                  inputs: Mapping[str, str | os.PathLike] | None = None,
+                  command_line: Sequence[str] | None = None) -> Path:
+    """Write certificate.json, report.html and trajectory.json.gz into ``out_dir`` atomically.
+
+    The certificate's ``provenance`` (:mod:`amcp_drake.certificate.provenance`) holds the SHA-256 of the
+    trajectory file written here and of ``inputs`` (role -> path: the problem file, a given trajectory file),
+    the library versions, ``command_line``, the platform and the project's version and commit."""
     out = check_out_dir(out_dir)
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
@@ -105,9 +114,11 @@ def write_outputs(out_dir: str | os.PathLike, traj: Trajectory, cert: Certificat
         staging.mkdir()
         lock = open(staging / STAGING_LOCK, "wb")
         fcntl.flock(lock, fcntl.LOCK_EX)  # held while this process writes (the kernel drops it on a kill)
+        traj.save(staging / TRAJECTORY_FILE)
+        cert = replace(cert, provenance=provenance({"trajectory": staging / TRAJECTORY_FILE, **dict(inputs or {})},
+                                                   command_line))
         (staging / CERTIFICATE_FILE).write_text(json.dumps(cert.to_dict(), indent=1, allow_nan=False))
         (staging / REPORT_FILE).write_text(render_report(traj, cert), encoding="utf-8")
-        traj.save(staging / TRAJECTORY_FILE)
     except BaseException:
         if lock is not None:
             lock.close()

@@ -55,9 +55,11 @@ PAPER_RESULTS = (
                 "When the run enforces PE, the applied inputs keep the window level and the input bounds.",
                 ("pe_level", "pe_bounds"), ("excitation",)),
     PaperResult("assumptions", "Assumptions: the premises of the run",
-                "Assumption 1 (θ* ∈ Θ, w_k ∈ W), the model (1), the control law (21) and the precondition "
-                "μ‖D(x_k, u_k)‖² ≤ 1 of Lemma 5 on the visited points.",
-                ("theta_star_in_Theta", "w_in_W", "model_consistent", "control_law", "mu_precondition"),
+                "Assumption 1 (θ* ∈ Θ, w_k ∈ W), the model (1), its consequence on the data Θ_{k−1} ∩ Δ_k ≠ ∅ "
+                "(model consistency), the control law (21) and the precondition μ‖D(x_k, u_k)‖² ≤ 1 of Lemma 5 "
+                "on the visited points.",
+                ("theta_star_in_Theta", "w_in_W", "model_consistent", "data_consistency", "control_law",
+                 "mu_precondition"),
                 ("assumptions",)),
     PaperResult("design", "Design: the offline ingredients",
                 "The terminal cost (16), Assumptions 8 and 11 (X0, X_f), the constants w̄, f̄ of Proposition 9, "

@@ -291,7 +291,7 @@ def _plot_projections(traj: Trajectory, cert: Certificate):
 
     pr = traj.problem
     first, last = traj.records[0], traj.records[-1]
-    star = traj.theta_star_at(last.k)
+    star = None if traj.measured else traj.theta_star_at(last.k)  # a measured run: θ* unknown, not drawn
     if pr.p == 1:
         s = cert.series
         fig = _figure()
@@ -301,8 +301,9 @@ def _plot_projections(traj: Trajectory, cert: Certificate):
         ax.fill_between(k, lo, hi, step="mid", color="tab:blue", alpha=0.25, label=r"$\Theta_k$ (interval)")
         ax.step(k, lo, where="mid", color="tab:blue", lw=1)
         ax.step(k, hi, where="mid", color="tab:blue", lw=1)
-        stars = [traj.theta_star_at(int(j))[0] for j in k]
-        ax.plot(k, stars, "r--", lw=1.2, label=r"$\theta^*$")
+        if star is not None:
+            stars = [traj.theta_star_at(int(j))[0] for j in k]
+            ax.plot(k, stars, "r--", lw=1.2, label=r"$\theta^*$")
         ax.plot(k, np.asarray(s["theta_hat"], float)[:, 0], "k.", ms=4, label=r"$\hat\theta_k$")
         _finish(ax, r"$\theta_1$")
         return _png(fig), (f"p = 1: Θ_k is an interval; its bounds against k, from [{lo[0]:.4g}, {hi[0]:.4g}] to "
@@ -321,14 +322,16 @@ def _plot_projections(traj: Trajectory, cert: Certificate):
             ring = _hull2d(v[:, [i, j]])
             ax.fill(ring[:, 0], ring[:, 1], color=color, alpha=0.15)
             ax.plot(ring[:, 0], ring[:, 1], color=color, lw=1.4, label=name)
-        ax.plot(star[i], star[j], "r*", ms=11, label=r"$\theta^*$")
+        if star is not None:
+            ax.plot(star[i], star[j], "r*", ms=11, label=r"$\theta^*$")
         ax.plot(last.theta_hat[i], last.theta_hat[j], "kx", ms=8, mew=2, label=f"$\\hat\\theta_{{{last.k}}}$")
         ax.set_xlabel(f"$\\theta_{{{i + 1}}}$")
         ax.set_ylabel(f"$\\theta_{{{j + 1}}}$")
         ax.grid(alpha=0.3)
         if idx == 0:
             ax.legend(fontsize="x-small")
-    return _png(fig), (f"Projections of Θ_{first.k} and Θ_{last.k} onto each pair of parameters, with θ* and the "
+    with_star = "" if star is None else "θ* and "
+    return _png(fig), (f"Projections of Θ_{first.k} and Θ_{last.k} onto each pair of parameters, with {with_star}the "
                        f"last point estimate θ̂_{last.k}.")
 
 
@@ -339,6 +342,8 @@ def _plot_theta_hat(traj: Trajectory, cert: Certificate):
     ax = fig.add_subplot()
     varying = np.ndim(traj.theta_star) == 2
     for i, line in enumerate(_dotted_columns(ax, s["k"], th, r"\hat\theta")):
+        if traj.measured:  # θ* unknown: the estimates alone
+            continue
         label = f"$\\theta^*_{{{i + 1}}}$" + (" (varying)" if varying else "")
         if varying:
             ax.plot(range(len(traj.theta_star)), np.asarray(traj.theta_star)[:, i], ls="--", lw=1,
@@ -347,11 +352,15 @@ def _plot_theta_hat(traj: Trajectory, cert: Certificate):
             ax.axhline(traj.theta_star[i], ls="--", lw=1, color=line.get_color(), label=label)
     _finish(ax, "parameter", ncol=2, loc="center left")
     ax.legend(fontsize="small", ncol=2, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    if traj.measured:
+        return _png(fig), "Dots: θ̂_k (a measured run: the true parameter θ* is unknown)."
     return _png(fig), "Dots: θ̂_k; dashed, same colour: the true parameter θ*_i."
 
 
 def _plot_lemma5(traj: Trajectory, cert: Certificate):
     s = cert.series
+    if traj.measured:
+        return None, "A measured run: Lemma 5's sums need θ* and the disturbances w_k, which are unknown."
     if not s["lemma5_lhs"]:
         return None, "No transition recorded: Lemma 5 has no terms."
     m = np.arange(len(s["lemma5_lhs"]))

@@ -128,7 +128,8 @@ def certify_cmd(ctx, problem_file, example, x0_template, design_file, backend, d
     if trajectory_file is None and traj.options.update != "none":
         cert = _with_robust_baseline(traj, cert)
     try:
-        out = write_outputs(out_dir, traj, cert)
+        out = write_outputs(out_dir, traj, cert, inputs=_provenance_inputs(problem_file, example, trajectory_file),
+                            command_line=["amcp", *sys.argv[1:]])
     except OSError as exc:  # a full disk or a failing medium: write_outputs removed what it had staged
         raise write_error("--out", out_dir, exc) from None
     _print(cert, out)
@@ -178,6 +179,23 @@ def _assumption_8_broken_by_the_given_gain(exc: Exception, spec) -> str | None:
     return None
 
 
+def _provenance_inputs(problem_file, example, trajectory_file) -> dict:
+    """The input files a certificate records the SHA-256 of: the problem file (a built-in example's packaged
+    file when no PROBLEM is given) and the trajectory file certified with --trajectory."""
+    from importlib import resources
+
+    files = {}
+    if problem_file:
+        files["problem"] = problem_file
+    elif example or trajectory_file is None:
+        packaged = resources.files("amcp_drake") / "data" / f"{example or 'lorenzen2019'}.json"
+        if packaged.is_file():
+            files["problem"] = packaged
+    if trajectory_file:
+        files["input_trajectory"] = trajectory_file
+    return files
+
+
 def _load_trajectory(path: str, problem_file, example):
     """The saved trajectory and the problem spec that goes with it: the one given, or a built-in example
     whose problem data are identical to the recorded ones (it supplies the μ box), or None."""
@@ -202,15 +220,17 @@ def _print(cert, out) -> None:
     from amcp_drake.certificate.certify import RELATIVE_TOLERANCES, TOLERANCE_RULE
 
     click.echo(f"how to read the table: {TOLERANCE_RULE}")
-    click.echo(f"{'claim':32s} {'status':8s} {'margin':>11s} {'tolerance':>10s} {'step':>5s}  statement")
+    width = 14 if cert.measured else 8  # "not_applicable"
+    click.echo(f"{'claim':32s} {'status':{width}s} {'margin':>11s} {'tolerance':>10s} {'step':>5s}  statement")
     for c in cert.claims:
         margin = "n/a" if c.margin is None else f"{c.margin:.3e}"
         step = c.data.get("worst_step")
         mark = "r" if c.data["id"] in RELATIVE_TOLERANCES else " "
-        click.echo(f"{c.data['id']:32s} {c.status:8s} {margin:>11s} {c.tolerance:9.1e}{mark} "
-                   f"{'' if step is None else step:>5}  {c.name}")
+        why = f" ({c.detail})" if c.status == "not_applicable" else ""
+        click.echo(f"{c.data['id']:32s} {c.status:{width}s} {margin:>11s} {c.tolerance:9.1e}{mark} "
+                   f"{'' if step is None else step:>5}  {c.name}{why}")
     for c in cert.not_claimed:
-        click.echo(f"{c['id']:32s} {'-':8s} {'':>11s} {'':10s} {'':>5s}  not claimed for this run: {c['reason']}")
+        click.echo(f"{c['id']:32s} {'-':{width}s} {'':>11s} {'':10s} {'':>5s}  not claimed for this run: {c['reason']}")
     click.echo("")
     for p in cert.premises_not_met:
         margin = "n/a" if p["margin"] is None else f"{p['margin']:.3e}"
@@ -218,18 +238,23 @@ def _print(cert, out) -> None:
                    f"{p['detail']}")
         click.echo(f"                 next: {p['hint']}")
     counts = cert.counts()
+    for line in _consistency_lines(cert):
+        click.echo(line)
+    kind = " (measured run)" if cert.measured else ""
+    need = f"; {counts['not_applicable']} need θ* and w" if cert.measured else ""
     if cert.premises_not_met and not counts["fail"]:
         click.echo(f"NOT CERTIFIED (premise not met): the paper's results assume {', '.join(p['name'] for p in cert.premises_not_met)}, "
                    f"which does not hold on this run; nothing is claimed for it ({counts['pass']} checks passed, "
                    f"{len(cert.not_claimed)} not claimed)")
     elif cert.passed:
-        click.echo(f"CERTIFIED: all {counts['pass']} claims hold")
+        click.echo(f"CERTIFIED{kind}: all {counts['pass']} {'applicable ' if cert.measured else ''}claims hold{need}")
     elif counts["fail"]:
-        click.echo(f"NOT CERTIFIED: {counts['fail']} claim(s) failed: {', '.join(cert.ids('fail'))}"
-                   + (f"; {counts['not_run']} not run: {', '.join(cert.ids('not_run'))}" if counts["not_run"] else ""))
+        click.echo(f"NOT CERTIFIED{kind}: {counts['fail']} claim(s) failed: {', '.join(cert.ids('fail'))}"
+                   + (f"; {counts['not_run']} not run: {', '.join(cert.ids('not_run'))}" if counts["not_run"] else "")
+                   + need)
     else:
-        click.echo(f"NOT CERTIFIED (incomplete): {counts['not_run']} claim(s) could not be checked: "
-                   f"{', '.join(cert.ids('not_run'))}")
+        click.echo(f"NOT CERTIFIED{' (incomplete, measured run)' if cert.measured else ' (incomplete)'}: "
+                   f"{counts['not_run']} claim(s) could not be checked: {', '.join(cert.ids('not_run'))}{need}")
     answers = cert.solver_answers
     for line in answers.get("summary", []):
         click.echo(f"solver answers: {line}" if not line.startswith(" ") else f"               {line}")
@@ -247,6 +272,19 @@ def _print(cert, out) -> None:
         click.echo(f"robust baseline (not part of the verdict): cost {_g(a['cost'])} adaptive vs {_g(r['cost'])} robust; "
                    f"mean one-step tube {_g(a['mean_one_step_tube'])} vs {_g(r['mean_one_step_tube'])} (report.html)")
     click.echo(f"wrote {out}/certificate.json, {out}/report.html, {out}/trajectory.json.gz")
+
+
+def _consistency_lines(cert) -> list[str]:
+    """The model-consistency line when ``data_consistency`` failed: the first step and what it means."""
+    try:
+        c = cert.claim("data_consistency")
+    except KeyError:
+        return []
+    if c.status != "fail":
+        return []
+    return [f"DATA CONTRADICT THE MODEL: Θ_(k−1) ∩ Δ_k is empty first at step {c.data['first_failing_step']} "
+            f"(signed Chebyshev radius {c.margin:.3e} < −{c.tolerance:.0e}): the disturbance left W, θ* is not in Θ, or "
+            "the model (A_i, B_i) is wrong; the claims that rest on it are not run"]
 
 
 def _g(value) -> str:

@@ -1,6 +1,8 @@
 """A check result: the unit of every design check and certificate claim.
 
-``status`` is ``"pass"``, ``"fail"`` or ``"not_run"``; a check that could not run is never a pass.
+``status`` is ``"pass"``, ``"fail"``, ``"not_run"`` or ``"not_applicable"``; a check that could not run is
+never a pass. ``not_applicable`` is a claim of the paper that needs data the run does not have (θ* and
+the disturbances w_k of a measured run): it is neither a pass nor a failure, and the certificate says so.
 ``margin`` is how far the quantity is from failing (positive = holds, in the check's own units),
 ``tolerance`` the slack allowed for round-off; a check passes when margin >= -tolerance. A check of one
 of the paper's strict inequalities (Assumption 8: spectral radius < 1; (11): 1/μ > sup ‖D‖²) is judged
@@ -13,7 +15,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-PASS, FAIL, NOT_RUN = "pass", "fail", "not_run"
+PASS, FAIL, NOT_RUN, NOT_APPLICABLE = "pass", "fail", "not_run", "not_applicable"
 
 
 @dataclass(frozen=True)

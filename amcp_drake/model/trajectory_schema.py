@@ -228,7 +228,9 @@ def check_consistency(data: dict) -> None:
     * every step that applied an input has an input ``u`` and a status in :data:`APPLIED_STATUSES`;
     * ``"completed"``: T + 1 records (the last one at x_T, whatever its status), the others applied;
     * ``"step K: status S"``: K = T, K + 1 records, records[K] has status S (not optimal) and no input;
-    * ``"inconsistent data at step K"``: K = T records, all applied (step K raised before its record).
+    * ``"inconsistent data at step K"``: K = T records, all applied (step K raised before its record), or
+      K + 1 records whose last one records the event (no input; ``AdaptiveMPC.step(x, on_inconsistent="record")``);
+    * ``theta_star`` and ``w`` both null (a measured run) or both recorded.
     """
     records, steps = data["records"], len(data["u"])
     for i, record in enumerate(records):
@@ -236,7 +238,12 @@ def check_consistency(data: dict) -> None:
             raise _fail(f"records[{i}].k", f"{i} (records are numbered 0, 1, ... in order)", json.dumps(record["k"]))
     if len(data["x"]) != steps + 1:
         raise _fail("x", f"{steps + 1} states (one more than the {steps} inputs in u)", f"{len(data['x'])} states")
-    if len(data["w"]) != steps:
+    if (data["theta_star"] is None) != (data["w"] is None):
+        raise _fail("theta_star" if data["w"] is None else "w",
+                    "null together with " + ("w" if data["w"] is None else "theta_star") +
+                    " (a measured run: both unknown) or both recorded (a simulated run)", "a value" if data["w"] is None
+                    else "null")
+    if data["w"] is not None and len(data["w"]) != steps:
         raise _fail("w", f"{steps} disturbances (one per input in u)", f"{len(data['w'])}")
     reason = data["stop_reason"]
     match = STOP_REASON.match(reason)
@@ -253,17 +260,21 @@ def check_consistency(data: dict) -> None:
         if stopped != steps:
             raise _fail("stop_reason", f"\"inconsistent data at step {steps}\" (u holds {steps} inputs)",
                         json.dumps(reason))
-        expected_records, last_status = steps, None
+        # K records (the step raised), or K + 1 with the event recorded at step K (no input applied)
+        expected_records, last_status = (steps + 1 if len(records) == steps + 1 else steps), None
     if len(records) != expected_records:
         raise _fail("records", f"{expected_records} step records (stop_reason {json.dumps(reason)}, {steps} inputs)",
                     f"{len(records)}")
-    applied = records if match.group(4) is not None else records[:-1]
+    applied = records if len(records) == steps else records[:-1]
     for i, record in enumerate(applied):
         if record["status"] not in APPLIED_STATUSES:
             raise _fail(f"records[{i}].status", f"\"optimal\" or \"optimal_inaccurate\" (stop_reason "
                         f"{json.dumps(reason)}: step {i} applied an input)", json.dumps(record["status"]))
         if record["u"] is None:
             raise _fail(f"records[{i}].u", f"the input applied at step {i} (stop_reason {json.dumps(reason)})", "null")
+    if match.group(4) is not None and len(records) == steps + 1 and records[-1]["u"] is not None:
+        raise _fail(f"records[{steps}].u", f"null (stop_reason {json.dumps(reason)}: the step recorded the event and "
+                    "applied no input)", "an input")
     if last_status is not None:
         last = len(records) - 1
         if records[-1]["status"] != last_status:

@@ -67,6 +67,17 @@ _DELTA_MARGIN = scalar_operand(DELTA_MARGIN)
 
 
 
+#: ``kind`` of the provenance entry (:mod:`amcp_drake.online.answers`) of a step at which Θ_{k−1} ∩ Δ_k is
+#: empty, recorded by ``AdaptiveMPC.step(x, on_inconsistent="record")``: the update (9)/(7) had no answer
+#: because the data contradict Θ and W (an answer, not a solver defect: its ``check`` is empty).
+INCONSISTENT_KIND = "inconsistent_data"
+
+
+def is_inconsistent(record) -> bool:
+    """True when ``record`` is the record of an empty Θ_{k−1} ∩ Δ_k (:data:`INCONSISTENT_KIND`)."""
+    return any(e.get("kind") == INCONSISTENT_KIND for e in (getattr(record, "answers", None) or []))
+
+
 def removed_row_excess(H_kept: np.ndarray, h_kept: np.ndarray, row: np.ndarray, bound: float) -> float:
     """How far the kept rows of (7) allow exceeding a removed row: (max{row·θ | H_kept θ <= h_kept} −
     bound)/‖row‖, +inf when that LP has no optimum. HiGHS at polytope.HIGHS_CERTIFIED_OPTIONS: at its
@@ -666,9 +677,26 @@ class AdaptiveMPC:
         finally:
             record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + spent
 
+    def _inconsistent(self, record: StepRecord, exc: InconsistentDataError, start: float) -> StepRecord:
+        """The record of a step at which Θ_{k−1} ∩ Δ_k is empty (``step(x, on_inconsistent="record")``)."""
+        record.status = record.set_status = SolveStatus.INFEASIBLE
+        record.detail = str(exc)
+        self._answer(record, "exact_update" if self.options.update == "exact" else "set_update", "not_solved",
+                     INCONSISTENT_KIND)
+        record.times["total"] = time.perf_counter() - start
+        return record
+
     # -- one step --------------------------------------------------------------------------------
-    def step(self, x: np.ndarray) -> tuple[np.ndarray | None, StepRecord]:
-        """Steps (i)-(iv) at the measured state x_k."""
+    def step(self, x: np.ndarray, on_inconsistent: str = "raise") -> tuple[np.ndarray | None, StepRecord]:
+        """Steps (i)-(iv) at the measured state x_k.
+
+        When Θ_{k−1} ∩ Δ_k is empty (the data contradict Θ and W), ``on_inconsistent="raise"`` (the
+        default) raises InconsistentDataError; ``"record"`` returns ``(None, record)`` instead, the record
+        holding the event (:data:`INCONSISTENT_KIND`, :func:`is_inconsistent`): status ``infeasible``,
+        Θ_{k−1} and θ̂_{k−1} unchanged, the message in ``detail``. The run should stop there: the
+        controller's state is that of step k−1 (a measured run keeps its records up to this one)."""
+        if on_inconsistent not in ("raise", "record"):
+            raise ProblemError("on_inconsistent", "'raise' or 'record'", repr(on_inconsistent))
         start = time.perf_counter()
         x = np.asarray(x, float)
         if x.shape != self._x_shape or not all_finite(x):
@@ -679,7 +707,12 @@ class AdaptiveMPC:
         if self._prev is not None and self.options.update != "none":
             x_prev, u_prev = self._prev
             t0 = time.perf_counter()
-            ok = self._update_set(*self._delta(x_prev, u_prev, x), record)
+            try:
+                ok = self._update_set(*self._delta(x_prev, u_prev, x), record)
+            except InconsistentDataError as exc:
+                if on_inconsistent == "raise":
+                    raise
+                return None, self._inconsistent(record, exc, start)
             record.times["set_update_total"] = time.perf_counter() - t0
             if not ok:
                 record.status = record.set_status

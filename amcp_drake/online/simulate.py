@@ -79,16 +79,20 @@ def disturbance_sequence(problem: Problem, kind: str | np.ndarray, steps: int, s
 @dataclass
 class Trajectory:
     """A recorded closed-loop run. ``x`` (T+1, n) states, ``u`` (T, m) inputs, ``w`` (T, n) the
-    disturbances applied, ``records`` the T+1 step records (the last one may hold a failure)."""
+    disturbances applied, ``records`` the T+1 step records (the last one may hold a failure).
+
+    A *measured run* (a plant other than amcp's simulator of (1): a Drake plant, hardware, a user's own
+    loop, :func:`amcp_drake.online.measured.measured_trajectory`) has ``theta_star`` and ``w`` both None:
+    θ* and the disturbances are unknown, and the certificate checks what x, u and the records show."""
 
     problem: Problem
     design: OfflineDesign
     options: OnlineOptions
     backend: str
-    theta_star: np.ndarray
+    theta_star: np.ndarray | None
     x: np.ndarray
     u: np.ndarray
-    w: np.ndarray
+    w: np.ndarray | None
     records: list[StepRecord]
     stop_reason: str = "completed"
     mu_state_bound: float | None = None
@@ -106,13 +110,23 @@ class Trajectory:
 
     # -- persistence ------------------------------------------------------------------------------
     @property
+    def measured(self) -> bool:
+        """True for a measured run: θ* and the disturbances w_k unknown (both None)."""
+        return self.theta_star is None and self.w is None
+
+    @property
     def time_varying(self) -> bool:
         """True when θ* was given as a sequence θ*_k (Section 4.1) that is not constant."""
+        if self.theta_star is None:
+            return False
         seq = np.asarray(self.theta_star, float)
         return seq.ndim == 2 and bool(np.any(seq != seq[0]))
 
     def theta_star_at(self, k: int) -> np.ndarray:
-        """θ*_k: the constant θ*, or entry k of the sequence (the last entry past its end)."""
+        """θ*_k: the constant θ*, or entry k of the sequence (the last entry past its end).
+        ValueError for a measured run (θ* unknown)."""
+        if self.theta_star is None:
+            raise ValueError("theta_star: unknown in a measured run")
         seq = np.asarray(self.theta_star, float)
         if seq.ndim == 1:
             return seq
@@ -124,8 +138,9 @@ class Trajectory:
             "format": TRAJECTORY_FORMAT, "version": TRAJECTORY_VERSION,
             "problem": spec_to_dict(spec), "design": self.design.to_dict(),
             "options": options_to_dict(self.options),
-            "backend": self.backend, "theta_star": self.theta_star.tolist(),
-            "x": self.x.tolist(), "u": self.u.tolist(), "w": self.w.tolist(),
+            "backend": self.backend,
+            "theta_star": None if self.theta_star is None else np.asarray(self.theta_star).tolist(),
+            "x": self.x.tolist(), "u": self.u.tolist(), "w": None if self.w is None else self.w.tolist(),
             "stop_reason": self.stop_reason, "mu_state_bound": self.mu_state_bound, "meta": self.meta,
             "records": [_record_to_dict(r) for r in self.records],
         }
@@ -187,10 +202,10 @@ class Trajectory:
         try:
             return cls(problem=problem, design=OfflineDesign.from_dict(data["design"]),
                        options=options_from_dict(data["options"]), backend=data["backend"],
-                       theta_star=np.asarray(data["theta_star"], float),
+                       theta_star=None if data["theta_star"] is None else np.asarray(data["theta_star"], float),
                        x=np.asarray(data["x"], float).reshape(-1, problem.n),
                        u=np.asarray(data["u"], float).reshape(-1, problem.m),
-                       w=np.asarray(data["w"], float).reshape(-1, problem.n),
+                       w=None if data["w"] is None else np.asarray(data["w"], float).reshape(-1, problem.n),
                        records=_records_from_list(data["records"]),
                        stop_reason=data.get("stop_reason", ""), mu_state_bound=data.get("mu_state_bound"),
                        meta=data.get("meta", {}))
