@@ -18,7 +18,7 @@ import pytest
 
 from amcp_drake.backends import get_backend
 from amcp_drake.model.status import SolveStatus
-from amcp_drake.online import answer_checks
+from amcp_drake.online import answer_checks, answers
 
 DATA = Path(__file__).parent / "data"
 BACKENDS = ("drake", "cvxpy")
@@ -125,7 +125,7 @@ def test_projection_outside_the_set_is_caught_and_replaced(case_0_19, backend):
     assert ctrl.backend.calls["project"] >= 1
     r = traj.records[1]
     assert r.projection_status is SolveStatus.INACCURATE
-    assert "projection in set" in r.detail and "fallback: least-distance projection" in r.detail
+    assert answers.of(r, "projection") == answers.entry("projection", "fallback", "least_distance", "projection in set")
     expected = exact_projection(r.theta_tilde, r.H_theta, r.h_theta)
     assert np.linalg.norm(r.theta_hat - expected) <= 1e-8
     assert traj.stop_reason == "completed"
@@ -148,8 +148,8 @@ def test_feasible_but_not_optimal_projection_is_caught(case_0_19, backend):
     traj = _run(ctrl, spec, 2, w)
     r = traj.records[1]
     assert r.projection_status is SolveStatus.INACCURATE
-    assert "projection KKT residual" in r.detail
-    assert "projection in set" not in r.detail
+    e = answers.of(r, "projection")
+    assert e["outcome"] == "fallback" and e["check"] == "projection KKT residual", e   # membership passed
 
 
 def test_projection_fallbacks_in_order(case_0_19, monkeypatch):
@@ -166,7 +166,7 @@ def test_projection_fallbacks_in_order(case_0_19, monkeypatch):
     assert r.projection_status is SolveStatus.INACCURATE
     # θ̂_0 is not in the collapsed Θ_1, so the Chebyshev centre of Θ_1 is used
     assert np.max(r.H_theta @ traj.records[0].theta_hat - r.h_theta) > 1e-3
-    assert "fallback: Chebyshev centre of Θ_k" in r.detail
+    assert answers.of(r, "projection")["kind"] == "chebyshev_centre"
     centre, _ = polytope.chebyshev_center(r.H_theta, r.h_theta)
     assert np.allclose(r.theta_hat, centre, atol=1e-12)
     assert np.max(r.H_theta @ r.theta_hat - r.h_theta) <= answer_checks.PROJECTION_MEMBERSHIP_TOL
@@ -193,7 +193,8 @@ def test_wrong_set_update_is_caught_and_recomputed(example_spec, example_design,
     r = traj.records[1]
     assert r.set_status is SolveStatus.INACCURATE
     check = "set update nested" if kind == "grown" else "set update outer bound"
-    assert check in r.detail and "fallback: HiGHS support LPs (checked)" in r.detail
+    e = answers.of(r, "set_update")
+    assert (e["outcome"], e["kind"]) == ("fallback", "highs_support_lps") and e["check"].startswith(check), e
     h_prev, H_delta, h_delta = seen[0]
     fresh = get_backend(backend).set_update(example_design.H_theta, h_prev, H_delta, h_delta)
     assert np.max(np.abs(r.h_theta - fresh.h)) <= 1e-7
@@ -219,7 +220,7 @@ def test_a_set_update_above_the_previous_offsets_by_round_off_is_clipped_to_them
     r = traj.records[1]
     real_h, h_prev, untouched = seen[0]
     assert untouched.any() and not untouched.all()   # some rows kept, some cut by the data
-    assert r.set_status is SolveStatus.OPTIMAL and "fallback" not in r.detail
+    assert r.set_status is SolveStatus.OPTIMAL and answers.of(r, "set_update") == answers.entry("set_update", "first")
     np.testing.assert_array_equal(r.h_theta, np.where(untouched, h_prev, real_h))
     assert np.all(r.h_theta <= h_prev)
 
@@ -232,7 +233,7 @@ def test_set_update_keeps_previous_set_when_every_solver_fails(example_spec, exa
     ctrl.backend = WrongBackend(ctrl.backend, wrong_set_update=lambda real, h_prev: np.asarray(real.h) - 0.05)
     traj = _run(ctrl, example_spec, 2)
     assert traj.records[1].set_status is SolveStatus.INACCURATE
-    assert "kept Θ_(k−1)" in traj.records[1].detail
+    assert answers.of(traj.records[1], "set_update")["kind"] == "kept_previous_set"
     assert np.array_equal(traj.records[1].h_theta, traj.records[0].h_theta)
 
 
@@ -252,7 +253,7 @@ def test_exact_update_with_every_row_wrongly_removed_keeps_the_set(example_spec,
     traj = _run(ctrl, example_spec, 2)
     r = traj.records[1]
     assert r.set_status is SolveStatus.INACCURATE
-    assert "fallback: those rows kept" in r.detail
+    assert answers.of(r, "exact_update")["kind"] == "removed_rows_kept"
     # rows of (7) only, and every row of Θ_0 ∩ Δ_1 implied by them (scipy): the same set as (7)
     from scipy.optimize import linprog
 
@@ -308,7 +309,7 @@ def test_exact_update_keeps_only_the_removed_rows_that_are_not_implied(example_s
         pytest.fail("no vertex of W gives a Δ_1 with rows of both kinds")
     ctrl.backend = LyingOnData(real)
     _, r = ctrl.step(x1)
-    assert r.set_status is SolveStatus.INACCURATE and "fallback: those rows kept" in r.detail
+    assert r.set_status is SolveStatus.INACCURATE and answers.of(r, "exact_update")["kind"] == "removed_rows_kept"
     kept = np.asarray(r.H_theta)
     assert np.array_equal(kept[:q], H0) and np.array_equal(r.h_theta[:q], h0)     # Θ_0 (a box) keeps its rows
     assert np.array_equal(kept[q:], H_d[cuts]) and np.array_equal(r.h_theta[q:], h_d[cuts])  # and the cuts only
@@ -338,7 +339,7 @@ def _push_v(sol):
 @pytest.mark.parametrize("formulation, wrong, check", [
     ("plain", _shift_z0, "tube x_k in X_0|k (15b)"),
     ("plain", _negate_lambda, "tube Lambda >= 0"),
-    ("vertex", _push_v, "tube (5b) at the vertices of Θ_k"),
+    ("vertex", _push_v, "tube constraints (15a)"),        # v pushed by 50: (15a) is the first row it breaks
 ])
 def test_wrong_tube_answer_is_replaced_by_the_other_formulation(example_spec, example_design, backend, formulation,
                                                                  wrong, check):
@@ -351,9 +352,7 @@ def test_wrong_tube_answer_is_replaced_by_the_other_formulation(example_spec, ex
     r = traj.records[0]
     assert r.status is SolveStatus.INACCURATE
     other = "vertex" if formulation == "plain" else "plain"
-    assert check in r.detail and f"fallback: {other} form of (20) (checked)" in r.detail
-    if formulation == "plain":  # the applied answer's detail follows the first one's (StepRecord.qp_detail)
-        assert "vertex form" in r.qp_detail
+    assert answers.of(r, "tube_qp") == answers.entry("tube_qp", "fallback", f"{other}_form", check)
     fresh = get_backend(backend, formulation=other).tube_mpc(ctrl.data).solve(r.x, r.h_theta, r.theta_hat)
     assert np.max(np.abs(r.v - fresh.v)) <= 1e-6
     assert np.allclose(r.u, example_design.K @ r.x + fresh.v[0], atol=1e-6)
@@ -372,7 +371,8 @@ def test_a_first_try_that_fails_the_checks_is_solved_again_with_iterative_refine
     assert ctrl.mpc.refined >= 2
     r = traj.records[0]
     assert r.status is SolveStatus.OPTIMAL
-    assert "first try without iterative refinement" in r.detail and "re-solved with iterative refinement (checked)" in r.detail
+    e = answers.of(r, "tube_qp")
+    assert (e["outcome"], e["kind"]) == ("resolved", "iterative_refinement") and e["check"], e
     fresh = get_backend(backend, formulation="plain").tube_mpc(ctrl.data).solve(r.x, r.h_theta, r.theta_hat)
     assert np.max(np.abs(r.v - fresh.v)) <= 1e-6
     assert traj.stop_reason == "completed"
@@ -384,8 +384,8 @@ def test_a_refined_answer_that_fails_too_falls_back_to_the_other_formulation(exa
     traj = _run(ctrl, example_spec, 2)
     r = traj.records[0]
     assert r.status is SolveStatus.INACCURATE
-    assert "fallback: vertex form of (20) (checked)" in r.detail
-    assert "re-solved with iterative refinement" not in r.detail
+    e = answers.of(r, "tube_qp")      # the refined answer failed too: the other formulation's, not a re-solve
+    assert (e["outcome"], e["kind"]) == ("fallback", "vertex_form"), e
 
 
 def test_wrong_tube_answer_without_another_formulation_is_not_solved(example_spec, example_design):
@@ -397,7 +397,7 @@ def test_wrong_tube_answer_without_another_formulation_is_not_solved(example_spe
     traj = _run(ctrl, example_spec, 3)
     assert len(traj.records) == 1 and traj.records[0].u is None
     assert traj.records[0].status is SolveStatus.INACCURATE
-    assert "no other formulation" in traj.records[0].detail
+    assert answers.of(traj.records[0], "tube_qp") == answers.entry("tube_qp", "not_solved", "", "tube x_k in X_0|k (15b)")
     assert traj.stop_reason == "step 0: status optimal_inaccurate"
 
 
@@ -432,8 +432,7 @@ def test_a_tube_qp_without_an_answer_falls_back_to_the_other_formulation(example
     r = traj.records[0]
     assert r.status is SolveStatus.INACCURATE and r.u is not None
     other = "vertex" if formulation == "plain" else "plain"
-    assert f"tube QP (20): status {status.value}" in r.detail
-    assert f"fallback: {other} form of (20) (checked)" in r.detail
+    assert answers.of(r, "tube_qp") == answers.entry("tube_qp", "fallback", f"{other}_form", f"status {status.value}")
     fresh = get_backend(backend, formulation=other).tube_mpc(ctrl.data).solve(r.x, r.h_theta, r.theta_hat)
     assert np.max(np.abs(r.v - fresh.v)) <= 1e-6
     assert np.allclose(r.u, example_design.K @ r.x + fresh.v[0], atol=1e-6)
@@ -446,7 +445,8 @@ def test_an_infeasible_tube_qp_has_no_fallback(example_spec, example_design):
     ctrl.mpc = GivesUpTube(ctrl.mpc, SolveStatus.INFEASIBLE)
     traj = _run(ctrl, example_spec, 2)
     assert len(traj.records) == 1 and traj.records[0].u is None
-    assert traj.records[0].status is SolveStatus.INFEASIBLE and "fallback" not in traj.records[0].detail
+    assert traj.records[0].status is SolveStatus.INFEASIBLE
+    assert answers.of(traj.records[0], "tube_qp") == answers.entry("tube_qp", "not_solved", "infeasible")
 
 
 def test_massera2017_step_that_cvxpy_plain_form_could_not_solve_is_solved():
@@ -466,7 +466,7 @@ def test_massera2017_step_that_cvxpy_plain_form_could_not_solve_is_solved():
     ctrl.theta_hat = np.array([-0.131851241551105])
     u, r = ctrl.step(np.array([0.0513887048026173, 0.2228770115475585, -0.1979463514878846]))
     assert u is not None
-    assert r.status is SolveStatus.OPTIMAL or "fallback: vertex form of (20) (checked)" in r.detail
+    assert answers.qp_applied(r)         # by the plain form itself or by the checked vertex-form fallback
     fresh = get_backend("drake", formulation="vertex").tube_mpc(ctrl.data).solve(r.x, r.h_theta, r.theta_hat)
     assert abs(r.cost - fresh.cost) <= 1e-6 and np.max(np.abs(r.v - fresh.v)) <= 1e-5
 
@@ -652,8 +652,7 @@ def test_a_plain_answer_outside_5b_at_the_vertices_is_solved_again_with_refineme
 
     spec = load_spec(DATA / "plain-5b-first-try-problem.json")
     traj = run_scenario(spec, "drake", steps=3)
-    assert all("step not solved" not in r.detail for r in traj.records)
-    assert all(r.status is SolveStatus.OPTIMAL for r in traj.records)
+    assert all(answers.qp_applied(r) for r in traj.records)   # a checked answer applied at every step
     assert claims.prediction_tube(traj).passed
 
 

@@ -12,11 +12,13 @@ import sys
 
 import pytest
 
+from tests.guards import GUARD_SECONDS
+
 FORBIDDEN_IN_CERTIFY = ("pydrake", "cvxpy", "clarabel", "amcp_reference", "amcp_drake.backends.drake_")
 
 
 def _run(code: str) -> str:
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=GUARD_SECONDS)
     assert proc.returncode == 0, proc.stderr[-2000:]
     return proc.stdout.strip()
 

@@ -29,6 +29,7 @@ import pytest
 from click.testing import CliRunner
 
 from amcp_drake.cli import main
+from tests.guards import GUARD_SECONDS
 from tests.recorded_runs import TRAJECTORY_DATA, trajectory
 
 STALE = ".certify-staging-" + "0123456789abcdef" * 2
@@ -274,7 +275,9 @@ ROWS: list[tuple] = [
     ("cost.Q-string-entry", problem(set_("cost.Q.0.1", "0")), ["design", "{file}"], 2,
      r"cost\.Q\[0\]\[1\]: expected a number; received \"0\""),
     ("version-true", problem(set_("version", True)), ["design", "{file}"], 2,
-     r"version: expected 1 \(the only problem-file version this amcp reads\); received True"),
+     r"version: expected 1 \(the only problem-file version this amcp reads\); received true"),
+    ("version-1.0", problem(set_("version", 1.0)), ["design", "{file}"], 2,
+     r"version: expected 1 \(the only problem-file version this amcp reads\); received 1\.0 \(a number\)"),
     ("Theta-is-list", problem(set_("Theta", [[1, 0, 0]])), ["design", "{file}"], 2,
      r"Theta: expected a JSON object; received \[\[1, 0, 0\]\]"),
     ("scenario-is-string", problem(set_("scenario", "default")), ["design", "{file}"], 2,
@@ -338,7 +341,20 @@ ROWS: list[tuple] = [
     ("trajectory-version-string", traj(set_("version", "1")), ["certify", "--trajectory", "{file}", "--out",
                                                              "{folder}/out"], 2, r"version: expected one of \[1\]"),
     ("trajectory-version-missing", traj(delete("version")), ["certify", "--trajectory", "{file}", "--out",
-                                                            "{folder}/out"], 2, r"version: expected one of \[1\].*None"),
+                                                            "{folder}/out"], 2, r"version: expected one of \[1\].*null"),
+    ("trajectory-version-1.0", traj(set_("version", 1.0)), ["certify", "--trajectory", "{file}", "--out",
+                                                           "{folder}/out"], 2, r"version: expected one of \[1\].*1\.0"),
+    ("trajectory-problem-version-1.0", traj(set_("problem.version", 1.0)),
+     ["certify", "--trajectory", "{file}", "--out", "{folder}/out"], 2, r"problem\.version: expected 1 .*received 1\.0"),
+    ("trajectory-record-k-1.0", traj(set_("records.1.k", 1.0)),
+     ["certify", "--trajectory", "{file}", "--out", "{folder}/out"], 2, r"records\[1\]\.k: expected an integer"),
+    ("trajectory-meta-seed-0.0", traj(set_("meta.seed", 0.0)),
+     ["certify", "--trajectory", "{file}", "--out", "{folder}/out"], 2, r"meta\.seed: expected an integer or null"),
+    ("trajectory-backend-bogus", traj(set_("backend", "bogus")), ["certify", "--trajectory", "{file}", "--out",
+                                                                "{folder}/out"], 2,
+     r"backend: expected one of \"cvxpy\", \"drake\"; received \"bogus\""),
+    ("trajectory-design-backend-bogus", traj(set_("design.backend", "bogus")),
+     ["certify", "--trajectory", "{file}", "--out", "{folder}/out"], 2, r"design\.backend: expected one of \"cvxpy\""),
     ("trajectory-infinity-x", traj(set_("x.3.1", "INF"), {"INF": "-Infinity"}),
      ["certify", "--trajectory", "{file}", "--out", "{folder}/out"], 2, r"x\[3\]\[1\]: expected a finite number"),
     ("trajectory-duplicate-key", traj(set_("backend", "DUP"), {"DUP": '"drake", "backend": "cvxpy"'}),
@@ -476,7 +492,7 @@ def test_a_killed_certify_leaves_a_staging_folder_that_the_next_run_removes(tmp_
     proc = subprocess.Popen([sys.executable, "-m", "amcp_drake", "certify", "--trajectory", str(TRAJECTORY_DATA),
                              "--out", str(out)], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        deadline = time.monotonic() + 300
+        deadline = time.monotonic() + GUARD_SECONDS
         while not list(out.glob(".certify-staging-*/.lock")):
             assert proc.poll() is None, "certify ended before its staging folder was seen"
             assert time.monotonic() < deadline

@@ -19,6 +19,7 @@ import pytest
 from click.testing import CliRunner
 
 from amcp_drake.studies.campaign_store import CampaignStore
+from tests.guards import GUARD_SECONDS
 
 pytest.importorskip("distributed")
 pytest.importorskip("amcp_properties")
@@ -37,6 +38,7 @@ def _stored(path: Path) -> set[int]:
         return set()
 
 
+@pytest.mark.slow
 def test_local_cluster_campaign_stores_every_problem_and_answers_the_summary(tmp_path):
     from amcp_drake.cli.campaign import report_html, summary_text
     from amcp_drake.studies.campaign import run_campaign
@@ -94,11 +96,12 @@ def _with(args: list[str], changes: list[str]) -> list[str]:
     return args
 
 
+@pytest.mark.slow
 def test_killed_campaign_resumes_with_no_problem_lost_or_run_twice(tmp_path):
     store_path = tmp_path / "k.sqlite"
     args = AMCP + ["--systems", "12", "--backends", "drake", "--seed", "7", "--steps", "6", "--store", str(store_path)]
     proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    deadline = time.time() + 240
+    deadline = time.time() + GUARD_SECONDS
     while len(_stored(store_path)) < 3 and time.time() < deadline and proc.poll() is None:
         time.sleep(0.2)
     os.killpg(proc.pid, signal.SIGKILL)  # the client, the LocalCluster and its workers, mid-campaign
@@ -106,13 +109,13 @@ def test_killed_campaign_resumes_with_no_problem_lost_or_run_twice(tmp_path):
     before = _stored(store_path)
     assert 3 <= len(before) < 12, f"the kill should land midway; stored {len(before)}"
     for changes, named in OTHER_SETTINGS:
-        refused = subprocess.run(_with(args, changes) + ["--resume"], check=False, capture_output=True, text=True, timeout=120)
+        refused = subprocess.run(_with(args, changes) + ["--resume"], check=False, capture_output=True, text=True, timeout=GUARD_SECONDS)
         assert refused.returncode == 2, (changes, refused.stdout[-1000:], refused.stderr[-2000:])
         assert "Traceback" not in refused.stderr
         for difference in named:
             assert difference in refused.stderr, (changes, refused.stderr)
         assert _stored(store_path) == before
-    result = subprocess.run(args + ["--resume"], capture_output=True, text=True, timeout=400)
+    result = subprocess.run(args + ["--resume"], capture_output=True, text=True, timeout=GUARD_SECONDS)
     assert result.returncode in (0, 1), result.stderr[-2000:]
     assert f"skipped (already stored) {len(before)}" in result.stdout
     store = CampaignStore(store_path)
@@ -281,6 +284,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_campaign_through_a_separate_scheduler_and_worker_on_loopback(tmp_path):
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
@@ -288,12 +292,18 @@ def test_campaign_through_a_separate_scheduler_and_worker_on_loopback(tmp_path):
     procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)]
     try:
-        time.sleep(3)
+        deadline = time.monotonic() + GUARD_SECONDS     # the scheduler listens (however long it takes to start)
+        while True:
+            with socket.socket() as probe:
+                if probe.connect_ex(("127.0.0.1", port)) == 0:
+                    break
+            assert procs[0].poll() is None and time.monotonic() < deadline, "the scheduler did not start"
+            time.sleep(0.1)
         procs.append(subprocess.Popen([dask, "worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard"],
                                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True))
         store_path = tmp_path / "s.sqlite"
         result = subprocess.run(AMCP + ["--systems", "3", "--backends", "drake", "--steps", "6", "--scheduler", address,
-                                        "--store", str(store_path)], capture_output=True, text=True, timeout=300)
+                                        "--store", str(store_path)], capture_output=True, text=True, timeout=GUARD_SECONDS)
         assert result.returncode in (0, 1), result.stderr[-2000:]
         assert "problems stored: 3" in result.stdout
         assert _stored(store_path) == {0, 1, 2}

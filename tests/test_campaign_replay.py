@@ -28,6 +28,7 @@ from amcp_drake.model.options import OnlineOptions
 from amcp_drake.model.problem import ProblemSpec, Scenario
 from amcp_drake.model.problem_io import load_spec, save_spec
 from amcp_drake.online.simulate import Trajectory
+from tests.guards import GUARD_SECONDS
 
 DATA = Path(__file__).parent / "data" / "campaign-failures" / "0-19"
 STEPS = 4
@@ -84,7 +85,7 @@ def test_the_printed_command_reproduces_the_failure_bit_for_bit(failing_run, bac
     command = shlex.split(manifest["runs"][backend]["command"])
     assert command[:2] == ["amcp", "certify"]
     proc = subprocess.run([sys.executable, "-m", "amcp_drake", *command[1:]], check=False, capture_output=True, text=True,
-                          timeout=300)
+                          timeout=GUARD_SECONDS)
     assert proc.returncode == 1, proc.stderr[-2000:]
     assert "NOT CERTIFIED" in proc.stdout
     cert = json.loads((folder / f"replay-{backend}" / "certificate.json").read_text())
@@ -138,7 +139,7 @@ def test_certify_refuses_more_steps_than_the_explicit_disturbance_has(tmp_path):
     base = lorenzen2019_spec()
     path = save_spec(ProblemSpec(base.problem, base.design, _scenario(W_SEQUENCE.tolist())), tmp_path / "p.json")
     proc = subprocess.run([sys.executable, "-m", "amcp_drake", "certify", str(path), "--steps", "5", "--out",
-                           str(tmp_path / "out")], check=False, capture_output=True, text=True, timeout=300)
+                           str(tmp_path / "out")], check=False, capture_output=True, text=True, timeout=GUARD_SECONDS)
     assert proc.returncode == 2, proc.stderr[-2000:]
     assert "steps: expected at most 4 (scenario.disturbance is a sequence of 4 rows)" in proc.stderr
     assert not (tmp_path / "out").exists()

@@ -25,6 +25,7 @@ from amcp_drake.model.errors import TrajectoryError
 from amcp_drake.model.examples import lorenzen2019_spec
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.online.simulate import Trajectory
+from tests.guards import GUARD_SECONDS
 from tests.recorded_runs import example_1_recorded, fresh
 
 STEPS = 8
@@ -413,12 +414,14 @@ def test_an_unsolved_first_step_from_a_feasible_start_fails_theorem_14(recorded,
 @pytest.mark.parametrize("factor, verdict", [(2.0, "premise_not_met"), (0.5, "fail")])
 def test_the_initial_feasibility_premise_at_its_edge(recorded, spec, monkeypatch, factor, verdict):
     """The premise's threshold alone: step 0 recorded unsolved and the independent LP's slack stubbed to
-    −factor × 1e-6 (the LP itself is checked against the QP on whole regions by tests/test_coverage.py). Outside
+    −factor × LP_TOL (the LP itself is checked against the QP on whole regions by tests/test_coverage.py). Outside
     the tolerance the premise is not met; inside it the start counts as feasible and the unsolved step is a failed
     Theorem 14 (i)."""
     from amcp_drake.certificate.feasible_region import TubeLP
+    from amcp_drake.certificate.premises import LP_TOL
 
-    monkeypatch.setattr(TubeLP, "margin", lambda self, x0: -factor * 1e-6)
+    assert LP_TOL <= 1e-8  # a start 1e-7 outside the feasible region is never within it
+    monkeypatch.setattr(TubeLP, "margin", lambda self, x0, options=None: -factor * LP_TOL)
     tr = fresh(recorded)
     tr.records = tr.records[:1]
     rec = tr.records[0]
@@ -428,7 +431,7 @@ def test_the_initial_feasibility_premise_at_its_edge(recorded, spec, monkeypatch
     tr.stop_reason = "step 0: status infeasible"
     cert = certify(tr, spec)
     first = {p["id"]: p for p in cert.premises}["initial_feasibility"]
-    assert first["tolerance"] == 1e-6 and first["margin"] == -factor * 1e-6
+    assert first["tolerance"] == LP_TOL and first["margin"] == -factor * LP_TOL
     assert first["status"] == ("not_met" if verdict == "premise_not_met" else "met")
     assert cert.verdict == verdict
 
@@ -473,11 +476,11 @@ def test_the_11_premise_is_strict(recorded, spec, shift, status):
 
 
 def test_a_design_breaking_assumption_8_is_a_premise_not_met(recorded, spec):
-    """The recorded gain replaced by K = (0, −3) (a user's gain; A_cl has spectral radius 1.12 at a vertex of Θ):
-    Assumption 8 is a premise not met, and every claim built on that K that fails ((16), X0, X_f, the control
-    law) is not claimed, never failed."""
-    data = json.loads(json.dumps(recorded))
-    data["design"]["K"] = [[0.0, -3.0]]
+    """The run replayed with K = (0, −3) (a user's gain; A_cl has spectral radius 1.12 at a vertex of Θ) on the
+    recorded v_0|k and w_k, so that the file is consistent (u_k = K x_k + v_0|k, the states follow (1)):
+    Assumption 8 is a premise not met, the data claims pass, and every claim built on that K that fails
+    ((16), X0, X_f, the tubes) is not claimed, never failed."""
+    data = replayed_with_gain(recorded, spec, [[0.0, -3.0]])
     cert = certify(Trajectory.from_dict(data), spec)
     assert cert.verdict == "premise_not_met" and cert.ids("fail") == []
     [premise] = cert.premises_not_met
@@ -486,8 +489,29 @@ def test_a_design_breaking_assumption_8_is_a_premise_not_met(recorded, spec):
                  for t in theta_vertices(spec.problem.H_theta, spec.problem.h_theta))
     assert radius > 1.0 and A0.shape == (2, 2) and B0.shape == (2, 1)
     assert premise["id"] == "assumption_8" and premise["margin"] == pytest.approx(1.0 - radius, abs=1e-12)
+    assert {"model_consistent", "control_law", "w_in_W", "theta_star_in_Theta"} <= set(cert.ids("pass"))
     unclaimed = {c["id"] for c in cert.not_claimed}
-    assert {"design.terminal_cost_16", "control_law"} <= unclaimed
+    assert "design.terminal_cost_16" in unclaimed
+
+
+def replayed_with_gain(recorded: dict, spec, K: list[list[float]]) -> dict:
+    """A copy of ``recorded`` whose design gain is ``K`` and whose inputs and states are replayed with it on the
+    recorded v_0|k, θ* and w_k: u_k = K x_k + v_0|k and x_(k+1) by (1), in the arrays and the records alike."""
+    data = json.loads(json.dumps(recorded))
+    data["design"]["K"] = K
+    Km, pr = np.asarray(K, float), spec.problem
+    x = [np.asarray(data["x"][0], float)]
+    for k, rec in enumerate(data["records"]):
+        rec["x"] = x[k].tolist()
+        if rec.get("v") is None:
+            continue
+        u = Km @ x[k] + np.asarray(rec["v"][0], float)
+        rec["u"] = u.tolist()
+        if k < len(data["u"]):
+            data["u"][k] = u.tolist()
+            x.append(pr.step(x[k], u, np.asarray(data["theta_star"], float), np.asarray(data["w"][k], float)))
+    data["x"] = [xk.tolist() for xk in x]
+    return data
 
 
 def test_not_run_is_not_a_pass(recorded):
@@ -555,7 +579,7 @@ def test_certify_runs_without_any_backend(recorded, tmp_path):
         "print(c.verdict)\n"
     )
     env_path = f"{ROOT}:{ROOT / 'reference'}:{ROOT / 'properties'}"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=GUARD_SECONDS,
                          env={**os.environ, "PYTHONPATH": env_path})
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "pass"
@@ -579,7 +603,10 @@ def test_a_loose_solver_is_not_trusted(spec, monkeypatch):
                     seed=0, mu_state_bound=spec.design.mu_state_bound)
     first = traj.records[0]
     assert first.status is SolveStatus.INACCURATE and first.u is None
-    assert first.detail.startswith("tube QP (20): ") and "fallback vertex form failed" in first.detail
+    from amcp_drake.online import answers
+
+    e = answers.of(first, "tube_qp")            # the vertex form with SCS was tried and refused too
+    assert (e["outcome"], e["kind"]) == ("not_solved", "vertex_form") and e["check"], e
     assert certify(traj, spec).claim("recursive_feasibility").status == "fail"
 
     monkeypatch.setattr(answer_checks, "failures", lambda checks: [])  # the controller trusts the solver

@@ -20,6 +20,7 @@ from amcp_drake.certificate.report import OUTPUT_FILES
 from amcp_drake.cli import main
 from amcp_drake.model.examples import lorenzen2019_spec
 from amcp_drake.model.problem_io import save_spec, spec_to_dict
+from tests.guards import GUARD_SECONDS
 
 ROOT = Path(__file__).resolve().parents[1]
 STEPS = 6
@@ -307,7 +308,7 @@ def test_command_module_imports_no_backend_or_plotting():
             "bad = [m for m in ('pydrake', 'cvxpy', 'matplotlib') if m in sys.modules]\n"
             "assert not bad, bad\n")
     env_path = f"{ROOT}:{ROOT / 'reference'}:{ROOT / 'properties'}"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=GUARD_SECONDS,
                          env={**os.environ, "PYTHONPATH": env_path})
     assert out.returncode == 0, out.stderr
 

@@ -8,6 +8,8 @@ import subprocess
 import sys
 import textwrap
 
+from tests.guards import GUARD_SECONDS
+
 #: A QP that Clarabel solves in a few steps, forced to stop with InsufficientProgress.
 _TRIGGER = """
 import logging
@@ -27,7 +29,7 @@ logging.getLogger("drake").warning("a warning of Drake")
 
 def _run(prelude: str) -> subprocess.CompletedProcess:
     code = textwrap.dedent(prelude) + _TRIGGER
-    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=GUARD_SECONDS, check=True)
 
 
 def test_drakes_info_lines_reach_stderr_without_the_cli_setup():

@@ -20,6 +20,7 @@ from amcp_drake.model.problem import Problem
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.offline.checks import verify_design
 from amcp_drake.offline.design import design
+from tests.guards import GUARD_SECONDS
 
 BACKENDS = [b for b in ("drake", "cvxpy") if b in available_backends()]
 
@@ -401,6 +402,6 @@ def test_drake_gain_lmi_of_an_unstabilisable_vertex_is_infeasible_not_an_aborted
     code = ("import numpy as np; from amcp_drake.backends import get_backend; "
             f"r = get_backend('drake').robust_gain(np.array([[[1.5]]]), np.zeros((1, 1, 1)), np.eye(1), np.eye(1), {margin}); "
             "print(r.status.value, r.K is None, r.P is None)")
-    child = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    child = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=GUARD_SECONDS)
     assert child.returncode == 0, child.stderr[-2000:]
     assert child.stdout.split() == ["infeasible", "True", "True"]

@@ -73,17 +73,17 @@ def test_the_exact_update_is_compared_as_sets_when_the_backends_keep_different_r
     assert any(ctrl_rows)  # the set comparison was needed, not only the row comparison
 
 
-def test_a_loose_window_lp_answer_is_caught_and_replaced():
-    """A generated case (n = 1, p = 3, moving window of 5, data offsets up to 2e3): at
-    step 11 Drake's LP (9) (Clarabel at 1e-10, "solved") gave one h_i 0.21 above the support: a valid
-    but loose bound (multipliers ~1e5 cancelling), which the answer checks could not see without a
-    maximiser. The LP's duals serve as the maximisers, the tightness check fails (0.166 > 1e-7), the
-    HiGHS support LPs answer, and the backends agree in lockstep, cvxpy and Drake leading in turn."""
+def test_a_window_case_with_a_loose_lp_answer_agrees_in_lockstep():
+    """A generated case (n = 1, p = 3, moving window of 5, data offsets up to 2e3): at step 11 Drake's LP (9)
+    (Clarabel at 1e-10, "solved") gave, on the machine where it was recorded, one h_i 0.21 above the support:
+    a valid but loose bound (multipliers ~1e5 cancelling). Whether this machine's Clarabel gives that answer
+    is not asserted; whichever it gives, the backends agree in lockstep, cvxpy and Drake leading in turn
+    (a loose bound kept would differ by 0.21). The tightness check that replaces such an answer is tested
+    with a tampered LP answer in tests/test_answer_checks.py."""
     spec, runs = lockstep_both_ways("window-loose-lp-problem.json")
     assert spec.online.update == "window"
     for traj, result in runs.values():
         assert result.passed, result.detail
-    assert any("set update maximisers feasible and tight" in r.detail for r in runs["drake"][0].records)
 
 
 def test_the_set_comparison_sees_a_set_that_differs_and_accepts_another_description_of_the_same():

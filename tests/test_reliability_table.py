@@ -5,9 +5,9 @@ through the CLI entry point with a message naming the field or option, nothing w
 folder; a row may instead expect exit 0 with the same output as a reference command.
 
 Each row: (id, build, args, exit code, regex, extras). ``extras`` may hold ``patch`` (a function of
-pytest's monkeypatch applied before the command, e.g. a writer failing with ENOSPC), ``seconds`` (the
-command must end within this wall time) and ``same_as`` (argv of a reference command whose stdout must
-equal this one's, timings masked).
+pytest's monkeypatch applied before the command, e.g. a writer failing with ENOSPC) and ``same_as`` (argv
+of a reference command whose stdout must equal this one's, timings masked). No row asserts a wall time: a
+device or an oversized file is refused by what was read (the message names the file and the limit).
 
 The rows that start real processes (two resumes of one campaign store, SIGTERM during certify and
 during a campaign) follow the table.
@@ -33,6 +33,7 @@ import pytest
 from click.testing import CliRunner
 
 from amcp_drake.cli import main
+from tests.guards import GUARD_SECONDS
 from tests.recorded_runs import TRAJECTORY_DATA, trajectory
 from tests.test_bad_input_table import example, files, good_traj, problem, set_, text, traj
 
@@ -133,7 +134,6 @@ def sparse_file(name: str, size: int) -> Callable[[Path], Path]:
     return make
 
 
-DEVICE_SECONDS = 5.0  # generous for a loaded machine; the read stops at the first 64 KiB
 
 #: (id, build, args, exit code, regex, extras)
 ROWS: list[tuple] = [
@@ -183,20 +183,20 @@ ROWS: list[tuple] = [
      r"records\[10\]\.theta_hat\[0\]: expected .*magnitude.*1e\+308", {}),
     # 10: a device given as an input file (the read stops early: exit 2 at once)
     ("trajectory-dev-zero", files(), ["certify", "--trajectory", "/dev/zero", "--out", "{folder}/out"], 2,
-     r"/dev/zero", {"seconds": DEVICE_SECONDS}),
+     r"/dev/zero", {}),
     ("trajectory-dev-urandom", files(), ["certify", "--trajectory", "/dev/urandom", "--out", "{folder}/out"], 2,
-     r"/dev/urandom", {"seconds": DEVICE_SECONDS}),
-    ("problem-dev-zero", files(), ["design", "/dev/zero"], 2, r"/dev/zero", {"seconds": DEVICE_SECONDS}),
+     r"/dev/urandom", {}),
+    ("problem-dev-zero", files(), ["design", "/dev/zero"], 2, r"/dev/zero", {}),
     ("points-dev-zero", files(), ["coverage", "--points", "/dev/zero"], 2, r"--points.*/dev/zero",
-     {"seconds": DEVICE_SECONDS}),
+     {}),
     ("problem-over-size-limit", text("p.json", " " * (64 * 2**20 + 1)), ["design", "{file}"], 2,
-     r"file: expected at most 67,108,864 bytes", {"seconds": DEVICE_SECONDS}),
+     r"file: expected at most 67,108,864 bytes", {}),
     ("corpus-over-size-limit", files(c=sparse_file("c.json", 100 * 2**20)), ["solvers", "--corpus", "{c}"], 2,
      r"file: expected at most 67,108,864 bytes \(the size limit of a corpus file.*104,857,600 bytes",
-     {"seconds": DEVICE_SECONDS}),
+     {}),
     ("corpus-gzip-over-size-limit", text("c.json.gz", gzip.compress(b" " * (64 * 2**20 + 1))),
      ["solvers", "--corpus", "{file}"], 2, r"c\.json\.gz: expected at most 67,108,864 bytes of JSON after decompression",
-     {"seconds": DEVICE_SECONDS}),
+     {}),
     # 11: --max-memory that would disable the limit
     ("run-max-memory-nan", problem(lambda d: None), ["run", "{file}", "--max-memory", "nan"], 2,
      r"'--max-memory'.*nan", {}),
@@ -207,10 +207,10 @@ ROWS: list[tuple] = [
     # 12: schedulers that cannot be used
     ("campaign-scheduler-unreachable", files(), ["campaign", "--systems", "1", "--scheduler", "tcp://127.0.0.1:1",
                                                  "--store", "{folder}/c.sqlite"], 2,
-     r"--scheduler: expected a reachable Dask scheduler.*tcp://127\.0\.0\.1:1", {"seconds": 20.0}),
+     r"--scheduler: expected a reachable Dask scheduler.*tcp://127\.0\.0\.1:1", {}),
     ("campaign-scheduler-not-a-url", files(), ["campaign", "--systems", "1", "--scheduler", "not a url",
                                                "--store", "{folder}/c.sqlite"], 2,
-     r"--scheduler: expected an address .*tcp://host:port.*'not a url'", {"seconds": 10.0}),
+     r"--scheduler: expected an address .*tcp://host:port.*'not a url'", {}),
     # 13: a full disk under certify --out
     ("certify-out-disk-full", files(t=good_traj), ["certify", "--trajectory", "{t}", "--out", "{folder}/D"], 2,
      r"--out: .*No space left on device.*nothing was written", {"patch": disk_full_on_write}),
@@ -245,16 +245,12 @@ def test_hostile_input(row, tmp_path, monkeypatch):
     before = _snapshot(folder)
     if "patch" in extras:
         extras["patch"](monkeypatch)
-    start = time.monotonic()
     result = CliRunner().invoke(main, argv)
-    elapsed = time.monotonic() - start
     output = result.output
     assert result.exit_code == code, f"{case}: exit {result.exit_code}\n{output}\n{result.exception!r}"
     assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
     assert "Traceback" not in output
     assert re.search(pattern, output, re.DOTALL), f"{case}: {pattern!r} not in\n{output}"
-    if "seconds" in extras:
-        assert elapsed < extras["seconds"], f"{case}: {elapsed:.1f} s"
     created = _snapshot(folder) - before
     assert not created, f"{case}: wrote {sorted(created)}"
     if "same_as" in extras:
@@ -273,7 +269,7 @@ def _amcp(*args: str, **kwargs) -> subprocess.Popen:
                             stderr=subprocess.PIPE, text=True, start_new_session=True, **kwargs)
 
 
-def _finish(proc: subprocess.Popen, seconds: float) -> tuple[int, str, str]:
+def _finish(proc: subprocess.Popen, seconds: float = GUARD_SECONDS) -> tuple[int, str, str]:
     try:
         out, err = proc.communicate(timeout=seconds)
     except subprocess.TimeoutExpired:
@@ -305,7 +301,7 @@ def test_two_resumes_of_one_store_at_once_never_duplicate_work_or_rows(tmp_path)
     args = ("campaign", "--systems", "2", "--backends", "drake", "--steps", "2", "--workers", "1", "--store",
             str(store_path), "--resume")
     procs = [_amcp(*args, cwd=tmp_path) for _ in range(2)]
-    results = [_finish(proc, 240) for proc in procs]
+    results = [_finish(proc) for proc in procs]
     codes = sorted(code for code, _, _ in results)
     assert codes[0] in (0, 1), results  # one ran the campaign (1: a drawn problem failed a claim)
     if codes[1] == 2:
@@ -315,7 +311,7 @@ def test_two_resumes_of_one_store_at_once_never_duplicate_work_or_rows(tmp_path)
     assert _completions(store_path) == [(0, 0), (0, 1)]
 
 
-def _wait_for(predicate, proc: subprocess.Popen, seconds: float) -> None:
+def _wait_for(predicate, proc: subprocess.Popen, seconds: float = GUARD_SECONDS) -> None:
     deadline = time.monotonic() + seconds
     while not predicate():
         assert proc.poll() is None, f"ended early: {proc.communicate()}"
@@ -329,9 +325,9 @@ def test_sigterm_during_certify_removes_the_staging_folder_and_says_so(tmp_path)
     out = tmp_path / "D"
     proc = _amcp("certify", "--trajectory", str(TRAJECTORY_DATA), "--out", str(out))
     try:
-        _wait_for(lambda: out.is_dir() and any(out.glob(".certify-staging-*")), proc, 120)
+        _wait_for(lambda: out.is_dir() and any(out.glob(".certify-staging-*")), proc)
         proc.send_signal(signal.SIGTERM)
-        code, stdout, stderr = _finish(proc, 30)
+        code, stdout, stderr = _finish(proc)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
@@ -361,12 +357,12 @@ def test_signal_during_a_campaign_stops_the_workers_and_says_how_to_resume(tmp_p
 
     proc = _amcp(*args, cwd=tmp_path)
     try:
-        _wait_for(stored, proc, 180)
+        _wait_for(stored, proc)
         if group:
             os.killpg(proc.pid, signum)
         else:
             proc.send_signal(signum)
-        code, stdout, stderr = _finish(proc, 60)
+        code, stdout, stderr = _finish(proc)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
@@ -378,7 +374,7 @@ def test_signal_during_a_campaign_stops_the_workers_and_says_how_to_resume(tmp_p
                         r"resume with: amcp campaign .*--resume", lines[0]), stderr
     first = _completions(store_path)
     assert 1 <= len(first) < 6 and len(set(first)) == len(first)
-    code, stdout, stderr = _finish(_amcp(*args, "--resume", cwd=tmp_path), 240)
+    code, stdout, stderr = _finish(_amcp(*args, "--resume", cwd=tmp_path))
     assert code in (0, 1), stderr
     assert _completions(store_path) == [(0, i) for i in range(6)]
 
@@ -454,14 +450,14 @@ def test_sigterm_during_verify_stops_its_pytest_child_and_says_so(tmp_path):
         assert proc.stdout.readline().startswith("running: ")
         time.sleep(0.5)
         proc.send_signal(signal.SIGTERM)
-        code, stdout, stderr = _finish(proc, 60)
+        code, stdout, stderr = _finish(proc)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
     assert code == 128 + signal.SIGTERM, (code, stderr)
     assert "Traceback" not in stderr
     assert re.search(r"^interrupted \(SIGTERM\): the property suite was stopped", stderr, re.MULTILINE), stderr
-    deadline = time.monotonic() + 10
+    deadline = time.monotonic() + GUARD_SECONDS
     while True:
         try:
             os.killpg(proc.pid, 0)
@@ -511,7 +507,7 @@ def test_an_endless_pipe_under_a_memory_limit_exits_2_naming_the_file(tmp_path):
                                  str(out)], env=_env(), stdin=source.stdout, stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True, start_new_session=True, preexec_fn=limit_memory)
         source.stdout.close()
-        code, stdout, stderr = _finish(proc, 120)
+        code, stdout, stderr = _finish(proc)
     finally:
         source.kill()
         source.wait()
@@ -556,7 +552,7 @@ def test_certify_out_on_a_full_tmpfs_exits_2_naming_out_and_writes_nothing(tmp_p
     ENOSPC, no traceback, nothing left on the file system (the staging folder is removed)."""
     with _tmpfs(tmp_path / "disk", "200k") as disk:
         code, stdout, stderr = _finish(_amcp("certify", "--trajectory", str(TRAJECTORY_DATA), "--out",
-                                             str(disk / "D")), 120)
+                                             str(disk / "D")))
         left = sorted(str(p.relative_to(disk)) for p in disk.rglob("*"))
     assert code == 2, (code, stderr)
     assert "Traceback" not in stderr
@@ -565,6 +561,7 @@ def test_certify_out_on_a_full_tmpfs_exits_2_naming_out_and_writes_nothing(tmp_p
     assert left == []
 
 
+@pytest.mark.slow
 def test_campaign_on_a_disk_that_fills_up_exits_2_and_resumes_without_running_a_problem_twice(tmp_path):
     """A campaign whose tmpfs is filled to the brim after its first problem is stored: exit 2 naming
     --store (no traceback, whole problems only in the store); ``--report`` onto that full disk: exit 2
@@ -582,9 +579,9 @@ def test_campaign_on_a_disk_that_fills_up_exits_2_and_resumes_without_running_a_
 
         proc = _amcp(*args, cwd=tmp_path)
         try:
-            _wait_for(stored, proc, 180)
+            _wait_for(stored, proc)
             fill = _fill(disk)
-            code, stdout, stderr = _finish(proc, 120)
+            code, stdout, stderr = _finish(proc)
         finally:
             if proc.poll() is None:
                 os.killpg(proc.pid, signal.SIGKILL)
@@ -595,12 +592,12 @@ def test_campaign_on_a_disk_that_fills_up_exits_2_and_resumes_without_running_a_
         first = _completions(store_path)
         assert 1 <= len(first) < 6 and len(set(first)) == len(first)
         code, stdout, stderr = _finish(_amcp("campaign", "--store", str(store_path), "--report",
-                                             str(disk / "r.html"), cwd=tmp_path), 60)
+                                             str(disk / "r.html"), cwd=tmp_path))
         assert code == 2 and "Traceback" not in stderr, (code, stderr)
         assert re.search(r"^error: --report: .*No space left on device.*nothing was written", stderr, re.MULTILINE)
         assert sorted(p.name for p in disk.iterdir() if not p.name.startswith("c.sqlite")) == ["fill"]
         fill.unlink()
-        code, stdout, stderr = _finish(_amcp(*args, "--resume", cwd=tmp_path), 240)
+        code, stdout, stderr = _finish(_amcp(*args, "--resume", cwd=tmp_path))
         assert code in (0, 1), stderr
         assert _completions(store_path) == [(0, i) for i in range(6)]
 
@@ -622,7 +619,7 @@ def test_certify_out_under_a_file_size_limit_exits_2_naming_out_and_writes_nothi
     proc = subprocess.Popen([sys.executable, "-m", "amcp_drake", "certify", "--trajectory", str(TRAJECTORY_DATA),
                              "--out", str(out)], env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True, preexec_fn=_file_size_limit(200 * 1024))
-    code, stdout, stderr = _finish(proc, 120)
+    code, stdout, stderr = _finish(proc)
     assert code == 2, (code, stderr)
     assert "Traceback" not in stderr
     assert re.search(r"^error: --out: .*File too large \(EFBIG\); nothing was written", stderr, re.MULTILINE), stderr
@@ -688,43 +685,34 @@ def test_a_truncated_store_without_a_write_ahead_log_is_still_refused(tmp_path):
 
 
 def test_a_long_design_prints_progress_while_it_runs(tmp_path):
-    """``amcp design --progress-every 0.5`` of Example 1 with an mrpi template of 160 facets (3 to 11 s of
-    work, depending on the machine; the memory limit raised for the design's own stages): progress lines
-    ("  ... design: <stage> (<t> s CPU)") on stderr while it
-    runs, at least three of them spread over at least 1 s, and no silence longer than 3/4 of the
-    command's wall time (a silent design prints everything at its end: a silence of the whole run). The
-    interval itself is tested with a fake clock in tests/test_scale_design.py."""
-    import threading
-
+    """``amcp design --progress-every 0.5`` of Example 1 with an mrpi template of 160 facets (seconds of work;
+    the memory limit raised for the design's own stages): a progress line ("  ... design: <stage> (<t> s CPU)") reaches stderr while the design is still working, shown
+    without a clock: a SIGTERM sent when the first one arrives stops the design before its checks are printed
+    (a design that printed its progress only at its end would have finished by then). The interval itself is
+    tested with a fake clock in tests/test_scale_design.py."""
     data = example()
     data["design"].update({"x0_template": "mrpi", "x0_facets": 160})
     path = tmp_path / "p.json"
     path.write_text(json.dumps(data))
-    start = time.monotonic()
     proc = _amcp("design", str(path), "--max-memory", "8192", "--progress-every", "0.5")
-    arrivals: list[tuple[float, str]] = []
-
-    def read() -> None:
+    try:
+        seen = []
         for line in proc.stderr:
-            arrivals.append((time.monotonic(), line))
-
-    reader = threading.Thread(target=read)
-    reader.start()
-    code, stdout, _ = _finish(proc, 300)
-    reader.join()
-    end = time.monotonic()
-    assert code == 0, "".join(line for _, line in arrivals)
-    assert "all design checks pass" in stdout
-    progress = [t for t, line in arrivals if re.match(r"\s*\.\.\. design: .*\(\d+ s CPU\)$", line.rstrip())]
-    assert len(progress) >= 3 and progress[-1] - progress[0] >= 1.0, arrivals
-    times = [start] + [t for t, _ in arrivals] + [end]
-    silences = [b - a for a, b in zip(times, times[1:])]
-    assert max(silences) < 0.75 * (end - start), (max(silences), end - start, arrivals)
+            seen.append(line)
+            if re.match(r"\s*\.\.\. design: .*\(\d+ s CPU\)$", line.rstrip()):
+                proc.send_signal(signal.SIGTERM)
+                break
+        code, stdout, stderr = _finish(proc)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert code != 0 and "all design checks pass" not in stdout, (code, "".join(seen) + stderr, stdout)
+    assert "Traceback" not in stderr
 
 
 @pytest.mark.parametrize("value", ["0", "nan", "inf"])
 def test_a_progress_interval_that_is_not_a_positive_finite_number_exits_2_naming_the_option(value):
-    code, _, stderr = _finish(_amcp("design", "--example", "lorenzen2019", "--progress-every", value), 60)
+    code, _, stderr = _finish(_amcp("design", "--example", "lorenzen2019", "--progress-every", value))
     assert code == 2 and "--progress-every" in stderr and "Traceback" not in stderr, stderr
 
 
@@ -741,7 +729,7 @@ def test_a_campaign_beside_another_dask_process_prints_no_port_warning(tmp_path)
         pass  # held by another process already: the same situation
     try:
         code, stdout, stderr = _finish(_amcp("campaign", "--systems", "1", "--backends", "drake", "--steps", "2",
-                                             "--workers", "1", "--store", str(tmp_path / "c.sqlite"), cwd=tmp_path), 180)
+                                             "--workers", "1", "--store", str(tmp_path / "c.sqlite"), cwd=tmp_path))
     finally:
         holder.close()
     assert code in (0, 1), stderr
@@ -761,11 +749,11 @@ def test_sigterm_during_run_and_coverage_ends_with_one_line_and_writes_nothing(t
         proc = _amcp("coverage", "--out", str(out), cwd=tmp_path)
         started = lambda: "robust Θ:" in proc.stderr.read(64)  # noqa: E731 - its progress bar
     try:
-        deadline = time.monotonic() + 120
+        deadline = time.monotonic() + GUARD_SECONDS
         while not started():
             assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
         proc.send_signal(signal.SIGTERM)
-        code, stdout, stderr = _finish(proc, 60)
+        code, stdout, stderr = _finish(proc)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)

@@ -28,6 +28,7 @@ from amcp_drake.certificate.report import render_report, write_outputs
 from amcp_drake.certificate.report_plots import PLOTS
 from amcp_drake.model.examples import lorenzen2019_spec
 from amcp_drake.online.simulate import Trajectory
+from tests.guards import GUARD_SECONDS
 
 STEPS = 6
 #: Which claims each section of the report must hold, written out from the paper (not from the code's map).
@@ -40,7 +41,8 @@ EXPECTED_SECTIONS = {
     "proposition9": ["tube_contains_state", "tube_contains_next_state", "tube_propagation", "tube_constraints",
                      "tube_alpha_nonneg", "terminal_set", "multipliers_nonneg", "multipliers_15c", "multipliers_15d"],
     "qp20": ["cost_value", "qp_optimality"],
-    "assumptions": ["theta_star_in_Theta", "w_in_W", "model_consistent", "control_law", "mu_precondition"],
+    "assumptions": ["theta_star_in_Theta", "w_in_W", "model_consistent", "data_consistency", "control_law",
+                    "mu_precondition"],
     "design": ["design.terminal_cost_16", "design.assumption_8", "design.x0_contractive",
                "design.x0_robustly_invariant", "design.w_bar_f_bar_recomputed", "design.x_f_non_empty",
                "design.x_f_invariant", "design.x_f_in_z", "design.mu_condition_11", "design.x0_vertices"],
@@ -192,7 +194,7 @@ def test_report_renders_in_headless_chromium(bundle, tmp_path):
     cmd = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
            "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={tmp_path / 'profile'}",
            "--dump-dom", report.resolve().as_uri()]
-    done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=GUARD_SECONDS)
     assert done.returncode == 0, done.stderr[-2000:]
     doc = parse(done.stdout)
     # every plot, by id and alt text, as an image the browser kept in the DOM

@@ -17,6 +17,12 @@ backend that ran the loop):
 * the optimality of the recorded (z, α, v) for the QP (20) rebuilt from the record, by KKT
   residuals (:mod:`amcp_drake.certificate.optimality`).
 
+Every run is also checked for model consistency, Θ_{k−1} ∩ Δ_k ≠ ∅ at every step
+(:mod:`amcp_drake.certificate.consistency`). A *measured run* (``theta_star`` and ``w`` None: a plant
+other than amcp's simulator) has the claims that need θ* or w reported ``not_applicable`` ("θ* and w
+unknown", never a pass) and every other claim checked as on a simulated run; its verdict is on the
+applicable claims.
+
 The premises of the results (𝔻(x_0, Θ_0) ≠ ∅, Assumption 8, (11)) are reported apart from the claims
 (:mod:`amcp_drake.certificate.premises`): a run whose premise is not met has the verdict
 ``"premise_not_met"``, and the claims that did not pass on it are "not claimed", never failed.
@@ -223,9 +229,21 @@ def certify(traj: Trajectory, problem_spec: ProblemSpec | None = None) -> Certif
     claims, premises, unclaimed = premise_checks.apply(claims, view)
     info["not_claimed"] += unclaimed
     return Certificate(claims=claims, figures=figures, series=series, run=info, premises=premises,
-                       problem={"name": traj.problem.name, "n": traj.problem.n, "m": traj.problem.m,
-                                "p": traj.problem.p, "N": traj.problem.N},
+                       problem=_problem_summary(traj.problem),
                        solver_answers=answers.summarize(traj.records, traj.backend))
+
+
+def _problem_summary(pr) -> dict:
+    """Dimensions of the problem, and the names, units and sample time when the problem gives them
+    (descriptive: ``states``/``inputs`` as ``name [unit]``, ``dt`` in seconds)."""
+    out = {"name": pr.name, "n": pr.n, "m": pr.m, "p": pr.p, "N": pr.N}
+    if pr.states:
+        out["states"] = [pr.state_label(i) for i in range(pr.n)]
+    if pr.inputs:
+        out["inputs"] = [pr.input_label(j) for j in range(pr.m)]
+    if pr.dt is not None:
+        out["dt"] = pr.dt
+    return out
 
 
 # -- design ------------------------------------------------------------------------------------------
@@ -424,7 +442,8 @@ def _run_info(traj: Trajectory, state_bound: float | None) -> dict[str, Any]:
     return extra | {
         "backend": traj.backend, "steps": len(traj.u), "records": len(traj.records), "stop_reason": traj.stop_reason,
         "x0": traj.x[0].tolist(), "theta_star": None if traj.measured else traj.theta_star_at(0).tolist(),
-        "measured": traj.measured, "simulator": traj.meta.get("simulator", "amcp"),
+        "measured": traj.measured,
+        "simulator": traj.meta.get("simulator") or ("not recorded" if traj.measured else "amcp"),
         "theta_hat0": traj.problem.theta_hat0.tolist(),
         "update": traj.options.update, "window": traj.options.window, "projection": traj.options.projection,
         "disturbance": traj.meta.get("disturbance"), "seed": traj.meta.get("seed"),

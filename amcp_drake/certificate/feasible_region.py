@@ -125,9 +125,10 @@ class TubeLP:
         return cls(A=csr_matrix(A / norms[:, None]), b=b / norms, Bx=Bx / norms[:, None], bounds=layout.bounds(),
                    size=size)
 
-    def margin(self, x0: np.ndarray) -> float:
+    def margin(self, x0: np.ndarray, options: dict | None = None) -> float:
         """max t (<= SLACK_CAP) with A y + t <= b(x0), α >= 0: >= 0 iff 𝔻(x0, Θ) ≠ ∅. nan if the LP
-        fails (it is always feasible: t may be as negative as needed)."""
+        fails (it is always feasible: t may be as negative as needed). ``options``: HiGHS options of
+        scipy's ``linprog`` (tolerances; default HiGHS' own, feasibility 1e-7)."""
         from scipy.sparse import hstack
 
         if self._A_t is None:
@@ -135,7 +136,7 @@ class TubeLP:
         cost = np.zeros(self.size + 1)
         cost[-1] = -1.0
         res = linprog(cost, A_ub=self._A_t, b_ub=self.b + self.Bx @ np.asarray(x0, float),
-                      bounds=self.bounds + [(None, SLACK_CAP)], method="highs")
+                      bounds=self.bounds + [(None, SLACK_CAP)], method="highs", options=options)
         if res.status != 0:
             return float("nan")
         return float(res.x[-1])

@@ -39,7 +39,7 @@ import numpy as np
 
 from amcp_drake.certificate.certify import Certificate, claim_to_dict
 from amcp_drake.certificate.provenance import provenance
-from amcp_drake.certificate.report_groups import grouped, math_html, regressor_gram_lambda_min
+from amcp_drake.certificate.report_groups import grouped, math_html, regressor_gram_lambda_min, theta_hat_outside_theta_k
 from amcp_drake.certificate.report_plots import PLOTS, draw
 from amcp_drake.model.problem_io import check_output_dir
 from amcp_drake.online.simulate import Trajectory
@@ -164,7 +164,7 @@ def render_report(traj: Trajectory, cert: Certificate) -> str:
     gram_first, gram_last = regressor_gram_lambda_min(traj, window)
     return env.get_template("report.html").render(
         cert=data, sections=grouped(claims, cert.not_claimed), plots=plots, baseline=data["figures"].get("robust_baseline"),
-        gram={"window": window, "first": gram_first, "last": gram_last}, fmt=_fmt, vec=_vec, math=math_html,
+        gram={"window": window, "first": gram_first, "last": gram_last}, outside=theta_hat_outside_theta_k(traj), fmt=_fmt, vec=_vec, math=math_html,
         ratio=_ratio, relative_tolerances=any(c.get("tolerance_relative") for c in claims))
 
 

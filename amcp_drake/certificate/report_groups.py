@@ -143,3 +143,34 @@ def regressor_gram_lambda_min(traj, window: int) -> tuple[float | None, float | 
         return float(np.linalg.eigvalsh(gram)[0])
 
     return lam(range(window)), lam(range(T - window, T))
+
+
+#: θ̂_k counts as outside Θ_k when max_i ([H_θ,k]_i θ̂_k − [h_θ,k]_i) exceeds this (the rows of Θ_k's
+#: description as recorded; a LMS projection onto Θ_k lands on its boundary up to solver round-off)
+THETA_HAT_OUTSIDE_TOL = 1e-7
+
+
+@dataclass(frozen=True)
+class ThetaHatOutside:
+    """How often the estimate θ̂_k lay outside the set estimate Θ_k over a run's records."""
+
+    steps: int  #: records checked (those with Θ_k and θ̂_k recorded)
+    outside: int  #: records with θ̂_k ∉ Θ_k
+    worst: float | None  #: the largest violation max_i([H_θ,k]_i θ̂_k − [h_θ,k]_i), None when nothing was checked
+
+
+def theta_hat_outside_theta_k(traj, tol: float = THETA_HAT_OUTSIDE_TOL) -> ThetaHatOutside:
+    """Count the records whose θ̂_k lies outside Θ_k = {θ | H_θ,k θ ≤ h_θ,k}: allowed by (12) (the projection
+    is onto Θ) and removed by Remark 7 (``--projection Theta_k``); the report says how often it happened."""
+    steps, outside, worst = 0, 0, None
+    for r in traj.records:
+        if r.H_theta is None or r.h_theta is None or r.theta_hat is None:
+            continue
+        H, h, th = (np.asarray(v, float) for v in (r.H_theta, r.h_theta, r.theta_hat))
+        if H.size == 0 or not np.all(np.isfinite(th)):
+            continue
+        violation = float(np.max(H @ th - h))
+        steps += 1
+        outside += violation > tol
+        worst = violation if worst is None else max(worst, violation)
+    return ThetaHatOutside(steps, outside, worst)

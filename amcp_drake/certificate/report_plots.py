@@ -121,6 +121,16 @@ def _hull2d(points: np.ndarray) -> np.ndarray:
 
 
 # -- states and inputs -----------------------------------------------------------------------------------
+def signal_label(pr, i: int, on_state: bool = True) -> str:
+    """Text of state (input) i on an axis or in a legend: ``name [unit]`` when the problem names it, else
+    $x_{i+1}$ ($u_{i+1}$). Names and units are restricted to a character set without ``$`` or markup
+    (model/signals.py), so they are shown as plain text."""
+    named = pr.states if on_state else pr.inputs
+    if named:
+        return pr.state_label(i) if on_state else pr.input_label(i)
+    return f"${'x' if on_state else 'u'}_{{{i + 1}}}$"
+
+
 def _plot_states(traj: Trajectory, cert: Certificate):
     return (_plot_signal(traj, on_state=True),
             "Dashed: constraints of Z that bound a single state (mixed rows of Z are not drawn).")
@@ -133,13 +143,13 @@ def _plot_input(traj: Trajectory, cert: Certificate):
 def _plot_signal(traj: Trajectory, on_state: bool) -> str:
     """x_k (dots) or u_k (held over the step) against k, each with the rows of Z that bound it alone."""
     pr = traj.problem
-    values, symbol, width = (traj.x, "x", pr.n) if on_state else (traj.u, "u", pr.m)
+    values, width = (traj.x, pr.n) if on_state else (traj.u, pr.m)
     bounds = _single_bounds(pr.F, pr.G, on_state)
     fig = _figure()
     ax = fig.add_subplot()
     k = np.arange(len(values))
     for j in range(width):
-        label = f"${symbol}_{{{j + 1}}}$"
+        label = signal_label(pr, j, on_state)
         if on_state:
             line, = ax.plot(k, values[:, j], marker=".", label=label)
         else:
@@ -148,7 +158,7 @@ def _plot_signal(traj: Trajectory, on_state: bool) -> str:
         for idx, bound in bounds:
             if idx == j:
                 ax.axhline(bound, ls="--", color=line.get_color(), lw=1,
-                           label=None if labelled else f"bound on ${symbol}_{{{j + 1}}}$ (Z)")
+                           label=None if labelled else f"bound on {label} (Z)")
                 labelled = True
     _include_bounds(ax, values, [b for _, b in bounds])
     _finish(ax, "state" if on_state else "input", ncol=2)
@@ -250,8 +260,8 @@ def _plot_tubes(traj: Trajectory, cert: Certificate):
         drawn = _z_boundary(axis, pr, lx, ly)
         axis.set_xlim(lx)
         axis.set_ylim(ly)
-        axis.set_xlabel("$x_1$")
-        axis.set_ylabel("$x_2$")
+        axis.set_xlabel(signal_label(pr, 0))
+        axis.set_ylabel(signal_label(pr, 1))
         axis.set_title(title, fontsize="medium")
         axis.grid(alpha=0.3)
         handles, labels = axis.get_legend_handles_labels()

@@ -11,6 +11,7 @@ from amcp_drake.cli.common import (
     bad_input_exits_2,
     check_run_size,
     design_file_option,
+    echo,
     exit_verdict,
     load_design_file,
     load_problem_spec,
@@ -59,13 +60,13 @@ def baseline_cmd(problem_file, example, design_file, backend, seeds, steps, upda
                        grid=grid or DEFAULT_GRID)
     (a1, b1), (a2, b2) = DEFAULT_BOX
     n_grid = grid or DEFAULT_GRID
-    click.echo(f"{spec.problem.name}: {len(res.seeds)} seeds, {steps or spec.scenario.steps} steps, x0 = "
+    echo(f"{spec.problem.name}: {len(res.seeds)} seeds, {steps or spec.scenario.steps} steps, x0 = "
                f"{np.asarray(spec.scenario.x0).tolist()}, update {update}, backend {backend} ({formulation}); "
                f"x0 grid {n_grid}x{n_grid} on [{a1}, {b1}] x [{a2}, {b2}]")
-    click.echo("")
-    click.echo(res.markdown())
+    echo("")
+    echo(res.markdown())
     contained = all(bool(np.all(fa[res.feasible_robust])) for fa in res.feasible_adaptive)
-    click.echo("")
-    click.echo(f"robust feasible region ⊆ adaptive region at every grid point and seed: {contained}")
+    echo("")
+    echo(f"robust feasible region ⊆ adaptive region at every grid point and seed: {contained}")
     ok = contained and all(r.completed for r in res.adaptive + res.robust)
     exit_verdict(ok)

@@ -12,6 +12,7 @@ from amcp_drake.cli.common import (
     bad_input_exits_2,
     candidate_budget_option,
     max_memory_option,
+    output_dir_callback,
     parse_range,
 )
 
@@ -51,6 +52,7 @@ from amcp_drake.cli.common import (
                    "counts as met only when every repeat meets it.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Disturbance seed.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default="amcp-out/bench", show_default=True,
+              callback=output_dir_callback,
               help="Directory for bench.json and bench.png.")
 @click.option("--no-plot", is_flag=True, help="Write the JSON only.")
 @bad_input_exits_2

@@ -23,11 +23,13 @@ from amcp_drake.cli.common import (
     candidate_budget_option,
     design_budget,
     design_file_option,
+    echo,
     exit_verdict,
     formulation_option,
     interruptible,
     load_problem_spec,
     max_memory_option,
+    nonempty_path_callback,
     online_options,
     output_dir_callback,
     prepare_run,
@@ -53,7 +55,7 @@ from amcp_drake.cli.common import (
 @seed_option("Seed of the disturbance sequence (default: the scenario's; 0 for Example 1).")
 @click.option("--out", "out_dir", default="amcp-out", show_default=True, type=click.Path(), callback=output_dir_callback,
               help="Output directory (its other files are left alone).")
-@click.option("--trajectory", "trajectory_file", default=None, type=click.Path(),
+@click.option("--trajectory", "trajectory_file", default=None, type=click.Path(), callback=nonempty_path_callback,
               help="Re-check a saved trajectory (.json or .json.gz) instead of running the loop.")
 @online_options
 @max_memory_option
@@ -115,15 +117,15 @@ def certify_cmd(ctx, problem_file, example, x0_template, design_file, backend, d
                 raise
             from amcp_drake.certificate.premises import DESIGN_HINT
 
-            click.echo(f"PREMISE NOT MET: Assumption 8 (A_cl(θ) = A(θ) + B(θ)K Schur stable at every vertex of Θ): the "
+            echo(f"PREMISE NOT MET: Assumption 8 (A_cl(θ) = A(θ) + B(θ)K Schur stable at every vertex of Θ): the "
                        f"gain design.K of the problem file breaks it ({broken}); nothing was run or written, nothing is "
                        "claimed")
-            click.echo(f"                 next: {DESIGN_HINT}")
+            echo(f"                 next: {DESIGN_HINT}")
             sys.exit(EXIT_PREMISE_NOT_MET)
         if formulation == "auto":
-            click.echo(f"formulation auto: {traj.meta.get('formulation', 'plain')}", err=True)
+            echo(f"formulation auto: {traj.meta.get('formulation', 'plain')}", err=True)
         if traj.stop_reason.startswith("inconsistent"):
-            click.echo(f"warning: the run stopped: {traj.stop_reason}; certifying the partial trajectory", err=True)
+            echo(f"warning: the run stopped: {traj.stop_reason}; certifying the partial trajectory", err=True)
     cert = certify(traj, spec)
     if trajectory_file is None and traj.options.update != "none":
         cert = _with_robust_baseline(traj, cert)
@@ -132,7 +134,7 @@ def certify_cmd(ctx, problem_file, example, x0_template, design_file, backend, d
                             command_line=["amcp", *sys.argv[1:]])
     except OSError as exc:  # a full disk or a failing medium: write_outputs removed what it had staged
         raise write_error("--out", out_dir, exc) from None
-    _print(cert, out)
+    _print(cert, out, traj.problem)
     if cert.verdict == VERDICT_PREMISE_NOT_MET and cert.conformance != "fail":
         sys.exit(EXIT_PREMISE_NOT_MET)
     exit_verdict(cert.passed and cert.conformance != "fail")
@@ -146,11 +148,11 @@ def _with_robust_baseline(traj, cert):
 
     from amcp_drake.studies.baseline import robust_beside
 
-    click.echo("robust baseline (--update none) on the same disturbance ...", err=True)
+    echo("robust baseline (--update none) on the same disturbance ...", err=True)
     try:
-        baseline = robust_beside(traj, progress=lambda line: click.echo(line, err=True))
+        baseline = robust_beside(traj, progress=lambda line: echo(line, err=True))
     except Exception as exc:  # noqa: BLE001 - any failure is shown in the report; the verdict stands
-        click.echo(f"warning: the robust baseline could not be run: {type(exc).__name__}: {exc}", err=True)
+        echo(f"warning: the robust baseline could not be run: {type(exc).__name__}: {exc}", err=True)
         baseline = {"error": f"{type(exc).__name__}: {exc}"}
     return replace(cert, figures={**cert.figures, "robust_baseline": baseline})
 
@@ -216,62 +218,65 @@ def _load_trajectory(path: str, problem_file, example):
     return traj, None
 
 
-def _print(cert, out) -> None:
+def _print(cert, out, problem) -> None:
     from amcp_drake.certificate.certify import RELATIVE_TOLERANCES, TOLERANCE_RULE
+    from amcp_drake.cli.summary import signals_header
 
-    click.echo(f"how to read the table: {TOLERANCE_RULE}")
+    for line in signals_header(problem):
+        echo(f"{problem.name}: {line}")
+    echo(f"how to read the table: {TOLERANCE_RULE}")
     width = 14 if cert.measured else 8  # "not_applicable"
-    click.echo(f"{'claim':32s} {'status':{width}s} {'margin':>11s} {'tolerance':>10s} {'step':>5s}  statement")
+    echo(f"{'claim':32s} {'status':{width}s} {'margin':>11s} {'tolerance':>10s} {'step':>5s}  statement")
     for c in cert.claims:
         margin = "n/a" if c.margin is None else f"{c.margin:.3e}"
         step = c.data.get("worst_step")
         mark = "r" if c.data["id"] in RELATIVE_TOLERANCES else " "
         why = f" ({c.detail})" if c.status == "not_applicable" else ""
-        click.echo(f"{c.data['id']:32s} {c.status:{width}s} {margin:>11s} {c.tolerance:9.1e}{mark} "
+        echo(f"{c.data['id']:32s} {c.status:{width}s} {margin:>11s} {c.tolerance:9.1e}{mark} "
                    f"{'' if step is None else step:>5}  {c.name}{why}")
     for c in cert.not_claimed:
-        click.echo(f"{c['id']:32s} {'-':{width}s} {'':>11s} {'':10s} {'':>5s}  not claimed for this run: {c['reason']}")
-    click.echo("")
+        echo(f"{c['id']:32s} {'-':{width}s} {'':>11s} {'':10s} {'':>5s}  not claimed for this run: {c['reason']}")
+    echo("")
     for p in cert.premises_not_met:
         margin = "n/a" if p["margin"] is None else f"{p['margin']:.3e}"
-        click.echo(f"PREMISE NOT MET: {p['name']}: {p['premise']}; margin {margin} (tolerance {p['tolerance']:.0e}); "
+        echo(f"PREMISE NOT MET: {p['name']}: {p['premise']}; margin {margin} (tolerance {p['tolerance']:.0e}); "
                    f"{p['detail']}")
-        click.echo(f"                 next: {p['hint']}")
+        echo(f"                 next: {p['hint']}")
     counts = cert.counts()
     for line in _consistency_lines(cert):
-        click.echo(line)
+        echo(line)
     kind = " (measured run)" if cert.measured else ""
     need = f"; {counts['not_applicable']} need θ* and w" if cert.measured else ""
     if cert.premises_not_met and not counts["fail"]:
-        click.echo(f"NOT CERTIFIED (premise not met): the paper's results assume {', '.join(p['name'] for p in cert.premises_not_met)}, "
+        echo(f"NOT CERTIFIED (premise not met): the paper's results assume {', '.join(p['name'] for p in cert.premises_not_met)}, "
                    f"which does not hold on this run; nothing is claimed for it ({counts['pass']} checks passed, "
                    f"{len(cert.not_claimed)} not claimed)")
     elif cert.passed:
-        click.echo(f"CERTIFIED{kind}: all {counts['pass']} {'applicable ' if cert.measured else ''}claims hold{need}")
+        echo(f"CERTIFIED{kind}: all {counts['pass']} {'applicable ' if cert.measured else ''}claims hold{need}")
     elif counts["fail"]:
-        click.echo(f"NOT CERTIFIED{kind}: {counts['fail']} claim(s) failed: {', '.join(cert.ids('fail'))}"
+        echo(f"NOT CERTIFIED{kind}: {counts['fail']} claim(s) failed: {', '.join(cert.ids('fail'))}"
                    + (f"; {counts['not_run']} not run: {', '.join(cert.ids('not_run'))}" if counts["not_run"] else "")
                    + need)
     else:
-        click.echo(f"NOT CERTIFIED{' (incomplete, measured run)' if cert.measured else ' (incomplete)'}: "
+        echo(f"NOT CERTIFIED{' (incomplete, measured run)' if cert.measured else ' (incomplete)'}: "
                    f"{counts['not_run']} claim(s) could not be checked: {', '.join(cert.ids('not_run'))}{need}")
     answers = cert.solver_answers
     for line in answers.get("summary", []):
-        click.echo(f"solver answers: {line}" if not line.startswith(" ") else f"               {line}")
+        echo(f"solver answers: {line}" if not line.startswith(" ") else f"               {line}")
     if cert.conformance == "fail":
-        click.echo(f"BACKEND CONFORMANCE FAILED: {answers['backend']}'s answers were rejected by the answer checks at "
+        echo(f"BACKEND CONFORMANCE FAILED: {answers['backend']}'s answers were rejected by the answer checks at "
                    f"step(s) {_steps(answers['rejected_steps'])}; the claims above are checked on the answers the "
                    "controller applied (the fallbacks'), so this is a defect of the backend, not of the paper's claims")
     elif cert.conformance == "pass":
-        click.echo(f"backend conformance: pass ({answers['backend']} answered every problem itself)")
+        echo(f"backend conformance: pass ({answers['backend']} answered every problem itself)")
     else:
-        click.echo("backend conformance: unknown (the trajectory has no record of how its solver answers were obtained)")
+        echo("backend conformance: unknown (the trajectory has no record of how its solver answers were obtained)")
     baseline = cert.figures.get("robust_baseline") or {}
     if "adaptive" in baseline:
         a, r = baseline["adaptive"], baseline["robust"]
-        click.echo(f"robust baseline (not part of the verdict): cost {_g(a['cost'])} adaptive vs {_g(r['cost'])} robust; "
+        echo(f"robust baseline (not part of the verdict): cost {_g(a['cost'])} adaptive vs {_g(r['cost'])} robust; "
                    f"mean one-step tube {_g(a['mean_one_step_tube'])} vs {_g(r['mean_one_step_tube'])} (report.html)")
-    click.echo(f"wrote {out}/certificate.json, {out}/report.html, {out}/trajectory.json.gz")
+    echo(f"wrote {out}/certificate.json, {out}/report.html, {out}/trajectory.json.gz")
 
 
 def _consistency_lines(cert) -> list[str]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import errno
 import functools
+import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -12,7 +13,7 @@ from typing import NamedTuple, NoReturn
 import click
 
 from amcp_drake.model.errors import AmcpError, BackendNotFound, ProblemError, TrajectoryError
-from amcp_drake.model.limits import DEFAULT_MAX_MEMORY_MB, MAX_STEPS
+from amcp_drake.model.limits import DEFAULT_MAX_MEMORY_MB, MAX_MEMORY_MB, MAX_STEPS
 from amcp_drake.model.problem_io import check_output_dir, check_output_file, check_store_path
 from amcp_drake.offline.budget import DEFAULT_CANDIDATE_SECONDS, PROGRESS_SECONDS
 
@@ -23,6 +24,24 @@ EXIT_PREMISE_NOT_MET = 3
 MAX_SEED = 2**63 - 1
 #: Most disturbance seeds of one ``amcp baseline`` / ``pe-figure`` (each seed is two full runs).
 MAX_SEEDS = 10_000
+
+
+#: Characters a terminal interprets rather than shows: the C0 controls but newline and tab (ESC starts escape
+#: sequences, CR overwrites the line, BEL rings), DEL and the C1 controls (CSI U+009B is ESC [ on some terminals).
+_CONTROL_CHARACTERS = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f]")
+
+
+def terminal_safe(text: str) -> str:
+    """``text`` with every control character but newline and tab written as a visible escape (``\\x1b``,
+    ``\\r``): a problem name or file content printed to the terminal cannot move the cursor, clear the screen or
+    rewrite the line."""
+    named = {"\r": "\\r", "\x1b": "\\x1b"}
+    return _CONTROL_CHARACTERS.sub(lambda m: named.get(m.group(), f"\\x{ord(m.group()):02x}"), text)
+
+
+def echo(message: object = "", err: bool = False, nl: bool = True) -> None:
+    """``click.echo`` of :func:`terminal_safe` text: every line the subcommands print goes through here."""
+    click.echo(terminal_safe(str(message)), err=err, nl=nl)
 
 
 def exit_verdict(passed: bool) -> NoReturn:
@@ -43,7 +62,7 @@ def load_problem_spec(problem_file: str | None, example: str | None):
         raise ProblemError("PROBLEM", "the path of a problem file", "an empty string")
     spec = load_spec(problem_file) if problem_file else get_example(example or "lorenzen2019")
     for note in spec.notes:
-        click.echo(f"note: {note}", err=True)
+        echo(f"note: {note}", err=True)
     return spec
 
 
@@ -74,10 +93,26 @@ def _callback(check: Callable[[str, str], Path]) -> Callable:
     return callback
 
 
+def check_nonempty_path(option: str, path) -> Path:
+    """``path`` as a Path unless it is empty or blank (``Path("")`` is ".", the current folder, which no
+    path option means): ProblemError naming ``option``."""
+    if path is None or not str(path).strip():
+        raise ProblemError(option, "a path", "an empty string")
+    return Path(path)
+
+
 #: click callbacks: the option is checked as soon as it is parsed (exit 2, click's "Invalid value for '--out'").
 output_dir_callback = _callback(check_output_dir)
 output_file_callback = _callback(check_output_file)
 store_path_callback = _callback(check_store_path)
+_nonempty_callback = _callback(check_nonempty_path)
+
+
+def nonempty_path_callback(ctx: click.Context, param: click.Parameter, value):
+    """click callback of an input path option (repeatable or not): every value given must be non-empty."""
+    for item in value if isinstance(value, (tuple, list)) else (value,):
+        _nonempty_callback(ctx, param, item)
+    return value
 
 
 def steps_option(help_text: str, default=None, minimum: int = 1, show_default: bool = False):
@@ -128,7 +163,8 @@ def parse_range(option: str, text: str, low: int, high: int) -> tuple[int, ...]:
 
 
 max_memory_option = click.option(
-    "--max-memory", "max_memory", type=FiniteFloatRange(min=1.0), default=DEFAULT_MAX_MEMORY_MB, show_default=True,
+    "--max-memory", "max_memory", type=FiniteFloatRange(min=1.0, max=MAX_MEMORY_MB), default=DEFAULT_MAX_MEMORY_MB,
+    show_default=True,
     help="Refuse a run whose estimated size (tube QP nonzeros in the form of (20) the run uses, recorded steps; "
          "docs/problem-format.md, 'Size limits') exceeds this many MiB, before anything is built; every stage of "
          "the offline design is sized against the same limit (a design candidate above it is skipped, with the "
@@ -136,7 +172,8 @@ max_memory_option = click.option(
 
 #: ``amcp design``'s --max-memory: the design builds no run, so only its own stages are sized.
 design_max_memory_option = click.option(
-    "--max-memory", "max_memory", type=FiniteFloatRange(min=1.0), default=DEFAULT_MAX_MEMORY_MB, show_default=True,
+    "--max-memory", "max_memory", type=FiniteFloatRange(min=1.0, max=MAX_MEMORY_MB), default=DEFAULT_MAX_MEMORY_MB,
+    show_default=True,
     help="Memory limit of the offline design in MiB: every stage of it is sized against this limit before it "
          "allocates (a candidate above it is skipped, with the stage named). The size of a later run is checked "
          "by the command that runs it, in the form of (20) it uses.")
@@ -164,7 +201,7 @@ def design_budget(max_memory: float = DEFAULT_MAX_MEMORY_MB, candidate_budget: f
     long stages every ``--progress-every`` seconds) unless ``quiet``."""
     from amcp_drake.offline.budget import DesignBudget
 
-    progress = None if quiet else (lambda line: click.echo(line, err=True))
+    progress = None if quiet else (lambda line: echo(line, err=True))
     return DesignBudget(max_memory, candidate_budget, progress, progress_seconds=progress_every)
 
 
@@ -176,10 +213,10 @@ def bad_input_exits_2(func: Callable) -> Callable:
         try:
             return func(*args, **kwargs)
         except (ProblemError, BackendNotFound, TrajectoryError) as exc:
-            click.echo(f"error: {exc}", err=True)
+            echo(f"error: {exc}", err=True)
             sys.exit(EXIT_BAD_INPUT)
         except AmcpError as exc:
-            click.echo(f"error: {exc}", err=True)
+            echo(f"error: {exc}", err=True)
             sys.exit(EXIT_FAIL)
 
     return wrapper
@@ -216,7 +253,7 @@ def interruptible(describe: Callable[[dict, BaseException], str]) -> Callable:
                     text = describe(kwargs, exc)
                 except Exception:  # noqa: BLE001 - the line is said even if the description fails
                     text = "stopped"
-                click.echo(f"interrupted ({signum.name}): {text}", err=True)
+                echo(f"interrupted ({signum.name}): {text}", err=True)
                 sys.exit(128 + signum)
             finally:
                 if main:
@@ -285,8 +322,7 @@ def load_design_file(spec, design_file: str | None, quiet: bool = False):
         raise ProblemError("--design", "the path of a design file", "an empty string")
     d = load_design(design_file, spec)
     if not quiet:
-        click.echo(f"design: {design_file} (problem SHA-256 matches; every design check passes; not redesigned)",
-                   err=True)
+        echo(f"design: {design_file} (problem SHA-256 matches; every design check passes; not redesigned)", err=True)
     return d
 
 

@@ -11,6 +11,7 @@ import click
 from amcp_drake.cli.common import (
     bad_input_exits_2,
     design_file_option,
+    echo,
     exit_verdict,
     formulation_option,
     max_memory_option,
@@ -78,20 +79,20 @@ def compare_cmd(problem_file, example, x0_template, design_file, x0, theta_star,
         quantities = [q for q in ("u", "v", "cost", "h_theta", "theta_hat", *INFORMATIONAL)
                       if any(q in row for row in per_step.values())]
         head = [f"{q + '*' if q in INFORMATIONAL else q:>10s}" for q in quantities]
-        click.echo(f"{'k':>3}  {'status a/b':22s} " + " ".join(head))
+        echo(f"{'k':>3}  {'status a/b':22s} " + " ".join(head))
         statuses = {k: (a, b) for k, a, b in comp.statuses}
         for k in sorted(per_step):
             a, b = statuses.get(k, ("-", "-"))
             flag = "" if a == b else "  <- status differs"
             cells = " ".join(f"{per_step[k][q]:10.2e}" if q in per_step[k] else f"{'-':>10s}" for q in quantities)
-            click.echo(f"{k:3d}  {a[:10] + '/' + b[:10]:22s} {cells}{flag}")
+            echo(f"{k:3d}  {a[:10] + '/' + b[:10]:22s} {cells}{flag}")
         if any(q in INFORMATIONAL for q in quantities):
-            click.echo("* information only, never compared: z and alpha are not unique minimisers of (20) (the cost "
+            echo("* information only, never compared: z and alpha are not unique minimisers of (20) (the cost "
                        "depends on v alone), so their differences have no tolerance")
-        click.echo("")
-    click.echo(f"{comp.mode} comparison, backends {comp.backends[0]} ({drake_solver}) vs {comp.backends[1]} ({cvxpy_solver}), "
+        echo("")
+    echo(f"{comp.mode} comparison, backends {comp.backends[0]} ({drake_solver}) vs {comp.backends[1]} ({cvxpy_solver}), "
                f"{steps} steps, seed {seed}" + (", Clarabel at 1e-10 (--accurate)" if accurate else ""))
-    click.echo(f"{'quantity':14s} {'largest diff':>13s} {'at step':>8s} {'tolerance':>11s}  (abs + rel*scale)   verdict")
+    echo(f"{'quantity':14s} {'largest diff':>13s} {'at step':>8s} {'tolerance':>11s}  (abs + rel*scale)   verdict")
     worst = comp.worst()
     for q, d in sorted(worst.items()):
         if q in INFORMATIONAL:
@@ -99,10 +100,10 @@ def compare_cmd(problem_file, example, x0_template, design_file, x0, theta_star,
         abs_tol, rel_tol = TOLERANCES[q]
         step = "design" if d.step is None else str(d.step)
         verdict = "agree" if d.agree else "DISAGREE"
-        click.echo(f"{q:14s} {d.difference:13.3e} {step:>8s} {d.tolerance:11.3e}  ({abs_tol:g} + {rel_tol:g}*{d.scale:.3g})  {verdict}")
+        echo(f"{q:14s} {d.difference:13.3e} {step:>8s} {d.tolerance:11.3e}  ({abs_tol:g} + {rel_tol:g}*{d.scale:.3g})  {verdict}")
     info = [(q, worst[q]) for q in INFORMATIONAL if q in worst]
     if info:
-        click.echo("information only, no tolerance, never a disagreement (z and alpha are not unique minimisers of "
+        echo("information only, no tolerance, never a disagreement (z and alpha are not unique minimisers of "
                    "(20): the cost depends on v alone): "
                    + ", ".join(f"{q} largest diff {d.difference:.3e} at step {d.step}" for q, d in info))
     for name in comp.backends:
@@ -111,38 +112,38 @@ def compare_cmd(problem_file, example, x0_template, design_file, x0, theta_star,
             parts = [f"{p}: {c['first'] + c['resolved']} of {sum(c.values())} its own"
                      + "".join(f", {c[o]} {o}" for o in ("resolved", "fallback", "not_solved") if c[o])
                      for p, c in counts.items()]
-            click.echo(f"answers of {name}: " + "; ".join(parts))
+            echo(f"answers of {name}: " + "; ".join(parts))
     for m in comp.answer_mismatches:
         how = {"resolved": "re-solved", "fallback": "fallback", "not_solved": "not solved"}[m["outcome"]]
-        click.echo(f"{'accepted (--allow-fallbacks)' if allow_fallbacks else 'DISAGREE'}: step {m['step']}: {m['backend']} "
+        echo(f"{'accepted (--allow-fallbacks)' if allow_fallbacks else 'DISAGREE'}: step {m['step']}: {m['backend']} "
                    f"needed help on its {m['problem']} answer ({how}{' by ' + m['kind'] if m['kind'] else ''}; failed "
                    f"check: {m['check'] or '-'}), the other backend answered first")
     if comp.drift:
         k_max = max(range(len(comp.drift)), key=comp.drift.__getitem__)
-        click.echo(f"state drift |x_a - x_b|: max {comp.drift[k_max]:.3e} at step {k_max}")
+        echo(f"state drift |x_a - x_b|: max {comp.drift[k_max]:.3e} at step {k_max}")
     status_diffs = [(k, a, b) for k, a, b in comp.statuses if a != b]
     for k, a, b in status_diffs:
-        click.echo(f"status differs at step {k}: {a} vs {b}")
+        echo(f"status differs at step {k}: {a} vs {b}")
     for note in comp.notes:
-        click.echo(f"note: {note}")
+        echo(f"note: {note}")
     if comp.answer_mismatches and not allow_fallbacks:
         by_backend = sorted({m["backend"] for m in comp.answer_mismatches})
         first = comp.answer_mismatches[0]
-        click.echo(f"DISAGREE: {len(comp.answer_mismatches)} step answer(s) needed a re-solve or fallback in "
+        echo(f"DISAGREE: {len(comp.answer_mismatches)} step answer(s) needed a re-solve or fallback in "
                    f"{', '.join(by_backend)} only; first: step {first['step']}, {first['backend']}, {first['problem']}, "
                    f"failed check {first['check'] or '-'} (--allow-fallbacks accepts this)")
     bad = comp.disagreements()
     if bad:
         first = min(bad, key=lambda d: (d.step if d.step is not None else -1))
-        click.echo(f"DISAGREE: {len(bad)} differences over tolerance; first: {first.quantity} at step {first.step} "
+        echo(f"DISAGREE: {len(bad)} differences over tolerance; first: {first.quantity} at step {first.step} "
                    f"(diff {first.difference:.3e} > tol {first.tolerance:.3e})")
     flat = comp.flat_optimum_steps()
     if flat and not accurate:
         listed = ", ".join(map(str, flat[:5])) + (", ..." if len(flat) > 5 else "")
-        click.echo(f"hint: at step {listed} v differs while the cost agrees: the optimum may be flat, where the "
+        echo(f"hint: at step {listed} v differs while the cost agrees: the optimum may be flat, where the "
                    "solvers' default tolerances fix the cost but not v; --accurate compares both backends with "
                    "Clarabel at 1e-10 (the property suite's setting)")
     write_json_atomic(comp.to_dict(), out_file)
-    click.echo(f"all differences written to {out_file}")
-    click.echo("backends agree" if comp.agree else "backends DISAGREE")
+    echo(f"all differences written to {out_file}")
+    echo("backends agree" if comp.agree else "backends DISAGREE")
     exit_verdict(comp.agree)

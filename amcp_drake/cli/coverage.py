@@ -14,11 +14,14 @@ from amcp_drake.cli.common import (
     check_run_size,
     design_budget,
     design_file_option,
+    echo,
     exit_verdict,
     interruptible,
     load_design_file,
     load_problem_spec,
     max_memory_option,
+    nonempty_path_callback,
+    output_dir_callback,
     problem_options,
     progress_every_option,
     update_options,
@@ -35,7 +38,7 @@ from amcp_drake.cli.common import (
               help="Grid values per axis (default 21; with --points FILE holding a polytope, its grid).")
 @click.option("--box", "box_text", default=None, metavar="LO:HI,LO:HI,...",
               help="Grid box, one interval per state (default: the state bounds of Z, else design.mu_state_bound).")
-@click.option("--points", "points_file", default=None, type=click.Path(dir_okay=False),
+@click.option("--points", "points_file", default=None, type=click.Path(dir_okay=False), callback=nonempty_path_callback,
               help='JSON file: {"points": [[..], ..]} or {"polytope": {"H": [[..]], "h": [..]}} (grid points inside).')
 @click.option("--adapt", "adapt_steps", type=click.IntRange(min=1), default=None,
               help="Also evaluate the region for Θ_T learned on a closed loop of this many steps (the scenario).")
@@ -43,6 +46,7 @@ from amcp_drake.cli.common import (
               help="Initial state of the --adapt run (default: the problem file's scenario x0).")
 @update_options
 @click.option("--out", "out_dir", default="amcp-out", show_default=True, type=click.Path(file_okay=False),
+              callback=output_dir_callback,
               help="Folder for coverage.json and coverage.png.")
 @click.option("--no-progress", is_flag=True, help="No progress bar (and no design progress lines).")
 @max_memory_option
@@ -110,30 +114,30 @@ def coverage_cmd(problem_file, example, design_file, backend, formulation, grid,
                        formulation=formulation, options=online, adapt_x0=adapt_x0, progress_factory=progress_factory)
     js, png = write_coverage(res, out_dir)
     s = res.summary()
-    click.echo(f"{pr.name}: {s['points']} initial states ({source}); backend {backend}, formulation {formulation}")
+    echo(f"{pr.name}: {s['points']} initial states ({source}); backend {backend}, formulation {formulation}")
     di = res.design_info
-    click.echo(f"design: X0 {di['x0_template'] or str(di['x0_facets']) + ' facets'}, lambda_bar {di['lambda_bar']:.4f}, "
+    echo(f"design: X0 {di['x0_template'] or str(di['x0_facets']) + ' facets'}, lambda_bar {di['lambda_bar']:.4f}, "
                f"X_f {di['terminal_rows']} rows")
-    click.echo(f"robust Θ: feasible fraction {s['robust_fraction']:.4f}")
+    echo(f"robust Θ: feasible fraction {s['robust_fraction']:.4f}")
     if adapt_steps:
         info = res.adapt_info
-        click.echo(f"Θ_T after {info['steps_run']}/{adapt_steps} steps ({info['update']} update, stop: "
+        echo(f"Θ_T after {info['steps_run']}/{adapt_steps} steps ({info['update']} update, stop: "
                    f"{info['stop_reason']}): feasible fraction {s['adaptive_fraction']:.4f} "
                    f"(feasible only after adaptation {s['adaptive_only_fraction']:.4f})")
         if info["steps_run"] < adapt_steps:
-            click.echo(f"WARNING: the adaptive run from x0 = {info['x0']} stopped after {info['steps_run']} of "
+            echo(f"WARNING: the adaptive run from x0 = {info['x0']} stopped after {info['steps_run']} of "
                        f"{adapt_steps} steps ({info['stop_reason']}); Θ_T is the set of its last step. Choose a "
                        "feasible start with --adapt-x0.")
     t = res.timings
-    click.echo("timings: " + ", ".join(f"{k} {v:.2f}" for k, v in t.items()))
+    echo("timings: " + ", ".join(f"{k} {v:.2f}" for k, v in t.items()))
     issues = res.issues()
-    click.echo(f"QP/LP: {s['disagree_count']} disagreements, {s['borderline_count']} borderline (|t| <= tol), "
+    echo(f"QP/LP: {s['disagree_count']} disagreements, {s['borderline_count']} borderline (|t| <= tol), "
                f"{s['qp_undecided_count']} undecided QPs, {s['lp_failed_count']} failed LPs, "
                f"{s['monotonicity_count']} monotonicity violations")
     for kind in ("disagree", "qp_undecided", "lp_failed", "monotonicity", "borderline"):
         for row in issues[kind]:
             x0 = np.array2string(np.asarray(row["x0"]), precision=4, separator=", ")
             detail = {k: v for k, v in row.items() if k not in ("index", "x0")}
-            click.echo(f"  {kind}: x0 = {x0} {detail}")
-    click.echo(f"wrote {js}" + (f" and {png}" if png else " (no PNG for n >= 3)"))
+            echo(f"  {kind}: x0 = {x0} {detail}")
+    echo(f"wrote {js}" + (f" and {png}" if png else " (no PNG for n >= 3)"))
     exit_verdict(res.passed)

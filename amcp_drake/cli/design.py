@@ -15,6 +15,7 @@ from amcp_drake.cli.common import (
     candidate_budget_option,
     design_budget,
     design_max_memory_option,
+    echo,
     exit_verdict,
     load_problem_spec,
     output_file_callback,
@@ -51,35 +52,37 @@ def design_cmd(problem_file, example, x0_template, backend, as_json, out_file, m
     checks = verify_design(pr, d, spec.design.mu_state_bound)
     ok = all(c.passed for c in checks)
     if as_json:
-        click.echo(json.dumps({"design": d.to_dict(), "checks": [c.to_dict() for c in checks], "passed": ok}, indent=1))
+        echo(json.dumps({"design": d.to_dict(), "checks": [c.to_dict() for c in checks], "passed": ok}, indent=1))
     else:
-        click.echo(f"problem {pr.name}: n={pr.n}, m={pr.m}, p={pr.p}, N={pr.N}; backend {backend}")
-        click.echo(f"K ({d.gain_source}) = {_fmt(d.K)}")
-        click.echo(f"P = {_fmt(d.P)}")
+        echo(f"problem {pr.name}: n={pr.n}, m={pr.m}, p={pr.p}, N={pr.N}; backend {backend}")
+        if pr.describe_signals():
+            echo(f"problem {pr.name}: {pr.describe_signals()}")
+        echo(f"K ({d.gain_source}) = {_fmt(d.K)}")
+        echo(f"P = {_fmt(d.P)}")
         for i, attempt in enumerate((d.info or {}).get("attempts", [])):
             reason = f" ({attempt['reason']})" if attempt["reason"] else ""
-            click.echo(f"design attempt {i + 1}: {attempt['label']}: {attempt['outcome']}{reason} [{attempt['seconds']:.1f} s]")
-        click.echo(f"X0 template: {(d.info or {}).get('x0_template', 'n/a')}")
+            echo(f"design attempt {i + 1}: {attempt['label']}: {attempt['outcome']}{reason} [{attempt['seconds']:.1f} s]")
+        echo(f"X0 template: {(d.info or {}).get('x0_template', 'n/a')}")
         state_units = (d.info or {}).get("state_units")
         if state_units:  # offline/units.py: W's extents were unequal
-            click.echo(f"designed in the state units xi = diag({_fmt(np.asarray(state_units['xi_equals_diag_times_x']))}) x "
+            echo(f"designed in the state units xi = diag({_fmt(np.asarray(state_units['xi_equals_diag_times_x']))}) x "
                        "(W's extents equalised), mapped back and checked in the file's units")
-        click.echo(f"X0: {len(d.H_x)} facets, {len(d.X0_vertices)} vertices, lambda_bar = {d.lambda_bar:.5f}")
-        click.echo(f"w_bar = {_fmt(d.w_bar)}")
-        click.echo(f"f_bar = {_fmt(d.f_bar)}")
+        echo(f"X0: {len(d.H_x)} facets, {len(d.X0_vertices)} vertices, lambda_bar = {d.lambda_bar:.5f}")
+        echo(f"w_bar = {_fmt(d.w_bar)}")
+        echo(f"f_bar = {_fmt(d.f_bar)}")
         terminal = (d.info or {}).get("terminal_set", "recursion")
-        click.echo(f"Xf: {len(d.H_T)} rows, " + (f"recursion of Appendix A.1 ({d.terminal_iterations} iterations)"
+        echo(f"Xf: {len(d.H_T)} rows, " + (f"recursion of Appendix A.1 ({d.terminal_iterations} iterations)"
                                                  if terminal == "recursion" else "scaled copy of X0 (offline/terminal.py)"))
-        click.echo(f"mu = {d.mu:.6g} (sup ||D||^2 {'=' if d.mu_method.startswith('exact') else '<='} {d.mu_sup:.6g} "
+        echo(f"mu = {d.mu:.6g} (sup ||D||^2 {'=' if d.mu_method.startswith('exact') else '<='} {d.mu_sup:.6g} "
                    f"over {d.mu_region}; {d.mu_method})")
-        click.echo(f"H_theta for (9): {len(d.H_theta)} rows")
-        click.echo("")
-        click.echo(f"{'check':28s} {'result':8s} {'margin':>12s} {'tol':>9s}  detail")
+        echo(f"H_theta for (9): {len(d.H_theta)} rows")
+        echo("")
+        echo(f"{'check':28s} {'result':8s} {'margin':>12s} {'tol':>9s}  detail")
         for c in checks:
             margin = "n/a" if c.margin is None else f"{c.margin:.3e}"
-            click.echo(f"{c.name:28s} {c.status:8s} {margin:>12s} {c.tolerance:9.1e}  {c.detail}")
-        click.echo("")
-        click.echo("all design checks pass" if ok else "SOME DESIGN CHECKS FAILED")
+            echo(f"{c.name:28s} {c.status:8s} {margin:>12s} {c.tolerance:9.1e}  {c.detail}")
+        echo("")
+        echo("all design checks pass" if ok else "SOME DESIGN CHECKS FAILED")
     if out_file is not None:
         _save(spec, d, out_file, ok)
     exit_verdict(ok)
@@ -92,10 +95,10 @@ def _save(spec, d, out_file: str, ok: bool) -> None:
     from amcp_drake.offline.design_file import save_design
 
     if not ok:
-        click.echo(f"design not written to {out_file}: a design check failed", err=True)
+        echo(f"design not written to {out_file}: a design check failed", err=True)
         return
     try:
         save_design(spec, d, out_file)
     except OSError as exc:
         raise write_error("--out", out_file, exc) from None
-    click.echo(f"design written to {out_file} (problem SHA-256 {spec_hash(spec)})", err=True)
+    echo(f"design written to {out_file} (problem SHA-256 {spec_hash(spec)})", err=True)

@@ -10,6 +10,7 @@ from amcp_drake.cli.common import (
     backend_option,
     bad_input_exits_2,
     check_run_size,
+    echo,
     exit_verdict,
     load_problem_spec,
     max_memory_option,
@@ -47,28 +48,28 @@ def pe_figure_cmd(problem_file, example, backend, seeds, steps, update, pe_windo
     check_run_size(spec, steps, None, max_memory, design=d, formulation="plain")
 
     def progress(label, seed):
-        click.echo(f"  {label} seed {seed} ...", err=True)
+        echo(f"  {label} seed {seed} ...", err=True)
 
     res = run_pe_figure(spec, d, seeds=seeds, steps=steps, update=update, pe_window=pe_window, pe_level=pe_level,
                         backend=backend, progress=progress)
     js, png = write_pe_figure(res, out_dir)
     ks = res["checkpoints"]
-    click.echo(f"{res['problem']}: update {update}, {seeds} seeds, {steps} steps, PE window {pe_window}, level {pe_level:g}")
-    click.echo("diam Θ_k, median [min, max] over seeds")
-    click.echo("| k | " + " | ".join(str(k) for k in ks) + " |")
-    click.echo("|---|" + "---|" * len(ks))
+    echo(f"{res['problem']}: update {update}, {seeds} seeds, {steps} steps, PE window {pe_window}, level {pe_level:g}")
+    echo("diam Θ_k, median [min, max] over seeds")
+    echo("| k | " + " | ".join(str(k) for k in ks) + " |")
+    echo("|---|" + "---|" * len(ks))
     for label, name in (("no_pe", "no PE"), ("pe", "PE")):
         r = res["runs"][label]
         cells = [f"{r['median_diameter'][k]:.3f} [{r['min_diameter'][k]:.3f}, {r['max_diameter'][k]:.3f}]" for k in ks]
-        click.echo(f"| {name} | " + " | ".join(cells) + " |")
+        echo(f"| {name} | " + " | ".join(cells) + " |")
     for label, name in (("no_pe", "no PE"), ("pe", "PE")):
         r = res["runs"][label]
-        click.echo(f"{name}: completed {r['completed']}/{seeds}; realised input Gram λ_min (median, 2nd half) per seed "
+        echo(f"{name}: completed {r['completed']}/{seeds}; realised input Gram λ_min (median, 2nd half) per seed "
                    f"{[round(v, 4) for v in r['input_gram_lambda_min_median_second_half_per_seed']]}; "
                    f"regressor PE λ_min (Definition 21) {[float(f'{v:.3g}') for v in r['regressor_pe_lambda_min_median_second_half_per_seed']]}; "
                    f"PE status {r['pe_status_counts']}")
-    click.echo(f"final diameter smaller with PE in {res['seeds_pe_smaller_at_end']}/{seeds} seeds")
-    click.echo(f"Assumption 20 (rank Ξ = p): {res['assumption20']['holds']}")
-    click.echo(f"wrote {js} and {png}")
+    echo(f"final diameter smaller with PE in {res['seeds_pe_smaller_at_end']}/{seeds} seeds")
+    echo(f"Assumption 20 (rank Ξ = p): {res['assumption20']['holds']}")
+    echo(f"wrote {js} and {png}")
     done = all(res["runs"][k]["completed"] == seeds for k in ("no_pe", "pe"))
     exit_verdict(done)

@@ -14,6 +14,7 @@ from amcp_drake.cli.common import (
     check_run_size,
     design_budget,
     design_file_option,
+    echo,
     exit_verdict,
     formulation_option,
     interruptible,
@@ -26,6 +27,7 @@ from amcp_drake.cli.common import (
     scenario_options,
     seed_option,
     steps_option,
+    write_error,
 )
 
 
@@ -67,24 +69,27 @@ def run_cmd(problem_file, example, x0_template, design_file, backend, formulatio
     update = options.update
     ctrl = AdaptiveMPC(pr, d, backend=backend, options=options, formulation=formulation, max_memory_mb=max_memory)
     if ctrl.formulation_choice is not None:
-        click.echo(f"formulation auto: {ctrl.formulation_choice.formulation} ({ctrl.formulation_choice.reason})")
+        echo(f"formulation auto: {ctrl.formulation_choice.formulation} ({ctrl.formulation_choice.reason})")
     traj = simulate(ctrl, sc.x0, sc.theta_star_for(steps), steps, disturbance or sc.disturbance_for(steps),
                     seed=sc.seed if seed is None else seed, progress=False, mu_state_bound=spec.design.mu_state_bound)
     theta_text = (f"theta*_k sequence from {traj.theta_star_at(0).tolist()} (max step {sc.max_theta_rate():.3g})"
                   if sc.time_varying else f"theta* = {np.asarray(sc.theta_star).tolist()}")
-    click.echo(f"{pr.name}: x0 = {np.asarray(sc.x0).tolist()}, {theta_text}, "
+    echo(f"{pr.name}: x0 = {np.asarray(sc.x0).tolist()}, {theta_text}, "
                f"{traj.steps} steps, disturbance {disturbance or ('array' if sc.explicit_disturbance else sc.disturbance)} (seed {sc.seed if seed is None else seed}), "
                f"backend {backend}, update {update}")
-    click.echo(format_table(step_table(traj, every)))
+    echo(format_table(step_table(traj, every), pr))
     z_margin = max(pr.in_Z(x, u) for x, u in zip(traj.x, traj.u)) if traj.steps else float("nan")
     theta_margin = max(float(np.max(r.H_theta @ traj.theta_star_at(r.k) - r.h_theta)) for r in traj.records)
     solver = np.array([r.times.get("solver", np.nan) for r in traj.records])
-    click.echo("")
-    click.echo(f"QPs solved: {sum(r.status.value == 'optimal' for r in traj.records)}/{len(traj.records)}; "
+    echo("")
+    echo(f"QPs solved: {sum(r.status.value == 'optimal' for r in traj.records)}/{len(traj.records)}; "
                f"max_k (F x + G u - 1) = {z_margin:.4f} (<= 0: in Z); max_k (H θ* - h)_k = {theta_margin:.2e} "
                f"(<= 0: θ*_k ∈ Θ_k); median QP solve {1e3 * np.nanmedian(solver):.1f} ms")
-    click.echo(f"stop: {traj.stop_reason}")
+    echo(f"stop: {traj.stop_reason}")
     if save:
-        traj.save(save)
-        click.echo(f"trajectory saved to {save}")
+        try:
+            traj.save(save)
+        except OSError as exc:  # a full disk or a read-only folder: the atomic write left nothing behind
+            raise write_error("--save", save, exc) from None
+        echo(f"trajectory saved to {save}")
     exit_verdict(traj.all_solved and traj.stop_reason == "completed")

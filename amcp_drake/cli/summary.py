@@ -33,12 +33,23 @@ def step_table(traj, every: int = 1) -> list[dict]:
     return rows
 
 
-def format_table(rows: list[dict]) -> str:
-    """Fixed-width text table of :func:`step_table` rows."""
+def signals_header(problem) -> list[str]:
+    """The lines naming the entries of x_k and u_k (and the sample time) above a table, when the problem
+    names its states or inputs or gives a sample time; none otherwise."""
+    if not (problem.states or problem.inputs or problem.dt is not None):
+        return []
+    line = (f"x_k = ({', '.join(problem.state_label(i) for i in range(problem.n))}), "
+            f"u_k = ({', '.join(problem.input_label(j) for j in range(problem.m))})")
+    return [line + (f", sample time dt = {problem.dt:g} s" if problem.dt is not None else "")]
+
+
+def format_table(rows: list[dict], problem=None) -> str:
+    """Fixed-width text table of :func:`step_table` rows, headed by :func:`signals_header` of ``problem``."""
     def vec(a, width=7):
         return "[" + " ".join(f"{v:{width}.3f}" for v in np.atleast_1d(a)) + "]" if a is not None else "-"
 
-    lines = [f"{'k':>3}  {'x_k':22s} {'u_k':10s} {'status':9s} {'widths of Theta_k (interval hull)':36s} "
+    lines = signals_header(problem) if problem is not None else []
+    lines += [f"{'k':>3}  {'x_k':22s} {'u_k':10s} {'status':9s} {'widths of Theta_k (interval hull)':36s} "
              f"{'theta_hat_k':28s} {'QP ms':>6s}"]
     for row in rows:
         lines.append(f"{row['k']:3d}  {vec(row['x']):22s} {vec(row['u']):10s} {row['status'][:9]:9s} "

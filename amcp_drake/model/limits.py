@@ -65,6 +65,9 @@ MAX_STEPS = 100_000
 #: Default limit of the estimated memory of a run, in MiB (the shared machines have 23 GB; Example 1
 #: with N = 10 and 50 steps is estimated at a few MB). Raised with ``--max-memory``.
 DEFAULT_MAX_MEMORY_MB = 2048
+#: Largest ``--max-memory``, in MiB (2**30 MiB = 1 PiB): any real machine is below it, and the limit in bytes
+#: stays an exact integer (a value like 1e308 would overflow when converted to bytes).
+MAX_MEMORY_MB = 2**30
 #: Bytes per nonzero of the tube QP: the scipy lil_matrix it is assembled in (Python lists), the CSC
 #: copy and Drake's and Clarabel's own copies. Measured (peak RSS, Drake backend, Example 1 with
 #: N = 200: 553k nonzeros, 177 MiB above the design) as 320.
@@ -378,6 +381,7 @@ __all__ = [
     "BYTES_PER_NONZERO",
     "BYTES_PER_RECORDED_NUMBER",
     "DEFAULT_MAX_MEMORY_MB",
+    "MAX_MEMORY_MB",
     "MAX_STEPS",
     "SizeEstimate",
     "check_run_size",

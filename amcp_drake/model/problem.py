@@ -9,6 +9,12 @@ All matrices are float64 numpy arrays. Shapes (n states, m inputs, p parameters)
 * ``F`` (c, n), ``G`` (c, m): Z = {(x, u) | F x + G u <= 1}, eq. (4).
 * ``Q`` (n, n) ≻ 0, ``R`` (m, m) ≻ 0, horizon ``N`` >= 1: cost (17).
 * ``theta_hat0`` (p,) ∈ Θ: initial point estimate of (12).
+* ``states`` (n names and units, or empty), ``inputs`` (m, or empty), ``dt`` (sample time in
+  seconds, or None): descriptive only (tables, plots, reports); they change no computation.
+
+The engineering forms (bounds by name, box W and Θ, continuous-time models, Drake and python-control
+systems) are translated to these fields by :mod:`amcp_drake.model.problem_builder`
+(:meth:`Problem.from_matrices`, :meth:`Problem.from_drake_systems`, :meth:`Problem.from_control`).
 """
 
 from __future__ import annotations
@@ -20,6 +26,7 @@ import numpy as np
 
 from amcp_drake.model import polytope
 from amcp_drake.model.errors import ProblemError
+from amcp_drake.model.signals import Signal, as_signals, default_names
 from amcp_drake.model.validate import (
     as_matrix,
     as_positive_int,
@@ -58,6 +65,9 @@ class Problem:
     N: int
     theta_hat0: np.ndarray
     name: str = "problem"
+    states: tuple[Signal, ...] = ()
+    inputs: tuple[Signal, ...] = ()
+    dt: float | None = None
 
     def __post_init__(self) -> None:
         A0 = as_matrix("system.A0", self.A0)
@@ -107,6 +117,13 @@ class Problem:
             raise ProblemError("theta_hat0", "a point of Theta (H_θ θ̂0 <= h_θ)", f"{theta_hat0.tolist()}, outside by {violation:.3g}")
         if not isinstance(self.name, str) or not self.name:
             raise ProblemError("name", "a non-empty string", repr(self.name))
+        object.__setattr__(self, "states", as_signals("states", self.states, n))
+        object.__setattr__(self, "inputs", as_signals("inputs", self.inputs, m))
+        if self.dt is not None:
+            if isinstance(self.dt, bool) or not isinstance(self.dt, (int, float, np.floating)) \
+                    or not np.isfinite(self.dt) or not 0 < self.dt <= 1e9:
+                raise ProblemError("dt", "a sample time in seconds, a finite number > 0", repr(self.dt))
+            object.__setattr__(self, "dt", float(self.dt))
         for key, value in dict(A0=A0, B0=B0, A=A, B=B, H_w=H_w, H_theta=H_theta, h_theta=h_theta,
                                F=F, G=G, Q=0.5 * (Q + Q.T), R=0.5 * (R + R.T), N=N, theta_hat0=theta_hat0).items():
             if isinstance(value, np.ndarray):
@@ -128,6 +145,35 @@ class Problem:
     def p(self) -> int:
         """Number of uncertain parameters."""
         return self.A.shape[0]
+
+    # -- names and units (descriptive) ---------------------------------------------------------
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        """Names of the states: those given, else ``x1 … xn``."""
+        return tuple(s.name for s in self.states) or default_names("x", self.n)
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        """Names of the inputs: those given, else ``u1 … um``."""
+        return tuple(s.name for s in self.inputs) or default_names("u", self.m)
+
+    def state_label(self, i: int) -> str:
+        """Text of state i in tables and plots: ``name [unit]`` (``x{i+1}`` when unnamed)."""
+        return self.states[i].label if self.states else f"x{i + 1}"
+
+    def input_label(self, j: int) -> str:
+        """Text of input j in tables and plots: ``name [unit]`` (``u{j+1}`` when unnamed)."""
+        return self.inputs[j].label if self.inputs else f"u{j + 1}"
+
+    def describe_signals(self) -> str:
+        """One line naming the states, inputs and sample time (empty when none of them is given)."""
+        if not (self.states or self.inputs or self.dt is not None):
+            return ""
+        parts = [f"states ({', '.join(self.state_label(i) for i in range(self.n))})",
+                 f"inputs ({', '.join(self.input_label(j) for j in range(self.m))})"]
+        if self.dt is not None:
+            parts.append(f"sample time dt = {self.dt:g} s")
+        return "; ".join(parts)
 
     # -- model, eq. (2) -----------------------------------------------------------------------
     def A_of(self, theta: np.ndarray) -> np.ndarray:
@@ -159,10 +205,42 @@ class Problem:
         return float(np.max(self.F @ x + self.G @ u - 1.0))
 
     def with_changes(self, **changes: Any) -> Problem:
-        """A copy with some fields replaced (validated again)."""
+        """A copy with some fields replaced (validated again). Names of states (inputs) are dropped when
+        the new matrices change n (m) and no new names are given."""
         data = {f: getattr(self, f) for f in self.__dataclass_fields__}
         data.update(changes)
+        if "states" not in changes and np.shape(data["A0"])[:1] != (self.n,):
+            data["states"] = ()
+        if "inputs" not in changes and np.ndim(data["B0"]) == 2 and np.shape(data["B0"])[1] != self.m:
+            data["inputs"] = ()
         return Problem(**data)
+
+    # -- constructors of the engineering forms (model/problem_builder.py) ---------------------
+    @classmethod
+    def from_matrices(cls, A0: Any, B0: Any, A: Any = None, B: Any = None, **forms: Any) -> Problem:
+        """A problem from matrices, bounds by name, box W and Θ, optionally a continuous-time model
+        (discretised by zero-order hold); see :func:`amcp_drake.model.problem_builder.problem_fields`
+        for every keyword. The result holds the normalised rows of (3)-(4) and Assumption 1."""
+        from amcp_drake.model.problem_builder import problem_fields
+
+        return cls(**problem_fields(A0=A0, B0=B0, A=A, B=B, **forms)[0])
+
+    @classmethod
+    def from_drake_systems(cls, systems: Any, **forms: Any) -> Problem:
+        """A problem from Drake ``LinearSystem``/``AffineSystem`` objects, one per parameter vertex:
+        ``systems[0]`` at θ = 0, ``systems[i]`` at θ = e_i (A_i = A(e_i) − A(0), likewise B_i); see
+        :func:`amcp_drake.model.problem_builder.from_system_family`."""
+        from amcp_drake.model.problem_builder import drake_matrices, from_system_family
+
+        return from_system_family(cls, drake_matrices(systems), **forms)
+
+    @classmethod
+    def from_control(cls, systems: Any, **forms: Any) -> Problem:
+        """A problem from python-control ``StateSpace`` objects, one per parameter vertex (the
+        convention of :meth:`from_drake_systems`)."""
+        from amcp_drake.model.problem_builder import control_matrices, from_system_family
+
+        return from_system_family(cls, control_matrices(systems), **forms)
 
 
 def _stack(field_name: str, value: Any, shape: tuple[int, int]) -> np.ndarray:

@@ -44,6 +44,7 @@ import numpy as np
 from amcp_drake.model.errors import ProblemError, ProblemFileError
 from amcp_drake.model.json_strict import json_path, load_json_strict
 from amcp_drake.model.problem import DesignOptions, Problem, ProblemSpec, Scenario
+from amcp_drake.model.signals import signals_to_json
 
 FORMAT = "amcp-problem"
 VERSION = 1
@@ -98,7 +99,10 @@ def _schema_validator():
             return
         yield from standard_items(validator, item_schema, instance, parent_schema)
 
-    fast = jsonschema.validators.extend(jsonschema.Draft202012Validator, {"items": items})
+    # an integer is an integer literal: 10.0 is a number (JSON Schema would accept it as an integer)
+    types = jsonschema.Draft202012Validator.TYPE_CHECKER.redefine(
+        "integer", lambda checker, x: isinstance(x, (int, np.integer)) and not isinstance(x, bool))
+    fast = jsonschema.validators.extend(jsonschema.Draft202012Validator, {"items": items}, type_checker=types)
     return fast(schema)
 
 
@@ -118,12 +122,20 @@ def _json_type(value: Any) -> str:
     return "null" if value is None else type(value).__name__
 
 
-def _shown(value: Any) -> str:
+#: Longest shown text of a received string or number in a message (a field may hold megabytes).
+SHOWN_CHARS = 60
+
+
+def shown(value: Any) -> str:
+    """A received value for a message: JSON text (control characters escaped), cut to a few dozen characters
+    with its full length said, and its JSON type."""
+    text = json.dumps(value)
     if isinstance(value, (dict, list)):
-        text = json.dumps(value)
         text = text if len(text) <= 40 else text[:37] + "..."
-        return f"{text} ({_json_type(value)})"
-    return f"{json.dumps(value)} ({_json_type(value)})"
+    elif len(text) > SHOWN_CHARS:
+        length = f", {len(value):,} characters" if isinstance(value, str) else ""
+        text = f"{text[:SHOWN_CHARS - 3]}...{length}"
+    return f"{text} ({_json_type(value)})"
 
 
 def _schema_error(error) -> ProblemFileError:
@@ -146,22 +158,37 @@ def _schema_error(error) -> ProblemFileError:
         expected = " or ".join(_JSON_TYPES.get(t, t) for t in types)
         if "number" in types or "integer" in types:
             expected += " (booleans are not numbers)" if isinstance(value, bool) else ""
-        return ProblemFileError(field, expected, _shown(value))
+        return ProblemFileError(field, expected, shown(value))
     if kind in ("minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum"):
         op = {"minimum": ">=", "maximum": "<=", "exclusiveMinimum": ">", "exclusiveMaximum": "<"}[kind]
         if "magnitude" in error.schema.get("description", ""):
-            return ProblemFileError(field, f"{error.schema['description']}; rescale the units", _shown(value))
+            return ProblemFileError(field, f"{error.schema['description']}; rescale the units", shown(value))
         return ProblemFileError(field, f"a value {op} {spec:g}" if isinstance(spec, float) else f"a value {op} {spec}",
-                                _shown(value))
+                                shown(value))
     if kind in ("enum", "const"):
         options = spec if kind == "enum" else [spec]
-        return ProblemFileError(field, "one of " + ", ".join(json.dumps(o) for o in options), _shown(value))
+        return ProblemFileError(field, "one of " + ", ".join(json.dumps(o) for o in options), shown(value))
     if kind == "minItems":
-        return ProblemFileError(field, f"a list of at least {spec} item(s)", _shown(value))
+        return ProblemFileError(field, f"a list of at least {spec} item(s)", shown(value))
+    if kind == "maxItems":
+        return ProblemFileError(field, f"a list of at most {spec} item(s)", shown(value))
+    if kind == "pattern":
+        return ProblemFileError(field, _PATTERN_WORDS.get(spec, f"a string matching {spec}"), shown(value))
+    if kind == "not" and error.absolute_path and error.absolute_path[-1] == "name":
+        return ProblemFileError(field, "a name other than 'min' and 'max' (reserved for the array form of bounds)",
+                                shown(value))
     if kind in ("minLength", "maxLength"):
         return ProblemFileError(field, f"a string of {'at least' if kind == 'minLength' else 'at most'} {spec} "
-                                "characters", _shown(value))
-    return ProblemFileError(field, f"a value matching the problem schema ({kind})", f"{_shown(value)}: {error.message}")
+                                "characters", shown(value))
+    message = error.message if len(error.message) <= 200 else error.message[:197] + "..."
+    return ProblemFileError(field, f"a value matching the problem schema ({kind})", f"{shown(value)}: {message}")
+
+
+#: The patterns of the schema in words (names and units: amcp_drake/model/signals.py).
+_PATTERN_WORDS = {
+    "^[A-Za-z][A-Za-z0-9_]{0,23}$": "a name of 1 to 24 characters: a letter, then letters, digits or '_'",
+    "^[A-Za-z0-9 /*^.()%_°-]{0,16}$": "a unit of at most 16 characters among letters, digits, space and / * ^ . ( ) % - _ °",
+}
 
 
 def _deepest(error):
@@ -182,13 +209,13 @@ def _deepest(error):
 def validate_layout(data: Any) -> None:
     """Check ``data`` against the problem schema; raise ProblemFileError naming the first bad field."""
     if not isinstance(data, dict):
-        raise ProblemFileError("file", "a JSON object at top level", _shown(data))
+        raise ProblemFileError("file", "a JSON object at top level", shown(data))
     fmt = data.get("format")
     if fmt != FORMAT:
-        raise ProblemFileError("format", f"'{FORMAT}'", repr(fmt))
-    if data.get("version") != VERSION or isinstance(data.get("version"), bool):
+        raise ProblemFileError("format", f"'{FORMAT}'", shown(fmt))
+    if type(data.get("version")) is not int or data.get("version") != VERSION:  # 1.0 and true are not 1
         raise ProblemFileError("version", f"{VERSION} (the only problem-file version this amcp reads)",
-                               repr(data.get("version")))
+                               shown(data.get("version")))
     errors = sorted(_schema_validator().iter_errors(data), key=lambda e: [str(p) for p in e.absolute_path])
     if errors:
         raise _schema_error(_deepest(errors[0]))
@@ -201,23 +228,13 @@ def spec_from_dict(data: dict, reduce_rows: bool = True) -> ProblemSpec:
     the file says ``"keep_redundant_rows": true``. Trajectory files pass False: a recorded run is
     re-checked on exactly the problem it ran."""
     validate_layout(data)
-    system = _get(data, "system", "")
-    raw = {
-        "A0": _get(system, "A0", "system"), "B0": _get(system, "B0", "system"),
-        "A": _get(system, "A", "system"), "B": _get(system, "B", "system"),
-        "H_w": _get(_get(data, "W", ""), "H", "W"),
-        "H_theta": _get(_get(data, "Theta", ""), "H", "Theta"), "h_theta": _get(data["Theta"], "h", "Theta"),
-        "F": _get(_get(data, "Z", ""), "F", "Z"), "G": _get(data["Z"], "G", "Z"),
-        "Q": _get(_get(data, "cost", ""), "Q", "cost"), "R": _get(data["cost"], "R", "cost"),
-        "N": _get(data["cost"], "N", "cost"),
-        "theta_hat0": _get(data, "theta_hat0", ""), "name": data.get("name", "problem"),
-    }
-    notes: list[str] = []
+    raw, notes = _problem_fields(data)
     if reduce_rows and not data.get("keep_redundant_rows", False):
         from amcp_drake.model.limits import reduce_rows as reduce_redundant
 
-        changes, notes = reduce_redundant(raw["H_w"], raw["H_theta"], raw["h_theta"], raw["F"], raw["G"])
+        changes, reduced = reduce_redundant(raw["H_w"], raw["H_theta"], raw["h_theta"], raw["F"], raw["G"])
         raw.update(changes)
+        notes += reduced
     problem = Problem(**raw)
     design = DesignOptions(**_known_keys("design", data.get("design", {}) or {}, _DESIGN_FIELDS))
     scenario = None
@@ -230,6 +247,23 @@ def spec_from_dict(data: dict, reduce_rows: bool = True) -> ProblemSpec:
     if data.get("online") is not None:
         online = options_from_dict(data["online"], where="online")
     return ProblemSpec(problem=problem, design=design, scenario=scenario, online=online, notes=tuple(notes))
+
+
+def _problem_fields(data: dict) -> tuple[dict, list[str]]:
+    """The :class:`Problem` keyword arguments of a validated layout and the notes of the translation of
+    the engineering forms (bounds by name, boxes, continuous time: model/problem_builder.py)."""
+    from amcp_drake.model.problem_builder import problem_fields
+
+    system, W, Theta = _get(data, "system", ""), _get(data, "W", ""), _get(data, "Theta", "")
+    Z, bounds, cost = data.get("Z") or {}, data.get("bounds") or {}, _get(data, "cost", "")
+    return problem_fields(
+        A0=_get(system, "A0", "system"), B0=_get(system, "B0", "system"),
+        A=_get(system, "A", "system"), B=_get(system, "B", "system"), continuous=system.get("continuous", False),
+        dt=data.get("dt"), states=data.get("states"), inputs=data.get("inputs"),
+        W_H=W.get("H"), W_box=W.get("box"), Theta_H=Theta.get("H"), Theta_h=Theta.get("h"),
+        Theta_box=Theta.get("box"), x_bounds=bounds.get("x"), u_bounds=bounds.get("u"),
+        F=Z.get("F"), G=Z.get("G"), Q=_get(cost, "Q", "cost"), R=_get(cost, "R", "cost"), N=_get(cost, "N", "cost"),
+        theta_hat0=data.get("theta_hat0"), name=data.get("name", "problem"))
 
 
 def options_from_dict(data: Any, where: str = "options"):
@@ -273,6 +307,12 @@ def spec_to_dict(spec: ProblemSpec) -> dict:
         "cost": {"Q": pr.Q.tolist(), "R": pr.R.tolist(), "N": pr.N},
         "theta_hat0": pr.theta_hat0.tolist(),
     }
+    if pr.states:
+        data["states"] = signals_to_json(pr.states)
+    if pr.inputs:
+        data["inputs"] = signals_to_json(pr.inputs)
+    if pr.dt is not None:
+        data["dt"] = pr.dt
     design: dict[str, Any] = {}
     defaults = DesignOptions()
     for key in _DESIGN_FIELDS:
@@ -409,10 +449,20 @@ def write_text_atomic(text: str, path: str | os.PathLike) -> Path:
 
 def write_bytes_atomic(data: bytes, path: str | os.PathLike) -> Path:
     """Write bytes to ``path`` through a temporary file in the same folder and a rename: a reader
-    sees the old file or the whole new one, never a half-written one."""
+    sees the old file or the whole new one, never a half-written one. On a failure (a full disk) the
+    temporary file and the folders created for it are removed."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    created = []
+    probe = path.parent
+    while not (probe.exists() or probe.is_symlink()) and probe.parent != probe:
+        created.append(probe)
+        probe = probe.parent
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    except BaseException:
+        _remove_empty_dirs(created)
+        raise
     try:
         with os.fdopen(fd, "wb") as handle:
             handle.write(data)
@@ -423,8 +473,18 @@ def write_bytes_atomic(data: bytes, path: str | os.PathLike) -> Path:
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        _remove_empty_dirs(created)
         raise
     return path
+
+
+def _remove_empty_dirs(folders: list[Path]) -> None:
+    """Remove the folders (innermost first) while they are empty."""
+    for folder in folders:
+        try:
+            folder.rmdir()
+        except OSError:
+            return
 
 
 __all__ = [

@@ -24,6 +24,7 @@ from amcp_drake.model.problem import DISTURBANCE_KINDS, Problem, ProblemSpec, ch
 from amcp_drake.model.problem_io import (
     options_from_dict,
     options_to_dict,
+    shown,
     spec_from_dict,
     spec_to_dict,
     write_bytes_atomic,
@@ -186,11 +187,11 @@ class Trajectory:
     def from_dict(cls, data: dict[str, Any]) -> Trajectory:
         if not isinstance(data, dict) or data.get("format") != TRAJECTORY_FORMAT:
             raise TrajectoryError(f"format: expected {TRAJECTORY_FORMAT!r} (not a trajectory file); received "
-                                  f"{data.get('format') if isinstance(data, dict) else type(data).__name__!r}")
+                                  f"{shown(data.get('format')) if isinstance(data, dict) else repr(type(data).__name__)}")
         version = data.get("version")
-        if isinstance(version, bool) or version not in SUPPORTED_TRAJECTORY_VERSIONS:
+        if type(version) is not int or version not in SUPPORTED_TRAJECTORY_VERSIONS:  # 1.0 and true are not 1
             raise TrajectoryError(f"version: expected one of {list(SUPPORTED_TRAJECTORY_VERSIONS)} (the trajectory "
-                                  f"format versions this amcp reads); received {version!r}")
+                                  f"format versions this amcp reads); received {shown(version)}")
         validate_trajectory_layout(data)
         check_consistency(data)
         try:

@@ -1,16 +1,8 @@
 #!/usr/bin/env python3
-"""cvxpy:OSQP (default settings) on one problem of the amcp-drake solver corpus: wrong.
-
-Problem mass_chain3-support_lp-2: support_lp (14), A.1, LP, 2 variables, 6 rows:
-    minimise 1/2 x'Px + q'x + r  s.t.  lower <= A x <= upper,  lb <= x <= ub,  mat(g0 + G x) PSD
-Seen: success reported but infeasible by 2.83e-06 (tol 1e-06)
-The reference answer is verified (KKT residuals below 1e-7; an LP's optimal basis in exact rational
-arithmetic; an infeasible problem by a Farkas certificate).
-Exit 1: reproduces; 0: does not; 3: a package is missing. Needs numpy, scipy and cvxpy only.
-"""
+"cvxpy:OSQP (default settings) on one problem of the amcp-drake solver corpus: wrong.\n\nProblem mass_chain3-support_lp-2: support_lp (14), A.1, LP, 2 variables, 6 rows:\n    minimise 1/2 x'Px + q'x + r  s.t.  lower <= A x <= upper,  lb <= x <= ub,  mat(g0 + G x) PSD\nSeen: success reported but infeasible by 2.83e-06 (tol 1e-06)\nThe reference answer is verified (KKT residuals below 1e-7; an LP's optimal basis in exact rational\narithmetic; an infeasible problem by a Farkas certificate).\nExit 3: reproduces; 0: does not; 4: a package is missing (any other ending is an error of the script, not a finding). Needs numpy, scipy and cvxpy only.\n"
 import json
 
-DATA = json.loads(r'''{"format":"amcp-solver-corpus","version":1,"id":"mass_chain3-support_lp-2","kind":"support_lp","equation":"(14), A.1","class":"lp","n":2,"objective":{"P":null,"q":[-1.0,0.0],"r":0.0},"linear":{"A":{"shape":[6,2],"row":[0,1,1,2,3,4,4,5],"col":[0,0,1,1,0,0,1,1],"val":[1.0,-0.7071067811865476,0.7071067811865476,-1.0,-1.0,0.7071067811865476,-0.7071067811865476,1.0]},"lower":[null,null,null,null,null,null],"upper":[0.7730223286236128,0.4938070665146633,-1.291274557727772,-0.6730203286236127,-0.42309438839600855,1.3912765577277717]},"bounds":{"lower":[null,null],"upper":[null,null]},"lmi":[],"reference":{"status":"optimal","objective":-0.7730223286236128,"x":[0.7730223286236128,1.3912765577277717]}}''')
+DATA = json.loads('{"format":"amcp-solver-corpus","version":1,"id":"mass_chain3-support_lp-2","kind":"support_lp","equation":"(14), A.1","class":"lp","n":2,"objective":{"P":null,"q":[-1.0,0.0],"r":0.0},"linear":{"A":{"shape":[6,2],"row":[0,1,1,2,3,4,4,5],"col":[0,0,1,1,0,0,1,1],"val":[1.0,-0.7071067811865476,0.7071067811865476,-1.0,-1.0,0.7071067811865476,-0.7071067811865476,1.0]},"lower":[null,null,null,null,null,null],"upper":[0.7730223286236128,0.4938070665146633,-1.291274557727772,-0.6730203286236127,-0.42309438839600855,1.3912765577277717]},"bounds":{"lower":[null,null],"upper":[null,null]},"lmi":[],"reference":{"status":"optimal","objective":-0.7730223286236128,"x":[0.7730223286236128,1.3912765577277717]}}')
 FEAS_TOL, OPT_TOL = 1e-06, 1e-06
 CRASH_ONLY = False
 SOLVER = 'OSQP'
@@ -58,7 +50,7 @@ def judge(success, status, x):
     if ref["status"] == "infeasible":
         if success:
             print(f"REPRODUCES: success reported on a problem with a verified infeasibility certificate")
-            sys.exit(1)
+            sys.exit(3)
         print("does not reproduce: no success reported on the infeasible problem")
         sys.exit(0)
     if not success:
@@ -66,7 +58,7 @@ def judge(success, status, x):
         sys.exit(0)
     if x is None or not np.all(np.isfinite(x)):
         print("REPRODUCES: success reported without a finite solution")
-        sys.exit(1)
+        sys.exit(3)
     x = np.asarray(x, float)
     viol = violation(x)
     gap = (objective(x) - ref["objective"]) / (1 + abs(ref["objective"]))
@@ -76,7 +68,7 @@ def judge(success, status, x):
     if viol > FEAS_TOL or gap > OPT_TOL:
         print("REPRODUCES: success reported but the answer is " + " and ".join(
             t for t, bad in (("infeasible", viol > FEAS_TOL), ("suboptimal", gap > OPT_TOL)) if bad))
-        sys.exit(1)
+        sys.exit(3)
     print("does not reproduce: the answer is feasible and optimal within the tolerances")
     sys.exit(0)
 
@@ -84,7 +76,7 @@ try:
     import cvxpy as cp
 except ImportError as exc:
     print(f"cannot run: {exc}")
-    sys.exit(3)
+    sys.exit(4)
 from importlib.metadata import PackageNotFoundError, version
 vs = []
 for pkg in ("cvxpy", "clarabel", "osqp", "scs", "ecos", "daqp", "piqp", "highspy", "proxsuite"):
@@ -95,7 +87,7 @@ for pkg in ("cvxpy", "clarabel", "osqp", "scs", "ecos", "daqp", "piqp", "highspy
 print(", ".join(vs) + f", numpy {np.__version__}, python {sys.version.split()[0]}")
 if SOLVER not in cp.installed_solvers():
     print(f"cannot run: cvxpy solver {SOLVER} not installed")
-    sys.exit(3)
+    sys.exit(4)
 x = cp.Variable(n)
 obj = q @ x + r + (0 if P is None or not P.nnz else 0.5 * cp.quad_form(x, cp.psd_wrap(P)))
 cons = []
@@ -118,5 +110,5 @@ except cp.error.SolverError as exc:
     judge(False, f"SolverError: {exc}", None)
 except BaseException as exc:
     print(f"REPRODUCES: the solve raised {type(exc).__name__}: {exc}")
-    sys.exit(1)
+    sys.exit(3)
 judge(prob.status == "optimal", prob.status, x.value)

@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """Drake: a NaN in a linear constraint's matrix ends the Python process (SystemExit from a C++
 DRAKE_THROW_UNLESS) instead of raising an ordinary exception; a NaN in a linear cost is answered with
-kSolverSpecificError. Exit 1: reproduces (SystemExit seen); 0: an ordinary exception or a status; 3:
-pydrake missing. Needs numpy and pydrake only.
+kSolverSpecificError. Exit 3: reproduces (SystemExit seen); 0: an ordinary exception or a status; 4:
+pydrake missing (any other exit code is an error of the script, not a finding). Needs numpy and pydrake
+only.
 """
 import sys
 
@@ -12,7 +13,7 @@ try:
     from pydrake.solvers import ClarabelSolver, MathematicalProgram
 except ImportError as exc:
     print(f"cannot run: {exc}")
-    sys.exit(3)
+    sys.exit(4)
 from importlib.metadata import version
 
 print(f"drake {version('drake')}, numpy {np.__version__}, python {sys.version.split()[0]}")
@@ -24,7 +25,7 @@ try:
     result = ClarabelSolver().Solve(prog)
 except SystemExit as exc:
     print(f"REPRODUCES: a NaN coefficient raised SystemExit({exc.code}): an uncaught one ends the interpreter")
-    sys.exit(1)
+    sys.exit(3)
 except Exception as exc:  # noqa: BLE001
     print(f"does not reproduce: an ordinary exception {type(exc).__name__}: {exc}")
     sys.exit(0)

@@ -1,16 +1,8 @@
 #!/usr/bin/env python3
-"""drake:scs (default settings) on one problem of the amcp-drake solver corpus: wrong.
-
-Problem generated-0-0-projection_qp-1: projection_qp (12), QP, 1 variables, 2 rows:
-    minimise 1/2 x'Px + q'x + r  s.t.  lower <= A x <= upper,  lb <= x <= ub,  mat(g0 + G x) PSD
-Seen: success reported but infeasible by 3.04e-06 (tol 1e-06)
-The reference answer is verified (KKT residuals below 1e-7; an LP's optimal basis in exact rational
-arithmetic; an infeasible problem by a Farkas certificate).
-Exit 1: reproduces; 0: does not; 3: a package is missing. Needs numpy, scipy and pydrake only.
-"""
+"drake:scs (default settings) on one problem of the amcp-drake solver corpus: wrong.\n\nProblem generated-0-0-projection_qp-1: projection_qp (12), QP, 1 variables, 2 rows:\n    minimise 1/2 x'Px + q'x + r  s.t.  lower <= A x <= upper,  lb <= x <= ub,  mat(g0 + G x) PSD\nSeen: success reported but infeasible by 3.04e-06 (tol 1e-06)\nThe reference answer is verified (KKT residuals below 1e-7; an LP's optimal basis in exact rational\narithmetic; an infeasible problem by a Farkas certificate).\nExit 3: reproduces; 0: does not; 4: a package is missing (any other ending is an error of the script, not a finding). Needs numpy, scipy and pydrake only.\n"
 import json
 
-DATA = json.loads(r'''{"format":"amcp-solver-corpus","version":1,"id":"generated-0-0-projection_qp-1","kind":"projection_qp","equation":"(12)","class":"qp","n":1,"objective":{"P":{"shape":[1,1],"row":[0],"col":[0],"val":[2.0]},"q":[0.0],"r":0.0},"linear":{"A":{"shape":[2,1],"row":[0,1],"col":[0,0],"val":[1.0,-1.0]},"lower":[null,null],"upper":[-1.0,4.300633114690164]},"bounds":{"lower":[null],"upper":[null]},"lmi":[],"reference":{"status":"optimal","objective":1.0000000000368128,"x":[-1.0000000000184064]}}''')
+DATA = json.loads('{"format":"amcp-solver-corpus","version":1,"id":"generated-0-0-projection_qp-1","kind":"projection_qp","equation":"(12)","class":"qp","n":1,"objective":{"P":{"shape":[1,1],"row":[0],"col":[0],"val":[2.0]},"q":[0.0],"r":0.0},"linear":{"A":{"shape":[2,1],"row":[0,1],"col":[0,0],"val":[1.0,-1.0]},"lower":[null,null],"upper":[-1.0,4.300633114690164]},"bounds":{"lower":[null],"upper":[null]},"lmi":[],"reference":{"status":"optimal","objective":1.0000000000368128,"x":[-1.0000000000184064]}}')
 FEAS_TOL, OPT_TOL = 1e-06, 1e-06
 CRASH_ONLY = False
 SOLVER_CLASS = 'ScsSolver'
@@ -58,7 +50,7 @@ def judge(success, status, x):
     if ref["status"] == "infeasible":
         if success:
             print(f"REPRODUCES: success reported on a problem with a verified infeasibility certificate")
-            sys.exit(1)
+            sys.exit(3)
         print("does not reproduce: no success reported on the infeasible problem")
         sys.exit(0)
     if not success:
@@ -66,7 +58,7 @@ def judge(success, status, x):
         sys.exit(0)
     if x is None or not np.all(np.isfinite(x)):
         print("REPRODUCES: success reported without a finite solution")
-        sys.exit(1)
+        sys.exit(3)
     x = np.asarray(x, float)
     viol = violation(x)
     gap = (objective(x) - ref["objective"]) / (1 + abs(ref["objective"]))
@@ -76,7 +68,7 @@ def judge(success, status, x):
     if viol > FEAS_TOL or gap > OPT_TOL:
         print("REPRODUCES: success reported but the answer is " + " and ".join(
             t for t, bad in (("infeasible", viol > FEAS_TOL), ("suboptimal", gap > OPT_TOL)) if bad))
-        sys.exit(1)
+        sys.exit(3)
     print("does not reproduce: the answer is feasible and optimal within the tolerances")
     sys.exit(0)
 
@@ -86,7 +78,7 @@ try:
     import pydrake.solvers as ds
 except ImportError as exc:
     print(f"cannot run: {exc}")
-    sys.exit(3)
+    sys.exit(4)
 from importlib.metadata import version
 print(f"drake {version('drake')}, numpy {np.__version__}, python {sys.version.split()[0]}")
 for arr in (q, A.data, *(G.data for _, G, _ in LMIS)):
@@ -113,7 +105,7 @@ try:
     result = solver.Solve(prog, None, options)
 except BaseException as exc:
     print(f"REPRODUCES: the solve raised {type(exc).__name__}: {exc}")
-    sys.exit(1)
+    sys.exit(3)
 status = str(result.get_solution_result())
 details = getattr(result.get_solver_details(), "status", None)
 judge(result.is_success(), status + ("" if details is None else f" ({details})"), result.GetSolution(x))

@@ -16,13 +16,18 @@ KKT residuals, the exact basis check of an LP; :mod:`.reference`) or ``{"status"
 with its certificate; ``provenance`` where the problem was recorded.
 
 A file is read strictly (:func:`amcp_drake.model.json_strict.load_json_strict`): a missing or mistyped
-field raises :class:`~amcp_drake.model.errors.ProblemFileError` naming it.
+field raises :class:`~amcp_drake.model.errors.ProblemFileError` naming it. A corpus file is data from
+someone else: its ``id`` must match :data:`ID_PATTERN` (it names the files derived from it, never a
+path), and its ``reference`` must have the layout of :func:`check_reference_layout`; whether the
+reference is right is checked again by :func:`.reference.check_reference` when the matrix loads it
+(:func:`.reference.load_checked_corpus`).
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -44,6 +49,12 @@ KINDS = {
     "gain_sdp": ("(16)", "robust gain / terminal cost LMI"),
     "support_lp": ("(14), A.1", "support-function LP of the offline design"),
 }
+#: A problem id: letters, digits, ``_``, ``.`` and ``-``, 1 to 64 characters, not starting with ``.`` or ``-``
+#: (file names are derived from it: ``<id>.json.gz``, reproducers ``<solver>-<verdict>-<id>.py``).
+ID_PATTERN = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}")
+ID_EXPECTED = "1 to 64 characters of A-Z a-z 0-9 _ . -, not starting with '.' or '-'"
+#: Reference statuses: a verified optimum or a verified infeasibility certificate.
+REFERENCE_STATUSES = ("optimal", "infeasible")
 #: Problem classes, from the data: an LP has no P and no LMI, an SDP has an LMI.
 CLASSES = ("lp", "qp", "sdp")
 
@@ -132,7 +143,9 @@ class CorpusProblem:
         }
 
     @classmethod
-    def from_dict(cls, data: Any, source: str = "corpus problem") -> CorpusProblem:
+    def from_dict(cls, data: Any, source: str = "corpus problem", require_reference: bool = True) -> CorpusProblem:
+        """The problem of a corpus file's data (module docstring); ``require_reference`` False also takes
+        an empty ``reference`` (a crash's reproducer keeps problems without a verifiable answer)."""
         r = _Reader(source)
         r.require(isinstance(data, dict), "", "a JSON object", type(data).__name__)
         r.require(data.get("format") == FORMAT, "format", repr(FORMAT), repr(data.get("format")))
@@ -150,18 +163,52 @@ class CorpusProblem:
         for j, block in enumerate(r.get(data, "lmi", list)):
             s = r.int(block, "size", f"lmi[{j}].size")
             lmis.append((s, r.sparse(block.get("G"), f"lmi[{j}].G", (s * s, n)), r.vec(block.get("g0"), f"lmi[{j}].g0", s * s)))
+        problem_id = r.get(data, "id", str)
+        r.require(is_valid_id(problem_id), "id", ID_EXPECTED, repr(problem_id)[:80])
+        reference = r.get(data, "reference", dict)
+        if require_reference or reference:
+            check_reference_layout(reference, n, source)
         problem = cls(
-            id=r.get(data, "id", str), kind=kind, P=P, q=r.vec(obj.get("q"), "objective.q", n),
+            id=problem_id, kind=kind, P=P, q=r.vec(obj.get("q"), "objective.q", n),
             r=float(r.get(obj, "r", (int, float), "objective.r")), A=A,
             lower=r.vec(lin.get("lower"), "linear.lower", m, -np.inf), upper=r.vec(lin.get("upper"), "linear.upper", m, np.inf),
             lb=r.vec(bnd.get("lower"), "bounds.lower", n, -np.inf), ub=r.vec(bnd.get("upper"), "bounds.upper", n, np.inf),
-            lmis=lmis, reference=r.get(data, "reference", dict), provenance=r.get(data, "provenance", dict),
+            lmis=lmis, reference=reference, provenance=r.get(data, "provenance", dict),
         )
         return problem
 
     def reference_x(self) -> np.ndarray | None:
         x = self.reference.get("x")
         return None if x is None else np.asarray(x, float)
+
+
+def is_valid_id(value: Any) -> bool:
+    """Whether ``value`` is a problem id of :data:`ID_PATTERN`."""
+    return isinstance(value, str) and ID_PATTERN.fullmatch(value) is not None
+
+
+def check_id(value: Any, name: str = "id") -> str:
+    """``value`` when it is a valid problem id, else ProblemFileError naming ``name``."""
+    if not is_valid_id(value):
+        raise ProblemFileError(name, ID_EXPECTED, repr(value)[:80])
+    return value
+
+
+def check_reference_layout(reference: Any, n: int, source: str = "corpus problem") -> None:
+    """The layout of a stored reference: ``status`` "optimal" with a finite number ``objective`` and a list
+    ``x`` of ``n`` finite numbers, or ``status`` "infeasible". ProblemFileError naming the field otherwise."""
+    r = _Reader(source)
+    r.require(isinstance(reference, dict), "reference", "a JSON object", type(reference).__name__)
+    status = reference.get("status")
+    r.require(status in REFERENCE_STATUSES, "reference.status", f"one of {list(REFERENCE_STATUSES)}", repr(status)[:80])
+    if status != "optimal":
+        return
+    objective = reference.get("objective")
+    r.require(isinstance(objective, (int, float)) and not isinstance(objective, bool) and bool(np.isfinite(objective)),
+              "reference.objective", "a finite number (the verified optimum)",
+              "none" if "objective" not in reference else repr(objective)[:80])
+    r.require(bool(np.all(np.isfinite(r.vec(reference.get("x"), "reference.x", n)))), "reference.x",
+              f"a list of {n} finite numbers", "a non-finite entry")
 
 
 class _Reader:
@@ -266,11 +313,15 @@ def load_problem(path: str | os.PathLike) -> CorpusProblem:
 
 
 def load_corpus(paths: list[str | os.PathLike] | str | os.PathLike) -> list[CorpusProblem]:
-    """Every ``*.json`` corpus problem under the given files/folders, sorted by id."""
+    """Every ``*.json`` corpus problem under the given files/folders, sorted by id; two files with one id
+    are refused. Whether the references are right: :func:`.reference.load_checked_corpus`."""
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]
     files: list[Path] = []
-    for p in map(Path, paths):
+    for given in paths:
+        if not os.fspath(given).strip():   # Path("") is ".", the current folder
+            raise ProblemFileError("--corpus", "an existing corpus file or folder", "an empty string")
+        p = Path(given)
         if p.is_dir():
             files.extend(f for f in sorted([*p.rglob("*.json"), *p.rglob("*.json.gz")]) if f.name != "index.json")
         elif p.is_file():
@@ -278,6 +329,11 @@ def load_corpus(paths: list[str | os.PathLike] | str | os.PathLike) -> list[Corp
         else:
             raise ProblemFileError("--corpus", "an existing corpus file or folder", str(p))
     problems = [load_problem(f) for f in files]
+    seen: dict[str, Path] = {}
+    for f, pr in zip(files, problems):
+        if pr.id in seen:
+            raise ProblemFileError(f"{f}: id", "an id no other corpus file has", f"{pr.id!r}, also the id of {seen[pr.id]}")
+        seen[pr.id] = f
     if not problems:
         raise ProblemFileError("--corpus", "at least one corpus problem (*.json, *.json.gz)", f"none under {[str(p) for p in paths]}")
     return sorted(problems, key=lambda pr: pr.id)
@@ -288,5 +344,6 @@ def shipped_corpus_dir() -> Path:
     return Path(__file__).resolve().parents[2] / "data" / "solver_corpus"
 
 
-__all__ = ["CLASSES", "FORMAT", "KINDS", "VERSION", "CorpusProblem", "load_corpus", "load_problem", "shipped_corpus_dir",
+__all__ = ["CLASSES", "FORMAT", "ID_EXPECTED", "ID_PATTERN", "KINDS", "REFERENCE_STATUSES", "VERSION", "CorpusProblem",
+           "check_id", "check_reference_layout", "is_valid_id", "load_corpus", "load_problem", "shipped_corpus_dir",
            "write_json_atomic", "write_text_atomic"]

@@ -43,7 +43,8 @@ from typing import Any
 
 import numpy as np
 
-from amcp_drake.studies.solver_matrix.corpus import write_json_atomic
+from amcp_drake.model.problem_io import write_bytes_atomic
+from amcp_drake.studies.solver_matrix.corpus import ID_EXPECTED, is_valid_id, write_json_atomic
 from amcp_drake.studies.solver_matrix.cvxpy_export import CvxpyRecorder
 from amcp_drake.studies.solver_matrix.drake_export import ProgramRecorder, Recorded, SolveSkipped
 from amcp_drake.studies.solver_matrix.reference import verify_reference
@@ -366,7 +367,8 @@ def export_corpus(out_dir: Path, sources: list[Source], per_kind: int = 2, max_b
             pr.provenance.update(backend="cvxpy" if r.solver.startswith("cvxpy") else "drake", solver_in_run=r.solver, options_in_run=_jsonable(r.options),
                                  success_in_run=r.success, status_in_run=r.solver_status, hard_case=source.hard,
                                  note=source.note)
-            why = verify_reference(pr)
+            why = None if is_valid_id(pr.id) else f"id {pr.id!r} is not {ID_EXPECTED}"
+            why = why or verify_reference(pr)
             if why is None:
                 text = json.dumps(pr.to_dict(), allow_nan=False)
                 if len(text) > max_bytes:
@@ -374,10 +376,7 @@ def export_corpus(out_dir: Path, sources: list[Source], per_kind: int = 2, max_b
             if why is not None:
                 index["left_out"].append({"id": pr.id, "kind": r.kind, "reason": why})
                 continue
-            path = out_dir / f"{pr.id}.json.gz"
-            tmp = path.with_suffix(".tmp")
-            tmp.write_bytes(gzip.compress(text.encode(), mtime=0))
-            tmp.replace(path)
+            path = write_bytes_atomic(gzip.compress(text.encode(), mtime=0), out_dir / f"{pr.id}.json.gz")
             entry["kept"] += 1
             index["problems"].append({"id": pr.id, "kind": pr.kind, "class": pr.problem_class, "n": pr.n,
                                       "rows": int(pr.A.shape[0]), "reference": pr.reference.get("status"),

@@ -23,6 +23,10 @@ zero on free nonbasic columns). Then the vertex is optimal, exactly; its float i
 An infeasible problem is accepted as such only with a Farkas certificate z ∈ K* with A_cᵀz = 0 and
 b_cᵀz < 0 (relative residual below :data:`KKT_TOL`). A problem whose answer cannot be verified is left
 out of the corpus and counted (:func:`verify_reference` returns the reason).
+
+A corpus file read back is someone else's data: :func:`check_reference` verifies its stored reference
+again from the problem's data before the matrix judges any answer by it (a lowered objective would
+turn correct answers into "wrong", a raised one wrong answers into "correct").
 """
 
 from __future__ import annotations
@@ -33,13 +37,17 @@ from fractions import Fraction
 import numpy as np
 import scipy.sparse as sp
 
-from amcp_drake.studies.solver_matrix.corpus import CorpusProblem
+from amcp_drake.model.errors import ProblemFileError
+from amcp_drake.studies.solver_matrix.corpus import CorpusProblem, check_reference_layout, load_corpus
 
 #: Relative KKT residual (primal, dual, gap, cone) below which a tight answer is accepted as the reference.
 KKT_TOL = 1e-7
 #: Largest constraint violation of an accepted optimal reference: the tightest verdict tolerance
 #: (:data:`.runner.TOLERANCES`, "tight").
 REFERENCE_FEAS_TOL = 1e-8
+#: Largest |stored objective − f(stored x)| / (1 + |f(stored x)|) of a stored optimal reference: the round-off
+#: of evaluating f (an LP's objective is computed exactly and rounded once, its x rounded entry by entry).
+CONSISTENCY_TOL = 1e-9
 #: Clarabel settings of the reference solve.
 REFERENCE_SETTINGS = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10, "tol_ktratio": 1e-8,
                       "max_iter": 500}
@@ -347,5 +355,49 @@ def verify_reference(pr: CorpusProblem) -> str | None:
     return None
 
 
-__all__ = ["EXACT_LP_MAX", "KKT_TOL", "REFERENCE_FEAS_TOL", "REFERENCE_SETTINGS", "ConicForm", "clarabel_solve", "conic_form",
+def check_reference(pr: CorpusProblem, source: str = "corpus problem") -> None:
+    """Verify the stored reference of ``pr`` again from its data; ProblemFileError naming the field of
+    ``reference`` that does not check. Its layout (:func:`.corpus.check_reference_layout`); the reference
+    recomputed here (:func:`verify_reference`) must be accepted and have the same status; an optimal one's
+    stored ``x`` must be feasible (violation at most :data:`REFERENCE_FEAS_TOL`), its stored ``objective``
+    equal to f(x) (:data:`CONSISTENCY_TOL`) and to the recomputed optimum f* (|f − f*| at most
+    :data:`KKT_TOL` · (1 + |f*|), the accuracy every reference is accepted at)."""
+    import copy
+
+    check_reference_layout(pr.reference, pr.n, source)
+    stored = pr.reference
+    fresh = copy.copy(pr)
+    fresh.reference = {}
+    why = verify_reference(fresh)
+    if why is not None:
+        raise ProblemFileError(f"{source}: reference", "a reference that can be verified again from the problem's data",
+                               f"the problem's answer cannot be verified here ({why})")
+    if stored["status"] != fresh.reference["status"]:
+        raise ProblemFileError(f"{source}: reference.status", f"{fresh.reference['status']!r} (verified again here)",
+                               repr(stored["status"]))
+    if stored["status"] != "optimal":
+        return
+    x = np.asarray(stored["x"], float)
+    violation = pr.violation(x)
+    if violation > REFERENCE_FEAS_TOL:
+        raise ProblemFileError(f"{source}: reference.x", f"a feasible point (largest violation at most {REFERENCE_FEAS_TOL:g})",
+                               f"a point violating the constraints by {violation:.3e}")
+    f, f_x, f_star = float(stored["objective"]), pr.objective(x), float(fresh.reference["objective"])
+    if abs(f - f_x) > CONSISTENCY_TOL * (1.0 + abs(f_x)):
+        raise ProblemFileError(f"{source}: reference.objective", f"f(reference.x) = {f_x:.17g}", f"{f:.17g}")
+    if abs(f - f_star) > KKT_TOL * (1.0 + abs(f_star)):
+        raise ProblemFileError(f"{source}: reference.objective",
+                               f"the optimum {f_star:.17g} verified again here (relative tolerance {KKT_TOL:g})", f"{f:.17g}")
+
+
+def load_checked_corpus(paths) -> list[CorpusProblem]:
+    """The corpus problems under ``paths`` (:func:`.corpus.load_corpus`), each reference verified again
+    (:func:`check_reference`): a corpus whose answers do not check is refused (ProblemFileError)."""
+    problems = load_corpus(paths)
+    for pr in problems:
+        check_reference(pr, f"corpus problem {pr.id}")
+    return problems
+
+
+__all__ = ["CONSISTENCY_TOL", "EXACT_LP_MAX", "KKT_TOL", "check_reference", "load_checked_corpus", "REFERENCE_FEAS_TOL", "REFERENCE_SETTINGS", "ConicForm", "clarabel_solve", "conic_form",
            "exact_lp_certificate", "kkt_residuals", "verify_reference"]

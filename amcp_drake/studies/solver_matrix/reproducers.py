@@ -3,32 +3,57 @@
 For every (solver configuration, verdict) with verdict ``wrong`` or ``crash``, the smallest corpus
 problem that shows it (:attr:`.corpus.CorpusProblem.size`) is written out as one self-contained
 script: pure pydrake or pure cvxpy with numpy/scipy, the problem's data inline, nothing from this
-project. It prints the installed versions and what is wrong, and exits 1 when the defect reproduces,
-0 when it does not, 3 when a package it needs is missing (an abort or a panic ends it by a signal or an
-uncaught exception, which :func:`recheck` counts as reproduced). A crash's script reproduces only by
-an exception or an abort; a status returned is "does not reproduce", whatever the answer.
+project. It prints the installed versions and what is wrong, and exits :data:`REPRODUCES` (3) when the
+defect reproduces, :data:`DOES_NOT` (0) when it does not, :data:`MISSING` (4) when a package it needs
+is missing. A crash's script reproduces by an exception (exit 3) or by an abort (the process ended by
+one of :data:`CRASH_SIGNALS`); a status returned is "does not reproduce", whatever the answer.
 
-:func:`recheck` runs every ``*.py`` of a folder in a child process with a time limit and says which
-still reproduce on the installed versions.
+Nothing of a corpus file is pasted into the script as code: the problem's data is one string literal
+written by :func:`repr` of its JSON, the header one :func:`repr` literal, the file name derived from
+the validated id (:data:`.corpus.ID_PATTERN`, :func:`reproducer_name`).
+
+Beside the scripts, :data:`MANIFEST_NAME` records for each file its SHA-256 and what it was written
+from (the problem's data, solver, settings, verdict). :func:`recheck` runs only the scripts of that
+manifest whose bytes are exactly what this version writes for the recorded entry (the hash checked on
+the file, on the manifest and on the script written again from the entry, whose reference is verified
+again as on corpus load: :func:`.reference.check_reference`), so a foreign or edited
+script, a forged manifest entry, a symbolic link, a hidden file or a folder is reported and never
+run. Each script runs from a private temporary copy, in a child process with a minimal environment
+(:func:`clean_environment`), in a process group of its own that is killed when it ends or at the time
+limit; its outcome is "reproduces" only on the documented exit code (or a crash signal of a crash's
+script), any other ending (an uncaught exception, a syntax error, another code) is "error".
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
+import signal
 import subprocess
 import sys
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from amcp_drake.studies.solver_matrix.corpus import CorpusProblem, write_text_atomic
+from amcp_drake.model.errors import ProblemFileError
+from amcp_drake.studies.solver_matrix.corpus import CorpusProblem, check_id, write_json_atomic, write_text_atomic
+from amcp_drake.studies.solver_matrix.reference import check_reference
 from amcp_drake.studies.solver_matrix.runner import TOLERANCES, MatrixRun
 from amcp_drake.studies.solver_matrix.solvers import CVXPY_TIGHT, DRAKE_SOLVERS, DRAKE_TIGHT
 
-#: Exit codes of a reproducer.
-REPRODUCES, DOES_NOT, MISSING = 1, 0, 3
+#: Exit codes of a reproducer (1 and 2 are Python's own: an uncaught exception, a bad command line).
+REPRODUCES, DOES_NOT, MISSING = 3, 0, 4
+#: Signals that end a crash's script when the solver aborts the process (they count as "reproduces").
+CRASH_SIGNALS = (signal.SIGABRT, signal.SIGSEGV, signal.SIGBUS, signal.SIGILL, signal.SIGFPE)
 #: Seconds a reproducer may run in :func:`recheck`.
 RECHECK_TIME_LIMIT = 120.0
+#: The manifest written beside the scripts.
+MANIFEST_NAME = "manifest.json"
+MANIFEST_FORMAT, MANIFEST_VERSION = "amcp-reproducers", 1
+#: Outcomes of :func:`recheck`.
+OUTCOMES = ("reproduces", "no longer reproduces", "cannot run", "timeout", "error", "refused")
 
 _COMMON = r'''
 import json, sys
@@ -73,7 +98,7 @@ def judge(success, status, x):
     if ref["status"] == "infeasible":
         if success:
             print(f"REPRODUCES: success reported on a problem with a verified infeasibility certificate")
-            sys.exit(1)
+            sys.exit(3)
         print("does not reproduce: no success reported on the infeasible problem")
         sys.exit(0)
     if not success:
@@ -81,7 +106,7 @@ def judge(success, status, x):
         sys.exit(0)
     if x is None or not np.all(np.isfinite(x)):
         print("REPRODUCES: success reported without a finite solution")
-        sys.exit(1)
+        sys.exit(3)
     x = np.asarray(x, float)
     viol = violation(x)
     gap = (objective(x) - ref["objective"]) / (1 + abs(ref["objective"]))
@@ -91,7 +116,7 @@ def judge(success, status, x):
     if viol > FEAS_TOL or gap > OPT_TOL:
         print("REPRODUCES: success reported but the answer is " + " and ".join(
             t for t, bad in (("infeasible", viol > FEAS_TOL), ("suboptimal", gap > OPT_TOL)) if bad))
-        sys.exit(1)
+        sys.exit(3)
     print("does not reproduce: the answer is feasible and optimal within the tolerances")
     sys.exit(0)
 '''
@@ -103,7 +128,7 @@ try:
     import pydrake.solvers as ds
 except ImportError as exc:
     print(f"cannot run: {exc}")
-    sys.exit(3)
+    sys.exit(4)
 from importlib.metadata import version
 print(f"drake {version('drake')}, numpy {np.__version__}, python {sys.version.split()[0]}")
 for arr in (q, A.data, *(G.data for _, G, _ in LMIS)):
@@ -130,7 +155,7 @@ try:
     result = solver.Solve(prog, None, options)
 except BaseException as exc:
     print(f"REPRODUCES: the solve raised {type(exc).__name__}: {exc}")
-    sys.exit(1)
+    sys.exit(3)
 status = str(result.get_solution_result())
 details = getattr(result.get_solver_details(), "status", None)
 judge(result.is_success(), status + ("" if details is None else f" ({details})"), result.GetSolution(x))
@@ -141,7 +166,7 @@ try:
     import cvxpy as cp
 except ImportError as exc:
     print(f"cannot run: {exc}")
-    sys.exit(3)
+    sys.exit(4)
 from importlib.metadata import PackageNotFoundError, version
 vs = []
 for pkg in ("cvxpy", "clarabel", "osqp", "scs", "ecos", "daqp", "piqp", "highspy", "proxsuite"):
@@ -152,7 +177,7 @@ for pkg in ("cvxpy", "clarabel", "osqp", "scs", "ecos", "daqp", "piqp", "highspy
 print(", ".join(vs) + f", numpy {np.__version__}, python {sys.version.split()[0]}")
 if SOLVER not in cp.installed_solvers():
     print(f"cannot run: cvxpy solver {SOLVER} not installed")
-    sys.exit(3)
+    sys.exit(4)
 x = cp.Variable(n)
 obj = q @ x + r + (0 if P is None or not P.nnz else 0.5 * cp.quad_form(x, cp.psd_wrap(P)))
 cons = []
@@ -175,7 +200,7 @@ except cp.error.SolverError as exc:
     judge(False, f"SolverError: {exc}", None)
 except BaseException as exc:
     print(f"REPRODUCES: the solve raised {type(exc).__name__}: {exc}")
-    sys.exit(1)
+    sys.exit(3)
 judge(prob.status == "optimal", prob.status, x.value)
 '''
 
@@ -188,23 +213,40 @@ class Reproducer:
     path: Path
 
 
+#: Characters of a solver configuration in a file name (``drake:clarabel`` -> ``drake-clarabel``).
+_SOLVER_CHARS = frozenset("abcdefghijklmnopqrstuvwxyz0123456789_")
+
+
+def reproducer_name(solver: str, verdict: str, problem_id: str, settings: str = "default") -> str:
+    """The file name of a reproducer, derived (never taken) from its parts: ``<stack>-<name>-<verdict>-<id>.py``
+    (``-tight`` before ``.py`` for tight settings). ValueError for a part outside the safe characters."""
+    stack, _, name = solver.partition(":")
+    if stack not in ("drake", "cvxpy") or not name or not set(name.lower()) <= _SOLVER_CHARS:
+        raise ValueError(f"no reproducer file name for the solver configuration {solver!r}")
+    if verdict not in ("wrong", "crash") or settings not in TOLERANCES:
+        raise ValueError(f"no reproducer file name for verdict {verdict!r}, settings {settings!r}")
+    check_id(problem_id)
+    return f"{stack}-{name.lower()}-{verdict}-{problem_id}{'-tight' if settings == 'tight' else ''}.py"
+
+
 def script_text(pr: CorpusProblem, solver: str, settings: str, verdict: str, detail: str) -> str:
-    """The standalone script of ``solver`` on ``pr`` (see the module docstring)."""
+    """The standalone script of ``solver`` on ``pr`` (see the module docstring). Every text that comes from
+    the corpus or the run (the id, the detail, the data) is in a literal written by :func:`repr`."""
     stack, _, name = solver.partition(":")
     data = {k: v for k, v in pr.to_dict().items() if k not in ("provenance",)}
     data["reference"] = {k: pr.reference.get(k) for k in ("status", "objective", "x") if k in pr.reference}
     tol = TOLERANCES[settings]
-    if stack == "drake":
+    if stack == "drake" and name in DRAKE_SOLVERS:
         options = DRAKE_TIGHT.get(name, {}) if settings == "tight" else {}
         head = f"SOLVER_CLASS = {DRAKE_SOLVERS[name]!r}\nOPTIONS = {options!r}\n"
         body = _DRAKE
-    elif stack == "cvxpy":
+    elif stack == "cvxpy" and name:
         options = CVXPY_TIGHT.get(name, {}) if settings == "tight" else {}
         head = f"SOLVER = {name!r}\nOPTIONS = {options!r}\n"
         body = _CVXPY
     else:
         raise ValueError(f"no standalone reproducer for {solver!r} (drake:* and cvxpy:* only)")
-    doc = (f'"""{solver} ({settings} settings) on one problem of the amcp-drake solver corpus: {verdict}.\n\n'
+    doc = (f"{solver} ({settings} settings) on one problem of the amcp-drake solver corpus: {verdict}.\n\n"
            f"Problem {pr.id}: {pr.kind} {pr.equation}, {pr.problem_class.upper()}, {pr.n} variables, {pr.A.shape[0]} rows"
            f"{', ' + str(len(pr.lmis)) + ' LMI block(s)' if pr.lmis else ''}:\n"
            "    minimise 1/2 x'Px + q'x + r  s.t.  lower <= A x <= upper,  lb <= x <= ub,  mat(g0 + G x) PSD\n"
@@ -212,18 +254,49 @@ def script_text(pr: CorpusProblem, solver: str, settings: str, verdict: str, det
            + ("Only a crash counts (an exception or an abort); the answer returned is not judged.\n" if verdict == "crash" else
               "The reference answer is verified (KKT residuals below 1e-7; an LP's optimal basis in exact rational\n"
               "arithmetic; an infeasible problem by a Farkas certificate).\n")
-           + "Exit 1: reproduces; 0: does not; 3: a package is missing. Needs numpy, scipy and "
-           f"{'pydrake' if stack == 'drake' else 'cvxpy'} only.\n"
-           '"""\n')
+           + f"Exit {REPRODUCES}: reproduces; {DOES_NOT}: does not; {MISSING}: a package is missing (any other ending is an "
+           f"error of the script, not a finding). Needs numpy, scipy and {'pydrake' if stack == 'drake' else 'cvxpy'} only.\n")
     payload = json.dumps(data, separators=(",", ":"), allow_nan=False)
-    return (f"#!/usr/bin/env python3\n{doc}import json\n\nDATA = json.loads(r'''{payload}''')\n"
+    return (f"#!/usr/bin/env python3\n{doc!r}\nimport json\n\nDATA = json.loads({payload!r})\n"
             f"FEAS_TOL, OPT_TOL = {tol['feas']!r}, {tol['opt']!r}\nCRASH_ONLY = {verdict == 'crash'!r}\n"
             f"{head}{_COMMON}{body}")
 
 
+def _sha256(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def manifest_entry(pr: CorpusProblem | None, solver: str, settings: str, verdict: str, detail: str) -> tuple[str, str, dict]:
+    """(file name, script text, manifest entry) of one reproducer; ``pr`` None: :data:`NONFINITE_SCRIPT`."""
+    if pr is None:
+        return NONFINITE_NAME, NONFINITE_SCRIPT, {"builtin": "nonfinite", "solver": "drake", "verdict": "crash",
+                                                  "sha256": _sha256(NONFINITE_SCRIPT.encode())}
+    text = script_text(pr, solver, settings, verdict, detail)
+    problem = {**pr.to_dict(), "provenance": {},
+               "reference": {k: pr.reference[k] for k in ("status", "objective", "x") if k in pr.reference}}
+    entry = {"solver": solver, "settings": settings, "verdict": verdict, "detail": detail[:300], "problem": problem,
+             "sha256": _sha256(text.encode())}
+    return reproducer_name(solver, verdict, pr.id, settings), text, entry
+
+
+def write_reproducer_folder(folder: Path, items: list[tuple[CorpusProblem | None, str, str, str, str]]) -> list[Path]:
+    """Write the scripts of ``items`` (problem or None, solver, settings, verdict, detail) and their
+    :data:`MANIFEST_NAME` into ``folder`` (each file atomically, the manifest last); returns the scripts."""
+    manifest: dict[str, Any] = {"format": MANIFEST_FORMAT, "version": MANIFEST_VERSION, "exit_codes": {
+        "reproduces": REPRODUCES, "does not reproduce": DOES_NOT, "cannot run": MISSING}, "files": {}}
+    paths = []
+    for item in items:
+        name, text, entry = manifest_entry(*item)
+        paths.append(write_text_atomic(folder / name, text))
+        manifest["files"][name] = entry
+    write_json_atomic(folder / MANIFEST_NAME, manifest, indent=1)
+    return paths
+
+
 def write_reproducers(run: MatrixRun, out_dir: Path) -> list[Reproducer]:
     """One script per (solver, wrong|crash): the smallest problem showing it; with a Drake configuration
-    also :data:`NONFINITE_SCRIPT` (a NaN coefficient, which no corpus file can hold)."""
+    also :data:`NONFINITE_SCRIPT` (a NaN coefficient, which no corpus file can hold); and the manifest.
+    Nothing is written (no folder created) when there is no reproducer."""
     problems = {p.id: p for p in run.problems}
     chosen: dict[tuple[str, str], Any] = {}
     for cell in run.cells:
@@ -232,15 +305,17 @@ def write_reproducers(run: MatrixRun, out_dir: Path) -> list[Reproducer]:
         key = (cell.solver, cell.verdict)
         if key not in chosen or problems[cell.problem].size < problems[chosen[key].problem].size:
             chosen[key] = cell
-    out = []
+    items: list[tuple[CorpusProblem | None, str, str, str, str]] = []
+    out: list[Reproducer] = []
     if any(c.split(":", 1)[0] == "drake" for c in run.configurations):
-        out.append(Reproducer("drake", "crash", "(none: NaN coefficient)",
-                              write_text_atomic(out_dir / NONFINITE_NAME, NONFINITE_SCRIPT)))
+        items.append((None, "drake", run.settings, "crash", ""))
+        out.append(Reproducer("drake", "crash", "(none: NaN coefficient)", out_dir / NONFINITE_NAME))
     for (solver, verdict), cell in sorted(chosen.items()):
         pr = problems[cell.problem]
-        name = f"{solver.replace(':', '-').lower()}-{verdict}-{pr.id}.py"
-        path = write_text_atomic(out_dir / name, script_text(pr, solver, run.settings, verdict, cell.detail))
-        out.append(Reproducer(solver, verdict, pr.id, path))
+        items.append((pr, solver, run.settings, verdict, cell.detail))
+        out.append(Reproducer(solver, verdict, pr.id, out_dir / reproducer_name(solver, verdict, pr.id, run.settings)))
+    if items:
+        write_reproducer_folder(out_dir, items)
     return out
 
 
@@ -249,8 +324,9 @@ NONFINITE_NAME = "drake-nonfinite-constraint.py"
 NONFINITE_SCRIPT = r'''#!/usr/bin/env python3
 """Drake: a NaN in a linear constraint's matrix ends the Python process (SystemExit from a C++
 DRAKE_THROW_UNLESS) instead of raising an ordinary exception; a NaN in a linear cost is answered with
-kSolverSpecificError. Exit 1: reproduces (SystemExit seen); 0: an ordinary exception or a status; 3:
-pydrake missing. Needs numpy and pydrake only.
+kSolverSpecificError. Exit 3: reproduces (SystemExit seen); 0: an ordinary exception or a status; 4:
+pydrake missing (any other exit code is an error of the script, not a finding). Needs numpy and pydrake
+only.
 """
 import sys
 
@@ -260,7 +336,7 @@ try:
     from pydrake.solvers import ClarabelSolver, MathematicalProgram
 except ImportError as exc:
     print(f"cannot run: {exc}")
-    sys.exit(3)
+    sys.exit(4)
 from importlib.metadata import version
 
 print(f"drake {version('drake')}, numpy {np.__version__}, python {sys.version.split()[0]}")
@@ -272,7 +348,7 @@ try:
     result = ClarabelSolver().Solve(prog)
 except SystemExit as exc:
     print(f"REPRODUCES: a NaN coefficient raised SystemExit({exc.code}): an uncaught one ends the interpreter")
-    sys.exit(1)
+    sys.exit(3)
 except Exception as exc:  # noqa: BLE001
     print(f"does not reproduce: an ordinary exception {type(exc).__name__}: {exc}")
     sys.exit(0)
@@ -284,30 +360,158 @@ sys.exit(0)
 @dataclass
 class Recheck:
     script: str
-    outcome: str        # "reproduces", "no longer reproduces", "cannot run", "timeout"
+    outcome: str        # one of OUTCOMES
     returncode: int | None
     last_line: str
 
 
-def recheck(folder: Path, time_limit: float = RECHECK_TIME_LIMIT) -> list[Recheck]:
-    """Run every reproducer of ``folder`` in a child process; never raises for what a script does."""
-    out = []
-    for script in sorted(Path(folder).glob("*.py")):
-        try:
-            child = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=time_limit)
-        except subprocess.TimeoutExpired:
-            out.append(Recheck(script.name, "timeout", None, f"no end within {time_limit:g} s"))
+def read_manifest(folder: Path) -> dict[str, dict[str, Any]]:
+    """The entries of ``folder``'s :data:`MANIFEST_NAME` (file name -> entry), read strictly;
+    ProblemFileError naming the field when it is missing or malformed."""
+    from amcp_drake.model.json_strict import decode_utf8, loads_strict, read_bytes_limited
+
+    path = folder / MANIFEST_NAME
+    source = str(path)
+    if path.is_symlink() or not path.is_file():
+        raise ProblemFileError("--recheck", f"a folder of reproducers written by amcp solvers, with its {MANIFEST_NAME}",
+                               f"{folder}: no {MANIFEST_NAME} (a regular file)")
+    data = loads_strict(decode_utf8(read_bytes_limited(path, what="reproducer manifest"), source), source)
+    if not isinstance(data, dict) or data.get("format") != MANIFEST_FORMAT or data.get("version") != MANIFEST_VERSION:
+        raise ProblemFileError(f"{source}: format", f"{MANIFEST_FORMAT!r} version {MANIFEST_VERSION}",
+                               repr(data.get("format") if isinstance(data, dict) else type(data).__name__)[:80])
+    files = data.get("files")
+    if not isinstance(files, dict) or not all(isinstance(e, dict) for e in files.values()):
+        raise ProblemFileError(f"{source}: files", "an object: file name -> entry", type(files).__name__)
+    return files
+
+
+def expected_script(name: str, entry: dict[str, Any]) -> str:
+    """The script this version writes for a manifest entry, under the name it derives for it; ValueError
+    (or ProblemFileError from the problem's data) when the entry does not describe one."""
+    if entry.get("builtin") == "nonfinite":
+        expected_name, text = NONFINITE_NAME, NONFINITE_SCRIPT
+    else:
+        solver, settings, verdict, detail = (entry.get(k) for k in ("solver", "settings", "verdict", "detail"))
+        if not all(isinstance(v, str) for v in (solver, settings, verdict, detail)) or settings not in TOLERANCES:
+            raise ValueError("an entry without solver, settings, verdict and detail")
+        problem = entry.get("problem")
+        reference = problem.get("reference") if isinstance(problem, dict) else None
+        source = f"{MANIFEST_NAME}: {name}.problem"
+        pr = CorpusProblem.from_dict(problem, source, require_reference=verdict != "crash" or bool(reference))
+        if verdict != "crash":   # a wrong answer is judged by the reference: verified again, as on corpus load
+            check_reference(pr, source)
+        expected_name, text = reproducer_name(solver, verdict, pr.id, settings), script_text(pr, solver, settings, verdict, detail)
+    if name != expected_name:
+        raise ValueError(f"the entry's file name is {expected_name!r}")
+    return text
+
+
+def _vet(folder: Path, files: dict[str, dict[str, Any]]) -> tuple[list[tuple[str, str, str]], list[Recheck]]:
+    """(runnable: (name, text, verdict), refused) of ``folder``: every entry of the folder other than the
+    manifest is either a manifest script that checks or refused with the reason."""
+    runnable, refused = [], []
+    with os.scandir(folder) as it:
+        entries = sorted(it, key=lambda e: e.name)
+    names = {e.name for e in entries}
+    for e in entries:
+        if e.name == MANIFEST_NAME:
             continue
-        lines = [ln for ln in (child.stdout + "\n" + child.stderr).splitlines() if ln.strip()]
+        why = None
+        if e.name.startswith("."):
+            why = "a hidden file"
+        elif e.is_symlink():
+            why = "a symbolic link"
+        elif e.is_dir(follow_symlinks=False):
+            why = "a folder"
+        elif not e.is_file(follow_symlinks=False):
+            why = "not a regular file"
+        elif e.name not in files:
+            why = f"not written by amcp solvers (not in {MANIFEST_NAME})"
+        if why is not None:
+            refused.append(Recheck(e.name, "refused", None, f"not run: {why}"))
+            continue
+        entry = files[e.name]
+        try:
+            text = expected_script(e.name, entry)
+        except (ValueError, ProblemFileError) as exc:
+            refused.append(Recheck(e.name, "refused", None, f"not run: its manifest entry describes no reproducer ({exc})"[:300]))
+            continue
+        size = e.stat(follow_symlinks=False).st_size
+        digest = _sha256(Path(folder, e.name).read_bytes()) if size == len(text.encode()) else ""
+        if not (digest == entry.get("sha256") == _sha256(text.encode())):
+            refused.append(Recheck(e.name, "refused", None, "not run: its SHA-256 differs from the manifest's or from the "
+                                   "script this version writes for the entry (changed since written, or written by "
+                                   "another version: write it again with amcp solvers)"))
+            continue
+        runnable.append((e.name, text, str(entry.get("verdict"))))
+    for name in sorted(set(files) - names):
+        refused.append(Recheck(name, "refused", None, f"not run: listed in {MANIFEST_NAME} but missing"))
+    return runnable, refused
+
+
+def clean_environment(home: str) -> dict[str, str]:
+    """The environment of a reproducer: PATH and (when set) PYTHONPATH of the caller, HOME and TMPDIR a
+    private temporary folder, a UTF-8 locale; nothing else of the caller's environment."""
+    env = {"PATH": os.environ.get("PATH", os.defpath), "HOME": home, "TMPDIR": home, "LC_ALL": "C.UTF-8",
+           "PYTHONDONTWRITEBYTECODE": "1", "PYTHONNOUSERSITE": "1"}
+    if os.environ.get("PYTHONPATH"):
+        env["PYTHONPATH"] = os.environ["PYTHONPATH"]
+    return env
+
+
+def run_isolated(text: str, name: str, time_limit: float) -> tuple[int | None, str]:
+    """Run the script ``text`` as ``name`` from a private temporary folder (also its HOME and working
+    folder) with :func:`clean_environment`, in a new session (its own process group), killed with every
+    process it started when it ends or at ``time_limit``; (exit code or None at the time limit, output)."""
+    with tempfile.TemporaryDirectory(prefix="amcp-recheck-") as tmp:
+        script = Path(tmp) / name
+        script.write_text(text, encoding="utf-8")
+        log = Path(tmp) / ".output"
+        with open(log, "wb") as handle:
+            proc = subprocess.Popen([sys.executable, "-s", str(script)], stdin=subprocess.DEVNULL, stdout=handle,
+                                    stderr=subprocess.STDOUT, cwd=tmp, env=clean_environment(tmp), start_new_session=True)
+            try:
+                rc: int | None = proc.wait(timeout=time_limit)
+            except subprocess.TimeoutExpired:
+                rc = None
+            finally:
+                try:
+                    os.killpg(proc.pid, signal.SIGKILL)   # the script and whatever it started
+                except (ProcessLookupError, PermissionError):
+                    pass
+                proc.wait()
+        return rc, log.read_text(encoding="utf-8", errors="replace")
+
+
+def outcome_of(rc: int | None, verdict: str) -> str:
+    """The outcome of a reproducer's ending (module docstring)."""
+    if rc is None:
+        return "timeout"
+    if rc == REPRODUCES or (verdict == "crash" and rc < 0 and -rc in {int(s) for s in CRASH_SIGNALS}):
+        return "reproduces"
+    return {DOES_NOT: "no longer reproduces", MISSING: "cannot run"}.get(rc, "error")
+
+
+def recheck(folder: Path, time_limit: float = RECHECK_TIME_LIMIT) -> list[Recheck]:
+    """Run every reproducer of ``folder`` that its manifest vouches for (module docstring) and report the
+    rest as refused; never raises for what a script does. ProblemFileError without a readable manifest."""
+    folder = Path(folder)
+    runnable, out = _vet(folder, read_manifest(folder))
+    for name, text, verdict in runnable:
+        rc, output = run_isolated(text, name, time_limit)
+        lines = [ln for ln in output.splitlines() if ln.strip()]
         last = next((ln for ln in reversed(lines) if ln.startswith(("REPRODUCES", "does not reproduce", "cannot run"))),
                     lines[-1] if lines else "")
-        rc = child.returncode
-        outcome = ("no longer reproduces" if rc == DOES_NOT else "cannot run" if rc == MISSING else "reproduces")
-        if rc < 0:
+        if rc is None:
+            last = f"no end within {time_limit:g} s"
+        elif rc < 0:
             last = f"killed by signal {-rc} ({last[-200:]})"
-        out.append(Recheck(script.name, outcome, rc, last[:300]))
-    return out
+        elif outcome_of(rc, verdict) == "error":
+            last = f"exit code {rc}, not one of the reproducer's own ({last[-200:]})"
+        out.append(Recheck(name, outcome_of(rc, verdict), rc, last[:300]))
+    return sorted(out, key=lambda r: r.script)
 
 
-__all__ = ["DOES_NOT", "MISSING", "RECHECK_TIME_LIMIT", "REPRODUCES", "Recheck", "Reproducer", "recheck", "script_text",
-           "write_reproducers"]
+__all__ = ["CRASH_SIGNALS", "DOES_NOT", "MANIFEST_NAME", "MISSING", "OUTCOMES", "RECHECK_TIME_LIMIT", "REPRODUCES", "Recheck",
+           "Reproducer", "clean_environment", "expected_script", "manifest_entry", "outcome_of", "read_manifest", "recheck",
+           "reproducer_name", "run_isolated", "script_text", "write_reproducer_folder", "write_reproducers"]

@@ -1,19 +1,12 @@
 #!/usr/bin/env python3
-"""cvxpy:CLARABEL (tight settings) on one problem of the amcp-drake solver corpus: crash.
-
-Problem unstabilisable-gain-lmi-cvxpy-gain_sdp-1: gain_sdp (16), SDP, 13 variables, 11 rows, 2 LMI block(s):
-    minimise 1/2 x'Px + q'x + r  s.t.  lower <= A x <= upper,  lb <= x <= ub,  mat(g0 + G x) PSD
-Seen: gain LMI (16) of x+ = 1.5x + 0u at margin 1e-8, infeasible (no verifiable reference, so not in the matrix); Clarabel panicked in Rust through cvxpy and Drake aborted the Python process on it with earlier versions
-Only a crash counts (an exception or an abort); the answer returned is not judged.
-Exit 1: reproduces; 0: does not; 3: a package is missing. Needs numpy, scipy and cvxpy only.
-"""
+"cvxpy:CLARABEL (default settings) on one problem of the amcp-drake solver corpus: crash.\n\nProblem unstabilisable-gain-lmi-cvxpy-gain_sdp-1: gain_sdp (16), SDP, 13 variables, 11 rows, 2 LMI block(s):\n    minimise 1/2 x'Px + q'x + r  s.t.  lower <= A x <= upper,  lb <= x <= ub,  mat(g0 + G x) PSD\nSeen: gain LMI (16) of x+ = 1.5x + 0u at margin 1e-8, infeasible (no verifiable reference, so not in the matrix); Clarabel panicked in Rust through cvxpy and Drake aborted the Python process on it with earlier versions\nOnly a crash counts (an exception or an abort); the answer returned is not judged.\nExit 3: reproduces; 0: does not; 4: a package is missing (any other ending is an error of the script, not a finding). Needs numpy, scipy and cvxpy only.\n"
 import json
 
-DATA = json.loads(r'''{"format":"amcp-solver-corpus","version":1,"id":"unstabilisable-gain-lmi-cvxpy-gain_sdp-1","kind":"gain_sdp","equation":"(16)","class":"sdp","n":13,"objective":{"P":null,"q":[-1.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0],"r":0.0},"linear":{"A":{"shape":[11,13],"row":[0,0,1,1,2,2,3,3,4,4,5,5,6,7,8,9,10],"col":[0,1,0,2,0,3,0,4,5,12,0,6,7,8,9,10,11],"val":[-1.0,1.0,-1.0,1.0,-1.5,1.0,-1.0,1.0,1.0,-1.0,-1.0,1.0,1.0,1.0,1.0,1.0,1.0]},"lower":[-1e-08,-1e-08,0.0,0.0,0.0,-1e-08,0.0,0.0,0.99999999,0.0,0.99999999],"upper":[-1e-08,-1e-08,0.0,0.0,0.0,-1e-08,0.0,0.0,0.99999999,0.0,0.99999999]},"bounds":{"lower":[null,null,null,null,null,null,null,null,null,null,null,null,null],"upper":[null,null,null,null,null,null,null,null,null,null,null,null,null]},"lmi":[{"size":1,"G":{"shape":[1,13],"row":[0],"col":[1],"val":[1.0]},"g0":[0.0]},{"size":4,"G":{"shape":[16,13],"row":[0,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15],"col":[2,3,4,5,3,6,7,8,4,7,9,10,5,8,10,11],"val":[1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0]},"g0":[0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0]}],"reference":{}}''')
-FEAS_TOL, OPT_TOL = 1e-08, 1e-08
+DATA = json.loads('{"format":"amcp-solver-corpus","version":1,"id":"unstabilisable-gain-lmi-cvxpy-gain_sdp-1","kind":"gain_sdp","equation":"(16)","class":"sdp","n":13,"objective":{"P":null,"q":[-1.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0],"r":0.0},"linear":{"A":{"shape":[11,13],"row":[0,0,1,1,2,2,3,3,4,4,5,5,6,7,8,9,10],"col":[0,1,0,2,0,3,0,4,5,12,0,6,7,8,9,10,11],"val":[-1.0,1.0,-1.0,1.0,-1.5,1.0,-1.0,1.0,1.0,-1.0,-1.0,1.0,1.0,1.0,1.0,1.0,1.0]},"lower":[-1e-08,-1e-08,0.0,0.0,0.0,-1e-08,0.0,0.0,0.99999999,0.0,0.99999999],"upper":[-1e-08,-1e-08,0.0,0.0,0.0,-1e-08,0.0,0.0,0.99999999,0.0,0.99999999]},"bounds":{"lower":[null,null,null,null,null,null,null,null,null,null,null,null,null],"upper":[null,null,null,null,null,null,null,null,null,null,null,null,null]},"lmi":[{"size":1,"G":{"shape":[1,13],"row":[0],"col":[1],"val":[1.0]},"g0":[0.0]},{"size":4,"G":{"shape":[16,13],"row":[0,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15],"col":[2,3,4,5,3,6,7,8,4,7,9,10,5,8,10,11],"val":[1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0]},"g0":[0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0]}],"reference":{}}')
+FEAS_TOL, OPT_TOL = 1e-06, 1e-06
 CRASH_ONLY = True
 SOLVER = 'CLARABEL'
-OPTIONS = {'tol_gap_abs': 1e-10, 'tol_gap_rel': 1e-10, 'tol_feas': 1e-10, 'tol_ktratio': 1e-08, 'max_iter': 500}
+OPTIONS = {}
 
 import json, sys
 import numpy as np
@@ -57,7 +50,7 @@ def judge(success, status, x):
     if ref["status"] == "infeasible":
         if success:
             print(f"REPRODUCES: success reported on a problem with a verified infeasibility certificate")
-            sys.exit(1)
+            sys.exit(3)
         print("does not reproduce: no success reported on the infeasible problem")
         sys.exit(0)
     if not success:
@@ -65,7 +58,7 @@ def judge(success, status, x):
         sys.exit(0)
     if x is None or not np.all(np.isfinite(x)):
         print("REPRODUCES: success reported without a finite solution")
-        sys.exit(1)
+        sys.exit(3)
     x = np.asarray(x, float)
     viol = violation(x)
     gap = (objective(x) - ref["objective"]) / (1 + abs(ref["objective"]))
@@ -75,7 +68,7 @@ def judge(success, status, x):
     if viol > FEAS_TOL or gap > OPT_TOL:
         print("REPRODUCES: success reported but the answer is " + " and ".join(
             t for t, bad in (("infeasible", viol > FEAS_TOL), ("suboptimal", gap > OPT_TOL)) if bad))
-        sys.exit(1)
+        sys.exit(3)
     print("does not reproduce: the answer is feasible and optimal within the tolerances")
     sys.exit(0)
 
@@ -83,7 +76,7 @@ try:
     import cvxpy as cp
 except ImportError as exc:
     print(f"cannot run: {exc}")
-    sys.exit(3)
+    sys.exit(4)
 from importlib.metadata import PackageNotFoundError, version
 vs = []
 for pkg in ("cvxpy", "clarabel", "osqp", "scs", "ecos", "daqp", "piqp", "highspy", "proxsuite"):
@@ -94,7 +87,7 @@ for pkg in ("cvxpy", "clarabel", "osqp", "scs", "ecos", "daqp", "piqp", "highspy
 print(", ".join(vs) + f", numpy {np.__version__}, python {sys.version.split()[0]}")
 if SOLVER not in cp.installed_solvers():
     print(f"cannot run: cvxpy solver {SOLVER} not installed")
-    sys.exit(3)
+    sys.exit(4)
 x = cp.Variable(n)
 obj = q @ x + r + (0 if P is None or not P.nnz else 0.5 * cp.quad_form(x, cp.psd_wrap(P)))
 cons = []
@@ -117,5 +110,5 @@ except cp.error.SolverError as exc:
     judge(False, f"SolverError: {exc}", None)
 except BaseException as exc:
     print(f"REPRODUCES: the solve raised {type(exc).__name__}: {exc}")
-    sys.exit(1)
+    sys.exit(3)
 judge(prob.status == "optimal", prob.status, x.value)

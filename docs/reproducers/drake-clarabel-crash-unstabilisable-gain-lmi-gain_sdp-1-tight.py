@@ -1,15 +1,8 @@
 #!/usr/bin/env python3
-"""drake:clarabel (tight settings) on one problem of the amcp-drake solver corpus: crash.
-
-Problem unstabilisable-gain-lmi-gain_sdp-1: gain_sdp (16), SDP, 13 variables, 11 rows, 2 LMI block(s):
-    minimise 1/2 x'Px + q'x + r  s.t.  lower <= A x <= upper,  lb <= x <= ub,  mat(g0 + G x) PSD
-Seen: gain LMI (16) of x+ = 1.5x + 0u at margin 1e-8, infeasible (no verifiable reference, so not in the matrix); Clarabel panicked in Rust through cvxpy and Drake aborted the Python process on it with earlier versions
-Only a crash counts (an exception or an abort); the answer returned is not judged.
-Exit 1: reproduces; 0: does not; 3: a package is missing. Needs numpy, scipy and pydrake only.
-"""
+"drake:clarabel (tight settings) on one problem of the amcp-drake solver corpus: crash.\n\nProblem unstabilisable-gain-lmi-gain_sdp-1: gain_sdp (16), SDP, 13 variables, 11 rows, 2 LMI block(s):\n    minimise 1/2 x'Px + q'x + r  s.t.  lower <= A x <= upper,  lb <= x <= ub,  mat(g0 + G x) PSD\nSeen: gain LMI (16) of x+ = 1.5x + 0u at margin 1e-8, infeasible (no verifiable reference, so not in the matrix); Clarabel panicked in Rust through cvxpy and Drake aborted the Python process on it with earlier versions\nOnly a crash counts (an exception or an abort); the answer returned is not judged.\nExit 3: reproduces; 0: does not; 4: a package is missing (any other ending is an error of the script, not a finding). Needs numpy, scipy and pydrake only.\n"
 import json
 
-DATA = json.loads(r'''{"format":"amcp-solver-corpus","version":1,"id":"unstabilisable-gain-lmi-gain_sdp-1","kind":"gain_sdp","equation":"(16)","class":"sdp","n":13,"objective":{"P":null,"q":[-1.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0],"r":0.0},"linear":{"A":{"shape":[11,13],"row":[0,0,1,1,2,2,3,3,4,4,5,5,6,7,8,9,10],"col":[0,2,0,3,0,4,0,5,1,6,0,7,8,9,10,11,12],"val":[1.0,-1.0,1.0,-1.0,1.5,-1.0,1.0,-1.0,1.0,-1.0,1.0,-1.0,-1.0,-1.0,-1.0,-1.0,-1.0]},"lower":[1e-08,1e-08,0.0,0.0,0.0,1e-08,0.0,0.0,-0.99999999,0.0,-0.99999999],"upper":[1e-08,1e-08,0.0,0.0,0.0,1e-08,0.0,0.0,-0.99999999,0.0,-0.99999999]},"bounds":{"lower":[null,null,null,null,null,null,null,null,null,null,null,null,null],"upper":[null,null,null,null,null,null,null,null,null,null,null,null,null]},"lmi":[{"size":1,"G":{"shape":[1,13],"row":[0],"col":[2],"val":[1.0]},"g0":[0.0]},{"size":4,"G":{"shape":[16,13],"row":[0,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15],"col":[3,4,5,6,4,7,8,9,5,8,10,11,6,9,11,12],"val":[1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0]},"g0":[0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0]}],"reference":{}}''')
+DATA = json.loads('{"format":"amcp-solver-corpus","version":1,"id":"unstabilisable-gain-lmi-gain_sdp-1","kind":"gain_sdp","equation":"(16)","class":"sdp","n":13,"objective":{"P":null,"q":[-1.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0],"r":0.0},"linear":{"A":{"shape":[11,13],"row":[0,0,1,1,2,2,3,3,4,4,5,5,6,7,8,9,10],"col":[0,2,0,3,0,4,0,5,1,6,0,7,8,9,10,11,12],"val":[1.0,-1.0,1.0,-1.0,1.5,-1.0,1.0,-1.0,1.0,-1.0,1.0,-1.0,-1.0,-1.0,-1.0,-1.0,-1.0]},"lower":[1e-08,1e-08,0.0,0.0,0.0,1e-08,0.0,0.0,-0.99999999,0.0,-0.99999999],"upper":[1e-08,1e-08,0.0,0.0,0.0,1e-08,0.0,0.0,-0.99999999,0.0,-0.99999999]},"bounds":{"lower":[null,null,null,null,null,null,null,null,null,null,null,null,null],"upper":[null,null,null,null,null,null,null,null,null,null,null,null,null]},"lmi":[{"size":1,"G":{"shape":[1,13],"row":[0],"col":[2],"val":[1.0]},"g0":[0.0]},{"size":4,"G":{"shape":[16,13],"row":[0,1,2,3,4,5,6,7,8,9,10,11,12,13,14,15],"col":[3,4,5,6,4,7,8,9,5,8,10,11,6,9,11,12],"val":[1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0,1.0]},"g0":[0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0,0.0]}],"reference":{}}')
 FEAS_TOL, OPT_TOL = 1e-08, 1e-08
 CRASH_ONLY = True
 SOLVER_CLASS = 'ClarabelSolver'
@@ -57,7 +50,7 @@ def judge(success, status, x):
     if ref["status"] == "infeasible":
         if success:
             print(f"REPRODUCES: success reported on a problem with a verified infeasibility certificate")
-            sys.exit(1)
+            sys.exit(3)
         print("does not reproduce: no success reported on the infeasible problem")
         sys.exit(0)
     if not success:
@@ -65,7 +58,7 @@ def judge(success, status, x):
         sys.exit(0)
     if x is None or not np.all(np.isfinite(x)):
         print("REPRODUCES: success reported without a finite solution")
-        sys.exit(1)
+        sys.exit(3)
     x = np.asarray(x, float)
     viol = violation(x)
     gap = (objective(x) - ref["objective"]) / (1 + abs(ref["objective"]))
@@ -75,7 +68,7 @@ def judge(success, status, x):
     if viol > FEAS_TOL or gap > OPT_TOL:
         print("REPRODUCES: success reported but the answer is " + " and ".join(
             t for t, bad in (("infeasible", viol > FEAS_TOL), ("suboptimal", gap > OPT_TOL)) if bad))
-        sys.exit(1)
+        sys.exit(3)
     print("does not reproduce: the answer is feasible and optimal within the tolerances")
     sys.exit(0)
 
@@ -85,7 +78,7 @@ try:
     import pydrake.solvers as ds
 except ImportError as exc:
     print(f"cannot run: {exc}")
-    sys.exit(3)
+    sys.exit(4)
 from importlib.metadata import version
 print(f"drake {version('drake')}, numpy {np.__version__}, python {sys.version.split()[0]}")
 for arr in (q, A.data, *(G.data for _, G, _ in LMIS)):
@@ -112,7 +105,7 @@ try:
     result = solver.Solve(prog, None, options)
 except BaseException as exc:
     print(f"REPRODUCES: the solve raised {type(exc).__name__}: {exc}")
-    sys.exit(1)
+    sys.exit(3)
 status = str(result.get_solution_result())
 details = getattr(result.get_solver_details(), "status", None)
 judge(result.is_success(), status + ("" if details is None else f" ({details})"), result.GetSolution(x))
