@@ -115,3 +115,21 @@ def test_auto_with_a_design_checks_the_form_the_controller_chooses(example_spec,
     est = check_run_size(example_spec.problem, example_spec.design, 10, example_spec.online, 2048,
                          design=example_design, formulation="auto")
     assert est.formulation == chosen and est.designed
+
+
+@pytest.mark.parametrize(("factor", "refused"), [(0.5, True), (2.0, False)])
+def test_the_design_is_refused_only_for_its_own_size(factor, refused):
+    """`amcp design`'s own check (model/limits.check_design_size): X0's rows for design.x0_facets facets,
+    8·u·n·(2 + t) bytes with t = 4 vertices of the chain's Θ (counted here from the box Θ = [-0.1, 0.1]²).
+    A limit of half that estimate refuses (naming design.x0_facets and --max-memory), twice it passes."""
+    from amcp_drake.model.limits import check_design_size
+
+    facets = 200_000
+    spec = spec_from_dict(actuated_chain(10, design_section={"x0_template": "mrpi", "x0_facets": facets}))
+    nbytes = 8 * facets * 10 * (2 + 4)
+    limit_mb = factor * nbytes / 2**20
+    if refused:
+        with pytest.raises(ProblemError, match=r"design size.*design\.x0_facets = 200000 facets.*--max-memory"):
+            check_design_size(spec.problem, spec.design, limit_mb)
+    else:
+        assert check_design_size(spec.problem, spec.design, limit_mb) == nbytes

@@ -43,8 +43,9 @@ PAPER_RESULTS = (
                 "θ̂_k by the projected LMS update (12) satisfies (1/μ)‖θ̂_{m+1} − θ*‖² + Σ_{k≤m} ‖x̃_{1|k}‖² ≤ "
                 "(1/μ)‖θ̂_0 − θ*‖² + Σ_{k≤m} ‖w_k‖² for every m.", ("lms_update", "lemma5"), ("point_estimate",)),
     PaperResult("proposition9", "Proposition 9: the prediction tube",
-                "The recorded tube X_{l|k} = z_{l|k} ⊕ α_{l|k} X0 satisfies (5a)–(5c) with multipliers Λ ≥ 0 of "
-                "(15c), (15d), and ends in the terminal set X_f.",
+                "The recorded tube X_{l|k} = z_{l|k} ⊕ α_{l|k} X0 satisfies (5a)–(5c) and ends in the terminal set "
+                "X_f; in the plain form (15) of (20) with multipliers Λ ≥ 0 of (15c), (15d) (the vertex form has "
+                "none: its Λ claims are not applicable).",
                 ("tube_contains_state", "tube_contains_next_state", "tube_propagation", "tube_constraints",
                  "tube_alpha_nonneg", "terminal_set", "multipliers_nonneg", "multipliers_15c", "multipliers_15d"),
                 ("tube",)),

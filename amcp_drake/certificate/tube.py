@@ -126,6 +126,17 @@ def _propagation_margin(view: RunView, step: _TubeStep, theta_v: np.ndarray | No
     return worst
 
 
+#: The claims about the multipliers Λ of (15c)-(15d): (id, name, statement).
+MULTIPLIER_CLAIMS = (
+    ("multipliers_nonneg", "Λ >= 0", "Proposition 9: the multipliers Λ^j_(l|k) are non-negative"),
+    ("multipliers_15c", "(15c) residual", "(15c): Λ^j h_θk + H_x d^j − α_(l+1) 1 <= −w̄ with the recorded Λ"),
+    ("multipliers_15d", "(15d) residual", "(15d): H_x D^j = Λ^j H_θk with the recorded Λ"),
+)
+#: Why the Λ claims are not made for a run solved in the vertex form.
+VERTEX_FORM_REASON = ("not applicable (vertex form has no multipliers): (20) was solved in the vertex form, (5b) at "
+                      "the vertices of Θ_k (checked by tube_propagation); --formulation plain solves (15) with Λ")
+
+
 def tube_checks(view: RunView) -> list[CheckResult]:
     """Every tube check of Proposition 9 / (5) / (14) / terminal set, one CheckResult each."""
     pr, d, tr = view.problem, view.design, view.traj
@@ -196,17 +207,16 @@ def tube_checks(view: RunView) -> list[CheckResult]:
     ]
     if view.traj.meta.get("formulation") == "vertex":
         # The vertex formulation enforces (5b) at the vertices of Θ_k without multipliers: there is no Λ
-        # to check. (5b) itself is still checked above by vertex enumeration (tube_propagation).
-        return checks
+        # to check, and the certificate lists the Λ claims as not applicable, saying why. (5b) itself is
+        # still checked above by vertex enumeration (tube_propagation).
+        return checks + [not_claimed(cid, name, claim, GROUP_TUBE, VERTEX_FORM_REASON)
+                         for cid, name, claim in MULTIPLIER_CLAIMS]
     if view.solved and not lam_nonneg:
         # every applied answer is the vertex form's (the plain form's answers were rejected and the
         # other formulation answered): no Λ was applied, so no claim about Λ is made for this run
         reason = ("every applied answer of (20) is the vertex form's (no multipliers): the plain form's answers were "
                   "rejected, see solver_answers")
-        return checks + [not_claimed(cid, name, claim, GROUP_TUBE, reason) for cid, name, claim in (
-            ("multipliers_nonneg", "Λ >= 0", "Proposition 9: the multipliers Λ^j_(l|k) are non-negative"),
-            ("multipliers_15c", "(15c) residual", "(15c): Λ^j h_θk + H_x d^j − α_(l+1) 1 <= −w̄ with the recorded Λ"),
-            ("multipliers_15d", "(15d) residual", "(15d): H_x D^j = Λ^j H_θk with the recorded Λ"))]
+        return checks + [not_claimed(cid, name, claim, GROUP_TUBE, reason) for cid, name, claim in MULTIPLIER_CLAIMS]
     return checks + [
         step_check("multipliers_nonneg", GROUP_TUBE, "Λ >= 0", "Proposition 9: the multipliers Λ^j_(l|k) are non-negative",
                    lam_nonneg, QP_TOL, "margin = min entry of Λ", none),

@@ -31,8 +31,9 @@ from amcp_drake.cli.common import (
 @steps_option("Steps per run (default: the problem's scenario).")
 @click.option("--update", type=click.Choice(["fixed", "exact", "window"]), default="fixed", show_default=True,
               help="Set update of the adaptive controller.")
-@click.option("--formulation", type=click.Choice(["plain", "vertex"]), default="vertex", show_default=True,
-              help="Tube QP formulation (vertex: same optimum, faster).")
+@click.option("--formulation", type=click.Choice(["auto", "plain", "vertex"]), default="auto", show_default=True,
+              help="Tube QP formulation: auto (the size rule of --formulation in amcp run), plain (15), or vertex "
+                   "(same optimum, no multipliers).")
 @click.option("--grid", type=click.IntRange(2, 401), default=None,
               help="Grid points per axis for the feasible region (default 31).")
 @max_memory_option
@@ -43,6 +44,7 @@ def baseline_cmd(problem_file, example, design_file, backend, seeds, steps, upda
 
     from amcp_drake.model.errors import ProblemError
     from amcp_drake.offline.design import design
+    from amcp_drake.online.run_size import run_formulation
     from amcp_drake.studies.baseline import DEFAULT_BOX, DEFAULT_GRID, run_baseline
 
     spec = load_problem_spec(problem_file, example)
@@ -56,6 +58,7 @@ def baseline_cmd(problem_file, example, design_file, backend, seeds, steps, upda
         check_run_size(spec, run_steps, None, max_memory, formulation=formulation)
         d = design(spec.problem, spec.design, backend=backend)
     check_run_size(spec, run_steps, None, max_memory, design=d, formulation=formulation)
+    formulation = run_formulation(formulation, spec.problem, d, None)  # auto resolved: both controllers in one form
     res = run_baseline(spec, d, seeds=seeds, steps=steps, backend=backend, formulation=formulation, update=update,
                        grid=grid or DEFAULT_GRID)
     (a1, b1), (a2, b2) = DEFAULT_BOX

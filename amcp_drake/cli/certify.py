@@ -224,6 +224,11 @@ def _print(cert, out, problem) -> None:
 
     for line in signals_header(problem):
         echo(f"{problem.name}: {line}")
+    form = cert.run.get("formulation", "plain")
+    reason = cert.run.get("formulation_reason")
+    echo("solved form of (20): " + ("vertex form ((5b) at the vertices of Θ_k, no multipliers: the Λ claims are "
+                                    "not applicable)" if form == "vertex" else "plain form (15), with the multipliers Λ")
+         + (f" [{reason}]" if reason else ""))
     echo(f"how to read the table: {TOLERANCE_RULE}")
     width = 14 if cert.measured else 8  # "not_applicable"
     echo(f"{'claim':32s} {'status':{width}s} {'margin':>11s} {'tolerance':>10s} {'step':>5s}  statement")

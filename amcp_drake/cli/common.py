@@ -298,11 +298,12 @@ problem_argument = click.argument("problem_file", metavar="[PROBLEM]", required=
 example_option = click.option("--example", default=None, help="Built-in example (default: lorenzen2019).")
 
 formulation_option = click.option(
-    "--formulation", type=click.Choice(["plain", "vertex", "auto"]), default="plain", show_default=True,
-    help="Tube QP: plain (15) with multipliers Λ (the paper's form; the certificate checks Λ), the exact vertex "
-         "form (same optimum, no Λ), or auto: the vertex form when its size per stage is at most a measured "
-         "multiple of the plain form's, the plain form when an option needs it (docs/decisions.md, 'The formulation of the tube QP'). "
-         "Use auto or vertex from about 4 states on.")
+    "--formulation", type=click.Choice(["auto", "plain", "vertex"]), default="auto", show_default=True,
+    help="Form of the tube QP (20): auto (the default) chooses the exact vertex form when its size per stage is at "
+         "most a measured multiple of the plain form's, else the plain form, and the plain form whenever an option "
+         "needs it (min-max cost, d_theta > 0, PE; docs/decisions.md, 'The formulation of the tube QP'); plain: (15) "
+         "with the multipliers Λ, the paper's form, whose Λ the certificate checks; vertex: (5b) at the vertices "
+         "of Θ_k, the same optimum, no Λ (the certificate lists the Λ claims as not applicable).")
 
 design_file_option = click.option(
     "--design", "design_file", default=None, type=click.Path(dir_okay=False),
@@ -406,18 +407,18 @@ def section4_options(func):
     """--d-theta, --pe, --pe-level, --cost (Section 4 extensions; defaults: the file's online section)."""
     func = click.option("--cost", type=click.Choice(["certainty_equivalence", "minmax"]), default=None,
                         help="Cost of (20): (17) with θ̂_k, or the min-max cost (19) (default: the file's online "
-                             "section, else certainty_equivalence). minmax needs --formulation plain.")(func)
+                             "section, else certainty_equivalence). minmax is solved in the plain form (auto chooses it).")(func)
     func = click.option("--pe-level", "pe_level", type=click.FloatRange(min=0.0, min_open=True), default=None,
                         help="PE level ρ (default: file, else 0.1).")(func)
     func = click.option("--pe", "pe_window", type=click.IntRange(min=1), default=None,
                         help="Enforce a persistently exciting input over windows of this length (Section 4.2 of the paper, m = 1; "
-                             "default: the file's online section, else off). Needs --formulation plain.")(func)
+                             "default: the file's online section, else off). Solved in the plain form (auto chooses it).")(func)
     return d_theta_option(func)
 
 
 d_theta_option = click.option("--d-theta", "d_theta", type=click.FloatRange(min=0.0), default=None,
                               help="Rate bound d_θ of a time-varying θ* (Section 4.1; default: the problem file's "
-                                   "online section, else 0). Needs --formulation plain.")
+                                   "online section, else 0). Solved in the plain form (auto chooses it).")
 
 
 def resolve_online(spec, **given):

@@ -32,8 +32,9 @@ from amcp_drake.cli.common import (
 @problem_options(x0_template=False)
 @design_file_option
 @backend_option
-@click.option("--formulation", type=click.Choice(["plain", "vertex"]), default="vertex", show_default=True,
-              help="Tube QP: plain (15) with multipliers, or the exact vertex form.")
+@click.option("--formulation", type=click.Choice(["auto", "plain", "vertex"]), default="auto", show_default=True,
+              help="Tube QP: auto (the size rule of --formulation in amcp run), plain (15) with multipliers, or the "
+                   "exact vertex form.")
 @click.option("--grid", type=click.IntRange(min=1), default=None,
               help="Grid values per axis (default 21; with --points FILE holding a polytope, its grid).")
 @click.option("--box", "box_text", default=None, metavar="LO:HI,LO:HI,...",
@@ -67,6 +68,7 @@ def coverage_cmd(problem_file, example, design_file, backend, formulation, grid,
     from amcp_drake.cli.common import resolve_online
     from amcp_drake.model.errors import ProblemError
     from amcp_drake.offline.design import design
+    from amcp_drake.online.run_size import run_formulation
     from amcp_drake.studies.coverage import (
         DEFAULT_GRID,
         default_box,
@@ -102,6 +104,7 @@ def coverage_cmd(problem_file, example, design_file, backend, formulation, grid,
         d = design(pr, spec.design, backend=backend,
                    budget=design_budget(max_memory, candidate_budget, quiet=no_progress, progress_every=progress_every))
     check_run_size(spec, 1, online, max_memory, design=d, formulation=formulation)  # the QPs' size with the design
+    formulation = run_formulation(formulation, pr, d, online)  # auto resolved: every QP of the grid in one form
 
     def progress_factory(total, label):
         if no_progress:

@@ -43,11 +43,13 @@ def _fmt(a) -> str:
 @bad_input_exits_2
 def design_cmd(problem_file, example, x0_template, backend, as_json, out_file, max_memory, candidate_budget, progress_every):
     """Compute K, P, X0, w_bar, f_bar, Xf and mu ((11), (14), (16), Appendix A.1) and verify them independently."""
+    from amcp_drake.model.limits import check_design_size
     from amcp_drake.offline.checks import verify_design
     from amcp_drake.offline.design import design
 
     spec = with_x0_template(load_problem_spec(problem_file, example), x0_template)
     pr = spec.problem
+    check_design_size(pr, spec.design, max_memory)  # the design's own size; it builds no run
     d = design(pr, spec.design, backend=backend, budget=design_budget(max_memory, candidate_budget, progress_every=progress_every))
     checks = verify_design(pr, d, spec.design.mu_state_bound)
     ok = all(c.passed for c in checks)
