@@ -184,9 +184,9 @@ def test_wrong_set_update_is_caught_and_recomputed(example_spec, example_design,
     seen = []
     original = ctrl._update_set
 
-    def spy(H_delta, h_delta, record):
-        seen.append((np.array(ctrl.h_theta), H_delta, h_delta))
-        return original(H_delta, h_delta, record)
+    def spy(s, H_delta, h_delta, record):
+        seen.append((np.array(s.h_theta), H_delta, h_delta))
+        return original(s, H_delta, h_delta, record)
 
     ctrl._update_set = spy
     traj = _run(ctrl, example_spec, 3)
@@ -257,7 +257,7 @@ def test_exact_update_with_every_row_wrongly_removed_keeps_the_set(example_spec,
     # rows of (7) only, and every row of Θ_0 ∩ Δ_1 implied by them (scipy): the same set as (7)
     from scipy.optimize import linprog
 
-    H_d, h_d = ctrl._delta(traj.x[0], traj.u[0], traj.x[1])
+    H_d, h_d = ctrl._delta(ctrl.state.working(), traj.x[0], traj.u[0], traj.x[1])
     H_all = np.vstack([np.asarray(example_design.H_theta), H_d])
     h_all = np.concatenate([np.asarray(example_design.h_theta0), h_d])
     assert all(any(np.array_equal(row, a) for a in H_all) for row in r.H_theta)
@@ -296,7 +296,7 @@ def test_exact_update_keeps_only_the_removed_rows_that_are_not_implied(example_s
     # a disturbance whose Δ_1 has data rows of both kinds: some cut Θ_0, some do not (scipy decides)
     for w0 in np.vstack([example_spec.problem.w_vertices(), np.zeros((1, 2))]):
         x1 = example_spec.problem.step(x0, u0, example_spec.scenario.theta_star, w0)
-        H_d, h_d = ctrl._delta(x0, u0, x1)
+        H_d, h_d = ctrl._delta(ctrl.state.working(), x0, u0, x1)
         # the specification, written out here with scipy: in order, a data row is put back when the rows
         # kept so far (Θ_0's, then the data rows put back before it) do not imply it
         cuts = []
@@ -462,8 +462,8 @@ def test_massera2017_step_that_cvxpy_plain_form_could_not_solve_is_solved():
     spec = get_example("massera2017")
     offline = design(spec.problem, spec.design, backend="cvxpy")
     ctrl = AdaptiveMPC(spec.problem, offline, backend="cvxpy", formulation="plain")
-    ctrl.h_theta = np.array([-0.9872451948108746, 0.9999999999411466])
-    ctrl.theta_hat = np.array([-0.131851241551105])
+    ctrl.state = ctrl.state.replace(h_theta=np.array([-0.9872451948108746, 0.9999999999411466]),
+                                    theta_hat=np.array([-0.131851241551105]))
     u, r = ctrl.step(np.array([0.0513887048026173, 0.2228770115475585, -0.1979463514878846]))
     assert u is not None
     assert answers.qp_applied(r)         # by the plain form itself or by the checked vertex-form fallback

@@ -43,6 +43,7 @@ def test_certify_of_a_saved_run_loads_no_backend_and_no_modelling_layer(example_
 def test_the_algorithm_layers_load_nothing_above_them(layer):
     """Importing a lower layer (with all its modules) loads no certificate, study, CLI or test package."""
     above = ("amcp_drake.certificate", "amcp_drake.studies", "amcp_drake.cli", "amcp_drake.comparison",
+             "amcp_drake.systems",
              "amcp_properties", "hypothesis")
     out = _run(
         "import importlib, pkgutil, sys\n"

@@ -353,6 +353,11 @@ ROWS: list[tuple] = [
     ("trajectory-backend-bogus", traj(set_("backend", "bogus")), ["certify", "--trajectory", "{file}", "--out",
                                                                 "{folder}/out"], 2,
      r"backend: expected one of \"cvxpy\", \"drake\"; received \"bogus\""),
+    ("trajectory-answer-check-1MB", traj(set_("records.1.answers", [{"problem": "tube_qp", "outcome": "first",
+                                                                      "kind": "", "check": "c" * 1_000_000}])),
+     ["certify", "--trajectory", "{file}", "--out", "{folder}/out"], 2,
+     r"records\[1\]\.answers\[0\]\.check: expected a string of at most 200 characters; received \"c{56}\.\.\., "
+     r"1,000,000 characters"),
     ("trajectory-design-backend-bogus", traj(set_("design.backend", "bogus")),
      ["certify", "--trajectory", "{file}", "--out", "{folder}/out"], 2, r"design\.backend: expected one of \"cvxpy\""),
     ("trajectory-infinity-x", traj(set_("x.3.1", "INF"), {"INF": "-Infinity"}),

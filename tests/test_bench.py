@@ -33,7 +33,7 @@ def quick_result(tmp_path_factory):
 
 def test_quick_bench_writes_json_and_png(quick_result):
     out, output, data = quick_result
-    assert data["format"] == "amcp-bench" and data["version"] == 5
+    assert data["format"] == "amcp-bench" and data["version"] == 6
     assert {"created", "machine", "settings", "time_keys", "reference_ms", "example", "scaling", "target",
             "elapsed_s"} <= set(data)
     assert data["settings"]["quick"] is True and data["settings"]["steps"] == 3

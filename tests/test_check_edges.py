@@ -293,14 +293,14 @@ def test_exact_update_removed_row_recheck_at_its_edge(example_spec, example_desi
 
     tb.use_as_drake(monkeypatch, tb.LowSupportDrake)
     ctrl = AdaptiveMPC(example_spec.problem, example_design, backend="drake", options=OnlineOptions(update="exact"))
-    ctrl._exact_rows_irredundant = True
-    H0, h0 = np.array(ctrl.H_theta, float), np.array(ctrl.h_theta, float)
+    s = ctrl.state.replace(exact_rows_irredundant=True).working()
+    H0, h0 = np.array(s.H_theta, float), np.array(s.h_theta, float)
     row = H0[0]
     bound = h0[0] - factor * SET_NESTED_TOL * float(np.linalg.norm(row))
     record = StepRecord(k=1, x=np.zeros(example_spec.problem.n), u=None, status=SolveStatus.NOT_RUN, H_theta=H0,
                         h_theta=h0, theta_hat=np.zeros(example_spec.problem.p), answers=[])
-    assert ctrl._update_exact(row[None, :], np.array([bound]), record)
-    kept = any(np.array_equal(r, row) and b == bound for r, b in zip(ctrl.H_theta, ctrl.h_theta))
+    assert ctrl._update_exact(s, row[None, :], np.array([bound]), record)
+    kept = any(np.array_equal(r, row) and b == bound for r, b in zip(s.H_theta, s.h_theta))
     assert kept is put_back
     [entry] = [e for e in record.answers if e["problem"] == "exact_update"]
     assert entry["outcome"] == ("fallback" if put_back else "first"), entry

@@ -16,10 +16,10 @@ from pathlib import Path
 
 import pytest
 
+from tests.guards import GUARD_SECONDS
+
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = "explanation/paper.html"
-#: a browser or a site build on a loaded machine can take long; this only guards against a hung child
-CHILD_GUARD_S = 3600
 
 
 @pytest.fixture(scope="module")
@@ -27,7 +27,7 @@ def site(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("site")
     env = {**os.environ, "NO_MKDOCS_2_WARNING": "1"}
     done = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(out)], cwd=ROOT,
-                          capture_output=True, text=True, env=env, timeout=CHILD_GUARD_S)
+                          capture_output=True, text=True, env=env, timeout=GUARD_SECONDS)
     assert done.returncode == 0, done.stderr[-3000:]
     return out
 
@@ -56,7 +56,7 @@ def test_the_paper_page_renders_its_formulas_in_headless_chromium(site, tmp_path
     base = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
             "--disable-component-update", "--disable-sync", "--no-first-run", "--run-all-compositor-stages-before-draw",
             "--virtual-time-budget=30000", f"--user-data-dir={tmp_path / 'profile'}"]
-    done = subprocess.run([*base, "--dump-dom", page], capture_output=True, text=True, timeout=CHILD_GUARD_S)
+    done = subprocess.run([*base, "--dump-dom", page], capture_output=True, text=True, timeout=GUARD_SECONDS)
     assert done.returncode == 0, done.stderr[-2000:]
     dom = done.stdout
     spans = len(re.findall(r'class="arithmatex"', dom))
@@ -65,5 +65,5 @@ def test_the_paper_page_renders_its_formulas_in_headless_chromium(site, tmp_path
     assert "<svg" in dom and "\\(" not in re.sub(r"<[^>]+>", "", dom.split("<article", 1)[-1])
     shot = tmp_path / "paper.png"
     done = subprocess.run([*base, "--window-size=1200,1600", f"--screenshot={shot}", page], capture_output=True,
-                          text=True, timeout=CHILD_GUARD_S)
+                          text=True, timeout=GUARD_SECONDS)
     assert done.returncode == 0 and shot.is_file() and shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

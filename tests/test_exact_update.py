@@ -70,15 +70,17 @@ def test_exact_update_on_a_thin_set_puts_no_implied_row_back(thin_step, backend)
 
     spec, offline, a = thin_step
     ctrl = AdaptiveMPC(spec.problem, offline, backend=backend, options=spec.online)
-    ctrl.k, ctrl.H_theta, ctrl.h_theta = 9, a["H_prev"].copy(), a["h_prev"].copy()
+    s = ctrl.state.replace(k=9, H_theta=a["H_prev"], h_theta=a["h_prev"]).working()
     record = StepRecord(k=9, x=np.zeros(spec.problem.n), u=None, status=SolveStatus.NOT_RUN,
-                        H_theta=ctrl.H_theta, h_theta=ctrl.h_theta, theta_hat=ctrl.theta_hat)
-    assert ctrl._update_exact(a["H_delta"], a["h_delta"], record)
-    assert "not implied" not in record.detail
+                        H_theta=s.H_theta, h_theta=s.h_theta, theta_hat=s.theta_hat)
+    assert ctrl._update_exact(s, a["H_delta"], a["h_delta"], record)
+    from amcp_drake.online import answers
+
+    assert answers.of(record, "exact_update") == answers.entry("exact_update", "first")   # no removed row put back
     assert record.set_status is SolveStatus.OPTIMAL
     H_all = np.vstack([a["H_prev"], a["H_delta"]])
     h_all = np.concatenate([a["h_prev"], a["h_delta"]])
-    H_k, h_k = ctrl.H_theta, ctrl.h_theta
+    H_k, h_k = s.H_theta, s.h_theta
     assert len(h_k) < len(h_all)
     assert all(any(np.array_equal(row, b) for b in H_all) for row in H_k)  # rows of (7) only
     # Θ_k ⊆ Θ_(k−1) ∩ Δ_k: every row of the intersection holds on Θ_k (the kept rows are some of those
@@ -147,11 +149,11 @@ def test_drake_plain_form_writes_a_new_theta_k_of_fitting_size_into_its_program(
     monkeypatch.setattr(drake_tube, "ROW_CAPACITY_STEP", capacity_step)
     spec, offline, a = thin_step
     ctrl = AdaptiveMPC(spec.problem, offline, backend="drake", options=spec.online)
-    ctrl.k, ctrl.H_theta, ctrl.h_theta = 9, a["H_prev"].copy(), a["h_prev"].copy()
+    s = ctrl.state.replace(k=9, H_theta=a["H_prev"], h_theta=a["h_prev"]).working()
     record = StepRecord(k=9, x=np.zeros(spec.problem.n), u=None, status=SolveStatus.NOT_RUN,
-                        H_theta=ctrl.H_theta, h_theta=ctrl.h_theta, theta_hat=ctrl.theta_hat)
-    ctrl._update_exact(a["H_delta"], a["h_delta"], record)
-    H9, h9 = ctrl.H_theta, ctrl.h_theta
+                        H_theta=s.H_theta, h_theta=s.h_theta, theta_hat=s.theta_hat)
+    ctrl._update_exact(s, a["H_delta"], a["h_delta"], record)
+    H9, h9 = s.H_theta, s.h_theta
     x = np.asarray(spec.scenario.x0, float)
     theta_hat = np.asarray(spec.problem.theta_hat0, float)
     mpc = ctrl.mpc
@@ -190,14 +192,14 @@ def test_a_data_set_that_cuts_nothing_costs_one_support_lp_per_data_row(thin_ste
 
     spec, offline, a = thin_step
     ctrl = AdaptiveMPC(spec.problem, offline, backend=backend, options=spec.online)
-    ctrl.k, ctrl.H_theta, ctrl.h_theta = 9, a["H_prev"].copy(), a["h_prev"].copy()
+    s = ctrl.state.replace(k=9, H_theta=a["H_prev"], h_theta=a["h_prev"]).working()
 
     def record():
-        return StepRecord(k=ctrl.k, x=np.zeros(spec.problem.n), u=None, status=SolveStatus.NOT_RUN,
-                          H_theta=ctrl.H_theta, h_theta=ctrl.h_theta, theta_hat=ctrl.theta_hat)
+        return StepRecord(k=s.k, x=np.zeros(spec.problem.n), u=None, status=SolveStatus.NOT_RUN,
+                          H_theta=s.H_theta, h_theta=s.h_theta, theta_hat=s.theta_hat)
 
-    assert ctrl._update_exact(a["H_delta"], a["h_delta"], record())
-    H9, h9 = ctrl.H_theta.copy(), ctrl.h_theta.copy()
+    assert ctrl._update_exact(s, a["H_delta"], a["h_delta"], record())
+    H9, h9 = s.H_theta.copy(), s.h_theta.copy()
     directions = []
     real_support = ctrl.backend.support
 
@@ -208,18 +210,18 @@ def test_a_data_set_that_cuts_nothing_costs_one_support_lp_per_data_row(thin_ste
     ctrl.backend.support = counting_support
     loose = a["h_delta"] + 1e-3                      # every data row 1e-3 outside Θ_9: cuts nothing
     r = record()
-    assert ctrl._update_exact(a["H_delta"], loose, r)
+    assert ctrl._update_exact(s, a["H_delta"], loose, r)
     assert sum(directions) == len(loose)
-    assert np.array_equal(ctrl.H_theta, H9) and np.array_equal(ctrl.h_theta, h9)
+    assert np.array_equal(s.H_theta, H9) and np.array_equal(s.h_theta, h9)
     # one row cutting Θ_9 (data row 1 moved to 1e-6 inside Θ_9's extent along it): decided row by row
     from amcp_drake.model import polytope
 
     directions.clear()
     cut = loose.copy()
     cut[1] = polytope.support(H9, h9, a["H_delta"][1], certified=True).value - 1e-6
-    assert ctrl._update_exact(a["H_delta"], cut, record())
+    assert ctrl._update_exact(s, a["H_delta"], cut, record())
     assert sum(directions) > len(loose)
     H_all, h_all = np.vstack([H9, a["H_delta"]]), np.concatenate([h9, cut])
     for row, bound in zip(H_all, h_all):
-        assert exact_support_2d(ctrl.H_theta, ctrl.h_theta, row) - Fraction(float(bound)) <= Fraction(SET_TOL)
-    assert any(np.array_equal(row, a["H_delta"][1]) for row in ctrl.H_theta)
+        assert exact_support_2d(s.H_theta, s.h_theta, row) - Fraction(float(bound)) <= Fraction(SET_TOL)
+    assert any(np.array_equal(row, a["H_delta"][1]) for row in s.H_theta)

@@ -322,12 +322,19 @@ def test_an_inaccurate_vertex_solve_is_repeated_with_the_users_settings(backend,
     plain, vertex = solvers(tube_data(pr, d), backend)
     if backend == "drake":
         monkeypatch.setattr(vertex._solver, "status", lambda result: SolveStatus.INACCURATE)
+        users = vertex._plain_solver
     else:
         # the compiled route gives no answer (as an AlmostSolved one does), then Problem.solve says "inaccurate"
         monkeypatch.setattr(vertex, "_solve_compiled", lambda form: (None, 0.0))
         fast_solve = vertex._call.solve
         monkeypatch.setattr(vertex._call, "solve", lambda problem: (SolveStatus.INACCURATE,) + fast_solve(problem)[1:])
+        users = vertex._plain_call
+    again: list = []
+    real_again = users.solve
+    monkeypatch.setattr(users, "solve", lambda *a, **k: again.append(a[1:] or k) or real_again(*a, **k))
     x, h = np.asarray(example_spec.scenario.x0, float), np.max(d.theta_vertices @ d.H_theta.T, axis=0)
     sol = vertex.solve(x, h, np.zeros(pr.p))
-    assert "re-solved" in sol.detail
+    # solved again with the user's settings as they are (a spy on that solver: no options added, unlike the
+    # retry ladder's rungs)
+    assert again and again[0] in ((), {}), again
     assert_same_optimum(plain.solve(x, h, np.zeros(pr.p)), sol, "re-solved")

@@ -66,8 +66,8 @@ def test_the_exact_update_is_compared_as_sets_when_the_backends_keep_different_r
     for k in range(1, len(traj.records)):
         prev, lead = traj.records[k - 1], traj.records[k]
         follower.reset()
-        follower.k, follower.H_theta, follower.h_theta = k, np.array(prev.H_theta), np.array(prev.h_theta)
-        follower.theta_hat, follower._prev = np.array(prev.theta_hat), (np.array(traj.x[k - 1]), np.array(traj.u[k - 1]))
+        follower.state = follower.state.replace(k=k, H_theta=prev.H_theta, h_theta=prev.h_theta,
+                                                theta_hat=prev.theta_hat, prev=(traj.x[k - 1], traj.u[k - 1]))
         _, rec = follower.step(np.array(traj.x[k]))
         ctrl_rows.append(len(rec.h_theta) != len(lead.h_theta))
     assert any(ctrl_rows)  # the set comparison was needed, not only the row comparison

@@ -140,3 +140,54 @@ def test_the_laundering_tamper_exits_1_with_the_data_claim_failing(recorded, tmp
     failed = {c["id"] for c in cert["claims"] if c["status"] == "fail"}
     assert "model_consistent" in failed
     assert "model_consistent" not in {c["id"] for c in cert["run"]["not_claimed"]}
+
+
+def test_an_infeasible_start_never_excuses_a_design_claim(spec, controller):
+    """The run from x_0 1e-7 outside Z with the recorded X0 vertex list moved by 1e-3 at one vertex: the premise
+    x_0 ∈ 𝔻 is not met, but the design's claims do not rest on x_0, so the wrong vertex list fails (verdict
+    fail), never "not claimed"."""
+    data = run_from(spec, controller, [2.0, X2_MIN - 1e-7])
+    data["design"]["X0_vertices"][0][0] += 1e-3
+    cert = certify(Trajectory.from_dict(data), spec)
+    assert premise(cert)["status"] == "not_met"
+    assert "design.x0_vertices" in cert.ids("fail")
+    assert "design.x0_vertices" not in {c["id"] for c in cert.not_claimed}
+    assert cert.verdict == "fail"
+
+
+# -- x_0 just outside the feasible region (inside Z) ------------------------------------------------
+def qp_feasible(controller, x0) -> bool:
+    """Whether the controller's QP (20) answers at x_0 on its first step (the QP decides, not the premise's LP)."""
+    from amcp_drake.model.status import SolveStatus
+
+    controller.reset()
+    _, record = controller.step(np.asarray(x0, float))
+    return record.status is SolveStatus.OPTIMAL
+
+
+@pytest.fixture(scope="module")
+def region_edge(controller) -> np.ndarray:
+    """The edge of the feasible region of (20) on the line x_2 = 3 beyond x_0 = (2, 3), by bisection of the
+    QP's feasibility (to 1e-11); x_2 = 3 is far inside Z (x_2 >= −0.3)."""
+    inside, outside = 2.0, 40.0
+    assert qp_feasible(controller, [inside, 3.0]) and not qp_feasible(controller, [outside, 3.0])
+    while outside - inside > 1e-11:
+        middle = 0.5 * (inside + outside)
+        inside, outside = (middle, outside) if qp_feasible(controller, [middle, 3.0]) else (inside, middle)
+    return np.array([0.5 * (inside + outside), 3.0])
+
+
+def test_a_start_just_beyond_the_qps_edge_is_a_premise_not_met(spec, controller, region_edge):
+    """A real run from x_0 1e-6 beyond the QP's own edge along x_1 (inside Z): the QP is infeasible at step 0 and
+    the independent LP's slack there is a few 1e-8 below 0 (rows of unit norm; the region's boundary is shallow in
+    this direction), well below −LP_TOL: the premise is not met, recursive feasibility is not failed (with the
+    former LP tolerance of 1e-6 the start counted as feasible and Theorem 14 (i) was blamed)."""
+    from amcp_drake.certificate.premises import LP_TOL
+
+    data = run_from(spec, controller, (region_edge + np.array([1e-6, 0.0])).tolist(), steps=2)
+    assert len(data["records"]) == 1 and data["records"][0]["status"] != "optimal"
+    cert = certify(Trajectory.from_dict(data), spec)
+    first = premise(cert)
+    assert first["status"] == "not_met" and -1e-6 < first["margin"] < -10 * LP_TOL, first
+    assert cert.verdict == "premise_not_met" and cert.ids("fail") == []
+    assert "recursive_feasibility" in {c["id"] for c in cert.not_claimed}

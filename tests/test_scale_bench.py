@@ -172,7 +172,7 @@ def test_bench_only_size_writes_the_table_and_the_json_and_no_plot(tmp_path):
                      "--scaling-steps", "2", "--out", str(tmp_path / "out"))
     assert result.exit_code == 0, result.output
     data = json.loads((tmp_path / "out" / "bench.json").read_text())
-    assert data["version"] == 5 and data["example"] is None and data["scaling"] is None
+    assert data["version"] == 6 and data["example"] is None and data["scaling"] is None
     assert [(r["label"], r["source"], r["status"]) for r in data["size"]] == [
         ("lorenzen2019", "example", "completed"), ("chain3", "file", "completed")]
     table = (tmp_path / "out" / "size.md").read_text()

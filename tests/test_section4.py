@@ -149,7 +149,7 @@ def test_pe_run_enforces_window_constraint(example_spec, example_design, tmp_pat
         assert lo - BOUND_TOL <= u[r.k] <= hi + BOUND_TOL
         enforced += 1
     assert enforced > 5
-    assert len(ctrl._u_hist) == window + pr.n  # the history the PE constraint needs, not all 25 inputs
+    assert len(ctrl.state.u_hist) == window + pr.n  # the history the PE constraint needs, not all 25 inputs
     # the PE records survive a save/load round trip (one-sided bounds hold ±inf)
     path = traj.save(tmp_path / "t.json")
     back = Trajectory.load(path)

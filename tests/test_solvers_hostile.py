@@ -32,6 +32,7 @@ from amcp_drake.studies.solver_matrix.corpus import CorpusProblem, is_valid_id, 
 from amcp_drake.studies.solver_matrix.reference import check_reference
 from amcp_drake.studies.solver_matrix.runner import Cell, MatrixRun
 from amcp_drake.studies.solver_matrix.staging import STAGING_PREFIX, staged
+from tests.guards import GUARD_SECONDS
 
 STUB = "py:tests.solver_stubs:correct"
 
@@ -148,7 +149,7 @@ def test_text_with_quotes_is_only_data_in_the_generated_script(tmp_path, quote):
     assert json.loads(data_literal)["id"] == pr.id
     script = tmp_path / "script.py"
     script.write_text(text)
-    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=GUARD_SECONDS, cwd=tmp_path)
     assert done.returncode == repro.DOES_NOT, done.stdout + done.stderr
     assert not marker.exists()
 
@@ -177,7 +178,7 @@ def test_recheck_refuses_foreign_edited_linked_hidden_and_folder_entries(tmp_pat
     (folder / "dir.py" / "__main__.py").write_text(evil_script(marker))
     (tmp_path / "outside.py").write_text(evil_script(marker))
     (folder / "link.py").symlink_to(tmp_path / "outside.py")
-    results = {r.script: r for r in repro.recheck(folder, time_limit=120)}
+    results = {r.script: r for r in repro.recheck(folder, time_limit=GUARD_SECONDS)}
     assert results[good].outcome == "no longer reproduces"
     for name, reason in [("foreign.py", "not in manifest.json"), (".hidden.py", "hidden"), ("dir.py", "a folder"),
                          ("link.py", "symbolic link")]:
@@ -227,6 +228,19 @@ def test_recheck_without_a_manifest_exits_2(tmp_path):
     assert not marker.exists()
 
 
+@pytest.mark.parametrize(("manifest", "field"), [
+    ("not json", "manifest.json"), ("[]", "format"), ('{"format": "amcp-reproducers", "version": 2, "files": {}}', "format"),
+    ('{"format": "amcp-reproducers", "version": 1, "files": []}', "files"),
+    ('{"format": "amcp-reproducers", "version": 1, "files": {"a.py": 1}}', "files"),
+])
+def test_a_malformed_manifest_exits_2_naming_it(tmp_path, manifest, field):
+    marker = tmp_path / "ran"
+    (tmp_path / "a.py").write_text(evil_script(marker))
+    (tmp_path / "manifest.json").write_text(manifest)
+    assert_refused(invoke(["solvers", "--recheck", str(tmp_path)]), field)
+    assert not marker.exists()
+
+
 @pytest.mark.parametrize(("rc", "verdict", "outcome"), [
     (3, "wrong", "reproduces"), (0, "wrong", "no longer reproduces"), (4, "wrong", "cannot run"),
     (1, "wrong", "error"), (2, "wrong", "error"), (5, "wrong", "error"), (None, "wrong", "timeout"),
@@ -264,7 +278,7 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
-@pytest.mark.parametrize("limit", [60.0, 2.0])
+@pytest.mark.parametrize("limit", [GUARD_SECONDS, 2.0])   # no limit that a loaded machine reaches; a 2 s limit on a hang
 def test_processes_a_reproducer_starts_are_killed_when_it_ends_or_times_out(tmp_path, limit):
     """The script starts a 300 s sleeper and exits (or, at the 2 s limit, hangs): after run_isolated the
     sleeper is gone."""
@@ -275,7 +289,7 @@ def test_processes_a_reproducer_starts_are_killed_when_it_ends_or_times_out(tmp_
     rc, _ = repro.run_isolated(text, "spawn.py", limit)
     assert rc == (0 if limit > 10 else None)
     pid = int(pid_file.read_text())
-    deadline = time.monotonic() + 10
+    deadline = time.monotonic() + GUARD_SECONDS   # only a guard: a killed sleeper is gone at once
     while _alive(pid) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not _alive(pid)
@@ -414,8 +428,9 @@ def test_an_export_on_a_full_disk_leaves_nothing(tmp_path, monkeypatch, code):
 
 
 @pytest.mark.parametrize("folder", ["/proc/amcp-corpus", "/proc/self/amcp-corpus"])
-def test_export_into_proc_exits_2(folder):
-    assert_refused(invoke(["solvers", "--export-corpus", folder]), "--export-corpus")
+@pytest.mark.parametrize("option", ["--export-corpus", "--out"])
+def test_export_or_matrix_into_proc_exits_2_before_anything_runs(folder, option):
+    assert_refused(invoke(["solvers", "--solvers", STUB, option, folder]), option)
 
 
 def test_run_save_on_a_full_disk_exits_2_and_leaves_nothing(tmp_path, monkeypatch):
@@ -466,3 +481,84 @@ def test_a_non_finite_overflowing_or_non_positive_limit_is_refused(tmp_path, mon
     result = invoke([command, option, value])
     assert_refused(result, option)
     assert files_below(tmp_path) == set()
+
+
+def test_a_new_run_replaces_its_own_earlier_reproducers_and_keeps_other_files(tmp_path):
+    """reproducers/ holds an earlier run's script (listed, unchanged) and a user's file: a new run with a
+    Drake configuration writes its own and removes only the earlier script."""
+    corpus = corpus_dir(tmp_path, lp().to_dict())
+    folder = tmp_path / "out" / "reproducers"
+    folder.mkdir(parents=True)
+    repro.write_reproducer_folder(folder, [(lp(), "cvxpy:CLARABEL", "default", "wrong", "earlier")])
+    (folder / "notes.txt").write_text("mine")
+    result = invoke(["solvers", "--corpus", str(corpus), "--solvers", "drake:clarabel", "--out", str(tmp_path / "out")])
+    assert result.exit_code == 0, result.output
+    assert files_below(folder) == {repro.NONFINITE_NAME, repro.MANIFEST_NAME, "notes.txt"}
+    assert set(json.loads((folder / repro.MANIFEST_NAME).read_text())["files"]) == {repro.NONFINITE_NAME}
+
+
+def test_recheck_prints_file_names_without_terminal_escapes(tmp_path):
+    written_folder(tmp_path)
+    (tmp_path / "\x1b]0;title\x07x.py").write_text("print('hi')\n")
+    result = invoke(["solvers", "--recheck", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    assert "\x1b" not in result.output and "\x07" not in result.output
+    assert "\\x1b]0;title\\x07x.py" in result.output and "refused" in result.output
+
+
+def test_verifying_an_lp_reference_prints_nothing(tmp_path):
+    """The exact LP check builds a HiGHS model, whose constructor prints a banner once per process."""
+    code = ("import numpy as np, scipy.sparse as sp\n"
+            "from tests.test_solvers_hostile import lp\n"
+            "from amcp_drake.studies.solver_matrix.reference import check_reference\n"
+            "check_reference(lp())\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=GUARD_SECONDS,
+                          cwd=Path(__file__).resolve().parents[1])
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout == ""
+
+
+def lmi_problem(s: int) -> CorpusProblem:
+    """minimise x s.t. x·I_s ⪰ 0: optimum x = 0 (by hand), one LMI block of size s."""
+    G = sp.csr_matrix(np.eye(s).reshape(-1, order="F")[:, None])
+    return CorpusProblem(id=f"lmi-{s}", kind="gain_sdp", P=None, q=np.array([1.0]), r=0.0, A=sp.csr_matrix((0, 1)),
+                         lower=np.zeros(0), upper=np.zeros(0), lb=np.array([-np.inf]), ub=np.array([np.inf]),
+                         lmis=[(s, G, np.zeros(s * s))], reference={"status": "optimal", "x": [0.0], "objective": 0.0})
+
+
+def test_a_problem_too_large_to_verify_on_load_is_refused_before_solving(monkeypatch):
+    from amcp_drake.studies.solver_matrix import reference
+    from amcp_drake.studies.solver_matrix.reference import MAX_CHECK_LMI, MAX_CHECK_SIZE
+
+    check_reference(lmi_problem(MAX_CHECK_LMI))   # at the limit: verified
+
+    def no_solve(pr):
+        raise AssertionError("a problem above the limit was solved")
+
+    monkeypatch.setattr(reference, "verify_reference", no_solve)
+    with pytest.raises(ProblemFileError, match="LMI block 201"):
+        check_reference(lmi_problem(MAX_CHECK_LMI + 1))
+    n = MAX_CHECK_SIZE // 2 + 1   # n nonzeros of A plus n variables: just above the limit
+    big = CorpusProblem(id="big", kind="support_lp", P=None, q=np.ones(n), r=0.0, A=sp.identity(n, format="csr"),
+                        lower=np.zeros(n), upper=np.full(n, np.inf), lb=np.full(n, -np.inf), ub=np.full(n, np.inf),
+                        reference={"status": "optimal", "x": [0.0] * n, "objective": 0.0})
+    with pytest.raises(ProblemFileError, match="nonzeros"):
+        check_reference(big)
+
+
+def test_a_folder_of_an_earlier_template_is_written_again_from_its_manifest(tmp_path):
+    """A script under an old name with an old text (its manifest consistent with it) is refused by recheck;
+    rewrite_folder writes it again from the entry's data, removes the old name, keeps other files."""
+    good = written_folder(tmp_path)
+    manifest = json.loads((tmp_path / repro.MANIFEST_NAME).read_text())
+    old_text = (tmp_path / good).read_text().replace("sys.exit(3)", "sys.exit(1)")
+    (tmp_path / good).unlink()
+    (tmp_path / "old-name.py").write_text(old_text)
+    manifest["files"] = {"old-name.py": {**manifest["files"][good], "sha256": repro._sha256(old_text.encode())}}
+    (tmp_path / repro.MANIFEST_NAME).write_text(json.dumps(manifest))
+    (tmp_path / "notes.txt").write_text("mine")
+    assert [r.outcome for r in repro.vet(tmp_path, repro.read_manifest(tmp_path))[1]] == ["refused", "refused"]
+    repro.rewrite_folder(tmp_path)
+    runnable, refused = repro.vet(tmp_path, repro.read_manifest(tmp_path))
+    assert [name for name, _, _ in runnable] == [good] and [r.script for r in refused] == ["notes.txt"]
+    assert files_below(tmp_path) == {good, repro.MANIFEST_NAME, "notes.txt"}

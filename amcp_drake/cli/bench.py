@@ -21,13 +21,15 @@ from amcp_drake.cli.common import (
 @click.option("--quick", is_flag=True, help="Short runs and small sweeps (a minute or less; for CI and tests).")
 @click.option("--steps", type=int, default=None, help="Steps per Example 1 run (default 50, quick 10).")
 @click.option("--scaling-steps", type=int, default=None, help="Steps per sweep point (default 30, quick 3).")
-@click.option("--only", type=click.Choice(["example", "scaling", "section4", "size"]), default=None,
+@click.option("--only", type=click.Choice(["example", "scaling", "section4", "size", "drake"]), default=None,
               help="Run only Example 1, only the sweeps over N, the facets of X0, p and n (one at a time around "
                    "Example 1; writes scaling.md, the table of benchmarks/README.md), only the Section 4 "
                    "options (PE, min-max cost, time-varying parameters) against the CE cost, or only the size "
                    "table (size.md: design and step cost of chains of n states, of the built-in examples with "
                    "n >= 4 and of --problem files, each row in a process of its own under --max-memory and "
-                   "--row-limit; not part of a run without --only).")
+                   "--row-limit; not part of a run without --only), or only the closed loop of Example 1 in a "
+                   "Drake Diagram against amcp's simulator (drake: CPU per step, interleaved; not part of a run "
+                   "without --only).")
 @click.option("--problem", "problems", type=click.Path(exists=True, dir_okay=False), multiple=True,
               help="Size table: a problem file to add as a row (repeatable).")
 @click.option("--example", "examples", multiple=True,

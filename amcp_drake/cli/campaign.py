@@ -18,6 +18,7 @@ from amcp_drake.cli.common import (
     EXIT_BAD_INPUT,
     EXIT_OK,
     bad_input_exits_2,
+    echo,
     exit_verdict,
     interruptible,
     max_memory_option,
@@ -176,8 +177,8 @@ def campaign_cmd(systems, backends, seed, scheduler, workers, store_path, steps,
 
         raise store_write_error(store_path, exc) from None
     store = CampaignStore(store_path)
-    click.echo(f"submitted {counts['submitted']}, stored {counts['stored']}, skipped (already stored) {counts['skipped']}")
-    click.echo(summary_text(store))
+    echo(f"submitted {counts['submitted']}, stored {counts['stored']}, skipped (already stored) {counts['skipped']}")
+    echo(summary_text(store))
     ok = not store.failures()
     store.close()
     exit_verdict(ok)
@@ -210,7 +211,7 @@ def _report(store_path: str, report_file: str) -> int:
             raise
         found = salvage(store_path)
         if found.store is None:
-            click.echo(f"error: {exc}. Nothing could be read: " + "; ".join(found.damage) + ". No report written.",
+            echo(f"error: {exc}. Nothing could be read: " + "; ".join(found.damage) + ". No report written.",
                        err=True)
             return EXIT_BAD_INPUT
         try:
@@ -219,8 +220,8 @@ def _report(store_path: str, report_file: str) -> int:
         finally:
             found.store.close()
         read = ", ".join(f"{n} rows of {table}" for table, n in found.rows.items())
-        click.echo(f"error: {exc}", err=True)
-        click.echo(f"the store is damaged; {report_file} shows what could be read: {read}; problems by status: "
+        echo(f"error: {exc}", err=True)
+        echo(f"the store is damaged; {report_file} shows what could be read: {read}; problems by status: "
                    f"{counts or 'none'}. Unreadable: " + "; ".join(found.damage), err=True)
         return EXIT_BAD_INPUT
     if state.kind == "new":
@@ -231,7 +232,7 @@ def _report(store_path: str, report_file: str) -> int:
         _write_report(report_html(store), report_file)
     finally:
         store.close()
-    click.echo(f"report written to {report_file}")
+    echo(f"report written to {report_file}")
     return EXIT_OK
 
 

@@ -37,6 +37,8 @@ from amcp_drake.cli.common import (
     progress_every_option,
     scenario_options,
     seed_option,
+    simulate_function,
+    simulator_option,
     steps_option,
     write_error,
 )
@@ -61,13 +63,14 @@ from amcp_drake.cli.common import (
 @max_memory_option
 @candidate_budget_option
 @progress_every_option
+@simulator_option
 @click.pass_context
 @interruptible(lambda kw, exc: f"nothing written to {kw['out_dir']} (its staging folder was removed); "
                "run the command again")
 @bad_input_exits_2
 def certify_cmd(ctx, problem_file, example, x0_template, design_file, backend, design_backend, formulation, x0,
                 theta_star, steps, seed, out_dir, trajectory_file, online, max_memory, candidate_budget,
-                progress_every):
+                progress_every, simulator):
     """Run a closed loop and check every claim of the paper independently.
 
     Runs the adaptive MPC on PROBLEM (default: --example lorenzen2019, x0 = [2, 3],
@@ -90,7 +93,7 @@ def certify_cmd(ctx, problem_file, example, x0_template, design_file, backend, d
         from click.core import ParameterSource
 
         run_options = ("backend", "design_backend", "steps", "seed", *ONLINE_OPTION_NAMES, "max_memory", "x0_template",
-                       "candidate_budget", "progress_every", "design_file", "x0", "theta_star")
+                       "candidate_budget", "progress_every", "simulator", "design_file", "x0", "theta_star")
         flag = {"design_file": "design", "theta_star": "theta-star"}
         given = [f"--{flag.get(name, name.replace('_', '-'))}" for name in run_options
                  if ctx.get_parameter_source(name) is ParameterSource.COMMANDLINE]
@@ -110,7 +113,8 @@ def certify_cmd(ctx, problem_file, example, x0_template, design_file, backend, d
         seed = spec.scenario.seed if seed is None else seed
         try:
             traj = _run(spec, backend, steps, seed, formulation, options, design_backend,
-                        design_budget(max_memory, candidate_budget, progress_every=progress_every), offline)
+                        design_budget(max_memory, candidate_budget, progress_every=progress_every), simulator,
+                        offline)
         except DesignError as exc:
             broken = _assumption_8_broken_by_the_given_gain(exc, spec)
             if broken is None:
@@ -158,14 +162,16 @@ def _with_robust_baseline(traj, cert):
 
 
 def _run(spec, backend: str, steps: int, seed: int, formulation: str = "plain", options=None,
-         design_backend: str | None = None, budget=None, offline=None):
+         design_backend: str | None = None, budget=None, simulator: str = "builtin", offline=None):
     """Offline design (unless ``offline``, a loaded --design, is given), then the closed loop with a
     progress bar (Drake/cvxpy imported only here); the same path as a campaign run
-    (:func:`amcp_drake.online.replay.run_scenario`), so a replay is exact."""
+    (:func:`amcp_drake.online.replay.run_scenario`), so a replay is exact. ``simulator``: who runs the
+    plant (``--simulator``: builtin or drake)."""
     from amcp_drake.online.replay import run_scenario
 
     return run_scenario(spec, backend, design_backend=design_backend, formulation=formulation, steps=steps,
-                        seed=seed, options=options, progress=True, design_budget=budget, offline=offline)
+                        seed=seed, options=options, progress=True, design_budget=budget,
+                        simulate=simulate_function(simulator), offline=offline)
 
 
 def _assumption_8_broken_by_the_given_gain(exc: Exception, spec) -> str | None:

@@ -40,7 +40,8 @@ def terminal_safe(text: str) -> str:
 
 
 def echo(message: object = "", err: bool = False, nl: bool = True) -> None:
-    """``click.echo`` of :func:`terminal_safe` text: every line the subcommands print goes through here."""
+    """``click.echo`` of :func:`terminal_safe` text: the lines of design, run, certify, baseline, coverage, compare,
+    pe-figure and campaign go through here."""
     click.echo(terminal_safe(str(message)), err=err, nl=nl)
 
 
@@ -388,6 +389,25 @@ def with_scenario(spec, x0: str | None, theta_star: str | None):
         scenario = dataclasses.replace(sc, x0=sc.x0 if x0_vec is None else x0_vec,
                                        theta_star=sc.theta_star if theta_vec is None else theta_vec)
     return dataclasses.replace(spec, scenario=scenario)
+
+
+simulator_option = click.option(
+    "--simulator", type=click.Choice(["builtin", "drake"]), default="builtin", show_default=True,
+    help="Who runs the plant (1): amcp's simulator, or Drake's Simulator with the plant as a Drake AffineSystem "
+         "and the controller as AdaptiveMPCSystem (the same closed loop; the trajectory records which ran it; "
+         "docs/how-to/drake-plant.md).")
+
+
+def simulate_function(simulator: str) -> Callable:
+    """The closed-loop function of ``--simulator``: :func:`amcp_drake.online.simulate.simulate` (builtin) or
+    :func:`amcp_drake.systems.closed_loop.simulate_in_drake` (drake: pydrake imported only here)."""
+    if simulator == "drake":
+        from amcp_drake.systems.closed_loop import simulate_in_drake
+
+        return simulate_in_drake
+    from amcp_drake.online.simulate import simulate
+
+    return simulate
 
 
 def update_options(func):

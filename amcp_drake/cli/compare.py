@@ -21,6 +21,8 @@ from amcp_drake.cli.common import (
     problem_options,
     scenario_options,
     seed_option,
+    simulate_function,
+    simulator_option,
     steps_option,
 )
 
@@ -48,9 +50,10 @@ from amcp_drake.cli.common import (
                    "(by default such a step is a disagreement, exit 1, naming the step, the backend and the check).")
 @click.option("--quiet", is_flag=True, help="Only the summary, no per-step table.")
 @max_memory_option
+@simulator_option
 @bad_input_exits_2
 def compare_cmd(problem_file, example, x0_template, design_file, x0, theta_star, steps, seed, mode, drake_solver,
-                cvxpy_solver, accurate, online, out_file, formulation, allow_fallbacks, quiet, max_memory):
+                cvxpy_solver, accurate, online, out_file, formulation, allow_fallbacks, quiet, max_memory, simulator):
     """Compare u, v, cost, h_theta and theta_hat (and report z, alpha) of both backends per step."""
     from amcp_drake.comparison.compare import ACCURATE_CLARABEL, INFORMATIONAL, TOLERANCES, independent, lockstep
     from amcp_drake.model.errors import ProblemError
@@ -59,6 +62,9 @@ def compare_cmd(problem_file, example, x0_template, design_file, x0, theta_star,
     if accurate and (drake_solver.lower(), cvxpy_solver.upper()) != ("clarabel", "CLARABEL"):
         raise ProblemError("--accurate", "Clarabel in both backends (--drake-solver clarabel --cvxpy-solver CLARABEL)",
                            f"--drake-solver {drake_solver} --cvxpy-solver {cvxpy_solver}")
+    if simulator != "builtin" and mode == "lockstep":
+        raise ProblemError("--simulator", "builtin with --mode lockstep (both controllers are fed one state of amcp's "
+                           "simulator; --mode independent runs each closed loop in Drake)", simulator)
 
     spec, steps, options, offline = prepare_run(problem_file, example, x0_template, steps, online, max_memory,
                                                 formulation=formulation, design_file=design_file, x0=x0,
@@ -67,9 +73,12 @@ def compare_cmd(problem_file, example, x0_template, design_file, x0, theta_star,
     tolerances = {"solver_options": dict(ACCURATE_CLARABEL)} if accurate else {}
     backend_options = ({"solver": drake_solver, "formulation": formulation, **tolerances},
                        {"solver": cvxpy_solver, "formulation": formulation, **tolerances})
-    run = lockstep if mode == "lockstep" else independent
-    comp = run(spec, steps, seed, options=options, backend_options=backend_options, allow_fallbacks=allow_fallbacks,
-               offline=offline)
+    if mode == "lockstep":
+        comp = lockstep(spec, steps, seed, options=options, backend_options=backend_options,
+                        allow_fallbacks=allow_fallbacks, offline=offline)
+    else:
+        comp = independent(spec, steps, seed, options=options, backend_options=backend_options,
+                           allow_fallbacks=allow_fallbacks, offline=offline, simulate=simulate_function(simulator))
 
     if not quiet:
         per_step: dict[int, dict[str, float]] = defaultdict(dict)
@@ -143,7 +152,7 @@ def compare_cmd(problem_file, example, x0_template, design_file, x0, theta_star,
         echo(f"hint: at step {listed} v differs while the cost agrees: the optimum may be flat, where the "
                    "solvers' default tolerances fix the cost but not v; --accurate compares both backends with "
                    "Clarabel at 1e-10 (the property suite's setting)")
-    write_json_atomic(comp.to_dict(), out_file)
+    write_json_atomic({**comp.to_dict(), "simulator": simulator}, out_file)
     echo(f"all differences written to {out_file}")
     echo("backends agree" if comp.agree else "backends DISAGREE")
     exit_verdict(comp.agree)

@@ -26,6 +26,8 @@ from amcp_drake.cli.common import (
     progress_every_option,
     scenario_options,
     seed_option,
+    simulate_function,
+    simulator_option,
     steps_option,
     write_error,
 )
@@ -47,16 +49,16 @@ from amcp_drake.cli.common import (
 @max_memory_option
 @candidate_budget_option
 @progress_every_option
+@simulator_option
 @interruptible(lambda kw, exc: "the run stopped" + (f"; nothing saved to {kw['save']}" if kw.get("save") else "")
                + "; run the command again")
 @bad_input_exits_2
 def run_cmd(problem_file, example, x0_template, design_file, backend, formulation, x0, theta_star, steps, seed,
-            disturbance, online, every, save, max_memory, candidate_budget, progress_every):
+            disturbance, online, every, save, max_memory, candidate_budget, progress_every, simulator):
     """Design (or load --design), then run the adaptive MPC closed loop and print one line per step."""
     from amcp_drake.cli.summary import format_table, step_table
     from amcp_drake.offline.design import design
     from amcp_drake.online.controller import AdaptiveMPC
-    from amcp_drake.online.simulate import simulate
 
     spec, steps, options, d = prepare_run(problem_file, example, x0_template, steps, online, max_memory,
                                           formulation=formulation, design_file=design_file, x0=x0,
@@ -70,13 +72,13 @@ def run_cmd(problem_file, example, x0_template, design_file, backend, formulatio
     ctrl = AdaptiveMPC(pr, d, backend=backend, options=options, formulation=formulation, max_memory_mb=max_memory)
     if ctrl.formulation_choice is not None:
         echo(f"formulation auto: {ctrl.formulation_choice.formulation} ({ctrl.formulation_choice.reason})")
-    traj = simulate(ctrl, sc.x0, sc.theta_star_for(steps), steps, disturbance or sc.disturbance_for(steps),
+    traj = simulate_function(simulator)(ctrl, sc.x0, sc.theta_star_for(steps), steps, disturbance or sc.disturbance_for(steps),
                     seed=sc.seed if seed is None else seed, progress=False, mu_state_bound=spec.design.mu_state_bound)
     theta_text = (f"theta*_k sequence from {traj.theta_star_at(0).tolist()} (max step {sc.max_theta_rate():.3g})"
                   if sc.time_varying else f"theta* = {np.asarray(sc.theta_star).tolist()}")
     echo(f"{pr.name}: x0 = {np.asarray(sc.x0).tolist()}, {theta_text}, "
                f"{traj.steps} steps, disturbance {disturbance or ('array' if sc.explicit_disturbance else sc.disturbance)} (seed {sc.seed if seed is None else seed}), "
-               f"backend {backend}, update {update}")
+               f"backend {backend}, update {update}, simulator {simulator}")
     echo(format_table(step_table(traj, every), pr))
     z_margin = max(pr.in_Z(x, u) for x, u in zip(traj.x, traj.u)) if traj.steps else float("nan")
     theta_margin = max(float(np.max(r.H_theta @ traj.theta_star_at(r.k) - r.h_theta)) for r in traj.records)

@@ -77,7 +77,7 @@ def solvers_cmd(corpus, solvers, settings, kinds, time_limit, out_dir, no_reprod
     from amcp_drake.studies.solver_matrix.corpus import KINDS, shipped_corpus_dir
     from amcp_drake.studies.solver_matrix.reference import load_checked_corpus
     from amcp_drake.studies.solver_matrix.report import terminal_table, to_json, write_outputs
-    from amcp_drake.studies.solver_matrix.reproducers import write_reproducers
+    from amcp_drake.studies.solver_matrix.reproducers import previous_reproducers, write_reproducers
     from amcp_drake.studies.solver_matrix.runner import run_matrix
     from amcp_drake.studies.solver_matrix.solvers import available_configurations
     from amcp_drake.studies.solver_matrix.staging import staged
@@ -105,6 +105,7 @@ def solvers_cmd(corpus, solvers, settings, kinds, time_limit, out_dir, no_reprod
     run = run_matrix(problems, configs, settings, time_limit,
                      progress=lambda c: click.echo(f"  {c.problem} {c.solver}: {c.verdict}", err=True))
     extra = {}
+    previous = [] if no_reproducers else previous_reproducers(out / "reproducers")
     try:  # every file complete before any is in place; a failure leaves nothing (staging.py)
         with staged(out) as stage:
             if not no_reproducers:
@@ -116,6 +117,13 @@ def solvers_cmd(corpus, solvers, settings, kinds, time_limit, out_dir, no_reprod
     except OSError as exc:
         raise write_error("--out", out_dir, exc) from None
     json_path, html_path = out / "solvers.json", out / "solvers.html"
+    if extra.get("reproducers"):   # an earlier run's own, unchanged scripts that this run did not write again
+        for path in previous:
+            if path.name not in {r["file"] for r in extra["reproducers"]}:
+                try:
+                    path.unlink(missing_ok=True)
+                except OSError:   # left in place: a recheck lists it as not in the manifest
+                    pass
     click.echo(terminal_table(run))
     click.echo(f"matrix wall time {run.wall_s:.1f} s; results: {json_path}, {html_path}")
     for r in extra.get("reproducers", []):
@@ -124,7 +132,7 @@ def solvers_cmd(corpus, solvers, settings, kinds, time_limit, out_dir, no_reprod
 
 
 def _recheck(folder: Path):
-    from amcp_drake.studies.solver_matrix.reproducers import recheck
+    from amcp_drake.studies.solver_matrix.reproducers import printable, recheck
 
     if not folder.is_dir():
         raise ProblemError("--recheck", "a folder of reproducers written by amcp solvers", str(folder))
@@ -133,7 +141,7 @@ def _recheck(folder: Path):
     except OSError as exc:
         raise ProblemError("--recheck", "a readable folder of reproducers", f"{folder}: {exc.strerror or exc}") from None
     for r in results:
-        click.echo(f"{r.outcome:<22} {r.script}: {r.last_line}")
+        click.echo(f"{r.outcome:<22} {printable(r.script)}: {printable(r.last_line)}")
     ran = [r for r in results if r.outcome != "refused"]
     still = sum(r.outcome == "reproduces" for r in ran)
     click.echo(f"{still} of {len(ran)} reproducers still reproduce on the installed versions; "

@@ -281,22 +281,19 @@ def _pe_diffs(k: int, ra, rb) -> list[Difference]:
 
 
 def _sync(target: AdaptiveMPC, source: AdaptiveMPC) -> None:
-    """Give ``target`` the estimator state of ``source`` (Θ_{k-1}, θ̂_{k-1}, previous x, u, window)."""
-    target.k = source.k
-    target.H_theta = np.array(source.H_theta)
-    target.h_theta = np.array(source.h_theta)
-    target.theta_hat = np.array(source.theta_hat)
-    target._prev = None if source._prev is None else (np.array(source._prev[0]), np.array(source._prev[1]))
-    target._window = list(source._window)
-    target._u_hist = list(getattr(source, "_u_hist", []))
+    """Give ``target`` the state of ``source`` (Θ_{k-1}, θ̂_{k-1}, previous x, u, window, ...): the
+    state is immutable, so both controllers can hold the same one."""
+    target.state = source.state
 
 
 def independent(spec: ProblemSpec, steps: int, seed: int, backends=("drake", "cvxpy"),
                 options: OnlineOptions | None = None, backend_options: tuple[dict, dict] = ({}, {}),
-                allow_fallbacks: bool = False, offline: OfflineDesign | None = None) -> Comparison:
+                allow_fallbacks: bool = False, offline: OfflineDesign | None = None, simulate=None) -> Comparison:
     """Two closed loops, each with its own design, on the same disturbance sequence; with ``offline``
-    both on that design (not designed, not compared)."""
-    from amcp_drake.online.simulate import simulate
+    both on that design (not designed, not compared). ``simulate``: the closed-loop function (default
+    :func:`amcp_drake.online.simulate.simulate`; same arguments)."""
+    if simulate is None:
+        from amcp_drake.online.simulate import simulate
 
     pr, sc = spec.problem, spec.scenario
     comp = Comparison("independent", (backends[0], backends[1]), allow_fallbacks=allow_fallbacks)

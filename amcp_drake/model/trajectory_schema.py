@@ -106,7 +106,7 @@ def _compile(schema: dict, defs: dict, named: dict[str, Callable[[Any], bool]]) 
     """A predicate equivalent to validating against ``schema`` (the keywords the trajectory schema uses;
     any other keyword raises KeyError, and the caller then uses jsonschema alone). True means valid;
     False means "let jsonschema find and word the error"."""
-    known = {"$ref", "anyOf", "type", "const", "enum", "minimum", "maximum", "exclusiveMinimum", "minLength",
+    known = {"$ref", "anyOf", "type", "const", "enum", "minimum", "maximum", "exclusiveMinimum", "minLength", "maxLength",
              "pattern", "required", "properties", "additionalProperties", "items", "minItems", "maxItems",
              "description", "title", "$schema", "$id", "$defs"}
     unknown = set(schema) - known
@@ -144,6 +144,9 @@ def _compile(schema: dict, defs: dict, named: dict[str, Callable[[Any], bool]]) 
     if "minLength" in schema:
         length = schema["minLength"]
         checks.append(lambda v: type(v) is not str or len(v) >= length)
+    if "maxLength" in schema:
+        longest = schema["maxLength"]
+        checks.append(lambda v: type(v) is not str or len(v) <= longest)
     if "pattern" in schema:
         pattern = re.compile(schema["pattern"])
         checks.append(lambda v: type(v) is not str or pattern.search(v) is not None)

@@ -24,6 +24,7 @@ from amcp_drake.model.status import SolveStatus
 from amcp_drake.offline.design import OfflineDesign
 from amcp_drake.online import answer_checks, answers
 from amcp_drake.online.formulation_choice import resolve_formulation
+from amcp_drake.online.state import ControllerState, StepState
 
 #: Rows of Δ_k are scaled to unit norm before the update: near x = 0 the raw rows −H_w D_{k−1} are of
 #: order ‖x_{k−1}‖, and the LP solvers' absolute tolerances then allow errors of order tol/‖row‖ in θ
@@ -142,6 +143,10 @@ class AdaptiveMPC:
     ``step(x)`` returns ``(u, record)``; ``u`` is None when the QP (20) was not solved to
     optimality (the status is on the record: a solver failure is data, not an exception).
     Raises InconsistentDataError when Θ_{k-1} ∩ Δ_k is empty.
+
+    The controller holds what is built once (problem, design, backend, the programs of (9), (12), (20))
+    and the current state ``state`` (:class:`~amcp_drake.online.state.ControllerState`), which ``step``
+    replaces; ``step_from(state, x)`` steps any state without changing the controller.
     """
 
     def __init__(self, problem: Problem, design: OfflineDesign, backend="drake",
@@ -187,31 +192,42 @@ class AdaptiveMPC:
         self._theta_box = self._box_of_theta0()
         self.reset()
 
+    def initial_state(self) -> ControllerState:
+        """The state at k = 0: Θ_0 = {H_θ θ <= h_θ0}, θ̂_0 from the problem, no previous step."""
+        return ControllerState(k=0, H_theta=self.design.H_theta, h_theta=self.design.h_theta0,
+                               theta_hat=self.problem.theta_hat0)
+
     def reset(self) -> None:
-        """Back to k = 0: Θ_0 = {H_θ θ <= h_θ0}, θ̂_0 from the problem."""
-        self.k = 0
-        self.H_theta = np.array(self.design.H_theta)
-        self.h_theta = np.array(self.design.h_theta0)
-        self.theta_hat = np.array(self.problem.theta_hat0)
-        self._prev: tuple[np.ndarray, np.ndarray] | None = None
-        self._window: list[tuple[np.ndarray, np.ndarray]] = []
-        #: the last inputs u_k (m = 1) the PE constraint needs: pe_quadratic reads only the last
-        #: pe_window − 1 + n of them, so at most pe_window + n are kept (none without PE)
-        self._u_hist: list[float] = []
-        #: (H, h, vertices) of the last Θ_k whose vertices the tube check enumerated (reused
-        #: while Θ_k is unchanged to the bit, which is most steps once Θ_k has settled)
-        self._checked_vertices: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
-        self._regression_cache: tuple | None = None
-        #: True once Θ_k is the result of (7) (every row irredundant, or put back as not implied): then a
-        #: row of Δ_k that does not cut Θ_{k−1} is dropped without a redundancy LP of its own
-        self._exact_rows_irredundant = False
+        """Back to k = 0 (:meth:`initial_state`)."""
+        self.state = self.initial_state()
+
+    # the current state's fields, read-only (a new state: ``ctrl.state = ctrl.state.replace(...)``)
+    @property
+    def k(self) -> int:
+        """The index of the next step (:attr:`ControllerState.k`)."""
+        return self.state.k
+
+    @property
+    def H_theta(self) -> np.ndarray:
+        """The rows of Θ_k (:attr:`ControllerState.H_theta`)."""
+        return self.state.H_theta
+
+    @property
+    def h_theta(self) -> np.ndarray:
+        """The offsets of Θ_k (:attr:`ControllerState.h_theta`)."""
+        return self.state.h_theta
+
+    @property
+    def theta_hat(self) -> np.ndarray:
+        """θ̂_k (:attr:`ControllerState.theta_hat`)."""
+        return self.state.theta_hat
 
     # -- (ii) set-membership update ------------------------------------------------------------
-    def _delta(self, x_prev, u_prev, x) -> tuple[np.ndarray, np.ndarray]:
+    def _delta(self, s: StepState, x_prev, u_prev, x) -> tuple[np.ndarray, np.ndarray]:
         """Δ_k of (6): {θ | −H_w D_{k−1} θ <= 1 + H_w d_k}, d_k = A0 x_{k−1} + B0 u_{k−1} − x_k, rows
         scaled to unit norm (see DELTA_ROW_MIN_NORM)."""
         pr = self.problem
-        D, d = self._regression(x_prev, u_prev, x)
+        D, d = self._regression(s, x_prev, u_prev, x)
         H, h = self._minus_H_w.dot(D), _ONE + pr.H_w.dot(d)
         norms = np.sqrt(_add_reduce(H * H, axis=1))
         keep = norms >= _DELTA_ROW_MIN_NORM
@@ -219,17 +235,17 @@ class AdaptiveMPC:
             H, h, norms = H[keep], h[keep], norms[keep]
         return H / norms[:, None], h / norms + _DELTA_MARGIN
 
-    def _regression(self, x_prev, u_prev, x) -> tuple[np.ndarray, np.ndarray]:
+    def _regression(self, s: StepState, x_prev, u_prev, x) -> tuple[np.ndarray, np.ndarray]:
         """(D_{k−1}, d_k) of (6): D(x_{k−1}, u_{k−1}) (n, p) and d_k = A0 x_{k−1} + B0 u_{k−1} − x_k,
-        computed once per step for Δ_k and the LMS (12) (``step`` clears the cache; the arguments
+        computed once per step for Δ_k and the LMS (12) (kept in the step's working state ``s``; the arguments
         are compared by identity, they are the step's own arrays)."""
-        cached = self._regression_cache
+        cached = s.regression
         if cached is not None and cached[0] is x_prev and cached[1] is u_prev and cached[2] is x:
             return cached[3], cached[4]
         pr = self.problem
         D = pr.regressor(x_prev, u_prev)
         d = pr.A0.dot(x_prev) + pr.B0.dot(u_prev) - x
-        self._regression_cache = (x_prev, u_prev, x, D, d)
+        s.regression = (x_prev, u_prev, x, D, d)
         return D, d
 
     def _box_of_theta0(self) -> np.ndarray:
@@ -242,40 +258,40 @@ class AdaptiveMPC:
             box[j] = max(abs(polytope.support(H, h, s * e).value) for s in (1.0, -1.0))
         return np.where(np.isfinite(box), box, np.inf)
 
-    def _update_set(self, H_delta, h_delta, record: StepRecord) -> bool:
+    def _update_set(self, s: StepState, H_delta, h_delta, record: StepRecord) -> bool:
         """Θ_k by (7), (9) or the window; every answer checked (answer_checks). True when Θ_k is set
         (the step may go on), False when the data are inconsistent (raises) or nothing is usable."""
         opts = self.options
         if opts.update == "exact":
-            return self._update_exact(H_delta, h_delta, record)
+            return self._update_exact(s, H_delta, h_delta, record)
         if opts.update == "window":
-            self._window = ([(H_delta, h_delta)] + self._window)[: opts.window]
-            H_data = np.vstack([w[0] for w in self._window])
+            s.window = ([(H_delta, h_delta)] + s.window)[: opts.window]
+            H_data = np.vstack([w[0] for w in s.window])
             # time-varying θ* (Section 4.1): Δ_{k−i} holds θ*_{k−i−1}, so its unit rows are dilated
             # by i·d_θ to hold θ*_{k−1} (the data of (9) must all contain the same point)
-            h_data = np.concatenate([w[1] + age * opts.d_theta for age, w in enumerate(self._window)])
+            h_data = np.concatenate([w[1] + age * opts.d_theta for age, w in enumerate(s.window)])
         else:
             H_data, h_data = H_delta, h_delta
         H_theta = self.design.H_theta
-        result = self.backend.set_update(H_theta, self.h_theta, H_data, h_data)
+        result = self.backend.set_update(H_theta, s.h_theta, H_data, h_data)
         record.times["set_update"] = result.solve_time
         record.set_status = result.status
         if result.status in (SolveStatus.INFEASIBLE, SolveStatus.UNBOUNDED):
             # confirm emptiness independently before declaring the data inconsistent
-            _, radius = polytope.chebyshev_center(np.vstack([H_theta, H_data]), np.concatenate([self.h_theta, h_data]))
+            _, radius = polytope.chebyshev_center(np.vstack([H_theta, H_data]), np.concatenate([s.h_theta, h_data]))
             if radius == float("-inf"):
-                raise InconsistentDataError(self.k, f"LP (9) status {result.status.value}; scipy confirms the "
+                raise InconsistentDataError(s.k, f"LP (9) status {result.status.value}; scipy confirms the "
                                                     "intersection is empty")
         t0 = time.process_time()
         def check(h, Lam, pts):
-            return self._set_check.check(h, Lam, pts, H_theta, self.h_theta, H_data, h_data, self._theta_box)
+            return self._set_check.check(h, Lam, pts, H_theta, s.h_theta, H_data, h_data, self._theta_box)
 
         if result.status is SolveStatus.OPTIMAL:
             checks = check(result.h, result.Lambda, getattr(result, "points", None))
             failed = answer_checks.failures(checks)
             if not failed:
                 record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - t0
-                self.h_theta = self._dilate(self._nested(result.h), 1)
+                s.h_theta = self._dilate(self._nested(s, result.h), 1)
                 record.set_Lambda = result.Lambda
                 self._answer(record, "set_update", "first")
                 return True
@@ -286,21 +302,21 @@ class AdaptiveMPC:
             note = f"set update (9): backend status {result.status.value}"
             why = f"status {result.status.value}"
         # fallback 1: another solver, the per-row supports of Θ_{k−1} ∩ Δ_k by HiGHS, checked the same way
-        sup = polytope.support_certified(np.vstack([H_theta, H_data]), np.concatenate([self.h_theta, h_data]), H_theta)
+        sup = polytope.support_certified(np.vstack([H_theta, H_data]), np.concatenate([s.h_theta, h_data]), H_theta)
         record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - t0
         if sup is not None and not answer_checks.failures(check(sup.values, sup.duals, sup.points)):
-            self.h_theta = self._dilate(self._nested(sup.values), 1)
+            s.h_theta = self._dilate(self._nested(s, sup.values), 1)
             record.set_Lambda = sup.duals
             self._note(record, note + "; fallback: HiGHS support LPs (checked)")
             self._answer(record, "set_update", "fallback", "highs_support_lps", why)
             return True
         # fallback 2: keep Θ_{k−1}, always a valid outer set of Θ_{k−1} ∩ Δ_k (and nested, (10))
-        self.h_theta = self._dilate(np.asarray(self.h_theta, float), 1)
+        s.h_theta = self._dilate(np.asarray(s.h_theta, float), 1)
         self._note(record, note + "; fallback: kept Θ_(k−1) (HiGHS answer failed too)")
         self._answer(record, "set_update", "fallback", "kept_previous_set", why)
         return True
 
-    def _update_exact(self, H_delta, h_delta, record: StepRecord) -> bool:
+    def _update_exact(self, s: StepState, H_delta, h_delta, record: StepRecord) -> bool:
         """(7) with redundant rows removed by backend LPs (a row goes when the others allow exceeding it
         by at most REDUNDANT_ROW_TOL); every removed row is re-checked with HiGHS at its certified
         tolerances (:func:`removed_row_excess`: it must be implied by the kept rows to SET_NESTED_TOL,
@@ -312,23 +328,23 @@ class AdaptiveMPC:
         row (not every row) keeps Θ_k from growing by several rows a step; the re-check uses the backend's
         LP tolerances (HiGHS at its defaults was 4e-8 off on campaign seed 13 #6 and put rows back at 7
         of 15 steps)."""
-        H = np.vstack([self.H_theta, H_delta])
-        h = np.concatenate([self.h_theta, h_delta])
+        H = np.vstack([s.H_theta, H_delta])
+        h = np.concatenate([s.h_theta, h_delta])
         _, radius = polytope.chebyshev_center(H, h)
         if radius == float("-inf"):
-            raise InconsistentDataError(self.k, "exact intersection (7) is infeasible")
-        q = len(self.h_theta)
+            raise InconsistentDataError(s.k, "exact intersection (7) is infeasible")
+        q = len(s.h_theta)
         dropped = np.zeros(len(h), dtype=bool)
-        if self._exact_rows_irredundant:
+        if s.exact_rows_irredundant:
             # a row of Δ_k with sup over Θ_{k−1} <= its bound is implied by Θ_{k−1} ⊇ Θ_{k−1} ∩ Δ_k, so by
             # whatever rows describe the intersection: dropped at once (re-checked below like any
             # removed row). When none cuts, Θ_k = Θ_{k−1}, whose rows are irredundant: no other LP.
-            dropped[q:] = self.backend.support(self.H_theta, self.h_theta, H_delta) <= h_delta + REDUNDANT_ROW_TOL
+            dropped[q:] = self.backend.support(s.H_theta, s.h_theta, H_delta) <= h_delta + REDUNDANT_ROW_TOL
         if dropped[q:].all():
             keep = ~dropped
         else:
             keep = self._irredundant_rows(H, h, dropped)
-        self._exact_rows_irredundant = True
+        s.exact_rows_irredundant = True
         record.set_status = SolveStatus.OPTIMAL
         t0 = time.process_time()
         not_implied = {}
@@ -346,16 +362,16 @@ class AdaptiveMPC:
             self._answer(record, "exact_update", "fallback", "removed_rows_kept", "removed row implied by the kept rows")
         else:
             self._answer(record, "exact_update", "first")
-        self.H_theta, self.h_theta = H[keep], h[keep]
+        s.H_theta, s.h_theta = H[keep], h[keep]
         return True
 
-    def _nested(self, h) -> np.ndarray:
+    def _nested(self, s: StepState, h) -> np.ndarray:
         """min(h, h_θ,k−1) for a checked answer h of (9): Θ_{k−1} ∩ Δ_k ⊆ Θ_{k−1}, so every offset of
         Θ_{k−1} bounds the update too, and the smaller of the two is still an outer bound. It makes the
         nesting (10) exact where a solver's h exceeds h_θ,k−1 by round-off (the answer check allows
         SET_NESTED_TOL = 1e-8): without it a window update drifted 4e-9 above h_θ0 in 15 steps (campaign
         seed 4 #37), and the Drake plain form left its reduced program, which needs Θ_k ⊆ Θ0."""
-        return np.minimum(np.asarray(h, float), self.h_theta)
+        return np.minimum(np.asarray(h, float), s.h_theta)
 
     @staticmethod
     def _note(record: StepRecord, text: str) -> None:
@@ -396,37 +412,37 @@ class AdaptiveMPC:
         return keep
 
     # -- (ii) projected LMS (12) -----------------------------------------------------------------
-    def _update_estimate(self, x_prev, u_prev, x, record: StepRecord) -> bool:
+    def _update_estimate(self, s: StepState, x_prev, u_prev, x, record: StepRecord) -> bool:
         """θ̂_k by (12); the backend's projection is checked (answer_checks.check_projection) and
         replaced, when it fails, by the least-distance solution (another solver, checked the same
         way), else by θ̂_{k−1} if it is in S, else by the Chebyshev centre of S if it is in S. True
         when θ̂_k is set."""
         pr = self.problem
-        D, d = self._regression(x_prev, u_prev, x)
+        D, d = self._regression(s, x_prev, u_prev, x)
         # x_k − x̂_k with x̂_k = A(θ̂)x_{k−1} + B(θ̂)u_{k−1} = A0 x_{k−1} + B0 u_{k−1} + D θ̂ by (2): −(d_k + D θ̂)
-        error = -(d + D.dot(self.theta_hat))
-        theta_tilde = self.theta_hat + (self._mu * D.T).dot(error)
+        error = -(d + D.dot(s.theta_hat))
+        theta_tilde = s.theta_hat + (self._mu * D.T).dot(error)
         record.theta_tilde = theta_tilde
         if self.options.projection == "Theta":
             H, h, target = pr.H_theta, pr.h_theta, "Θ"
         else:
-            H, h, target = self.H_theta, self.h_theta, "Θ_k"
+            H, h, target = s.H_theta, s.h_theta, "Θ_k"
         if _and_reduce(H.dot(theta_tilde) <= h, axis=None):
             # the projection of a point of the set is the point itself: no QP needed
-            self.theta_hat = theta_tilde
+            s.theta_hat = theta_tilde
             record.projection_status = SolveStatus.OPTIMAL
             return True
         result = self.backend.project(theta_tilde, H, h)
         record.times["projection"] = result.solve_time
         record.projection_status = result.status
         t0 = time.process_time()
-        candidates = (self.theta_hat,)
+        candidates = (s.theta_hat,)
         try:
             if result.status is SolveStatus.OPTIMAL:
                 checks = answer_checks.check_projection(result.theta, theta_tilde, H, h, candidates)
                 failed = answer_checks.failures(checks)
                 if not failed:
-                    self.theta_hat = np.asarray(result.theta, float)
+                    s.theta_hat = np.asarray(result.theta, float)
                     self._answer(record, "projection", "first")
                     return True
                 record.projection_status = SolveStatus.INACCURATE
@@ -439,7 +455,7 @@ class AdaptiveMPC:
             ldp = polytope.least_distance_point(theta_tilde, H, h)
             if ldp is not None and not answer_checks.failures(
                     answer_checks.check_projection(ldp, theta_tilde, H, h, candidates)):
-                self.theta_hat = ldp
+                s.theta_hat = ldp
                 self._note(record, note + "; fallback: least-distance projection (NNLS, checked)")
                 self._answer(record, "projection", "fallback", "least_distance", why)
                 return True
@@ -447,13 +463,13 @@ class AdaptiveMPC:
             # for such a step: the certificate's lms_update skips steps whose projection is not optimal)
             tol = answer_checks.PROJECTION_MEMBERSHIP_TOL
             Hn, hn = polytope.normalize_rows(H, h)
-            if float(np.max(Hn @ self.theta_hat - hn)) <= tol:
+            if float(np.max(Hn @ s.theta_hat - hn)) <= tol:
                 self._note(record, note + f"; fallback: kept θ̂_(k−1) (in {target})")
                 self._answer(record, "projection", "fallback", "kept_previous_estimate", why)
                 return True
             centre, radius = polytope.chebyshev_center(H, h)
             if np.all(np.isfinite(centre)) and float(np.max(Hn @ centre - hn)) <= tol:
-                self.theta_hat = centre
+                s.theta_hat = centre
                 self._note(record, note + f"; fallback: Chebyshev centre of {target} (radius {radius:.3g})")
                 self._answer(record, "projection", "fallback", "chebyshev_centre", why)
                 return True
@@ -464,20 +480,20 @@ class AdaptiveMPC:
             record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - t0
 
     # -- (iii) the QP (20), with the PE two-QP procedure of docs/explanation/paper.md §8 when enabled -----------------
-    def _solve_qp(self, x, h_arg, H_arg, record: StepRecord):
+    def _solve_qp(self, s: StepState, x, h_arg, H_arg, record: StepRecord):
         """(answer, checked): the QP (20), or docs/explanation/paper.md §8's PE procedure; ``checked`` is True when the
         answer already passed the answer checks (a PE candidate is checked before it competes)."""
         opts = self.options
         if opts.pe_window is None:
-            return self.mpc.solve(x, h_arg, self.theta_hat, H_arg), False
+            return self.mpc.solve(x, h_arg, s.theta_hat, H_arg), False
         from amcp_drake.online.excitation import RETRY_LEVEL_FACTORS, pe_bounds, pe_quadratic, pe_quadratic_at
 
-        u_hist = np.array(self._u_hist)
+        u_hist = np.array(s.u_hist)
         quad = pe_quadratic(u_hist, self.problem.n, opts.pe_window, opts.pe_level)
         bounds = pe_bounds(quad)
         if bounds is None:
             record.pe_status = "inactive" if quad is None else "satisfied"
-            return self.mpc.solve(x, h_arg, self.theta_hat, H_arg), False
+            return self.mpc.solve(x, h_arg, s.theta_hat, H_arg), False
         spent = 0.0
         level = quad.level
         # the rung's level, then reduced levels (RETRY_LEVEL_FACTORS) when no input reaches it
@@ -488,10 +504,10 @@ class AdaptiveMPC:
                 if bounds is None:  # the reduced level holds for every input
                     record.times["pe_solver"] = spent
                     record.pe_status, record.pe_dim, record.pe_level = "satisfied", int(quad.dim), float(quad.level)
-                    return self.mpc.solve(x, h_arg, self.theta_hat, H_arg), False
+                    return self.mpc.solve(x, h_arg, s.theta_hat, H_arg), False
             best, best_b = None, None
             for b in bounds:
-                sol = self.mpc.solve(x, h_arg, self.theta_hat, H_arg, u0_bounds=b)
+                sol = self.mpc.solve(x, h_arg, s.theta_hat, H_arg, u0_bounds=b)
                 spent += sol.solver_time
                 if sol.status is not SolveStatus.OPTIMAL:
                     continue
@@ -499,7 +515,7 @@ class AdaptiveMPC:
                 # Clarabel answered a PE-bounded QP with (15c) violated by 0.15) counts as no answer,
                 # so the reduced levels and the fallback to (20) alone still apply
                 what = f"tube QP (20) with PE bound u_0 in [{b[0]:.6g}, {b[1]:.6g}]"
-                sol, failed, resolved = self._checked_or_refined(sol, x, h_arg, H_arg, b, record, what)
+                sol, failed, resolved = self._checked_or_refined(s, sol, x, h_arg, H_arg, b, record, what)
                 if failed:
                     self._note(record, answer_checks.describe_failures(what, failed) + "; candidate dropped")
                     self._answer(record, "pe_candidate", "not_solved", "candidate_dropped", failed[0].name)
@@ -520,25 +536,28 @@ class AdaptiveMPC:
         # no input satisfies both (20) and the PE constraint: (20) alone (SRC-1's fallback; the PE
         # constraint is not part of the recursive-feasibility argument)
         record.pe_status = "fallback"
-        return self.mpc.solve(x, h_arg, self.theta_hat, H_arg), False
+        return self.mpc.solve(x, h_arg, s.theta_hat, H_arg), False
 
     # -- (iii) answer checks of (20) and the other formulation as fallback --------------------------
-    def _tube_checks(self, sol, x, h_arg, H_arg) -> list:
+    def _tube_checks(self, sol, x, h_arg, H_arg, s: StepState | None = None) -> list:
         """answer_checks.check_tube (preassembled: answer_checks.TubeCheck) with Θ_k's vertices (Qhull)
         for the (5b) check: always in the vertex form; in the plain form too when Θ_k is one set for
         every stage (d_θ = 0), since (15c) and (15d) each met to 1e-6 bound (5b) only to about
-        1e-6·(1 + ‖θ‖) (thorough profile: a plain answer 1.25e-6 outside (5b) passed them)."""
+        1e-6·(1 + ‖θ‖) (thorough profile: a plain answer 1.25e-6 outside (5b) passed them). ``s``: the
+        step's working state (θ̂_k, the vertex cache); None: a copy of the current state (its cache unchanged)."""
+        if s is None:
+            s = self.state.working()
         vertices = None
         if sol.v is not None and (sol.Lambda is None or np.ndim(h_arg) == 1):
             H = np.asarray(self.design.H_theta if H_arg is None else H_arg, float)
             h = np.asarray(h_arg, float)
             h = h if h.ndim == 1 else h[0]
-            last = self._checked_vertices
+            last = s.checked_vertices
             if last is not None and same_bits(last[1], h) and same_bits(last[0], H):
                 vertices = last[2]
             else:
-                vertices = self._theta_k_vertices(H, h)
-                self._checked_vertices = (H.copy(), h.copy(), vertices)
+                vertices = self._theta_k_vertices(H, h, s.theta_hat)
+                s.checked_vertices = (H.copy(), h.copy(), vertices)
         if self._tube_check is None or self._tube_check.data is not self.data:
             self._tube_check = answer_checks.TubeCheck(self.data)
         return self._tube_check.check(sol, x, vertices, h_arg, H_arg)
@@ -547,16 +566,16 @@ class AdaptiveMPC:
     #: the Chebyshev centre is computed by an LP instead.
     INTERIOR_MARGIN = 1e-6
 
-    def _theta_k_vertices(self, H: np.ndarray, h: np.ndarray) -> np.ndarray | None:
+    def _theta_k_vertices(self, H: np.ndarray, h: np.ndarray, theta_hat: np.ndarray) -> np.ndarray | None:
         """Vertices of Θ_k by Qhull, for the vertex-form check of (5b); None when they cannot be found (the
         check is then "not run"). θ̂_k serves as Qhull's interior point when it is INTERIOR_MARGIN inside Θ_k,
         which saves the Chebyshev LP (1.6 of 1.7 ms per step on Example 1)."""
         from scipy.spatial import HalfspaceIntersection
 
         Hn, hn = polytope.normalize_rows(H, h)
-        if float(np.min(hn - Hn @ self.theta_hat)) >= self.INTERIOR_MARGIN:
+        if float(np.min(hn - Hn @ theta_hat)) >= self.INTERIOR_MARGIN:
             try:
-                return HalfspaceIntersection(np.hstack([Hn, -hn[:, None]]), np.asarray(self.theta_hat, float)).intersections
+                return HalfspaceIntersection(np.hstack([Hn, -hn[:, None]]), np.asarray(theta_hat, float)).intersections
             except (ValueError, RuntimeError):
                 pass
         return polytope.theta_vertices(H, h)  # flat Θ_k too (in its affine hull); None if empty/unbounded
@@ -585,7 +604,7 @@ class AdaptiveMPC:
             self._other_mpc = get_backend(name, **options).tube_mpc(self.data)
         return self._other_mpc
 
-    def _checked_or_refined(self, sol, x, h_arg, H_arg, u0_bounds, record: StepRecord, what: str):
+    def _checked_or_refined(self, s: StepState, sol, x, h_arg, H_arg, u0_bounds, record: StepRecord, what: str):
         """(answer, failed checks): ``sol`` when it passes the answer checks; else, for a plain-form
         QP (its solver has ``REFINES``), the same QP solved again with Clarabel's iterative refinement
         on, when that answer passes (the first try runs without refinement for speed,
@@ -594,26 +613,26 @@ class AdaptiveMPC:
         thorough profile: a first try 1.3e-6 outside (15c) at x_0 on the boundary of the feasible
         set). ``failed``: the first answer's failed checks when neither passes, else []; ``resolved``: the
         name of the first answer's failed check when the re-solve answered, else ""."""
-        failed = self._failed_tube_checks(sol, x, h_arg, H_arg, record)
+        failed = self._failed_tube_checks(s, sol, x, h_arg, H_arg, record)
         if not failed or not getattr(self.mpc, "REFINES", False):
             return sol, failed, ""
-        alt = self.mpc.solve(x, h_arg, self.theta_hat, H_arg, u0_bounds=u0_bounds, refine=True)
+        alt = self.mpc.solve(x, h_arg, s.theta_hat, H_arg, u0_bounds=u0_bounds, refine=True)
         record.times["solver_refined"] = record.times.get("solver_refined", 0.0) + alt.solver_time
-        if alt.status is SolveStatus.OPTIMAL and not self._failed_tube_checks(alt, x, h_arg, H_arg, record):
+        if alt.status is SolveStatus.OPTIMAL and not self._failed_tube_checks(s, alt, x, h_arg, H_arg, record):
             self._note(record, answer_checks.describe_failures(f"{what}, first try without iterative refinement",
                                                                failed) + "; re-solved with iterative refinement (checked)")
             return alt, [], failed[0].name
         return sol, failed, ""
 
-    def _failed_tube_checks(self, sol, x, h_arg, H_arg, record: StepRecord) -> list:
+    def _failed_tube_checks(self, s: StepState, sol, x, h_arg, H_arg, record: StepRecord) -> list:
         """The failed answer checks of ``sol`` (:meth:`_tube_checks`); their CPU time is added to
         ``record.times["answer_checks_cpu"]``."""
         t0 = time.process_time()
-        failed = answer_checks.failures(self._tube_checks(sol, x, h_arg, H_arg))
+        failed = answer_checks.failures(self._tube_checks(sol, x, h_arg, H_arg, s))
         record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - t0
         return failed
 
-    def _verified_qp(self, sol, checked: bool, x, h_arg, H_arg, record: StepRecord):
+    def _verified_qp(self, s: StepState, sol, checked: bool, x, h_arg, H_arg, record: StepRecord):
         """The answer of (20) to apply, or None. An "optimal" answer (``checked``: it passed the checks
         already) that fails a check is first solved again with iterative refinement
         (:meth:`_checked_or_refined`, plain form); if that fails too, the step status is "inaccurate"
@@ -628,7 +647,7 @@ class AdaptiveMPC:
                 self._answer(record, "tube_qp", "not_solved", sol.status.value)
                 return None
             alt = self._other_formulation_answer(
-                f"tube QP (20): status {sol.status.value}, no answer ({sol.detail})", f"status {sol.status.value}",
+                s, f"tube QP (20): status {sol.status.value}, no answer ({sol.detail})", f"status {sol.status.value}",
                 x, h_arg, H_arg, record)
             if alt is not None:
                 record.status = SolveStatus.INACCURATE
@@ -636,7 +655,7 @@ class AdaptiveMPC:
         if checked:
             self._answer(record, "tube_qp", "first")
             return sol
-        sol, failed, resolved = self._checked_or_refined(sol, x, h_arg, H_arg, None, record, "tube QP (20)")
+        sol, failed, resolved = self._checked_or_refined(s, sol, x, h_arg, H_arg, None, record, "tube QP (20)")
         if not failed:
             if resolved:
                 self._answer(record, "tube_qp", "resolved", "iterative_refinement", resolved)
@@ -644,10 +663,10 @@ class AdaptiveMPC:
                 self._answer(record, "tube_qp", "first")
             return sol
         record.status = SolveStatus.INACCURATE
-        return self._other_formulation_answer(answer_checks.describe_failures("tube QP (20)", failed), failed[0].name,
+        return self._other_formulation_answer(s, answer_checks.describe_failures("tube QP (20)", failed), failed[0].name,
                                               x, h_arg, H_arg, record)
 
-    def _other_formulation_answer(self, note: str, why: str, x, h_arg, H_arg, record: StepRecord):
+    def _other_formulation_answer(self, s: StepState, note: str, why: str, x, h_arg, H_arg, record: StepRecord):
         """The other formulation's answer of (20) when it passes the answer checks, else None; ``note``
         (why the first answer is not used) and the outcome are written to ``record.detail``, and the
         outcome with ``why`` (the first answer's failed check) to ``record.answers``."""
@@ -660,10 +679,10 @@ class AdaptiveMPC:
                 self._answer(record, "tube_qp", "not_solved", "", why)
                 return None
             form = getattr(other, "formulation", "plain")
-            alt = other.solve(x, h_arg, self.theta_hat, H_arg)
+            alt = other.solve(x, h_arg, s.theta_hat, H_arg)
             record.times["solver_fallback"] = alt.solver_time
             t0 = time.process_time()
-            alt_checks = self._tube_checks(alt, x, h_arg, H_arg) if alt.status is SolveStatus.OPTIMAL else None
+            alt_checks = self._tube_checks(alt, x, h_arg, H_arg, s) if alt.status is SolveStatus.OPTIMAL else None
             spent += time.process_time() - t0
             if alt_checks is not None and not answer_checks.failures(alt_checks):
                 self._note(record, note + f"; fallback: {form} form of (20) (checked)")
@@ -688,58 +707,71 @@ class AdaptiveMPC:
 
     # -- one step --------------------------------------------------------------------------------
     def step(self, x: np.ndarray, on_inconsistent: str = "raise") -> tuple[np.ndarray | None, StepRecord]:
-        """Steps (i)-(iv) at the measured state x_k.
+        """Steps (i)-(iv) at the measured state x_k from the current state (:meth:`step_from`), which
+        then becomes the next state."""
+        u, self.state, record = self.step_from(self.state, x, on_inconsistent)
+        return u, record
+
+    def step_from(self, state: ControllerState, x: np.ndarray,
+                  on_inconsistent: str = "raise") -> tuple[np.ndarray | None, ControllerState, StepRecord]:
+        """Steps (i)-(iv) at the measured state x_k from ``state``: (u_k, the next state, the step's record).
+
+        A function of (``state``, x) given what the controller builds once (design, programs): ``state``
+        is not changed, and two states stepped by one controller, interleaved, are two independent runs.
+        The programs are shared: every solve sets all coefficients it uses from the step's inputs.
+        ``u_k`` is None when the QP (20) was not solved (the status is on the record); ProblemError when
+        x is not a finite vector of length n.
 
         When Θ_{k−1} ∩ Δ_k is empty (the data contradict Θ and W), ``on_inconsistent="raise"`` (the
-        default) raises InconsistentDataError; ``"record"`` returns ``(None, record)`` instead, the record
-        holding the event (:data:`INCONSISTENT_KIND`, :func:`is_inconsistent`): status ``infeasible``,
+        default) raises InconsistentDataError; ``"record"`` returns ``(None, state, record)`` instead, the
+        record holding the event (:data:`INCONSISTENT_KIND`, :func:`is_inconsistent`): status ``infeasible``,
         Θ_{k−1} and θ̂_{k−1} unchanged, the message in ``detail``. The run should stop there: the
-        controller's state is that of step k−1 (a measured run keeps its records up to this one)."""
+        state returned is ``state``, that of step k−1 (a measured run keeps its records up to this one)."""
         if on_inconsistent not in ("raise", "record"):
             raise ProblemError("on_inconsistent", "'raise' or 'record'", repr(on_inconsistent))
         start = time.perf_counter()
         x = np.asarray(x, float)
         if x.shape != self._x_shape or not all_finite(x):
             raise ProblemError("x", f"a finite state vector of length {self.problem.n}", f"{x!r}")
-        self._regression_cache = None
-        record = StepRecord(k=self.k, x=x, u=None, status=SolveStatus.NOT_RUN, H_theta=self.H_theta,
-                            h_theta=self.h_theta, theta_hat=self.theta_hat, answers=[])
-        if self._prev is not None and self.options.update != "none":
-            x_prev, u_prev = self._prev
+        s = state.working()
+        record = StepRecord(k=s.k, x=x, u=None, status=SolveStatus.NOT_RUN, H_theta=s.H_theta,
+                            h_theta=s.h_theta, theta_hat=s.theta_hat, answers=[])
+        if s.prev is not None and self.options.update != "none":
+            x_prev, u_prev = s.prev
             t0 = time.perf_counter()
             try:
-                ok = self._update_set(*self._delta(x_prev, u_prev, x), record)
+                ok = self._update_set(s, *self._delta(s, x_prev, u_prev, x), record)
             except InconsistentDataError as exc:
                 if on_inconsistent == "raise":
                     raise
-                return None, self._inconsistent(record, exc, start)
+                return None, state, self._inconsistent(record, exc, start)
             record.times["set_update_total"] = time.perf_counter() - t0
             if not ok:
                 record.status = record.set_status
                 record.times["total"] = time.perf_counter() - start
-                return None, record
+                return None, s.freeze(), record
             t0 = time.perf_counter()
-            ok = self._update_estimate(x_prev, u_prev, x, record)
+            ok = self._update_estimate(s, x_prev, u_prev, x, record)
             record.times["lms_total"] = time.perf_counter() - t0
             if not ok:
                 record.status = record.projection_status
                 if record.status is SolveStatus.OPTIMAL:  # pragma: no cover - _update_estimate sets a failure status
                     record.status = SolveStatus.INACCURATE
                 record.times["total"] = time.perf_counter() - start
-                return None, record
-        record.H_theta, record.h_theta, record.theta_hat = self.H_theta, self.h_theta, self.theta_hat
-        H_arg = self.H_theta if self.options.update == "exact" else None
-        h_arg = self.h_theta
+                return None, s.freeze(), record
+        record.H_theta, record.h_theta, record.theta_hat = s.H_theta, s.h_theta, s.theta_hat
+        H_arg = s.H_theta if self.options.update == "exact" else None
+        h_arg = s.h_theta
         if self.options.d_theta > 0:
-            h_arg = record.h_theta_stages = self.stage_offsets(self.h_theta)
-        sol, checked = self._solve_qp(x, h_arg, H_arg, record)
+            h_arg = record.h_theta_stages = self.stage_offsets(s.h_theta)
+        sol, checked = self._solve_qp(s, x, h_arg, H_arg, record)
         first = sol
         record.qp_detail = sol.detail
         record.status = sol.status
         record.times["qp_update"] = sol.update_time
         record.times["solver"] = sol.solver_time
         record.infeasible_constraints = sol.infeasible_constraints
-        sol = self._verified_qp(sol, checked, x, h_arg, H_arg, record)
+        sol = self._verified_qp(s, sol, checked, x, h_arg, H_arg, record)
         u = None
         if sol is not None and sol is not first:
             record.qp_detail = f"{record.qp_detail}; {sol.detail}"
@@ -747,10 +779,12 @@ class AdaptiveMPC:
             record.v, record.z, record.alpha, record.Lambda, record.cost = sol.v, sol.z, sol.alpha, sol.Lambda, sol.cost
             u = self.design.K.dot(x) + sol.v[0]
             record.u = u
-            self._prev = (x, u)
+            s.prev = (x, u)
             if self.options.pe_window is not None:
-                self._u_hist.append(float(u[0]))
-                del self._u_hist[:-(self.options.pe_window + self.problem.n)]
-        self.k += 1
+                s.u_hist.append(float(u[0]))
+                del s.u_hist[:-(self.options.pe_window + self.problem.n)]
+        s.k += 1
+        nxt = s.freeze()
+        record.H_theta, record.h_theta, record.theta_hat = nxt.H_theta, nxt.h_theta, nxt.theta_hat
         record.times["total"] = time.perf_counter() - start
-        return u, record
+        return u, nxt, record

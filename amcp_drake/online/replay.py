@@ -15,7 +15,7 @@ from amcp_drake.model.problem import ProblemSpec
 
 def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: str | None = None,
                  formulation: str = "plain", steps: int | None = None, seed: int | None = None, options=None,
-                 offline=None, progress: bool = False, design_budget=None):
+                 offline=None, progress: bool = False, design_budget=None, simulate=None):
     """The closed loop of ``spec.scenario`` on ``backend``; returns the Trajectory (a partial one when
     Θ_{k-1} ∩ Δ_k = ∅ stops the run, with ``stop_reason`` saying so).
 
@@ -26,12 +26,17 @@ def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: s
     time budget per candidate, progress lines; None: the default limit, silent); with a budget, the run's
     size is estimated again for the design found and refused above its memory limit
     (:func:`~amcp_drake.online.run_size.check_run_size` with the design, in the form it will use).
+    ``simulate``: the closed-loop function (default :func:`~amcp_drake.online.simulate.simulate`;
+    ``amcp_drake.systems.closed_loop.simulate_in_drake`` runs the plant in Drake), called with the same
+    arguments.
     """
     from amcp_drake.model.errors import InconsistentDataError, ProblemError
     from amcp_drake.offline.design import design
     from amcp_drake.online.controller import AdaptiveMPC
     from amcp_drake.online.run_size import check_run_size
-    from amcp_drake.online.simulate import simulate
+
+    if simulate is None:
+        from amcp_drake.online.simulate import simulate
 
     sc = spec.scenario
     if sc is None:

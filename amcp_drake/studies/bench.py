@@ -26,7 +26,7 @@ runs also report how far the formulations' inputs drift apart (``max_abs_dv_vs_p
 Reference lines: the paper reports a median solver time of 68 ms for Example 1 (Yalmip, Intel
 Core i7 3.4 GHz; 50 ms min, 95 ms max), docs/explanation/paper.md §9.
 
-Output: :func:`run_benchmarks` returns a JSON-ready dict (format ``amcp-bench`` version 5, keys
+Output: :func:`run_benchmarks` returns a JSON-ready dict (format ``amcp-bench`` version 6, keys
 documented in benchmarks/README.md); :func:`write_outputs` writes it, a PNG (matplotlib Agg) and,
 with sweeps, ``scaling.md``; with ``only="size"`` the size table ``size.md``
 (:mod:`amcp_drake.studies.bench_size`) and no PNG.
@@ -67,7 +67,9 @@ BENCH_FORMAT = "amcp-bench"
 #: ``issue16_cpu[].measured`` is the median over the repeats, ``per_run`` the value of each repeat,
 #: ``runs_met`` how many met the target, and ``met`` is true only when every repeat met it
 #: version 5: ``size``, the size table of ``only="size"`` (:mod:`amcp_drake.studies.bench_size`; None otherwise)
-BENCH_VERSION = 5
+#: version 6: ``drake_loop``, the Drake Diagram of Example 1 against amcp's simulator of ``only="drake"``
+#: (:mod:`amcp_drake.studies.bench_drake`; None otherwise)
+BENCH_VERSION = 6
 #: The paper (Section 5): "Median solver time reported by Yalmip: 0.068 s (0.10 s with the PE constraint);
 #: maximum 0.095 s; minimum 0.05 s; Intel Core i7, 3.4 GHz".
 PAPER_MS = {"median_solver": 68.0, "max_solver": 95.0, "min_solver": 50.0}
@@ -108,7 +110,7 @@ class BenchSettings:
     steps: int = 50
     scaling_steps: int = 30
     seed: int = 0
-    only: str | None = None                      # None, "example", "scaling", "section4" or "size"
+    only: str | None = None                      # None, "example", "scaling", "section4", "size" or "drake"
     backends: tuple[str, ...] = ("drake", "cvxpy")
     formulations: tuple[str, ...] = ("plain", "vertex", "fast")
     example_facets: tuple[int, ...] = (4, 8)
@@ -319,8 +321,9 @@ def run_benchmarks(settings: BenchSettings | None = None,
                    progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
     """Run the selected benchmarks; return the JSON-ready result (format ``amcp-bench``)."""
     settings = settings or BenchSettings()
-    if settings.only not in (None, "example", "scaling", "section4", "size"):
-        raise ValueError(f"only: expected None, 'example', 'scaling', 'section4' or 'size', got {settings.only!r}")
+    if settings.only not in (None, "example", "scaling", "section4", "size", "drake"):
+        raise ValueError(f"only: expected None, 'example', 'scaling', 'section4', 'size' or 'drake', "
+                         f"got {settings.only!r}")
     started = time.perf_counter()
     example = example_benchmark(settings, progress) if settings.only in (None, "example") else None
     scaling = scaling_benchmark(settings, progress) if settings.only in (None, "scaling") else None
@@ -334,6 +337,11 @@ def run_benchmarks(settings: BenchSettings | None = None,
         from amcp_drake.studies.bench_size import size_benchmark
 
         size = size_benchmark(settings, progress)
+    drake_loop = None
+    if settings.only == "drake":  # the Drake Diagram against amcp's simulator: only when asked for
+        from amcp_drake.studies.bench_drake import drake_loop_benchmark
+
+        drake_loop = drake_loop_benchmark(settings.steps, settings.seed, progress)
     settings_dict = asdict(settings)
     settings_dict["gc_disabled_in_timed_loops"] = True
     return {
@@ -342,7 +350,8 @@ def run_benchmarks(settings: BenchSettings | None = None,
         "machine": machine_info(), "settings": settings_dict,
         "time_keys": {name: f"StepRecord.times[{key!r}]" for name, key in TIME_KEYS.items()},
         "reference_ms": {"paper": PAPER_MS, "target_drake_full_step": TARGET_MS},
-        "example": example, "scaling": scaling, "section4": section4, "size": size, "target": _target(example),
+        "example": example, "scaling": scaling, "section4": section4, "size": size,
+        "drake_loop": drake_loop, "target": _target(example),
         "elapsed_s": time.perf_counter() - started,
     }
 
@@ -512,6 +521,10 @@ def format_summary(result: dict[str, Any]) -> str:
         from amcp_drake.studies.bench_section4 import format_section4
 
         lines.append(format_section4(result["section4"]))
+    if result.get("drake_loop"):
+        from amcp_drake.studies.bench_drake import drake_loop_summary
+
+        lines += drake_loop_summary(result["drake_loop"])
     return "\n".join(lines)
 
 

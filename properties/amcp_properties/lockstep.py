@@ -11,8 +11,8 @@ tests/data/lockstep-flat-optimum-problem.json) whose step-0 v differed by 1.14e-
 between the backends at defaults, with the cvxpy answer 1.2e-5 and the Drake answer 9e-7 from the
 optimum (both backends agree to 3.6e-9 at ACCURATE).
 
-The follower's estimator state is set through the controller's attributes (``H_theta``,
-``h_theta``, ``theta_hat``, ``_prev``, ``_window``), as ``amcp_drake.comparison.compare`` does.
+The follower's state is set as a :class:`~amcp_drake.online.state.ControllerState` (Θ_{k−1}, θ̂_{k−1},
+the previous x and u, the window of data sets), as ``amcp_drake.comparison.compare`` does.
 """
 
 from __future__ import annotations
@@ -109,12 +109,12 @@ def follow(traj, case, follower: str, formulation: str = "plain") -> tuple[list[
         ctrl.reset()
         if k > 0:
             prev = traj.records[k - 1]
-            ctrl.k = k
-            ctrl.H_theta, ctrl.h_theta = np.array(prev.H_theta), np.array(prev.h_theta)
-            ctrl.theta_hat = np.array(prev.theta_hat)
-            ctrl._prev = (np.array(traj.x[k - 1]), np.array(traj.u[k - 1]))
-            ctrl._window = [ctrl._delta(traj.x[j - 1], traj.u[j - 1], traj.x[j])
-                            for j in range(k - 1, max(k - window, 0), -1)]
+            s = ctrl.state.working()
+            ctrl.state = ctrl.state.replace(
+                k=k, H_theta=prev.H_theta, h_theta=prev.h_theta, theta_hat=prev.theta_hat,
+                prev=(traj.x[k - 1], traj.u[k - 1]),
+                window=[ctrl._delta(s, traj.x[j - 1], traj.u[j - 1], traj.x[j])
+                        for j in range(k - 1, max(k - window, 0), -1)])
         _, rec = ctrl.step(np.array(traj.x[k]))
         if rec.status is not lead.status:
             statuses.append((k, lead.status.value, rec.status.value))

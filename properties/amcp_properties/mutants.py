@@ -101,7 +101,7 @@ def _scaled_delta(H: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return H[keep] / norms[keep, None], h[keep] / norms[keep] + controller_module.DELTA_MARGIN
 
 
-def _delta_sign_error(self, x_prev, u_prev, x):
+def _delta_sign_error(self, s, x_prev, u_prev, x):
     """Δ_k with d_k = x_k − A0 x_{k−1} − B0 u_{k−1} (the sign of (6) flipped)."""
     pr = self.problem
     D = pr.regressor(x_prev, u_prev)
@@ -109,7 +109,7 @@ def _delta_sign_error(self, x_prev, u_prev, x):
     return _scaled_delta(-pr.H_w @ D, 1.0 + pr.H_w @ d)
 
 
-def _delta_regressor_now(self, x_prev, u_prev, x):
+def _delta_regressor_now(self, s, x_prev, u_prev, x):
     """Δ_k with the regressor D(x_k, u_{k−1}) (taken one step late)."""
     pr = self.problem
     D = pr.regressor(x, u_prev)
@@ -120,20 +120,20 @@ def _delta_regressor_now(self, x_prev, u_prev, x):
 def _lms(sign: float = 1.0, project: bool = True, regressor_now: bool = False):
     """A projected LMS (12) with a seeded bug: gain sign, no projection, or D(x_k, u_{k−1})."""
 
-    def update(self, x_prev, u_prev, x, record):
+    def update(self, s, x_prev, u_prev, x, record):
         pr = self.problem
         D = pr.regressor(x if regressor_now else x_prev, u_prev)
-        x_pred = pr.A_of(self.theta_hat) @ x_prev + pr.B_of(self.theta_hat) @ u_prev
-        theta_tilde = self.theta_hat + sign * self.design.mu * D.T @ (x - x_pred)
+        x_pred = pr.A_of(s.theta_hat) @ x_prev + pr.B_of(s.theta_hat) @ u_prev
+        theta_tilde = s.theta_hat + sign * self.design.mu * D.T @ (x - x_pred)
         record.theta_tilde = theta_tilde
         record.projection_status = SolveStatus.OPTIMAL
         if not project or np.all(pr.H_theta @ theta_tilde <= pr.h_theta):
-            self.theta_hat = theta_tilde
+            s.theta_hat = theta_tilde
             return True
         result = self.backend.project(theta_tilde, pr.H_theta, pr.h_theta)
         record.projection_status = result.status
         if result.status is SolveStatus.OPTIMAL:
-            self.theta_hat = np.asarray(result.theta, float)
+            s.theta_hat = np.asarray(result.theta, float)
         return result.status is SolveStatus.OPTIMAL  # AdaptiveMPC.step goes on when True
 
     return update
@@ -142,14 +142,14 @@ def _lms(sign: float = 1.0, project: bool = True, regressor_now: bool = False):
 def _update_from_prior(method):
     """LP (9) fed h_θ0 instead of h_{θ,k−1} (the recursion of (9) lost)."""
 
-    def update(self, H_delta, h_delta, record):
-        self.h_theta = np.array(self.design.h_theta0)
-        return method(self, H_delta, h_delta, record)
+    def update(self, s, H_delta, h_delta, record):
+        s.h_theta = np.array(self.design.h_theta0)
+        return method(self, s, H_delta, h_delta, record)
 
     return update
 
 
-def _skip_update(self, H_delta, h_delta, record):
+def _skip_update(self, s, H_delta, h_delta, record):
     record.set_status = SolveStatus.OPTIMAL
     return True  # AdaptiveMPC.step goes on when True
 

@@ -31,6 +31,8 @@ turn correct answers into "wrong", a raised one wrong answers into "correct").
 
 from __future__ import annotations
 
+import os
+import sys
 from dataclasses import dataclass
 from fractions import Fraction
 
@@ -48,6 +50,12 @@ REFERENCE_FEAS_TOL = 1e-8
 #: Largest |stored objective − f(stored x)| / (1 + |f(stored x)|) of a stored optimal reference: the round-off
 #: of evaluating f (an LP's objective is computed exactly and rounded once, its x rounded entry by entry).
 CONSISTENCY_TOL = 1e-9
+#: Largest problem whose reference :func:`check_reference` verifies again on load, in stored nonzeros
+#: (:attr:`.corpus.CorpusProblem.size`; the shipped corpus's largest has 35k, an exported file at most
+#: 1.2 MB of JSON), and largest LMI block (shipped: 13): a larger problem from someone else's corpus is
+#: refused before anything is solved, not verified for hours.
+MAX_CHECK_SIZE = 1_000_000
+MAX_CHECK_LMI = 200
 #: Clarabel settings of the reference solve.
 REFERENCE_SETTINGS = {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10, "tol_ktratio": 1e-8,
                       "max_iter": 500}
@@ -179,11 +187,28 @@ def clarabel_solve(cf: ConicForm, settings: dict | None = None):
 
 # -- exact LP check -----------------------------------------------------------------------------
 
+def _quiet_highs():
+    """A ``highspy.Highs`` with its output off; the banner its constructor writes to the process's stdout
+    (file descriptor 1, from C++) is dropped, so ``amcp solvers`` prints only its own lines."""
+    import highspy
+
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 1)
+            h = highspy.Highs()
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+    h.setOptionValue("output_flag", False)
+    return h
+
+
 def _highs_basis(pr: CorpusProblem):
     import highspy
 
-    h = highspy.Highs()
-    h.setOptionValue("output_flag", False)
+    h = _quiet_highs()
     h.setOptionValue("solver", "simplex")
     inf = highspy.kHighsInf
     A = sp.csc_matrix(pr.A)
@@ -365,6 +390,11 @@ def check_reference(pr: CorpusProblem, source: str = "corpus problem") -> None:
     import copy
 
     check_reference_layout(pr.reference, pr.n, source)
+    largest_lmi = max((s for s, _, _ in pr.lmis), default=0)
+    if pr.size > MAX_CHECK_SIZE or largest_lmi > MAX_CHECK_LMI:
+        raise ProblemFileError(f"{source}: reference", f"a problem of at most {MAX_CHECK_SIZE:,} stored nonzeros and LMI "
+                               f"blocks of at most {MAX_CHECK_LMI} (the size whose reference is verified again on load)",
+                               f"{pr.size:,} nonzeros, largest LMI block {largest_lmi}")
     stored = pr.reference
     fresh = copy.copy(pr)
     fresh.reference = {}
@@ -399,5 +429,5 @@ def load_checked_corpus(paths) -> list[CorpusProblem]:
     return problems
 
 
-__all__ = ["CONSISTENCY_TOL", "EXACT_LP_MAX", "KKT_TOL", "check_reference", "load_checked_corpus", "REFERENCE_FEAS_TOL", "REFERENCE_SETTINGS", "ConicForm", "clarabel_solve", "conic_form",
+__all__ = ["CONSISTENCY_TOL", "EXACT_LP_MAX", "KKT_TOL", "MAX_CHECK_LMI", "MAX_CHECK_SIZE", "check_reference", "load_checked_corpus", "REFERENCE_FEAS_TOL", "REFERENCE_SETTINGS", "ConicForm", "clarabel_solve", "conic_form",
            "exact_lp_certificate", "kkt_residuals", "verify_reference"]

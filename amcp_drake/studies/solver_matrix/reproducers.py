@@ -289,6 +289,7 @@ def write_reproducer_folder(folder: Path, items: list[tuple[CorpusProblem | None
         name, text, entry = manifest_entry(*item)
         paths.append(write_text_atomic(folder / name, text))
         manifest["files"][name] = entry
+    manifest["files"] = dict(sorted(manifest["files"].items()))   # one text for one set of scripts
     write_json_atomic(folder / MANIFEST_NAME, manifest, indent=1)
     return paths
 
@@ -385,28 +386,58 @@ def read_manifest(folder: Path) -> dict[str, dict[str, Any]]:
     return files
 
 
+Item = tuple[CorpusProblem | None, str, str, str, str]
+
+
+def manifest_item(name: str, entry: dict[str, Any]) -> Item:
+    """What a manifest entry says a script was written from: (problem or None for the built-in
+    :data:`NONFINITE_SCRIPT`, solver, settings, verdict, detail), the problem read strictly and, for a
+    wrong answer, its reference verified again. ValueError (or ProblemFileError naming the field) when the
+    entry does not describe one."""
+    if entry.get("builtin") == "nonfinite":
+        return None, "drake", "default", "crash", ""
+    solver, settings, verdict, detail = (entry.get(k) for k in ("solver", "settings", "verdict", "detail"))
+    if not all(isinstance(v, str) for v in (solver, settings, verdict, detail)) or settings not in TOLERANCES:
+        raise ValueError("an entry without solver, settings, verdict and detail")
+    problem = entry.get("problem")
+    reference = problem.get("reference") if isinstance(problem, dict) else None
+    source = f"{MANIFEST_NAME}: {name}.problem"
+    pr = CorpusProblem.from_dict(problem, source, require_reference=verdict != "crash" or bool(reference))
+    if verdict != "crash":   # a wrong answer is judged by the reference: verified again, as on corpus load
+        check_reference(pr, source)
+    return pr, solver, settings, verdict, detail
+
+
 def expected_script(name: str, entry: dict[str, Any]) -> str:
     """The script this version writes for a manifest entry, under the name it derives for it; ValueError
     (or ProblemFileError from the problem's data) when the entry does not describe one."""
-    if entry.get("builtin") == "nonfinite":
-        expected_name, text = NONFINITE_NAME, NONFINITE_SCRIPT
-    else:
-        solver, settings, verdict, detail = (entry.get(k) for k in ("solver", "settings", "verdict", "detail"))
-        if not all(isinstance(v, str) for v in (solver, settings, verdict, detail)) or settings not in TOLERANCES:
-            raise ValueError("an entry without solver, settings, verdict and detail")
-        problem = entry.get("problem")
-        reference = problem.get("reference") if isinstance(problem, dict) else None
-        source = f"{MANIFEST_NAME}: {name}.problem"
-        pr = CorpusProblem.from_dict(problem, source, require_reference=verdict != "crash" or bool(reference))
-        if verdict != "crash":   # a wrong answer is judged by the reference: verified again, as on corpus load
-            check_reference(pr, source)
-        expected_name, text = reproducer_name(solver, verdict, pr.id, settings), script_text(pr, solver, settings, verdict, detail)
+    expected_name, text, _ = manifest_entry(*manifest_item(name, entry))
     if name != expected_name:
         raise ValueError(f"the entry's file name is {expected_name!r}")
     return text
 
 
-def _vet(folder: Path, files: dict[str, dict[str, Any]]) -> tuple[list[tuple[str, str, str]], list[Recheck]]:
+def rewrite_folder(folder: Path) -> list[Path]:
+    """Write the scripts of ``folder`` again with this version's template, from the entries of its
+    manifest (their data, never their scripts), and the manifest with them; the scripts the old manifest
+    listed under other names are removed. How a kept folder (``docs/reproducers``) follows a change of the
+    template. Every file is staged and moved into place when all are complete."""
+    from amcp_drake.studies.solver_matrix.staging import staged
+
+    folder = Path(folder)
+    files = read_manifest(folder)
+    items = [manifest_item(name, entry) for name, entry in sorted(files.items())]
+    with staged(folder) as stage:
+        paths = [folder / p.name for p in write_reproducer_folder(stage, items)]
+    written = {p.name for p in paths}
+    for name in set(files) - written:
+        old = folder / name
+        if Path(name).name == name and not name.startswith(".") and old.is_file() and not old.is_symlink():
+            old.unlink()
+    return paths
+
+
+def vet(folder: Path, files: dict[str, dict[str, Any]]) -> tuple[list[tuple[str, str, str]], list[Recheck]]:
     """(runnable: (name, text, verdict), refused) of ``folder``: every entry of the folder other than the
     manifest is either a manifest script that checks or refused with the reason."""
     runnable, refused = [], []
@@ -447,6 +478,23 @@ def _vet(folder: Path, files: dict[str, dict[str, Any]]) -> tuple[list[tuple[str
     for name in sorted(set(files) - names):
         refused.append(Recheck(name, "refused", None, f"not run: listed in {MANIFEST_NAME} but missing"))
     return runnable, refused
+
+
+def previous_reproducers(folder: Path) -> list[Path]:
+    """The scripts of an earlier run in ``folder`` that this version wrote and nobody changed since (each
+    one :func:`recheck` would run): the ones a new run replaces. Any other file is not among them; an
+    unreadable folder or manifest gives none."""
+    try:
+        runnable, _ = vet(Path(folder), read_manifest(Path(folder)))
+    except (OSError, ProblemFileError, ValueError):
+        return []
+    return [Path(folder) / name for name, _, _ in runnable]
+
+
+def printable(text: str) -> str:
+    """``text`` with every non-printable character (a terminal escape sequence, a newline) written as its
+    Python escape, for a terminal line about a file name from someone else's folder."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
 def clean_environment(home: str) -> dict[str, str]:
@@ -496,7 +544,7 @@ def recheck(folder: Path, time_limit: float = RECHECK_TIME_LIMIT) -> list[Rechec
     """Run every reproducer of ``folder`` that its manifest vouches for (module docstring) and report the
     rest as refused; never raises for what a script does. ProblemFileError without a readable manifest."""
     folder = Path(folder)
-    runnable, out = _vet(folder, read_manifest(folder))
+    runnable, out = vet(folder, read_manifest(folder))
     for name, text, verdict in runnable:
         rc, output = run_isolated(text, name, time_limit)
         lines = [ln for ln in output.splitlines() if ln.strip()]
@@ -513,5 +561,6 @@ def recheck(folder: Path, time_limit: float = RECHECK_TIME_LIMIT) -> list[Rechec
 
 
 __all__ = ["CRASH_SIGNALS", "DOES_NOT", "MANIFEST_NAME", "MISSING", "OUTCOMES", "RECHECK_TIME_LIMIT", "REPRODUCES", "Recheck",
-           "Reproducer", "clean_environment", "expected_script", "manifest_entry", "outcome_of", "read_manifest", "recheck",
+           "Reproducer", "clean_environment", "expected_script", "manifest_entry", "outcome_of", "previous_reproducers", "printable",
+           "manifest_item", "read_manifest", "recheck", "rewrite_folder", "vet",
            "reproducer_name", "run_isolated", "script_text", "write_reproducer_folder", "write_reproducers"]
