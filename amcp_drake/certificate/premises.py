@@ -48,7 +48,8 @@ MET, NOT_MET, UNKNOWN = "met", "not_met", "unknown"
 #: Design claims that are premises of the paper's results (claim id -> premise id; the rows' ``premise``).
 DESIGN_PREMISES = {c.id: c.premise for c in CLAIMS if c.premise}
 COVERAGE_HINT = ("choose x_0 inside the feasible region of (20): measure it with `amcp coverage PROBLEM` "
-                 "(docs/how-to/own-system.md, section 4)")
+                 "(from n = 3 on, slices through x_0: `--plane I,J --fix NAME=VALUE,...`; docs/how-to/own-system.md, "
+                 "section 5)")
 DESIGN_HINT = ("let `amcp design` compute K and P (its design meets Assumption 8 and (11) by construction), "
                "or give a gain that stabilises every vertex of Θ (docs/how-to/own-system.md, section 3)")
 
