@@ -30,7 +30,6 @@ from amcp_drake.model.claim_table import claim as row_of
 #: vertices of Θ_k times the rows of H_x): 16 MiB.
 PROPAGATION_CHUNK_BYTES = 16 * 2**20
 
-GROUP_TUBE = "tube"
 GROUP_DESIGN = "design"
 
 
