@@ -7,11 +7,13 @@ states, m inputs, p parameters, horizon N, u facets and v vertices of the tube s
 
 * variables, as built by ``backends/drake_tube.py`` with every row of (15c) (``prune=False``, its
   fallback): (N+1)·n (z) + (N+1) (α) + N·m (v) + N·v·u·(q−p) (the multipliers Λ_N; the other p of
-  each row are solved from (15d), ``backends/multiplier_basis.py``); its default program leaves out
+  each row are solved from (15d), ``backends/multiplier_basis.py``) + N·n (the deviations e_l of the
+  tube centres that (15c) is written in); its default program leaves out
   the rows implied by others on Θ0 (``backends/dominated_rows.py``, not known before the design) and
   is smaller; the cvxpy backend keeps all N·v·u·q multipliers;
-* rows: N·c (15a) + u (15b) + N·v·u (15c) + N·v·u·p ((15d) in cvxpy, Λ_B >= 0 in Drake) + c
-  (terminal set, estimated by c rows; its true size is known only after the design);
+* rows: N·c (15a) + u (15b) + N·v·u (15c) + N·v·u·p ((15d) in cvxpy, Λ_B >= 0 in Drake) + N·n (the
+  rows defining e_l in Drake) + c (terminal set, estimated by c rows; its true size is known only after
+  the design);
 * nonzeros, of the cvxpy form (the larger of the two, so the memory bound holds for both):
   N·c·(n+m+1) + u·(n+1) + N·v·u·(2n+m+2+q) + N·v·u·p·(n+m+1+q) + c·(n+1).
 
@@ -158,8 +160,8 @@ def estimate_run_size(n: int, m: int, p: int, N: int, facets: int, theta_rows: i
     per_step = q * (p + 1) + (N + 1) * (n + 1) + N * m + q * w_rows * window
     if formulation == "plain":
         block = N * nv * u
-        variables = (N + 1) * n + (N + 1) + N * m + block * (q - p)
-        rows = N * c + u + block + block * p + c
+        variables = (N + 1) * n + (N + 1) + N * m + block * (q - p) + N * n
+        rows = N * c + u + block + block * p + N * n + c
         nonzeros = (N * c * (n + m + 1) + u * (n + 1) + block * (2 * n + m + 2 + q) + block * p * (n + m + 1 + q)
                     + c * (n + 1))
         per_step += block * q  # the multipliers Λ of every step
@@ -236,6 +238,42 @@ def check_run_size(problem, design_options=None, steps: int = 1, online=None,
         fix += ", solve (20) in the vertex form (--formulation auto or vertex: no multipliers)"
     raise ProblemError(field, f"an estimated memory of at most {max_memory_mb:,g} MiB", est.describe(),
                        f"{fix}, or raise the limit with {option} (docs/problem-format.md, 'Size limits').")
+
+
+def design_size_bytes(problem, design_options=None) -> tuple[int, int]:
+    """(facets, bytes): the facets of X0 the design options ask for (``design.x0_facets``, else the rows of
+    a given ``design.x0_H``, else the default template's) and the memory of the arrays of that size the
+    design holds at once: 8 bytes per entry of H_x, of H_x A_cl(θ^k) at each of the t vertices of Θ and of
+    their h̄ rows, 8·u·n·(2 + t) bytes. A lower bound of the design's memory, known before it starts;
+    each stage of the design is sized again, once its inputs are known, by ``offline/budget.py``."""
+    x0_H = getattr(design_options, "x0_H", None)
+    if x0_H is not None:
+        facets = len(np.atleast_2d(x0_H))
+    elif design_options is not None and hasattr(design_options, "facets_for"):
+        facets = design_options.facets_for(problem.n)
+    else:
+        facets = max(8, 2 * problem.n)
+    theta_vertices = max_vertices(len(problem.H_theta), problem.p)
+    try:
+        found = polytope.theta_vertices(problem.H_theta, problem.h_theta)
+        theta_vertices = len(found) if found is not None else theta_vertices
+    except (ValueError, TypeError):
+        pass
+    return int(facets), 8 * int(facets) * problem.n * (2 + int(theta_vertices))
+
+
+def check_design_size(problem, design_options=None, max_memory_mb: float = DEFAULT_MAX_MEMORY_MB,
+                      option: str = "--max-memory") -> int:
+    """Refuse an offline design whose X0 alone (:func:`design_size_bytes`) exceeds ``max_memory_mb``
+    (ProblemError naming ``design.x0_facets``, the estimate and the limit); the check of ``amcp design``,
+    which builds no run. Returns the estimate in bytes."""
+    facets, nbytes = design_size_bytes(problem, design_options)
+    if nbytes <= max_memory_mb * 2**20:
+        return nbytes
+    raise ProblemError("design size (design.x0_facets, design.x0_H)", f"an estimated memory of at most "
+                       f"{max_memory_mb:,g} MiB", f"design.x0_facets = {facets} facets of X0 in n = {problem.n} "
+                       f"dimensions: its rows alone need an estimated {_mib(nbytes)}",
+                       f"Reduce design.x0_facets, or raise the limit with {option}.")
 
 
 # -- redundant rows --------------------------------------------------------------------------------
