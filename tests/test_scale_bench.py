@@ -389,3 +389,9 @@ def test_mass_chain_generator_gives_the_built_in_chains_data():
         np.testing.assert_array_equal(made.scenario.theta_star, shipped.scenario.theta_star)
     big = spec_from_dict(mass_chain(8)).problem
     assert (big.n, big.m, big.p) == (16, 8, 7)
+
+
+def test_mass_chain_rows_of_the_size_table_have_two_states_per_mass():
+    rows = default_rows(chain_ns=(), examples=(), mass_chains=(5, 8))
+    assert [(r.source, spec_from_dict(r.problem).problem.n) for r in rows] == [("chain", 10), ("chain", 16)]
+    assert all("design" not in r.problem for r in rows)

@@ -38,6 +38,9 @@ from amcp_drake.cli.common import (
               help="Size table: the state dimensions of the chain systems, A-B or one n (2..12).")
 @click.option("--chain-kind", "chain_kinds", type=click.Choice(["actuated", "integrator"]), multiple=True,
               help="Size table: chain families (repeatable; default both).")
+@click.option("--mass-chain", "mass_chains", type=click.IntRange(min=2, max=12), multiple=True,
+              help="Size table: a mass-spring chain with this many masses (n = 2 x masses; repeatable; default 5, 6 "
+                   "and 8).")
 @click.option("--no-chains", is_flag=True, help="Size table: no chain rows (only examples and --problem files).")
 @max_memory_option
 @candidate_budget_option
@@ -58,7 +61,8 @@ from amcp_drake.cli.common import (
               help="Directory for bench.json and bench.png.")
 @click.option("--no-plot", is_flag=True, help="Write the JSON only.")
 @bad_input_exits_2
-def bench_cmd(quick, steps, scaling_steps, only, problems, examples, chains, chain_kinds, no_chains, max_memory,
+def bench_cmd(quick, steps, scaling_steps, only, problems, examples, chains, chain_kinds, mass_chains, no_chains,
+              max_memory,
               candidate_budget, row_limit, backends, formulations, target_repeats, seed, out_dir, no_plot):
     """Performance benchmarks of the online loop (medians, ratios).
 
@@ -93,6 +97,7 @@ def bench_cmd(quick, steps, scaling_steps, only, problems, examples, chains, cha
         changes.update(size_chain_ns=() if no_chains else parse_range("--chains", chains, 2, 12),
                        size_chain_kinds=tuple(dict.fromkeys(chain_kinds)) or None,
                        size_examples=tuple(dict.fromkeys(examples)) or None, size_problems=tuple(problems),
+                       size_mass_chains=() if no_chains else (tuple(dict.fromkeys(mass_chains)) or (5, 6, 8)),
                        max_memory_mb=max_memory, candidate_seconds=candidate_budget)
         if row_limit is not None:
             changes["row_seconds"] = row_limit

@@ -127,6 +127,7 @@ class BenchSettings:
     size_chain_kinds: tuple[str, ...] | None = None
     size_examples: tuple[str, ...] | None = None
     size_problems: tuple[str, ...] = ()
+    size_mass_chains: tuple[int, ...] = (5, 6, 8)
     max_memory_mb: float = DEFAULT_MAX_MEMORY_MB
     candidate_seconds: float = DEFAULT_CANDIDATE_SECONDS
     row_seconds: float = DEFAULT_ROW_SECONDS

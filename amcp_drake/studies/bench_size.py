@@ -2,7 +2,7 @@
 state dimension grows, one row per system, every row bounded in memory and time.
 
 Rows: the chains of :mod:`amcp_drake.studies.chains` (actuated and integrator, n = 2 … 8 by
-default), every built-in literature example with n >= :data:`MIN_EXAMPLE_N`, and any problem file
+default; the mass-spring chains of 5, 6 and 8 masses, n = 10, 12, 16, by default), every built-in literature example with n >= :data:`MIN_EXAMPLE_N`, and any problem file
 given (``--problem``). Each row runs in a child process of its own
 (``python -m amcp_drake.studies.bench_size ROW.json OUT.json``):
 
@@ -73,16 +73,18 @@ class SizeRow:
 
 
 def default_rows(chain_ns: tuple[int, ...] = tuple(range(2, 9)), chain_kinds: tuple[str, ...] | None = None,
-                 examples: tuple[str, ...] | None = None, problem_files: tuple[str, ...] = ()) -> list[SizeRow]:
+                 examples: tuple[str, ...] | None = None, problem_files: tuple[str, ...] = (),
+                 mass_chains: tuple[int, ...] = ()) -> list[SizeRow]:
     """The rows of the table: each chain kind at each n, the built-in ``examples`` (None: every
     literature example with n >= :data:`MIN_EXAMPLE_N`), then each problem file (read and validated
     here: a bad file is refused before anything runs)."""
     from amcp_drake.model.examples import EXAMPLES, get_example
     from amcp_drake.model.problem_io import load_spec, spec_to_dict
-    from amcp_drake.studies.chains import CHAIN_KINDS, chain
+    from amcp_drake.studies.chains import CHAIN_KINDS, chain, mass_chain
 
     rows = [SizeRow(f"{kind} chain n={n}", "chain", chain(kind, n))
             for kind in (chain_kinds or CHAIN_KINDS) for n in chain_ns]
+    rows += [SizeRow(f"mass chain {k} masses (n={2 * k})", "chain", mass_chain(k)) for k in mass_chains]
     names = examples
     if names is None:
         names = tuple(name for name in EXAMPLES if get_example(name).problem.n >= MIN_EXAMPLE_N)
@@ -164,7 +166,7 @@ def size_benchmark(settings, progress: Callable[[str], None] = lambda s: None) -
     ``size_chain_kinds``, ``size_examples``, ``size_problems``, ``scaling_steps``, ``max_memory_mb``,
     ``candidate_seconds``, ``row_seconds``), one child process each."""
     rows = default_rows(settings.size_chain_ns, settings.size_chain_kinds, settings.size_examples,
-                        settings.size_problems)
+                        settings.size_problems, settings.size_mass_chains)
     out = []
     for number, row in enumerate(rows, start=1):
         progress(f"size: row {number}/{len(rows)}: {row.label} ...")
