@@ -40,7 +40,7 @@ from amcp_drake.cli.common import (
               help="Size table: chain families (repeatable; default both).")
 @click.option("--mass-chain", "mass_chains", type=click.IntRange(min=2, max=12), multiple=True,
               help="Size table: a mass-spring chain with this many masses (n = 2 x masses; repeatable; default 5, 6 "
-                   "and 8).")
+                   "and 8, none with --no-chains).")
 @click.option("--no-chains", is_flag=True, help="Size table: no chain rows (only examples and --problem files).")
 @max_memory_option
 @candidate_budget_option
@@ -97,7 +97,7 @@ def bench_cmd(quick, steps, scaling_steps, only, problems, examples, chains, cha
         changes.update(size_chain_ns=() if no_chains else parse_range("--chains", chains, 2, 12),
                        size_chain_kinds=tuple(dict.fromkeys(chain_kinds)) or None,
                        size_examples=tuple(dict.fromkeys(examples)) or None, size_problems=tuple(problems),
-                       size_mass_chains=() if no_chains else (tuple(dict.fromkeys(mass_chains)) or (5, 6, 8)),
+                       size_mass_chains=tuple(dict.fromkeys(mass_chains)) or (() if no_chains else (5, 6, 8)),
                        max_memory_mb=max_memory, candidate_seconds=candidate_budget)
         if row_limit is not None:
             changes["row_seconds"] = row_limit

@@ -65,13 +65,15 @@ def integrator_chain(n: int, w: float = 0.01) -> dict:
     return data
 
 
-def mass_chain(masses: int, steps: int = 50, horizon: int | None = None) -> dict:
+def mass_chain(masses: int, steps: int = 50, horizon: int | None = None, x0_amplitude: float | None = None) -> dict:
     """The mass-spring chain of ``mass_chain3``/``mass_chain4`` with ``masses`` unit masses (>= 2), no design
     section: state [p1, v1, p2, v2, ...], x⁺ = x + h ẋ (h = :data:`MASS_CHAIN_STEP`), the first mass tied
     to the wall by a known spring of 1 N/m, θ = the constants of the masses − 1 springs between masses in
     [0.5, 1.5] N/m, a force on every mass; |p_i| <= 1, |v_i| <= 1, |u_i| <= 3, W = {|w_p| <= 1e-4,
     |w_v| <= 1e-3}; Q = I, R = I, N = 10 for 3 masses and 6 otherwise (``horizon`` overrides);
-    θ̂0 = 1, θ* = [0.7, 1.3, 1.0, 0.7, 1.3, 1.0, ...], x0 = [0.2, 0, ..., -0.2, 0]; ``steps`` closed-loop steps
+    θ̂0 = 1, θ* = [0.7, 1.3, 1.0, 0.7, 1.3, 1.0, ...], x0 = [a, 0, ..., -a, 0] with a = ``x0_amplitude``
+    (default 0.2 up to 4 masses; 0.1 above, where [0.2, 0, …, −0.2, 0] lies outside the feasible region of the
+    5-mass chain's first QP by a slack of 9.7e-5); ``steps`` closed-loop steps
     with uniform disturbances, seed 0. ``mass_chain(3)`` and ``mass_chain(4)`` are the built-in files'
     data (tested)."""
     if isinstance(masses, bool) or not isinstance(masses, (int, np.integer)) or masses < 2:
@@ -95,7 +97,8 @@ def mass_chain(masses: int, steps: int = 50, horizon: int | None = None) -> dict
     w_half = np.array([1e-4, 1e-3] * masses)
     theta_star = [(0.7, 1.3, 1.0)[j % 3] for j in range(p)]
     x0 = [0.0] * n
-    x0[0], x0[n - 2] = 0.2, -0.2
+    amplitude = float(x0_amplitude) if x0_amplitude is not None else (0.2 if masses <= 4 else 0.1)
+    x0[0], x0[n - 2] = amplitude, -amplitude
     return {"format": "amcp-problem", "version": 1, "name": f"mass_chain{masses}",
             "system": {"A0": A0.tolist(), "B0": B0.tolist(), "A": [Aj.tolist() for Aj in A_list],
                        "B": [np.zeros((n, masses)).tolist() for _ in range(p)]},
