@@ -107,6 +107,32 @@ class TubeMPCData:
 
 
 @dataclass(frozen=True, eq=False)
+class Attempt:
+    """One solve of one problem of a step, as data: ``problem`` (``"tube_qp"``, ``"set_update"``,
+    ``"pe_candidate"``, ...: :data:`amcp_drake.online.answers.PROBLEMS`), ``rung`` (the step of the
+    answer policy that solved it: ``"first"``, ``"refine"``, ``"other_formulation"``, ...:
+    :mod:`amcp_drake.online.policy`), ``options`` (what the rung changed, as (name, value) pairs, e.g.
+    ``(("formulation", "vertex"),)``), ``status`` (the solver's), ``check`` (the name of the first
+    answer check that failed, "" when none failed or none ran), ``accepted`` (this answer was used),
+    ``solver_cpu`` (the solver's time in s), ``failures`` (the failed checks themselves, for the
+    step's notes) and ``detail`` (the solver's own account, ``MPCSolution.detail``)."""
+
+    problem: str
+    rung: str
+    status: SolveStatus
+    check: str = ""
+    accepted: bool = False
+    options: tuple[tuple[str, str], ...] = ()
+    solver_cpu: float = 0.0
+    failures: tuple = ()
+    detail: str = ""
+
+    def option(self, name: str, default: str = "") -> str:
+        """The value of option ``name`` of this attempt (``default`` when the rung did not set it)."""
+        return next((v for k, v in self.options if k == name), default)
+
+
+@dataclass(frozen=True, eq=False)
 class MPCSolution:
     """Solution of (20): ``v`` (N, m), ``z`` (N+1, n), ``alpha`` (N+1,), ``Lambda`` (N, v, u, q),
     ``cost`` = J_N of (17) (including the constant term), times in seconds. Arrays are None when

@@ -236,9 +236,16 @@ def _gunzip(raw: bytes, path: Path) -> bytes:
     return data
 
 
+#: Fields of StepRecord not written to a trajectory file: the typed attempts of the answer policy (the
+#: provenance entries ``answers`` rendered from them are written).
+_NOT_WRITTEN = {"attempts"}
+
+
 def _record_to_dict(r: StepRecord) -> dict[str, Any]:
     out = {}
     for f in fields(StepRecord):
+        if f.name in _NOT_WRITTEN:
+            continue
         value = getattr(r, f.name)
         if isinstance(value, np.ndarray):
             value = value.tolist()
