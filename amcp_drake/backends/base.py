@@ -115,7 +115,8 @@ class Attempt:
     ``(("formulation", "vertex"),)``), ``status`` (the solver's), ``check`` (the name of the first
     answer check that failed, "" when none failed or none ran), ``accepted`` (this answer was used),
     ``solver_cpu`` (the solver's time in s), ``failures`` (the failed checks themselves, for the
-    step's notes) and ``detail`` (the solver's own account, ``MPCSolution.detail``)."""
+    step's notes), ``detail`` (the solver's own account, ``MPCSolution.detail``) and ``inner`` (the
+    backend's own re-solves within this solve, ``MPCSolution.attempts``)."""
 
     problem: str
     rung: str
@@ -126,6 +127,8 @@ class Attempt:
     solver_cpu: float = 0.0
     failures: tuple = ()
     detail: str = ""
+    #: the backend's own re-solves inside this solve (``MPCSolution.attempts``)
+    inner: tuple[Attempt, ...] = ()
 
     def option(self, name: str, default: str = "") -> str:
         """The value of option ``name`` of this attempt (``default`` when the rung did not set it)."""
@@ -149,6 +152,10 @@ class MPCSolution:
     update_time: float = 0.0
     infeasible_constraints: tuple[str, ...] = field(default_factory=tuple)
     detail: str = ""
+    #: the backend's own re-solves of this answer after its first solve, in order (the retry ladder, the
+    #: program with every row of (15c), the vertex form's plain fallback, ...): :class:`Attempt` s with
+    #: the answer's status, which ``detail`` describes in words
+    attempts: tuple[Attempt, ...] = ()
 
 
 @runtime_checkable
@@ -193,3 +200,9 @@ class Backend(Protocol):
     def tube_mpc(self, data: TubeMPCData) -> TubeMPCSolver:
         """Build the QP (20) once for ``data``."""
         ...
+
+
+def backend_attempts(rungs, status: SolveStatus, problem: str = "tube_qp") -> tuple[Attempt, ...]:
+    """``MPCSolution.attempts`` of the backend's re-solves ``rungs`` ((rung, options) pairs, e.g. from
+    :func:`amcp_drake.backends.clarabel_retry.solve_with_retries`) of an answer of status ``status``."""
+    return tuple(Attempt(problem, rung, status, options=options) for rung, options in rungs)

@@ -670,7 +670,7 @@ class AdaptiveMPC:
         """The :class:`Attempt` of a solve of (20) whose answer ``sol`` failed the checks ``failed``."""
         return Attempt(problem, rung, sol.status, check=failed[0].name if failed else "",
                        accepted=sol.status is SolveStatus.OPTIMAL and not failed, options=options,
-                       solver_cpu=sol.solver_time, failures=tuple(failed), detail=sol.detail)
+                       solver_cpu=sol.solver_time, failures=tuple(failed), detail=sol.detail, inner=sol.attempts)
 
     def _failed_tube_checks(self, s: StepState, sol, x, h_arg, H_arg, record: StepRecord) -> list:
         """The failed answer checks of ``sol`` (:meth:`_tube_checks`); their CPU time is added to
