@@ -57,6 +57,7 @@ _SUBMODULES = {
     "polytope": "amcp_drake.model.polytope",
     "checks": "amcp_drake.model.check_result",
     "backends": "amcp_drake.backends",
+    "plots": "amcp_drake.certificate.plots",
 }
 
 

@@ -26,9 +26,12 @@ from pathlib import Path
 RUNS = [(example, backend) for example in ("lorenzen2019", "lorenzen2019_ex2") for backend in ("drake", "cvxpy")]
 
 #: Keys whose values differ from one run to the next by design: the creation time stamp and the
-#: wall-clock solver/step times (``*_time_s``). Nothing else is left out.
+#: wall-clock solver/step times (``*_time_s``); in the ``provenance`` section, the output folder on the
+#: command line, the git commit (none for an exported tree) and the trajectory file's hash (the file
+#: records wall-clock times). Nothing else is left out.
 VOLATILE_KEYS = {"created"}
 VOLATILE_SUFFIX = "_time_s"
+VOLATILE_PROVENANCE = {"command_line", "git_commit"}
 
 
 def run_all(out: Path) -> int:
@@ -48,11 +51,16 @@ def run_all(out: Path) -> int:
     return worst
 
 
-def _strip(obj):
+def _strip(obj, top: bool = True):
+    if top and isinstance(obj, dict) and "provenance" in obj:
+        prov = {k: v for k, v in obj["provenance"].items() if k not in VOLATILE_PROVENANCE}
+        prov["files"] = {role: {k: v for k, v in entry.items() if not (role == "trajectory" and k == "sha256")}
+                         for role, entry in prov.get("files", {}).items()}
+        obj = {**obj, "provenance": prov}
     if isinstance(obj, dict):
-        return {k: _strip(v) for k, v in obj.items() if k not in VOLATILE_KEYS and not k.endswith(VOLATILE_SUFFIX)}
+        return {k: _strip(v, False) for k, v in obj.items() if k not in VOLATILE_KEYS and not k.endswith(VOLATILE_SUFFIX)}
     if isinstance(obj, list):
-        return [_strip(v) for v in obj]
+        return [_strip(v, False) for v in obj]
     return obj
 
 

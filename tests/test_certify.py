@@ -418,7 +418,7 @@ def test_the_initial_feasibility_premise_at_its_edge(recorded, spec, monkeypatch
     the tolerance the premise is not met; inside it the start counts as feasible and the unsolved step is a failed
     Theorem 14 (i)."""
     from amcp_drake.certificate.feasible_region import TubeLP
-    from amcp_drake.certificate.premises import LP_TOL
+    from amcp_drake.model.tolerances import PREMISE_LP_TOL as LP_TOL
 
     assert LP_TOL <= 1e-8  # a start 1e-7 outside the feasible region is never within it
     monkeypatch.setattr(TubeLP, "margin", lambda self, x0, options=None: -factor * LP_TOL)

@@ -1,5 +1,7 @@
-"""Every certificate claim at its tolerance edge: a recorded run of Example 1 edited so that the claim's margin is
-−2× its tolerance must fail, and −0.5× its tolerance must pass (a claim passes when margin >= −tolerance).
+"""Every certificate claim at its tolerance edge: one test parametrised over the rows of the table of claims
+(:mod:`amcp_drake.model.claim_table`), in which a recorded run of Example 1 (or the design of a scalar system)
+is edited so that the claim's margin is −2× its tolerance, which must fail, and −0.5× its tolerance, which must
+pass (a claim passes when margin >= −tolerance). A row without an edge case here fails the test.
 
 The tolerances are the documented ones, written here (not read from the modules), so that a loosened constant
 fails a test instead of moving it. Each edit sets the margin through this file's own formula of the claim's
@@ -14,7 +16,10 @@ feasibility (a count of unsolved steps) at one and at no unsolved step.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import itertools
+from collections.abc import Callable
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -22,6 +27,7 @@ import pytest
 from amcp_drake.certificate import claims as cl
 from amcp_drake.certificate.section4 import cost_value
 from amcp_drake.certificate.tube import tube_checks, x0_vertex_list
+from amcp_drake.model.claim_table import BY_ID, CLAIMS
 from amcp_drake.online.simulate import Trajectory
 from tests.recorded_runs import as_recorded, example_1_recorded
 from tests.recorded_runs import fresh as _fresh
@@ -37,7 +43,36 @@ QP_TOL = 1e-6             # tube claims, multipliers
 COST_REL_TOL = 1e-6       # cost (17), relative to max(|J|, 1)
 VERTEX_TOL = 1e-8         # X0 vertex list, relative to max(1, largest coordinate)
 W_BAR_TOL = 1e-6          # w̄, f̄ recomputed
+CONSISTENCY_TOL = 1e-7    # Θ_(k−1) ∩ Δ_k ≠ ∅, θ units
 EDGES = [(2.0, "fail"), (0.5, "pass")]  # (−margin / tolerance, status)
+
+#: claim id -> its edge case: a function of (fixtures..., factor, status) that edits a run or a design so that the
+#: claim's margin is −factor × its documented tolerance and asserts the claim's status.
+EDGE_CASES: dict[str, Callable] = {}
+
+
+def edge(claim_id: str):
+    """Register the decorated function as the edge case of ``claim_id``."""
+    def register(fn):
+        assert claim_id not in EDGE_CASES, claim_id
+        EDGE_CASES[claim_id] = fn
+        return fn
+    return register
+
+
+@pytest.mark.parametrize("factor, status", EDGES)
+@pytest.mark.parametrize("claim_id", [c.id for c in CLAIMS])
+def test_claim_at_its_edge(request, claim_id, factor, status):
+    """The row's claim, edited to −factor × its documented tolerance, has ``status``."""
+    assert claim_id in EDGE_CASES, f"the claim {claim_id!r} of the table of claims has no edge case in this file"
+    case = EDGE_CASES[claim_id]
+    fixtures = [request.getfixturevalue(name) for name in inspect.signature(case).parameters
+                if name not in ("factor", "status")]
+    case(*fixtures, factor, status)
+
+
+def test_every_edge_case_names_a_claim_of_the_table():
+    assert set(EDGE_CASES) <= set(BY_ID), sorted(set(EDGE_CASES) - set(BY_ID))
 
 
 @pytest.fixture(scope="module")
@@ -96,8 +131,8 @@ def _assert_edge(claim, margin: float, factor: float, tol: float, status: str, r
 
 
 # -- Assumption 1, (1), (21), μ ---------------------------------------------------------------------------------
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_theta_star_in_theta_at_its_edge(recorded, factor, status):
+@edge("theta_star_in_Theta")
+def theta_star_in_theta_at_its_edge(recorded, factor, status):
     tr = _fresh(recorded)
     H, h = _unit(tr.problem.H_theta, tr.problem.h_theta)
     star = np.asarray(tr.theta_star, float)
@@ -107,8 +142,8 @@ def test_theta_star_in_theta_at_its_edge(recorded, factor, status):
     _assert_edge(cl.theta_star_in_theta(_view(tr)), margin, factor, MEMBERSHIP_TOL, status)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_w_in_w_at_its_edge(recorded, factor, status):
+@edge("w_in_W")
+def w_in_w_at_its_edge(recorded, factor, status):
     tr = _fresh(recorded)
     H_w = np.asarray(tr.problem.H_w, float)
     k = STEPS - 1
@@ -117,8 +152,8 @@ def test_w_in_w_at_its_edge(recorded, factor, status):
     _assert_edge(cl.disturbances_in_w(_view(tr)), margin, factor, MEMBERSHIP_TOL, status)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_model_consistency_at_its_edge(recorded, factor, status):
+@edge("model_consistent")
+def model_consistency_at_its_edge(recorded, factor, status):
     """w_(T−1) moved by δ in one coordinate: x_T − A(θ*)x − B(θ*)u − w is then off by exactly δ."""
     tr = _fresh(recorded)
     k = STEPS - 1
@@ -128,8 +163,8 @@ def test_model_consistency_at_its_edge(recorded, factor, status):
     _assert_edge(cl.model_consistency(_view(tr)), -float(np.max(np.abs(res))), factor, IDENTITY_TOL, status, rel=1e-4)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_control_law_at_its_edge(recorded, factor, status):
+@edge("control_law")
+def control_law_at_its_edge(recorded, factor, status):
     tr = _fresh(recorded)
     k = STEPS - 1
     r = tr.records[k]
@@ -139,8 +174,8 @@ def test_control_law_at_its_edge(recorded, factor, status):
     _assert_edge(cl.control_law(_view(tr)), margin, factor, IDENTITY_TOL, status, rel=1e-4)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_mu_precondition_at_its_edge(recorded, example_spec, factor, status):
+@edge("mu_precondition")
+def mu_precondition_at_its_edge(recorded, example_spec, factor, status):
     """μ raised until μ max_k ‖D(x_k, u_k)‖₂² = 1 + factor × tolerance."""
     tr = _fresh(recorded)
     pr = tr.problem
@@ -151,14 +186,34 @@ def test_mu_precondition_at_its_edge(recorded, example_spec, factor, status):
                  rel=1e-3)
 
 
+@edge("data_consistency")
+def data_consistency_at_its_edge(factor, status):
+    """One transition of x+ = (0.5 + 0.2θ)x + u + w, |w| <= 0.1, from x_0 = 1, u_0 = 0, Θ_0 = [−1, 1]:
+    Δ_1 = [(x_1 − 0.6)/0.2, (x_1 − 0.4)/0.2], and x_1 = 0.8 + 0.4·gap puts its lower end at 1 + 2·gap, so Θ_0 ∩ Δ_1
+    is empty by 2·gap and its signed Chebyshev radius (half that, this file's arithmetic) is −gap."""
+    from amcp_drake.certificate.consistency import data_consistency
+    from tests.conftest import scalar_problem
+
+    gap = factor * CONSISTENCY_TOL
+    record = SimpleNamespace(H_theta=np.array([[1.0], [-1.0]]), h_theta=np.array([1.0, 1.0]))
+    traj = SimpleNamespace(problem=scalar_problem(), x=np.array([[1.0], [0.8 + 0.4 * gap]]), u=np.array([[0.0]]),
+                           records=[record, record])
+    out = data_consistency(cl.RunView(traj))
+    _assert_edge(out, -gap, factor, CONSISTENCY_TOL, status, rel=1e-12)
+
+
 # -- Theorem 14 ---------------------------------------------------------------------------------------------------
-def test_recursive_feasibility_at_its_edge(recorded):
-    """Tolerance 0 on a count: no unsolved step passes (margin 0), one unsolved step fails (margin −1)."""
+@edge("recursive_feasibility")
+def recursive_feasibility_at_its_edge(recorded, factor, status):
+    """Tolerance 0 on a count: no unsolved step passes (margin 0, the inside case), one unsolved step fails
+    (margin −1, the outside case)."""
     from amcp_drake.model.status import SolveStatus
 
     tr = _fresh(recorded)
-    edge = cl.recursive_feasibility(_view(tr))
-    assert (edge.tolerance, edge.margin, edge.status) == (0.0, 0.0, "pass")
+    at_edge = cl.recursive_feasibility(_view(tr))
+    assert (at_edge.tolerance, at_edge.margin, at_edge.status) == (0.0, 0.0, "pass")
+    if status == "pass":
+        return
     r = tr.records[STEPS]
     r.status, r.answers = SolveStatus.INFEASIBLE, None
     r.u = r.v = r.z = r.alpha = r.Lambda = r.cost = None
@@ -166,8 +221,8 @@ def test_recursive_feasibility_at_its_edge(recorded):
     assert (out.margin, out.status, out.data["worst_step"]) == (-1.0, "fail", STEPS)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_theta_star_in_theta_k_at_its_edge(recorded, factor, status):
+@edge("theta_star_in_Theta_k")
+def theta_star_in_theta_k_at_its_edge(recorded, factor, status):
     tr = _fresh(recorded)
     r = tr.records[STEPS]
     H = np.asarray(r.H_theta, float)
@@ -181,8 +236,8 @@ def test_theta_star_in_theta_k_at_its_edge(recorded, factor, status):
     _assert_edge(cl.theta_star_in_theta_k(_view(tr)), margin, factor, SET_LP_TOL, status)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_theta_hat_in_theta_at_its_edge(recorded, factor, status):
+@edge("theta_hat_in_Theta")
+def theta_hat_in_theta_at_its_edge(recorded, factor, status):
     tr = _fresh(recorded)
     H, h = _unit(tr.problem.H_theta, tr.problem.h_theta)
     r = tr.records[STEPS]
@@ -193,8 +248,8 @@ def test_theta_hat_in_theta_at_its_edge(recorded, factor, status):
     _assert_edge(cl.theta_hat_in_theta(_view(tr)), margin, factor, PROJECTION_TOL, status)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_state_input_constraints_at_its_edge(recorded, factor, status):
+@edge("state_input_constraints")
+def state_input_constraints_at_its_edge(recorded, factor, status):
     """u_(T−1) moved until a row of Z with an input coefficient is violated by factor × tolerance."""
     tr = _fresh(recorded)
     pr = tr.problem
@@ -208,8 +263,8 @@ def test_state_input_constraints_at_its_edge(recorded, factor, status):
 
 
 # -- Lemma 3, (10) ------------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_prior_in_theta_0_at_its_edge(recorded, factor, status):
+@edge("Theta0_contains_Theta")
+def prior_in_theta_0_at_its_edge(recorded, factor, status):
     tr = _fresh(recorded)
     r0 = tr.records[0]
     H = np.asarray(r0.H_theta, float)
@@ -221,8 +276,8 @@ def test_prior_in_theta_0_at_its_edge(recorded, factor, status):
     _assert_edge(cl.prior_contains_theta(_view(tr)), margin, factor, SET_LP_TOL, status)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_nested_sets_at_their_edge(recorded, factor, status):
+@edge("Theta_k_nested")
+def nested_sets_at_their_edge(recorded, factor, status):
     """h_T raised above h_(T−1) in one row (same shape: componentwise)."""
     tr = _fresh(recorded)
     a, b = tr.records[STEPS - 1], tr.records[STEPS]
@@ -234,8 +289,8 @@ def test_nested_sets_at_their_edge(recorded, factor, status):
     _assert_edge(cl.nested_sets(_view(tr)), margin, factor, SET_LP_TOL, status)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_lower_inclusion_at_its_edge(recorded, factor, status):
+@edge("Theta_k_lower_inclusion")
+def lower_inclusion_at_its_edge(recorded, factor, status):
     """h_T lowered in one row below the support of Θ_(T−1) ∩ Δ_T (this file's LP, scipy HiGHS) by factor × tol."""
     from scipy.optimize import linprog
 
@@ -274,8 +329,8 @@ def _lms_margin(tr, k, theta_next):
     return -max(float(np.max((verts - theta_next) @ gap)), float(np.max(H @ theta_next - h)))
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_lms_update_at_its_edge(recorded, factor, status):
+@edge("lms_update")
+def lms_update_at_its_edge(recorded, factor, status):
     """θ̂_T moved along one axis until the projection's variational inequality (12) is off by factor × tol."""
     tr = _fresh(recorded)
     k = STEPS - 1
@@ -290,8 +345,8 @@ def test_lms_update_at_its_edge(recorded, factor, status):
     _assert_edge(out, margin, factor, PROJECTION_TOL, status)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_lemma5_at_its_edge(recorded, factor, status):
+@edge("lemma5")
+def lemma5_at_its_edge(recorded, factor, status):
     """θ̂_T moved away from θ* until the left side of Lemma 5 at m = T−1 exceeds the right by factor × tol."""
     tr = _fresh(recorded)
     pr, mu, star = tr.problem, tr.design.mu, np.asarray(tr.theta_star, float)
@@ -320,8 +375,8 @@ def _stage(tr, r, l):
     return X, X @ np.asarray(tr.design.K, float).T + np.asarray(r.v, float)[l]
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_tube_contains_state_at_its_edge(recorded, factor, status):
+@edge("tube_contains_state")
+def tube_contains_state_at_its_edge(recorded, factor, status):
     tr = _fresh(recorded)
     r = tr.records[STEPS]
     H_x = np.asarray(tr.design.H_x, float)
@@ -331,8 +386,8 @@ def test_tube_contains_state_at_its_edge(recorded, factor, status):
     _assert_edge(_tube(tr, "tube_contains_state"), m(r), factor, QP_TOL, status)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_tube_contains_next_state_at_its_edge(recorded, factor, status):
+@edge("tube_contains_next_state")
+def tube_contains_next_state_at_its_edge(recorded, factor, status):
     tr = _fresh(recorded)
     k = STEPS - 1
     r = tr.records[k]
@@ -343,8 +398,8 @@ def test_tube_contains_next_state_at_its_edge(recorded, factor, status):
     _assert_edge(_tube(tr, "tube_contains_next_state"), m(r), factor, QP_TOL, status)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_tube_alpha_nonneg_at_its_edge(recorded, factor, status):
+@edge("tube_alpha_nonneg")
+def tube_alpha_nonneg_at_its_edge(recorded, factor, status):
     tr = _fresh(recorded)
     r = tr.records[STEPS]
     r.alpha = np.array(r.alpha, float)
@@ -352,8 +407,8 @@ def test_tube_alpha_nonneg_at_its_edge(recorded, factor, status):
     _assert_edge(_tube(tr, "tube_alpha_nonneg"), float(r.alpha[-1]), factor, QP_TOL, status)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_terminal_set_at_its_edge(recorded, factor, status):
+@edge("terminal_set")
+def terminal_set_at_its_edge(recorded, factor, status):
     tr = _fresh(recorded)
     r = tr.records[STEPS]
     H_T, h_T = np.asarray(tr.design.H_T, float), np.asarray(tr.design.h_T, float)
@@ -368,8 +423,8 @@ def test_terminal_set_at_its_edge(recorded, factor, status):
     _assert_edge(_tube(tr, "terminal_set"), -violation(s), factor, QP_TOL, status)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_tube_constraints_at_their_edge(recorded, factor, status):
+@edge("tube_constraints")
+def tube_constraints_at_their_edge(recorded, factor, status):
     """v_0 of step T moved until a vertex of X_(0|T) with its input leaves Z by factor × tol."""
     tr = _fresh(recorded)
     r = tr.records[STEPS]
@@ -399,8 +454,8 @@ def _propagation_rows(tr, r, l):
     return float(r.alpha[l + 1]) - worst
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_tube_propagation_at_its_edge(recorded, factor, status):
+@edge("tube_propagation")
+def tube_propagation_at_its_edge(recorded, factor, status):
     """α_N of step T lowered: the rows of the last stage (l = N − 1) move by exactly the same amount."""
     tr = _fresh(recorded)
     r = tr.records[STEPS]
@@ -411,8 +466,8 @@ def test_tube_propagation_at_its_edge(recorded, factor, status):
     _assert_edge(_tube(tr, "tube_propagation"), margin, factor, QP_TOL, status, rel=1e-4)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_multipliers_nonneg_at_their_edge(recorded, factor, status):
+@edge("multipliers_nonneg")
+def multipliers_nonneg_at_their_edge(recorded, factor, status):
     tr = _fresh(recorded)
     r = tr.records[STEPS]
     r.Lambda = np.array(r.Lambda, float)
@@ -431,8 +486,8 @@ def _rows_15c(tr, r, l):
     return float(np.min(-w_bar - lam_h - d @ H_x.T + r.alpha[l + 1]))
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_multipliers_15c_at_its_edge(recorded, factor, status):
+@edge("multipliers_15c")
+def multipliers_15c_at_its_edge(recorded, factor, status):
     tr = _fresh(recorded)
     r = tr.records[STEPS]
     N = len(r.v)
@@ -442,8 +497,8 @@ def test_multipliers_15c_at_its_edge(recorded, factor, status):
     _assert_edge(_tube(tr, "multipliers_15c"), margin, factor, QP_TOL, status, rel=1e-4)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_multipliers_15d_at_its_edge(recorded, factor, status):
+@edge("multipliers_15d")
+def multipliers_15d_at_its_edge(recorded, factor, status):
     """One entry Λ[0, 0, 0, q] moved by δ: H_x D − Λ H_θ changes by δ·[H_θ]_q in one row (the rest is ~1e-15)."""
     tr = _fresh(recorded)
     r = tr.records[STEPS]
@@ -454,8 +509,8 @@ def test_multipliers_15d_at_its_edge(recorded, factor, status):
 
 
 # -- cost, design ---------------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_cost_value_at_its_edge(recorded, factor, status):
+@edge("cost_value")
+def cost_value_at_its_edge(recorded, factor, status):
     """The recorded cost of step T raised by factor × tol × max(|J|, 1) (relative tolerance)."""
     tr = _fresh(recorded)
     r = tr.records[STEPS]
@@ -469,8 +524,8 @@ def test_cost_value_at_its_edge(recorded, factor, status):
 OPTIMALITY_TOL = 1e-5     # KKT residuals of (20); primal infeasibility on rows of unit norm
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_qp_optimality_at_its_edge(recorded, factor, status):
+@edge("qp_optimality")
+def qp_optimality_at_its_edge(recorded, factor, status):
     """α_N of step T raised until the terminal set, on rows [H_T | h_T] of unit norm, is violated by factor × tol:
     the rebuilt QP (20)'s primal infeasibility at the recorded plan (α is not in the cost, so its stationarity
     residual, ~1e-9, does not move)."""
@@ -493,8 +548,8 @@ def test_qp_optimality_at_its_edge(recorded, factor, status):
     _assert_edge(out, -violation(t), factor, OPTIMALITY_TOL, status, rel=1e-6)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_x0_vertex_list_at_its_edge(recorded, factor, status):
+@edge("design.x0_vertices")
+def x0_vertex_list_at_its_edge(recorded, factor, status):
     """One recorded vertex of X0 moved by factor × tol × max(1, largest coordinate) (relative tolerance)."""
     tr = _fresh(recorded)
     V = np.array(tr.design.X0_vertices, float)
@@ -505,8 +560,8 @@ def test_x0_vertex_list_at_its_edge(recorded, factor, status):
     _assert_edge(out, -factor * tol, factor, tol, status, rel=1e-5)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_w_bar_recomputed_at_its_edge(recorded, example_spec, factor, status):
+@edge("design.w_bar_f_bar_recomputed")
+def w_bar_recomputed_at_its_edge(recorded, example_spec, factor, status):
     from amcp_drake.offline.checks import verify_design
 
     tr = _fresh(recorded)
@@ -516,6 +571,12 @@ def test_w_bar_recomputed_at_its_edge(recorded, example_spec, factor, status):
     out = next(c for c in verify_design(tr.problem, design, example_spec.design.mu_state_bound)
                if c.name == "w_bar, f_bar recomputed")
     _assert_edge(out, -factor * W_BAR_TOL, factor, W_BAR_TOL, status, rel=1e-6)
+
+
+@edge("design.mu_condition_11")
+def mu_condition_11_at_factor(recorded, example_spec, factor, status):
+    """Tolerance 0 (strict): the outside case at margin −1e-9, the inside case at +1e-9."""
+    test_mu_condition_11_at_its_edge(recorded, example_spec, -1e-9 if status == "fail" else 1e-9, status)
 
 
 @pytest.mark.parametrize("margin, status", [(-1e-9, "fail"), (1e-9, "pass")])
@@ -583,6 +644,12 @@ def _design_check(problem, offline, name, **changes):
     return next(c for c in verify_design(problem, dataclasses.replace(offline, **changes)) if c.name == name)
 
 
+@edge("design.assumption_8")
+def assumption_8_at_factor(scalar, factor, status):
+    """Tolerance 0 (strict): the outside case at spectral radius 1 + 1e-9, the inside case at 1 − 1e-9."""
+    test_assumption_8_at_its_edge(scalar, 1e-9 if status == "fail" else -1e-9, status)
+
+
 @pytest.mark.parametrize("delta, status", [(1e-9, "fail"), (-1e-9, "pass")])
 def test_assumption_8_at_its_edge(scalar, delta, status):
     """Tolerance 0: K = 0.3 + δ puts the vertex θ = 1 at a = 1 + δ (spectral radius 1 + δ)."""
@@ -609,16 +676,16 @@ def test_assumption_8_fails_at_spectral_radius_exactly_1(scalar):
     assert 0.0 < out.margin < 1e-15 and out.status == "pass"
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_x0_contractive_at_its_edge(scalar, factor, status):
+@edge("design.x0_contractive")
+def x0_contractive_at_its_edge(scalar, factor, status):
     """λ̄ = max |a| = 1 + factor × tol with K = 0.3 + factor × tol."""
     problem, offline = scalar
     out = _design_check(problem, offline, "X0 contractive", K=np.array([[0.3 + factor * VERTEX_TOL]]))
     _assert_edge(out, -factor * VERTEX_TOL, factor, VERTEX_TOL, status, rel=1e-6)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_x0_robustly_invariant_at_its_edge(scalar, factor, status):
+@edge("design.x0_robustly_invariant")
+def x0_robustly_invariant_at_its_edge(scalar, factor, status):
     """max |a| + w̄ = 1 + factor × tol, w̄ = 0.1 c from X0 = {|c x| <= 1}."""
     problem, offline = scalar
     c = float(np.max(np.abs(offline.H_x)))
@@ -627,8 +694,8 @@ def test_x0_robustly_invariant_at_its_edge(scalar, factor, status):
     _assert_edge(out, -factor * VERTEX_TOL, factor, VERTEX_TOL, status, rel=1e-5)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_terminal_cost_16_at_its_edge(scalar, factor, status):
+@edge("design.terminal_cost_16")
+def terminal_cost_16_at_its_edge(scalar, factor, status):
     """P = S / (1 − a² + factor·ε) with S = Q + K R K, a the larger |A_cl| and ε = EIG_TOL_REL: the largest
     eigenvalue of (16), S − (1 − a²) P, is then factor·ε·P, and P is the largest term (relative tolerance ε·P)."""
     problem, offline = scalar
@@ -643,8 +710,8 @@ def test_terminal_cost_16_at_its_edge(scalar, factor, status):
     assert out.status == status
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_x_f_non_empty_at_its_edge(scalar, factor, status):
+@edge("design.x_f_non_empty")
+def x_f_non_empty_at_its_edge(scalar, factor, status):
     """h_T scaled until the tube's steady state (0, α_∞), α_∞ = w̄ / (1 − λ̄) = 0.1 c / (1 − max |a|), meets
     max h_T α_∞ = 1 + factor × tol."""
     problem, offline = scalar
@@ -657,8 +724,8 @@ def test_x_f_non_empty_at_its_edge(scalar, factor, status):
     _assert_edge(out, -factor * VERTEX_TOL, factor, VERTEX_TOL, status, rel=1e-5)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_x_f_in_z_at_its_edge(scalar, factor, status):
+@edge("design.x_f_in_z")
+def x_f_in_z_at_its_edge(scalar, factor, status):
     """X_f = {H_T z + h_T α <= 1, α >= 0} is a cone cut at 1: its rows divided by 1 + s scale it by 1 + s, and
     the largest (F + G K)(z + α x^j) over its vertices with this file's enumeration, M, by 1 + s as well. s is
     chosen so that (1 + s) M = 1 + factor × tol."""
@@ -716,8 +783,8 @@ def _relative_bound(value: float, factor: float, tol: float, above: bool) -> flo
     return value / (1.0 + t) if (value > 0) == above else value / (1.0 - t)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_pe_level_at_its_edge(pe_recorded, factor, status):
+@edge("pe_level")
+def pe_level_at_its_edge(pe_recorded, factor, status):
     from amcp_drake.certificate.section4 import pe_level
 
     tr = _fresh(pe_recorded)
@@ -733,8 +800,8 @@ def test_pe_level_at_its_edge(pe_recorded, factor, status):
     _assert_edge(out, margin, factor, PE_LEVEL_TOL, status, rel=1e-6)
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_pe_bounds_at_their_edge(pe_recorded, factor, status):
+@edge("pe_bounds")
+def pe_bounds_at_their_edge(pe_recorded, factor, status):
     from amcp_drake.certificate.section4 import pe_bounds
 
     tr = _fresh(pe_recorded)
@@ -771,8 +838,8 @@ def _x_f_invariance_margin(offline) -> float:
     return worst
 
 
-@pytest.mark.parametrize("factor, status", EDGES)
-def test_x_f_invariant_at_its_edge(scalar, factor, status):
+@edge("design.x_f_invariant")
+def x_f_invariant_at_its_edge(scalar, factor, status):
     """The terminal dynamics A_z of the design raised until z⁺ = A_z z carries a vertex of X_f out of it by
     factor × tol (the inclusion part is 0 by the definition of φ; the membership part moves with A_z)."""
     problem, offline = scalar

@@ -21,7 +21,7 @@ from click.testing import CliRunner
 
 from amcp_drake.certificate.certify import certify, schema
 from amcp_drake.certificate.claims import RunView
-from amcp_drake.certificate.consistency import CONSISTENCY_TOL, data_consistency, signed_chebyshev_radius
+from amcp_drake.certificate.consistency import data_consistency, signed_chebyshev_radius
 from amcp_drake.cli import main
 from amcp_drake.model.errors import InconsistentDataError, ProblemError, TrajectoryError
 from amcp_drake.online.controller import AdaptiveMPC, is_inconsistent
@@ -30,6 +30,8 @@ from amcp_drake.online.simulate import Trajectory
 from tests.conftest import scalar_problem
 from tests.recorded_runs import as_recorded
 
+#: The documented tolerance of data_consistency (θ units, rows of unit norm), written here.
+CONSISTENCY_TOL = 1e-7
 #: The claims that need θ* or the disturbances w_k (docs/certificate.md, "Measured runs").
 NEEDS_THETA_STAR_OR_W = {"theta_star_in_Theta", "w_in_W", "model_consistent", "theta_star_in_Theta_k", "lemma5"}
 #: The step whose state is moved in the contradicting copy.

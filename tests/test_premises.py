@@ -182,7 +182,7 @@ def test_a_start_just_beyond_the_qps_edge_is_a_premise_not_met(spec, controller,
     the independent LP's slack there is a few 1e-8 below 0 (rows of unit norm; the region's boundary is shallow in
     this direction), well below −LP_TOL: the premise is not met, recursive feasibility is not failed (with the
     former LP tolerance of 1e-6 the start counted as feasible and Theorem 14 (i) was blamed)."""
-    from amcp_drake.certificate.premises import LP_TOL
+    from amcp_drake.model.tolerances import PREMISE_LP_TOL as LP_TOL
 
     data = run_from(spec, controller, (region_edge + np.array([1e-6, 0.0])).tolist(), steps=2)
     assert len(data["records"]) == 1 and data["records"][0]["status"] != "optimal"

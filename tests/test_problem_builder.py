@@ -292,7 +292,7 @@ def test_from_control_with_python_control_installed():
 
 # -- names in tables and plots ------------------------------------------------------------------------------
 def test_names_and_units_head_the_run_table_and_label_the_report_axes():
-    from amcp_drake.certificate.report_plots import signal_label
+    from amcp_drake.certificate.plots import signal_label
     from amcp_drake.cli.summary import signals_header
 
     problem = spec_from_dict(_data()).problem

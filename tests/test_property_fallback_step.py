@@ -37,7 +37,7 @@ def test_recursive_feasibility_passes_on_the_checked_fallback_and_rechecks_its_c
     assert result.passed, result.detail
     assert 1 in claims._solved(traj)
     margins = claims.tube_constraint_margins(traj, 1)
-    assert min(v for k, v in margins.items() if not k.startswith("_")) >= -claims.QP_TOL
+    assert min(v for k, v in margins.items() if not k.startswith("_")) >= -claims.TUBE_TOL
 
 
 def test_a_step_without_an_applied_answer_still_fails():
@@ -57,6 +57,6 @@ def test_a_checked_fallback_whose_plan_breaks_a_constraint_fails():
     r = traj.records[1]
     margins = claims.tube_constraint_margins(traj, 1)
     alpha = np.array(r.alpha, float)
-    alpha[1] -= margins["(5b) tube propagation"] + 2 * claims.QP_TOL
+    alpha[1] -= margins["(5b) tube propagation"] + 2 * claims.TUBE_TOL
     traj.records[1] = dataclasses.replace(r, alpha=alpha)
     assert not claims.recursive_feasibility(traj).passed

@@ -14,8 +14,8 @@ import dataclasses
 import json
 import re
 import shutil
-import struct
 import subprocess
+import xml.etree.ElementTree as ET
 from html.parser import HTMLParser
 from pathlib import Path
 
@@ -47,6 +47,7 @@ EXPECTED_SECTIONS = {
                "design.x0_robustly_invariant", "design.w_bar_f_bar_recomputed", "design.x_f_non_empty",
                "design.x_f_invariant", "design.x_f_in_z", "design.mu_condition_11", "design.x0_vertices"],
 }
+SVG = "{http://www.w3.org/2000/svg}"
 CHROMIUM_CANDIDATES = ("/usr/bin/chromium", "chromium", "chromium-browser", "google-chrome")
 
 
@@ -131,11 +132,17 @@ def check_claim_sections(doc: Elements, claims: list[dict]) -> None:
         assert doc.text[f"claim-{c['id']}"].strip().startswith(c["id"])
 
 
-def _png_size(data_uri: str) -> tuple[int, int]:
-    assert data_uri.startswith("data:image/png;base64,")
-    raw = base64.b64decode(data_uri.split(",", 1)[1], validate=True)
-    assert raw[:8] == b"\x89PNG\r\n\x1a\n" and raw[12:16] == b"IHDR"
-    return struct.unpack(">II", raw[16:24])
+def _svg_size(data_uri: str) -> tuple[float, float]:
+    """(width, height) in pt of an SVG data URI, after parsing it as SVG with a viewBox of that size and
+    at least ten drawn paths (an empty or truncated figure fails)."""
+    prefix = "data:image/svg+xml;base64,"
+    assert data_uri.startswith(prefix)
+    root = ET.fromstring(base64.b64decode(data_uri[len(prefix):], validate=True))
+    assert root.tag == f"{SVG}svg"
+    width, height = (float(root.get(key).removesuffix("pt")) for key in ("width", "height"))
+    assert [float(v) for v in root.get("viewBox").split()] == [0.0, 0.0, width, height]
+    assert len(list(root.iter(f"{SVG}path"))) >= 10
+    return width, height
 
 
 def test_report_is_self_contained(bundle):
@@ -150,14 +157,14 @@ def test_report_is_self_contained(bundle):
     assert "http://" not in bundle["html"] and "https://" not in bundle["html"]
 
 
-def test_every_plot_is_an_inline_png(bundle):
+def test_every_plot_is_an_inline_svg(bundle):
     doc = parse(bundle["html"])
     for plot_id, alt in PLOTS:
         found = doc.by_id(plot_id)
         assert found is not None, plot_id
         tag, attrs = found
         assert tag == "img" and attrs["alt"] == alt
-        width, height = _png_size(attrs["src"])
+        width, height = _svg_size(attrs["src"])  # pt (1/72 in): a 300 x 150 px PNG at 90 dpi is 240 x 120 pt
         assert width >= 300 and height >= 150, (plot_id, width, height)
 
 
@@ -202,7 +209,7 @@ def test_report_renders_in_headless_chromium(bundle, tmp_path):
         found = doc.by_id(plot_id)
         assert found is not None, f"{plot_id} missing from the browser DOM"
         assert found[0] == "img" and found[1]["alt"] == alt
-        _png_size(found[1]["src"])
+        _svg_size(found[1]["src"])
     claims = json.loads((Path(bundle["out"]) / "certificate.json").read_text())["claims"]
     check_claim_sections(doc, claims)
     assert doc.text["verdict"].strip() == bundle["cert"].verdict == "pass"
@@ -340,11 +347,11 @@ def test_a_robust_run_says_it_is_the_baseline(bundle):
 
 
 def _captured(monkeypatch, plot_id: str, traj, cert):
-    """The matplotlib Figure a plot draws (its PNG encoder replaced by a capture)."""
+    """The matplotlib Figure a plot draws (its SVG encoder replaced by a capture)."""
     import amcp_drake.certificate.report_plots as plots
 
     figures = []
-    monkeypatch.setattr(plots, "_png", lambda fig: figures.append(fig) or "data:image/png;base64,")
+    monkeypatch.setattr(plots, "_svg", lambda fig: figures.append(fig) or "data:image/svg+xml;base64,")
     src, note = plots.draw(plot_id, traj, cert)
     assert src is not None and len(figures) == 1, note
     return figures[0], note
@@ -363,7 +370,7 @@ def test_tube_plot_draws_outlines_of_a_few_stages_and_the_boundary_of_Z(bundle, 
     Example 1's Z drawn in both panels and named in the legend."""
     from matplotlib.patches import Polygon
 
-    from amcp_drake.certificate.report_plots import tube_stages
+    from amcp_drake.certificate.plots import tube_stages
 
     fig, _ = _captured(monkeypatch, "plot-tubes", bundle["traj"], bundle["cert"])
     left, right = fig.axes
@@ -409,10 +416,10 @@ def test_p_equal_1_projection_plot_shows_the_interval_over_k(monkeypatch):
     assert ax.get_xlabel() == "step $k$" and ax.get_ylabel() == "$\\theta_1$"
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
     assert labels == ["$\\Theta_k$ (interval)", "$\\theta^*$", "$\\hat\\theta_k$"]
-    # and it renders to a real PNG in the report
+    # and it renders to a real SVG in the report
     monkeypatch.undo()
     doc = parse(render_report(traj, cert))
-    assert _png_size(doc.by_id("plot-theta-projections")[1]["src"])[0] >= 300
+    assert _svg_size(doc.by_id("plot-theta-projections")[1]["src"])[0] >= 300
 
 
 def test_user_facing_text_uses_the_paper_notation(bundle):

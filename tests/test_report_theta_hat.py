@@ -12,7 +12,8 @@ import pytest
 
 from amcp_drake.certificate.certify import certify
 from amcp_drake.certificate.report import render_report
-from amcp_drake.certificate.report_groups import THETA_HAT_OUTSIDE_TOL, theta_hat_outside_theta_k
+from amcp_drake.certificate.report_groups import theta_hat_outside_theta_k
+from amcp_drake.model.tolerances import PROJECTION_TOL as THETA_HAT_OUTSIDE_TOL
 
 
 def _outside_here(traj) -> int:

@@ -188,19 +188,33 @@ def test_auto_takes_the_second_candidate_when_the_first_fails_and_records_why():
     assert d.info["options"] == {"x0_template": "contractive", "x0_facets": 8, "x0_lambda": 0.9, "gain_R_scale": 100.0}
 
 
-def test_cli_design_prints_every_attempt(tmp_path):
+def test_cli_design_prints_one_line_per_candidate_and_the_full_reasons_under_verbose(tmp_path):
+    """Without -v each candidate of the automatic design appears on exactly one line (what it tried,
+    how it ended, the short reason) and the vectors w_bar, f_bar are summarised; -v adds every full
+    reason (with the next thing to try) and the vectors in full."""
     from click.testing import CliRunner
 
     from amcp_drake.cli.main import main
 
+    labels = ["mrpi, 8 facets", "contractive, lambda 0.9, K from R x 100", "contractive, lambda 0.95, K from R x 100"]
     result = CliRunner().invoke(main, ["design", str(EXAMPLES / "sls_mpc_2d_eps0.25.json")])
     assert result.exit_code == 0, result.output
-    # divergence is reported as divergence, with the next thing to try
-    assert "design attempt 1: mrpi, 8 facets: design failed (X0 template mrpi (8 facets): diverged" in result.output
-    assert "Next: more facets (design.x0_facets), or x0_template = 'contractive'" in result.output
-    assert "design attempt 2: contractive, lambda 0.9, K from R x 100: design failed" in result.output
-    assert "design attempt 3: contractive, lambda 0.95, K from R x 100: pass" in result.output
+    lines = result.output.splitlines()
+    for label in labels:
+        assert len([line for line in lines if f": {label}: " in line]) == 1, (label, result.output)
+    # divergence is reported as divergence
+    assert "design candidate 1: mrpi, 8 facets: design failed (diverged" in result.output
+    assert "design candidate 3: contractive, lambda 0.95, K from R x 100: pass, X0 8 facets / 8 vertices" in result.output
+    assert "w_bar = [" in result.output  # 8 values: printed in full
+    assert "Next:" not in result.output and "P = " not in result.output
     assert "all design checks pass" in result.output
+
+    verbose = CliRunner().invoke(main, ["design", str(EXAMPLES / "sls_mpc_2d_eps0.25.json"), "-v"])
+    assert verbose.exit_code == 0, verbose.output
+    assert "design attempt 1: mrpi, 8 facets: design failed (X0 template mrpi (8 facets): diverged" in verbose.output
+    assert "Next: more facets (design.x0_facets), or x0_template = 'contractive'" in verbose.output
+    assert "design attempt 3: contractive, lambda 0.95, K from R x 100: pass" in verbose.output
+    assert "P = [" in verbose.output
 
 
 def test_cli_x0_template_option_forces_one_template():

@@ -4,23 +4,34 @@ The program is built once per controller with sparse matrix constraints, reduced
 
 * (15d) is solved for p of the q multipliers of each row (:mod:`.multiplier_basis`): the program
   holds the other q − p (Λ_N >= 0), the rows Λ_B = c M − Λ_N H_N M >= 0, and (15c) in the form
-  c κ + Λ_N s + H_x d^j_l − α_{l+1} <= −w̄, with no equality rows;
+  c κ + Λ_N s + H_x d^j_l − α_{l+1} <= −w̄, with no equality rows for (15d);
 * the rows (l, j, i) of (15c) that another vertex of X0 implies on all of Θ0 are left out
   (:mod:`.dominated_rows`; when Θ_k is not inside Θ0, H_θ changes or no Θ0 is given, the step is
   solved by the program with every row, ``prune=False``).
 
-Both keep the feasible set in (z, α, v). Example 1, 8 facets, N = 10: 283 variables instead of
-3 883, Clarabel 17 -> 1.6 ms CPU. The full Λ is recovered (kept rows from the solution, left-out rows
-from their own LPs), so the answer checks and certificates re-check (15c), (15d) and Λ >= 0 on
-every row as before. Each step updates:
+Both keep the feasible set in (z, α, v). Example 1, 8 facets, N = 10: 303 variables instead of
+3 883, Clarabel 17 -> 1.6 ms CPU.
+
+(15c) is written in the deviations e_l = z_{l+1} − A_cl(0) z_l − B_0 v_l of the tube centres from the
+nominal dynamics (N·n more variables and as many equality rows, the same feasible set in (z, α, v)): a
+row of (15c) then reads α_l [H_x A_cl(0) x^j]_i + c κ + Λ_N s − [H_x]_i e_l − α_{l+1} <= −w̄_i, without
+the nominal parts [H_x A_cl(0)]_i z_l + [H_x B_0]_i v_l and −[H_x]_i z_{l+1}, which cancel to round-off on
+every row and are large where X0 is thin (‖[H_x]_i‖ from 4.8 to 146 on ``mass_chain3``, A_cl(0) near I). Written
+with them, the programs of ``mass_chain3``/``mass_chain4`` (n = 6, 8) stalled "AlmostSolved" under
+Clarabel settings that vary by machine (see :data:`NOMINAL_DEVIATION_FORM` and docs/decisions.md). Each
+row of (15c) is divided by ‖[H_x]_i‖ (the distance form of the facet), so that rows of facets of norm 4.8
+and 146 (``mass_chain3``) reach Clarabel at one scale whatever its equilibration does.
+
+The full Λ is recovered (kept rows from the solution, left-out rows from their own LPs), so the answer
+checks and certificates re-check (15c), (15d) and Λ >= 0 on every row as before. Each step updates:
 
 * the right-hand side of (15b) (it holds x_k),
 * the (15c) coefficients from h_θk (``LinearConstraint.UpdateCoefficients`` on a preallocated
   matrix whose values are written in place),
 * the quadratic cost in v (``QuadraticCost.UpdateCoefficients``), condensed from (18) with θ̂_k.
 
-Decision vector y = [z (N+1)·n | α (N+1) | v N·m | Λ_N (kept rows)·(q−p)], Λ_N of the ρ-th kept row
-(kept rows in (l, j, i) order) at offset ρ·(q−p) + r.
+Decision vector y = [z (N+1)·n | α (N+1) | v N·m | Λ_N (kept rows)·(q−p) | e N·n], Λ_N of the ρ-th kept
+row (kept rows in (l, j, i) order) at offset ρ·(q−p) + r.
 """
 
 from __future__ import annotations
@@ -61,6 +72,16 @@ ROW_CAPACITY_STEP = 1
 #: PAD_OFFSET > 0, so Λ without the padded columns satisfies (15c)-(15d) whenever the padded Λ does (the
 #: program is the same in (z, α, v)); 1 is the scale of the unit rows.
 PAD_OFFSET = 1.0
+#: Description of the rows e_l = z_{l+1} − A_cl(0) z_l − B_0 v_l that define the deviations used by (15c)
+#: (module docstring). Why this form: on ``mass_chain3`` (n = 6, ‖[H_x]_i‖ up to 146) the program with
+#: z_{l+1} in (15c) ended "AlmostSolved" (step length collapsing with the dual residual growing from 3e-8
+#: to 4e-6 in one iteration) at 1 to 3 of 5 steps under Clarabel settings that emulate another machine
+#: (max_step_fraction 0.95, equilibrate_max_iter 5, tolerances 1e-9 with max_iter 400, iterative
+#: refinement on): a fallback answered those steps. Fixing z alone made it "Solved" under every one of
+#: 9 settings; tie-breaks (ε·Σα, ε·ΣΛ_N, ε‖(z, α, Λ_N)‖² below 1e-4) did not. With e_l and the rows of
+#: (15c) divided by ‖[H_x]_i‖: no fallback under 7 settings profiles (10 before). docs/results.md, "The Drake
+#: plain form under other Clarabel settings".
+NOMINAL_DEVIATION_FORM = "(15c) tube centre deviations e_l = z_{l+1} - A_cl(0) z_l - B_0 v_l"
 
 
 def _sqrtm(M: np.ndarray) -> np.ndarray:
@@ -77,7 +98,11 @@ class _Layout:
         self.a0 = (N + 1) * n
         self.v0 = self.a0 + N + 1
         self.L0 = self.v0 + N * m
-        self.size = self.L0 + rows * q
+        self.e0 = self.L0 + rows * q
+        self.size = self.e0 + N * n
+
+    def e(self, l: int) -> slice:
+        return slice(self.e0 + l * self.n, self.e0 + (l + 1) * self.n)
 
     def z(self, l: int) -> slice:
         return slice(self.z0 + l * self.n, self.z0 + (l + 1) * self.n)
@@ -159,7 +184,17 @@ class DrakeTubeMPC:
 
         # α >= 0 and Λ_N >= 0
         prog.AddBoundingBoxConstraint(0.0, np.inf, y[lay.a0:lay.a0 + N + 1]).evaluator().set_description("alpha >= 0")
-        prog.AddBoundingBoxConstraint(0.0, np.inf, y[lay.L0:]).evaluator().set_description("Lambda >= 0")
+        prog.AddBoundingBoxConstraint(0.0, np.inf, y[lay.L0:lay.e0]).evaluator().set_description("Lambda >= 0")
+        # e_l = z_{l+1} − A_cl(0) z_l − B_0 v_l, the deviations (15c) is written in (module docstring)
+        Ae = sp.lil_matrix((N * n, lay.size))
+        for l in range(N):
+            rows = slice(l * n, (l + 1) * n)
+            Ae[rows, lay.z(l + 1)] = np.eye(n)
+            Ae[rows, lay.z(l)] = -Acl0
+            Ae[rows, lay.v(l)] = -d.B0
+            Ae[rows, lay.e(l)] = -np.eye(n)
+        prog.AddLinearEqualityConstraint(Ae.tocsc(), np.zeros(N * n), y).evaluator().set_description(
+            NOMINAL_DEVIATION_FORM)
 
         # optional bound lo <= K x_k + v_0 <= hi on the first input (PE two-QP procedure, docs/explanation/paper.md §8);
         # inactive (±inf) unless ``solve`` gets ``u0_bounds``
@@ -214,10 +249,11 @@ class DrakeTubeMPC:
         """Rows ρ = (l, j, i) of (15c) and of Λ_B >= 0 (.multiplier_basis), vectorised, for the rows
         kept by :func:`.dominated_rows.kept_vertices` (all rows when ``prune`` is off or Θ0 is unknown).
 
-        Each row touches the 2n + m + 2 columns [z_l | α_l | v_l | z_{l+1} | α_{l+1}] of y (``_cols``)
+        Each row touches the 2n + m + 2 columns [z_l | α_l | v_l | e_l | α_{l+1}] of y (``_cols``)
         and its own q − p columns of Λ_N. ``_C_vals`` (rows, E) are the coefficients of
-        H_x d^j_l − α_{l+1} (15c); ``_G_vals`` (rows, E, p) those of c_ρ = H_x D^j_l (zero on z_{l+1},
-        α_{l+1}): c_ρ[r] = Σ_e G[ρ, e, r] y[cols[ρ, e]]. The (15c) matrix is preallocated in CSC;
+        H_x d^j_l − α_{l+1} (15c) in the deviation form (module docstring: zero on z_l and v_l, −[H_x]_i on
+        e_l); ``_G_vals`` (rows, E, p) those of c_ρ = H_x D^j_l (zero on e_l, α_{l+1}):
+        c_ρ[r] = Σ_e G[ρ, e, r] y[cols[ρ, e]]. The (15c) matrix is preallocated in CSC;
         each step writes C + G κ and s into its data through ``_perm15c`` (nothing is rebuilt)."""
         d, lay, basis = self.data, self.layout, self.basis
         N, nv, u = lay.N, lay.nv, lay.u
@@ -243,7 +279,9 @@ class DrakeTubeMPC:
         A.sort_indices()
         self._perm15c = A.data.astype(np.int64) - 1
         self._A15c = A
-        self._ub15c = -np.asarray(d.w_bar, float)[i_all[kept]]
+        # each row of (15c) divided by ‖[H_x]_i‖ (module docstring): coefficients, multiplier terms and bound
+        self._scale15c = 1.0 / np.linalg.norm(np.asarray(d.H_x, float)[i_all[kept]], axis=1)
+        self._ub15c = -np.asarray(d.w_bar, float)[i_all[kept]] * self._scale15c
         self._lb15c = np.full(rows, -np.inf)
         self._c15c = prog.AddLinearConstraint(self._matrix_15c(np.zeros(basis.q)), self._lb15c, self._ub15c, y
                                               ).evaluator()
@@ -326,11 +364,12 @@ class DrakeTubeMPC:
         rows = len(l_of)
         cols = np.concatenate([lay.z0 + l_of[:, None] * n + np.arange(n), (lay.a0 + l_of)[:, None],
                                lay.v0 + l_of[:, None] * m + np.arange(m),
-                               lay.z0 + (l_of + 1)[:, None] * n + np.arange(n), (lay.a0 + l_of + 1)[:, None]],
+                               lay.e0 + l_of[:, None] * n + np.arange(n), (lay.a0 + l_of + 1)[:, None]],
                               axis=1)                          # (rows, E), E = 2n + m + 2
-        HA0, HB0 = H_x @ Acl0, H_x @ d.B0
-        C = np.concatenate([HA0[i_of], (HA0 @ Xv.T)[i_of, j_of][:, None], HB0[i_of], -H_x[i_of],
-                            -np.ones((rows, 1))], axis=1)
+        # [H_x A_cl(0)]_i (z_l + α_l x^j) + [H_x B_0]_i v_l − [H_x]_i z_{l+1} = α_l [H_x A_cl(0) x^j]_i − [H_x]_i e_l
+        HA0 = H_x @ Acl0
+        C = np.concatenate([np.zeros((rows, n)), (HA0 @ Xv.T)[i_of, j_of][:, None], np.zeros((rows, m)),
+                            -H_x[i_of], -np.ones((rows, 1))], axis=1)
         Gz = np.einsum("ia,pab->ibp", H_x, Acl_i)              # (u, n, p): [H_x]_i A_cl,r
         Gv = np.einsum("ia,pab->ibp", H_x, np.asarray(d.B, float))  # (u, m, p): [H_x]_i B_r
         G = np.zeros((rows, cols.shape[1], Gz.shape[2]))
@@ -348,10 +387,11 @@ class DrakeTubeMPC:
         if np.ndim(h_theta) == 2:
             kappa, slack = kappa[self._stage_of_row], slack[self._stage_of_row]
             base = self._C_vals + np.einsum("rep,rp->re", self._G_vals, kappa)
-            lam = slack
+            lam = slack * self._scale15c[:, None]
         else:
             base = self._C_vals + self._G_vals @ kappa
-            lam = np.broadcast_to(slack, (self._rows15c, len(slack)))
+            lam = slack[None, :] * self._scale15c[:, None]
+        base = base * self._scale15c[:, None]
         self._A15c.data[:] = np.concatenate([base.ravel(), lam.ravel()])[self._perm15c]
         return self._A15c
 
@@ -364,7 +404,7 @@ class DrakeTubeMPC:
         E = self._E_c
         q = self.basis.q
         c = np.einsum("re,rep->rp", yv[self._cols[:, :E]], self._G_vals[:, :E])
-        lam_n = yv[lay.L0:lay.size].reshape(self._rows15c, lay.q)
+        lam_n = yv[lay.L0:lay.e0].reshape(self._rows15c, lay.q)
         lam = np.empty((lay.N * lay.nv * lay.u, q))
         lam[self._kept_rows] = self.basis.full(c, lam_n)
         lam = lam[:, :self.H_theta.shape[0]]  # without the padded columns (PAD_OFFSET)

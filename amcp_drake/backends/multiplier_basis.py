@@ -32,7 +32,7 @@ import scipy.linalg
 
 #: Multipliers of a basis count as >= 0 down to −DUAL_FEASIBILITY_TOL·max(1, ‖c_ρ‖): rounding of
 #: c H_B^{-1} for an optimal basis with a zero multiplier (a degenerate optimum), far below the
-#: answer checks' 1e-6 (online.answer_checks.TUBE_ROW_TOL).
+#: answer checks' 1e-6 (model.tolerances.TUBE_TOL).
 DUAL_FEASIBILITY_TOL = 1e-9
 #: Largest condition number of H_B accepted: above it H_θ is treated as rank deficient (an
 #: unbounded Θ, which the problem validation rejects before any QP is built).

@@ -60,6 +60,7 @@ from amcp_drake.certificate.optimality import qp_optimality
 from amcp_drake.certificate.section4 import cost_value, excitation_checks, pe_figure
 from amcp_drake.certificate.tube import GROUP_DESIGN, tube_checks, x0_vertex_list
 from amcp_drake.model.check_result import FAIL, NOT_APPLICABLE, NOT_RUN, PASS, CheckResult, not_run
+from amcp_drake.model.claim_table import CLAIMS
 from amcp_drake.model.errors import TrajectoryError
 from amcp_drake.model.problem import ProblemSpec
 from amcp_drake.model.problem_io import jsonable
@@ -83,14 +84,8 @@ TOLERANCE_RULE = ("a claim passes when its margin >= -tolerance (margin > 0: hol
 CONFORMANCE_PASS, CONFORMANCE_FAIL, CONFORMANCE_UNKNOWN = "pass", "fail", "unknown"
 #: Claims whose margin and tolerance are relative (scaled by the size of the quantity, named in the claim's
 #: detail), marked "r" beside the tolerance; every other tolerance is absolute in the claim's units.
-RELATIVE_TOLERANCES = {
-    "design.terminal_cost_16": "eigenvalue tolerance relative to the size of the terms of (16)",
-    "design.x0_vertices": "relative to the largest vertex coordinate (floor 1)",
-    "cost_value": "relative to max(|J|, 1)",
-    "qp_optimality": "KKT residuals relative to the stationarity scale s",
-    "pe_level": "relative to max(1, pe_level)",
-    "pe_bounds": "relative to max(1, |bound|)",
-}
+#: Read from the rows' ``relative`` in the table of claims.
+RELATIVE_TOLERANCES = {c.id: c.relative for c in CLAIMS if c.relative}
 #: Recorded copies of the same number (x_k in the record and in the state array) must agree exactly
 #: up to float64 rounding of a JSON round trip (which is exact); anything else is a corrupt file.
 DUPLICATE_TOL = 1e-12

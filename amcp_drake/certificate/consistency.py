@@ -23,22 +23,20 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linprog
 
-from amcp_drake.certificate.claims import GROUP_ASSUMPTIONS, RunView, _delta, step_check
+from amcp_drake.certificate.claims import RunView, _delta, row_check
 from amcp_drake.model import polytope
 from amcp_drake.model.check_result import FAIL, NOT_RUN, PASS, CheckResult
+from amcp_drake.model.claim_table import CLAIMS
+from amcp_drake.model.claim_table import tolerance as claim_tolerance
 
-#: Tolerance of ``data_consistency`` (θ units, rows of unit norm): the same scale as the set-membership
-#: claims (SET_LP_TOL). Θ_{k−1} is recorded from the controller's answers of (9), which are checked to
-#: ~1e-8 (answer_checks.SET_NESTED_TOL) and may lie that far inside the exact set; the certificate's LP
-#: below is solved to 1e-10. A negative radius larger than this is a contradiction, not round-off.
-CONSISTENCY_TOL = 1e-7
 #: HiGHS tolerances of the signed Chebyshev LP (its radius is exact to ~1e-10 at these settings).
 _HIGHS_OPTIONS = {"primal_feasibility_tolerance": 1e-10, "dual_feasibility_tolerance": 1e-10}
 #: Claims whose guarantee assumes data that satisfy (1) with θ* ∈ Θ and w_k ∈ W (Assumption 1), with the
 #: lag between a claim's step k and the transition it depends on: Theorem 14 (i) and (iii) at step k
 #: (x_k arrived by the transition into k), and x_(k+1) ∈ X_(1|k) (the transition out of k; if
 #: Θ_k ∩ Δ_(k+1) ≠ ∅ then x_(k+1) lies in the one-step set of Θ_k and W, so in X_(1|k)).
-RESTS_ON_CONSISTENCY = {"recursive_feasibility": 0, "state_input_constraints": 0, "tube_contains_next_state": 1}
+#: Read from the rows' ``rests_on_consistency``.
+RESTS_ON_CONSISTENCY = {c.id: c.rests_on_consistency for c in CLAIMS if c.rests_on_consistency is not None}
 
 
 def signed_chebyshev_radius(H: np.ndarray, h: np.ndarray) -> float:
@@ -68,17 +66,19 @@ def data_consistency(view: RunView) -> CheckResult:
         H_d, h_d = _delta(view, k - 1)
         H_p, h_p = polytope.normalize_rows(prev.H_theta, prev.h_theta)
         per[k] = signed_chebyshev_radius(np.vstack([H_p, H_d]), np.concatenate([h_p, h_d]))
-    failing = [k for k, r in sorted(per.items()) if r == r and r < -CONSISTENCY_TOL]
+    # The tolerance (the row's: θ units, unit rows) is the scale of the set-membership claims. Θ_{k−1} is
+    # recorded from the controller's answers of (9), which are gated to ~1e-8 and may lie that far inside the
+    # exact set; the LP above is solved to 1e-10. A negative radius larger than it is a contradiction.
+    tolerance = claim_tolerance("data_consistency")
+    failing = [k for k, r in sorted(per.items()) if r == r and r < -tolerance]
     first = failing[0] if failing else None
     detail = ("margin = signed Chebyshev radius of Θ_(k−1) ∩ Δ_k, unit rows, θ units (HiGHS); Δ_k of (6) from the "
               "recorded x_(k−1), u_(k−1), x_k")
     if first is not None:
         detail += (f"; the data contradict Θ and W first at step {first} (and at {len(failing)} step(s) in all): the "
                    "disturbance left W, θ* is not in Θ, or the model (A_i, B_i) is wrong")
-    return step_check("data_consistency", GROUP_ASSUMPTIONS, "Θ_(k−1) ∩ Δ_k ≠ ∅",
-                      "model consistency (Assumption 1, Lemma 3): the data never contradicted the declared Θ and W, "
-                      "Θ_(k−1) ∩ Δ_k ≠ ∅ at every step", per, CONSISTENCY_TOL, detail, "no transition recorded",
-                      extra={"first_failing_step": first, "failing_steps": failing})
+    return row_check("data_consistency", per, detail, "no transition recorded",
+                     extra={"first_failing_step": first, "failing_steps": failing})
 
 
 def apply(claims: list[CheckResult]) -> list[CheckResult]:

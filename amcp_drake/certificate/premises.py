@@ -11,7 +11,7 @@ against it. Three premises are checked here, each reported as ``met``, ``not_met
   𝔻(x_0, Θ_0) (the tube claims check it) and the premise is met. Otherwise it is decided by the independent
   LP of :class:`~amcp_drake.certificate.feasible_region.TubeLP` at x_0 for the recorded Θ_0, solved with
   HiGHS' feasibility tolerances at :data:`LP_OPTIONS`: its slack t (rows of unit norm) is the margin; the
-  premise is not met when t < −:data:`LP_TOL`, and a start within LP_TOL of the region (or inside it)
+  premise is not met when t < −:data:`PREMISE_LP_TOL`, and a start within PREMISE_LP_TOL of the region (or inside it)
   leaves the unsolved step to the claim of Theorem 14 (i).
 * ``assumption_8``: A_cl(θ) = A(θ) + B(θ) K Schur stable at every vertex of Θ (the design check of
   the same name, :func:`amcp_drake.offline.checks.verify_design`).
@@ -33,20 +33,23 @@ from typing import Any
 import numpy as np
 
 from amcp_drake.model.check_result import FAIL, PASS, CheckResult
+from amcp_drake.model.claim_table import CLAIMS
+from amcp_drake.model.tolerances import PREMISE_LP_TOL
 
 #: HiGHS options of the premise's LP: primal and dual feasibility 1e-10 (the LP has unit rows, so its
 #: slack t is accurate to about that).
 LP_OPTIONS = {"primal_feasibility_tolerance": 1e-10, "dual_feasibility_tolerance": 1e-10}
-#: The LP slack t below which x_0 is outside the feasible region of (20) (rows of unit norm): ten times
-#: the LP's own feasibility tolerance (:data:`LP_OPTIONS`), so that a start 1e-7 outside is not met.
-LP_TOL = 1e-9
-#: Claims about the recorded data alone (claim ids): checked and kept whatever the premises say.
-DATA_CLAIMS = frozenset({"model_consistent", "w_in_W", "theta_star_in_Theta", "control_law", "data_consistency"})
+# PREMISE_LP_TOL (model.tolerances): the LP slack t below which x_0 is outside the feasible region of (20)
+# (rows of unit norm), ten times the LP's own feasibility tolerance (:data:`LP_OPTIONS`).
+#: Claims about the recorded data alone (claim ids, the rows marked ``data`` in the table of claims): checked
+#: and kept whatever the premises say.
+DATA_CLAIMS = frozenset(c.id for c in CLAIMS if c.data)
 MET, NOT_MET, UNKNOWN = "met", "not_met", "unknown"
-#: Design claims that are premises of the paper's results (claim id -> premise id).
-DESIGN_PREMISES = {"design.assumption_8": "assumption_8", "design.mu_condition_11": "mu_condition_11"}
+#: Design claims that are premises of the paper's results (claim id -> premise id; the rows' ``premise``).
+DESIGN_PREMISES = {c.id: c.premise for c in CLAIMS if c.premise}
 COVERAGE_HINT = ("choose x_0 inside the feasible region of (20): measure it with `amcp coverage PROBLEM` "
-                 "(docs/how-to/own-system.md, section 4)")
+                 "(from n = 3 on, slices through x_0: `--plane I,J --fix NAME=VALUE,...`; docs/how-to/own-system.md, "
+                 "section 5)")
 DESIGN_HINT = ("let `amcp design` compute K and P (its design meets Assumption 8 and (11) by construction), "
                "or give a gain that stabilises every vertex of Θ (docs/how-to/own-system.md, section 3)")
 
@@ -82,7 +85,7 @@ def initial_feasibility(view) -> dict[str, Any]:
     """The premise 𝔻(x_0, Θ_0) ≠ ∅ (module docstring)."""
     name, statement = "initial feasibility", "Theorem 14 premise: 𝔻(x_0, Θ_0) ≠ ∅ (the first QP (20) is feasible)"
     if not view.records:
-        return premise("initial_feasibility", name, statement, UNKNOWN, None, LP_TOL, "no step recorded")
+        return premise("initial_feasibility", name, statement, UNKNOWN, None, PREMISE_LP_TOL, "no step recorded")
     x0 = np.asarray(view.traj.x[0], float)
     in_z = state_rows_at_x0(view.problem.F, view.problem.G, x0)
     if in_z is not None and in_z[0] < -in_z[1]:
@@ -92,7 +95,7 @@ def initial_feasibility(view) -> dict[str, Any]:
                        f"x_0 = {shown} is outside Z: row {row} of (4), which constrains the state alone, has margin "
                        f"(1 − F_i x_0)/‖F_i‖ = {margin:.3e} < −{tol:.1e} (the round-off of evaluating it)", COVERAGE_HINT)
     if 0 in set(view.solved):
-        return premise("initial_feasibility", name, statement, MET, None, LP_TOL,
+        return premise("initial_feasibility", name, statement, MET, None, PREMISE_LP_TOL,
                        "the run applied a checked answer of (20) at step 0")
     from amcp_drake.certificate.feasible_region import TubeLP
 
@@ -101,16 +104,16 @@ def initial_feasibility(view) -> dict[str, Any]:
         lp = TubeLP.build(view.problem, view.design, np.asarray(r0.H_theta, float), np.asarray(r0.h_theta, float))
         t = lp.margin(x0, LP_OPTIONS)
     except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
-        return premise("initial_feasibility", name, statement, UNKNOWN, None, LP_TOL, f"the LP could not run: {exc}")
+        return premise("initial_feasibility", name, statement, UNKNOWN, None, PREMISE_LP_TOL, f"the LP could not run: {exc}")
     if not np.isfinite(t):
-        return premise("initial_feasibility", name, statement, UNKNOWN, None, LP_TOL, "the LP (HiGHS) did not solve")
+        return premise("initial_feasibility", name, statement, UNKNOWN, None, PREMISE_LP_TOL, "the LP (HiGHS) did not solve")
     shown = np.array2string(x0, precision=6, separator=", ")
-    if t < -LP_TOL:
-        return premise("initial_feasibility", name, statement, NOT_MET, t, LP_TOL,
+    if t < -PREMISE_LP_TOL:
+        return premise("initial_feasibility", name, statement, NOT_MET, t, PREMISE_LP_TOL,
                        f"x_0 = {shown} is outside the feasible region of (20) for Θ_0: the independent LP's largest "
                        f"common slack of the tube constraints is {t:.3e} < 0 (rows of unit norm)", COVERAGE_HINT)
-    return premise("initial_feasibility", name, statement, MET, t, LP_TOL,
-                   f"x_0 = {shown}: the independent LP's slack is {t:.3e} (feasible within {LP_TOL:.0e}); the unsolved "
+    return premise("initial_feasibility", name, statement, MET, t, PREMISE_LP_TOL,
+                   f"x_0 = {shown}: the independent LP's slack is {t:.3e} (feasible within {PREMISE_LP_TOL:.0e}); the unsolved "
                    "step 0 is judged by Theorem 14 (i)")
 
 

@@ -1,8 +1,8 @@
 """The certificate bundle: certificate.json, a self-contained report.html, trajectory.json.gz.
 
 The page is rendered with jinja2 from ``templates/report.html`` and loads nothing from the network:
-the plots (:mod:`amcp_drake.certificate.report_plots`) are inline base64 PNG ``<img>`` elements with
-fixed ids; the claims are shown grouped by the paper's results with the notation set as HTML
+the plots (:mod:`amcp_drake.certificate.report_plots`, drawn by :mod:`amcp_drake.certificate.plots`) are
+SVG data-URI ``<img>`` elements with fixed ids; the claims are shown grouped by the paper's results with the notation set as HTML
 (:mod:`amcp_drake.certificate.report_groups`). The robust baseline beside the run
 (``figures.robust_baseline``, :func:`amcp_drake.studies.baseline.robust_beside`) is shown in its own
 section, apart from the verdict, when the certificate carries it.
@@ -98,12 +98,13 @@ def _staging_in_use(staging: Path) -> bool:
 
 def write_outputs(out_dir: str | os.PathLike, traj: Trajectory, cert: Certificate, *,
                   inputs: Mapping[str, str | os.PathLike] | None = None,
-                  command_line: Sequence[str] | None = None) -> Path:
+                  command_line: Sequence[str] | None = None, plane: tuple[int, int] | None = None) -> Path:
     """Write certificate.json, report.html and trajectory.json.gz into ``out_dir`` atomically.
 
     The certificate's ``provenance`` (:mod:`amcp_drake.certificate.provenance`) holds the SHA-256 of the
     trajectory file written here and of ``inputs`` (role -> path: the problem file, a given trajectory file),
-    the library versions, ``command_line``, the platform and the project's version and commit."""
+    the library versions, ``command_line``, the platform and the project's version and commit. ``plane``: the
+    two states (0-based) of the tube plot (default: :func:`amcp_drake.certificate.plots.tightest_plane`)."""
     out = check_out_dir(out_dir)
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
@@ -118,7 +119,7 @@ def write_outputs(out_dir: str | os.PathLike, traj: Trajectory, cert: Certificat
         cert = replace(cert, provenance=provenance({"trajectory": staging / TRAJECTORY_FILE, **dict(inputs or {})},
                                                    command_line))
         (staging / CERTIFICATE_FILE).write_text(json.dumps(cert.to_dict(), indent=1, allow_nan=False))
-        (staging / REPORT_FILE).write_text(render_report(traj, cert), encoding="utf-8")
+        (staging / REPORT_FILE).write_text(render_report(traj, cert, plane), encoding="utf-8")
     except BaseException:
         if lock is not None:
             lock.close()
@@ -150,14 +151,14 @@ def _commit(staging: Path, out: Path) -> None:
 GRAM_WINDOW = 10
 
 
-def render_report(traj: Trajectory, cert: Certificate) -> str:
-    """The self-contained HTML report (template ``templates/report.html``)."""
+def render_report(traj: Trajectory, cert: Certificate, plane: tuple[int, int] | None = None) -> str:
+    """The self-contained HTML report (template ``templates/report.html``); ``plane`` as in :func:`write_outputs`."""
     import jinja2
 
     env = jinja2.Environment(loader=jinja2.PackageLoader("amcp_drake.certificate", "templates"),
                              autoescape=jinja2.select_autoescape(["html"]), undefined=jinja2.StrictUndefined)
     plots = {pid: dict(id=pid, alt=alt, src=src, note=note) for pid, alt, (src, note) in
-             ((pid, alt, draw(pid, traj, cert)) for pid, alt in PLOTS)}
+             ((pid, alt, draw(pid, traj, cert, plane)) for pid, alt in PLOTS)}
     claims = [claim_to_dict(c) for c in cert.claims]
     data = cert.to_dict()
     window = data["run"].get("pe_window") or GRAM_WINDOW

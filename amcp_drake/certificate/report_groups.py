@@ -16,6 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 from markupsafe import Markup, escape
 
+from amcp_drake.model.claim_table import CLAIMS
+from amcp_drake.model.tolerances import PROJECTION_TOL
+
 
 @dataclass(frozen=True)
 class PaperResult:
@@ -28,42 +31,42 @@ class PaperResult:
     families: tuple[str, ...] = ()
 
 
-#: The paper's results in the order the report shows them (the main theorem first, premises last).
+def _ids(key: str) -> tuple[str, ...]:
+    """The claim ids whose row in the table of claims checks the paper result ``key`` (its ``result``)."""
+    return tuple(c.id for c in CLAIMS if c.result == key)
+
+
+#: The paper's results in the order the report shows them (the main theorem first, premises last); the
+#: claims of each are read from the table of claims (:mod:`amcp_drake.model.claim_table`, ``result``).
 PAPER_RESULTS = (
     PaperResult("theorem14-i", "Theorem 14 (i): recursive feasibility",
-                "𝔻(x_k, Θ_k) ≠ ∅ for all k: the QP (20) has a solution at every step.", ("recursive_feasibility",)),
+                "𝔻(x_k, Θ_k) ≠ ∅ for all k: the QP (20) has a solution at every step.", _ids("theorem14-i")),
     PaperResult("theorem14-ii", "Theorem 14 (ii): the parameter is never lost",
-                "θ* ∈ Θ_k and θ̂_k ∈ Θ for all k.", ("theta_star_in_Theta_k", "theta_hat_in_Theta")),
+                "θ* ∈ Θ_k and θ̂_k ∈ Θ for all k.", _ids("theorem14-ii")),
     PaperResult("theorem14-iii", "Theorem 14 (iii): constraint satisfaction",
-                "(x_k, u_k) ∈ Z for all k.", ("state_input_constraints",)),
+                "(x_k, u_k) ∈ Z for all k.", _ids("theorem14-iii")),
     PaperResult("lemma3", "Lemma 3: the set estimates",
                 "Under the update (9): Θ ⊆ Θ_0 and Θ_k ∩ Δ_{k+1} ⊆ Θ_{k+1} ⊆ Θ_k (10).",
-                ("Theta0_contains_Theta", "Theta_k_nested", "Theta_k_lower_inclusion"), ("set_membership",)),
+                _ids("lemma3"), ("set_membership",)),
     PaperResult("lemma5", "Lemma 5: the point estimate",
                 "θ̂_k by the projected LMS update (12) satisfies (1/μ)‖θ̂_{m+1} − θ*‖² + Σ_{k≤m} ‖x̃_{1|k}‖² ≤ "
-                "(1/μ)‖θ̂_0 − θ*‖² + Σ_{k≤m} ‖w_k‖² for every m.", ("lms_update", "lemma5"), ("point_estimate",)),
+                "(1/μ)‖θ̂_0 − θ*‖² + Σ_{k≤m} ‖w_k‖² for every m.", _ids("lemma5"), ("point_estimate",)),
     PaperResult("proposition9", "Proposition 9: the prediction tube",
                 "The recorded tube X_{l|k} = z_{l|k} ⊕ α_{l|k} X0 satisfies (5a)–(5c) with multipliers Λ ≥ 0 of "
-                "(15c), (15d), and ends in the terminal set X_f.",
-                ("tube_contains_state", "tube_contains_next_state", "tube_propagation", "tube_constraints",
-                 "tube_alpha_nonneg", "terminal_set", "multipliers_nonneg", "multipliers_15c", "multipliers_15d"),
-                ("tube",)),
+                "(15c), (15d), and ends in the terminal set X_f.", _ids("proposition9"), ("tube",)),
     PaperResult("qp20", "The controller: QP (20) and its cost",
                 "Every applied input u_k = K x_k + v*_{0|k} (21) comes from a minimiser of (20) with the cost (17) "
-                "or (19).", ("cost_value", "qp_optimality"), ("cost",)),
+                "or (19).", _ids("qp20"), ("cost",)),
     PaperResult("section42", "Section 4.2: persistent excitation",
                 "When the run enforces PE, the applied inputs keep the window level and the input bounds.",
-                ("pe_level", "pe_bounds"), ("excitation",)),
+                _ids("section42"), ("excitation",)),
     PaperResult("assumptions", "Assumptions: the premises of the run",
                 "Assumption 1 (θ* ∈ Θ, w_k ∈ W), the model (1), its consequence on the data Θ_{k−1} ∩ Δ_k ≠ ∅ "
                 "(model consistency), the control law (21) and the precondition μ‖D(x_k, u_k)‖² ≤ 1 of Lemma 5 "
-                "on the visited points.",
-                ("theta_star_in_Theta", "w_in_W", "model_consistent", "data_consistency", "control_law",
-                 "mu_precondition"),
-                ("assumptions",)),
+                "on the visited points.", _ids("assumptions"), ("assumptions",)),
     PaperResult("design", "Design: the offline ingredients",
                 "The terminal cost (16), Assumptions 8 and 11 (X0, X_f), the constants w̄, f̄ of Proposition 9, "
-                "μ of (11) and the vertices of X0 in (14).", (), ("design",)),
+                "μ of (11) and the vertices of X0 in (14).", _ids("design"), ("design",)),
 )
 OTHER = PaperResult("other", "Other checks", "Checks not tied to one numbered result.")
 
@@ -145,10 +148,6 @@ def regressor_gram_lambda_min(traj, window: int) -> tuple[float | None, float | 
     return lam(range(window)), lam(range(T - window, T))
 
 
-#: θ̂_k counts as outside Θ_k when max_i ([H_θ,k]_i θ̂_k − [h_θ,k]_i) exceeds this (the rows of Θ_k's
-#: description as recorded; a LMS projection onto Θ_k lands on its boundary up to solver round-off)
-THETA_HAT_OUTSIDE_TOL = 1e-7
-
 
 @dataclass(frozen=True)
 class ThetaHatOutside:
@@ -159,9 +158,11 @@ class ThetaHatOutside:
     worst: float | None  #: the largest violation max_i([H_θ,k]_i θ̂_k − [h_θ,k]_i), None when nothing was checked
 
 
-def theta_hat_outside_theta_k(traj, tol: float = THETA_HAT_OUTSIDE_TOL) -> ThetaHatOutside:
+def theta_hat_outside_theta_k(traj, tol: float = PROJECTION_TOL) -> ThetaHatOutside:
     """Count the records whose θ̂_k lies outside Θ_k = {θ | H_θ,k θ ≤ h_θ,k}: allowed by (12) (the projection
-    is onto Θ) and removed by Remark 7 (``--projection Theta_k``); the report says how often it happened."""
+    is onto Θ) and removed by Remark 7 (``--projection Theta_k``); the report says how often it happened.
+    θ̂_k counts as outside when max_i ([H_θ,k]_i θ̂_k − [h_θ,k]_i) exceeds ``tol`` (the rows of Θ_k as
+    recorded; a projection onto Θ_k lands on its boundary up to the projection's tolerance, PROJECTION_TOL)."""
     steps, outside, worst = 0, 0, None
     for r in traj.records:
         if r.H_theta is None or r.h_theta is None or r.theta_hat is None:

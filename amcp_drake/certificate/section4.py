@@ -21,25 +21,22 @@ from __future__ import annotations
 
 import numpy as np
 
-from amcp_drake.certificate.claims import RunView, step_check, tag
+from amcp_drake.certificate.claims import RunView, row_check, tag
 from amcp_drake.model.check_result import CheckResult, not_run
+from amcp_drake.model.claim_table import claim as row_of
 from amcp_drake.online.excitation import pe_measure
 
 GROUP_COST = "cost"
 GROUP_EXCITATION = "excitation"
 
+# The claims' tolerances (model.tolerances COST_REL_TOL, PE_LEVEL_TOL, PE_BOUND_TOL, all relative), names and
+# statements are their rows of the table of claims (model.claim_table).
 #: Recorded cost vs the numpy evaluation, relative to max(|J|, COST_SCALE_FLOOR) (absolute below 1).
 #: Certainty equivalence: both sides are the same quadratic of recorded floats (~1e-14 relative).
 #: Min–max: the backends record (19) of their plan (amcp_drake.backends.minmax_cost; not
 #: the solver's Σ s_l², which can be 1.3e-6 relative off (19) on a problem in badly scaled state units),
 #: so both sides are the same formula of recorded floats too.
-COST_REL_TOL = 1e-6
 COST_SCALE_FLOOR = 1.0
-#: λ_min(window Gram) vs the recorded level, relative to max(1, level): the input sits on a root of
-#: the scalar PE quadratic up to the QP's accuracy (~1e-8 in u, times |dλ/du| <= 2|u|·d).
-PE_LEVEL_TOL = 1e-6
-#: u_k vs the recorded bound, relative to max(1, |bound|): the QP meets its bound to ~1e-8.
-PE_BOUND_TOL = 1e-7
 
 #: Record statuses at which the PE constraint was enforced (controller.AdaptiveMPC._solve_qp).
 ENFORCED = ("enforced", "enforced_partial", "enforced_necessary")
@@ -91,15 +88,11 @@ def cost_value(view: RunView) -> CheckResult:
         else:
             J = certainty_equivalence_cost(pr, d, r.x, r.theta_hat, r.v)
         per[k] = -abs(float(r.cost) - J) / max(abs(J), COST_SCALE_FLOOR)
-    if cost == "minmax":
-        name, claim = "cost (19)", ("Remark 13, (19): the recorded cost is Σ_l max_j (‖x^j_l‖²_Q + ‖u^j_l‖²_R) "
-                                    "+ max_j ‖x^j_N‖²_P of the recorded tube and inputs")
-    else:
-        name, claim = "cost (17)", ("(17)-(18): the recorded cost is J_N of the recorded inputs along the "
-                                    "nominal prediction with the recorded θ̂_k")
-    return step_check("cost_value", GROUP_COST, name, claim, per, COST_REL_TOL,
-                      f"margin = −|recorded cost − numpy {name}| / max(|J|, {COST_SCALE_FLOOR:g})", "no step was solved",
-                      extra={"cost": cost})
+    variant = ({"name": "cost (19)", "statement": "Remark 13, (19): the recorded cost is Σ_l max_j (‖x^j_l‖²_Q + "
+                "‖u^j_l‖²_R) + max_j ‖x^j_N‖²_P of the recorded tube and inputs"} if cost == "minmax" else {})
+    name = variant.get("name", row_of("cost_value").name)
+    return row_check("cost_value", per, f"margin = −|recorded cost − numpy {name}| / max(|J|, {COST_SCALE_FLOOR:g})",
+                     "no step was solved", extra={"cost": cost}, **variant)
 
 
 def pe_enabled(view: RunView) -> bool:
@@ -141,10 +134,7 @@ def pe_level(view: RunView) -> CheckResult:
             per[k] = -np.inf
             continue
         per[k] = (float(np.linalg.eigvalsh(G)[0]) - float(r.pe_level)) / max(1.0, abs(float(r.pe_level)))
-    return step_check("pe_level", GROUP_EXCITATION, "PE window level",
-                      "Section 4.2 (PE constraint): at every step where the PE constraint was enforced, the window Gram "
-                      "of the applied inputs (stacked to pe_dim) has λ_min >= pe_level",
-                      per, PE_LEVEL_TOL, f"margin = (λ_min − pe_level) / max(1, pe_level), window P = {P}; "
+    return row_check("pe_level", per, f"margin = (λ_min − pe_level) / max(1, pe_level), window P = {P}; "
                       "−inf at an enforced step that records no level or precedes its window",
                       "no step enforced the PE constraint in this run")
 
@@ -163,9 +153,7 @@ def pe_bounds(view: RunView) -> CheckResult:
         uk = float(u[0])
         per[k] = min((uk - lo) / max(1.0, abs(lo)) if np.isfinite(lo) else np.inf,
                      (hi - uk) / max(1.0, abs(hi)) if np.isfinite(hi) else np.inf)
-    return step_check("pe_bounds", GROUP_EXCITATION, "PE input bounds",
-                      "Section 4.2 (PE, two QPs): the applied input lies within the first-input bounds of the chosen QP",
-                      per, PE_BOUND_TOL, "margin = distance of u_k inside [lo, hi], relative to max(1, |bound|); "
+    return row_check("pe_bounds", per, "margin = distance of u_k inside [lo, hi], relative to max(1, |bound|); "
                       "−inf at an enforced step that records no bounds",
                       "no step recorded PE bounds")
 

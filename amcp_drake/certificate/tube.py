@@ -18,19 +18,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from amcp_drake.certificate.claims import RunView, max_over_set, not_claimed, step_check, tag
+from amcp_drake.certificate.claims import RunView, max_over_set, not_claimed, row_check, tag
 from amcp_drake.model import polytope
 from amcp_drake.model.check_result import CheckResult, judge
+from amcp_drake.model.claim_table import claim as row_of
 
-#: Constraints the tube QP (20) enforces, as returned by its solver: Clarabel's default
-#: feasibility tolerance is 1e-8 (relative to data of order 1-10 here); 1e-6 leaves room for that
-#: scaling and is still far below any violation that matters (state bounds of order 0.1-1).
-#: A loose solver (SCS at its defaults: violations ~1e-4 on Example 1) is caught, as intended.
-QP_TOL = 1e-6
-#: Vertex enumeration by Qhull: vertices are accurate to ~1e-12 relative to their size; 1e-8 as in
-#: design_checks, times the size of X0 when X0 is larger than 1 (:func:`x0_vertex_list`: Example 1 in
-#: states x̃ = 1e8 x has vertices of size 3e7, recomputed to ~1e-8 absolute, and the claim failed).
-VERTEX_TOL = 1e-8
+# The claims' tolerances, names and statements are their rows of the table of claims (model.claim_table):
+# model.tolerances.TUBE_TOL for the tube and its multipliers, VERTEX_TOL (relative, floor 1) for the vertex list.
 
 #: Most bytes of one array of the propagation check (5b) (a chunk of the vertices of X_(l|k) times the
 #: vertices of Θ_k times the rows of H_x): 16 MiB.
@@ -49,10 +43,10 @@ def x0_vertex_list(view: RunView) -> CheckResult:
     recorded = np.asarray(d.X0_vertices, float)
     fresh = polytope.vertices(d.H_x, np.ones(len(d.H_x)))
     hausdorff = max(_directed_distance(recorded, fresh), _directed_distance(fresh, recorded))
-    tol = VERTEX_TOL * max(1.0, float(np.max(np.abs(fresh))))
-    return tag(judge("X0 vertex list", "(14): the vertices x^j used by the QP are exactly the vertices of X0",
-                     0.0 - hausdorff, tol, f"{len(recorded)} recorded, {len(fresh)} recomputed vertices; "
-                     "margin = −Hausdorff distance"), "design.x0_vertices", GROUP_DESIGN)
+    row = row_of("design.x0_vertices")
+    tol = row.tolerance * max(1.0, float(np.max(np.abs(fresh))))  # relative to the size of X0, floor 1
+    return tag(judge(row.name, row.statement, 0.0 - hausdorff, tol, f"{len(recorded)} recorded, {len(fresh)} recomputed "
+                     "vertices; margin = −Hausdorff distance"), row.id, row.family)
 
 
 def _directed_distance(points: np.ndarray, others: np.ndarray) -> float:
@@ -178,21 +172,12 @@ def tube_checks(view: RunView) -> list[CheckResult]:
     if lp_fallback:
         prop_detail += f"; Θ_k vertices not enumerable at steps {lp_fallback}: max over Θ_k by HiGHS LPs"
     checks = [
-        step_check("tube_contains_state", GROUP_TUBE, "x_k ∈ X_0|k", "(5a), (15b): the tube starts at the measured state",
-                   contains, QP_TOL, "margin = min_i (α_0 − [H_x]_i (x_k − z_0))", none),
-        step_check("tube_contains_next_state", GROUP_TUBE, "x_(k+1) ∈ X_1|k",
-                   "(5b) on the run: the realised successor lies in the first predicted cross-section",
-                   contains_next, QP_TOL, "margin = min_i (α_1 − [H_x]_i (x_(k+1) − z_1))", none),
-        step_check("tube_propagation", GROUP_TUBE, "tube propagation (5b)",
-                   "(5b): A(θ)X_(l|k) ⊕ B(θ)v_l ⊕ W ⊆ X_(l+1|k) for all θ ∈ Θ_k (vertex enumeration)",
-                   propagation, QP_TOL, prop_detail, none),
-        step_check("tube_constraints", GROUP_TUBE, "tube in Z (5c)",
-                   "(5c), (15a): F x + G(Kx + v_l) <= 1 at every vertex of every X_(l|k), l < N",
-                   constraints, QP_TOL, "margin = min (1 − F x − G(Kx + v_l)) over tube vertices", none),
-        step_check("tube_alpha_nonneg", GROUP_TUBE, "α_(l|k) >= 0", "(14): tube scalings are non-negative",
-                   alpha_ok, QP_TOL, "margin = min_l α_(l|k)", none),
-        step_check("terminal_set", GROUP_TUBE, "(z_N, α_N) ∈ X_f", "Assumption 11: the tube ends in the terminal set",
-                   terminal, QP_TOL, "margin = min_r (1 − [H_T]_r z_N − [h_T]_r α_N)", none),
+        row_check("tube_contains_state", contains, "margin = min_i (α_0 − [H_x]_i (x_k − z_0))", none),
+        row_check("tube_contains_next_state", contains_next, "margin = min_i (α_1 − [H_x]_i (x_(k+1) − z_1))", none),
+        row_check("tube_propagation", propagation, prop_detail, none),
+        row_check("tube_constraints", constraints, "margin = min (1 − F x − G(Kx + v_l)) over tube vertices", none),
+        row_check("tube_alpha_nonneg", alpha_ok, "margin = min_l α_(l|k)", none),
+        row_check("terminal_set", terminal, "margin = min_r (1 − [H_T]_r z_N − [h_T]_r α_N)", none),
     ]
     if view.traj.meta.get("formulation") == "vertex":
         # The vertex formulation enforces (5b) at the vertices of Θ_k without multipliers: there is no Λ
@@ -203,16 +188,10 @@ def tube_checks(view: RunView) -> list[CheckResult]:
         # other formulation answered): no Λ was applied, so no claim about Λ is made for this run
         reason = ("every applied answer of (20) is the vertex form's (no multipliers): the plain form's answers were "
                   "rejected, see solver_answers")
-        return checks + [not_claimed(cid, name, claim, GROUP_TUBE, reason) for cid, name, claim in (
-            ("multipliers_nonneg", "Λ >= 0", "Proposition 9: the multipliers Λ^j_(l|k) are non-negative"),
-            ("multipliers_15c", "(15c) residual", "(15c): Λ^j h_θk + H_x d^j − α_(l+1) 1 <= −w̄ with the recorded Λ"),
-            ("multipliers_15d", "(15d) residual", "(15d): H_x D^j = Λ^j H_θk with the recorded Λ"))]
+        return checks + [not_claimed(row.id, row.name, row.statement, row.family, reason)
+                         for row in map(row_of, ("multipliers_nonneg", "multipliers_15c", "multipliers_15d"))]
     return checks + [
-        step_check("multipliers_nonneg", GROUP_TUBE, "Λ >= 0", "Proposition 9: the multipliers Λ^j_(l|k) are non-negative",
-                   lam_nonneg, QP_TOL, "margin = min entry of Λ", none),
-        step_check("multipliers_15c", GROUP_TUBE, "(15c) residual",
-                   "(15c): Λ^j h_θk + H_x d^j − α_(l+1) 1 <= −w̄ with the recorded Λ", lam_c, QP_TOL,
-                   "margin = min (−w̄ − Λ^j h_θk − H_x d^j + α_(l+1)); w̄ recomputed from the vertices of W", none),
-        step_check("multipliers_15d", GROUP_TUBE, "(15d) residual", "(15d): H_x D^j = Λ^j H_θk with the recorded Λ",
-                   lam_d, QP_TOL, "margin = −max |H_x D^j − Λ^j H_θk|", none),
+        row_check("multipliers_nonneg", lam_nonneg, "margin = min entry of Λ", none),
+        row_check("multipliers_15c", lam_c, "margin = min (−w̄ − Λ^j h_θk − H_x d^j + α_(l+1)); w̄ recomputed from the vertices of W", none),
+        row_check("multipliers_15d", lam_d, "margin = −max |H_x D^j − Λ^j H_θk|", none),
     ]

@@ -55,6 +55,9 @@ from amcp_drake.cli.common import (
               help="Output directory (its other files are left alone).")
 @click.option("--trajectory", "trajectory_file", default=None, type=click.Path(), callback=nonempty_path_callback,
               help="Re-check a saved trajectory (.json or .json.gz) instead of running the loop.")
+@click.option("--plane", "plane_text", default=None, metavar="I,J",
+              help="The two states of the report's tube plot, by index from 1 or by name (e.g. 2,4 or phi,omega; "
+                   "default: the two whose constraints the recorded tubes come closest to, see amcp.plots).")
 @online_options
 @max_memory_option
 @candidate_budget_option
@@ -65,7 +68,7 @@ from amcp_drake.cli.common import (
                "run the command again")
 @bad_input_exits_2
 def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend, formulation, steps, seed, out_dir,
-                trajectory_file, online, max_memory, candidate_budget, progress_every, simulator):
+                trajectory_file, plane_text, online, max_memory, candidate_budget, progress_every, simulator):
     """Run a closed loop and check every claim of the paper independently.
 
     Runs the adaptive MPC on PROBLEM (default: --example lorenzen2019, x0 = [2, 3],
@@ -95,12 +98,14 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
             raise ProblemError(", ".join(given), "no run options together with --trajectory (the run is not repeated)",
                                "both")
         traj, spec = _load_trajectory(trajectory_file, problem_file, example)
+        plane = _plane(plane_text, traj.problem)
     else:
         spec, steps, options = prepare_run(problem_file, example, x0_template, steps, online, max_memory,
                                            "a scenario (x0, theta_star, ...) in the problem file to run",
                                            "Add a \"scenario\" object, or pass --trajectory.",
                                            formulation=formulation)
         seed = spec.scenario.seed if seed is None else seed
+        plane = _plane(plane_text, spec.problem)  # checked before the run
         try:
             traj = _run(spec, backend, steps, seed, formulation, options, design_backend,
                         design_budget(max_memory, candidate_budget, progress_every=progress_every), simulator)
@@ -124,13 +129,22 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
         cert = _with_robust_baseline(traj, cert)
     try:
         out = write_outputs(out_dir, traj, cert, inputs=_provenance_inputs(problem_file, example, trajectory_file),
-                            command_line=["amcp", *sys.argv[1:]])
+                            command_line=["amcp", *sys.argv[1:]], plane=plane)
     except OSError as exc:  # a full disk or a failing medium: write_outputs removed what it had staged
         raise write_error("--out", out_dir, exc) from None
     _print(cert, out, traj.problem)
     if cert.verdict == VERDICT_PREMISE_NOT_MET and cert.conformance != "fail":
         sys.exit(EXIT_PREMISE_NOT_MET)
     exit_verdict(cert.passed and cert.conformance != "fail")
+
+
+def _plane(text, problem):
+    """The --plane of the tube plot as 0-based indices (None: the default plane)."""
+    if text is None:
+        return None
+    from amcp_drake.model.state_plane import parse_plane
+
+    return parse_plane("--plane", text, problem)
 
 
 def _with_robust_baseline(traj, cert):

@@ -34,7 +34,17 @@ from amcp_drake.cli.common import (
 @click.option("--grid", type=click.IntRange(min=1), default=None,
               help="Grid values per axis (default 21; with --points FILE holding a polytope, its grid).")
 @click.option("--box", "box_text", default=None, metavar="LO:HI,LO:HI,...",
-              help="Grid box, one interval per state (default: the state bounds of Z, else design.mu_state_bound).")
+              help="Grid box, one interval per state (with --plane: one per state or one per state of the plane; "
+                   "default: the state bounds of Z, else design.mu_state_bound).")
+@click.option("--plane", "plane_text", default=None, metavar="I,J",
+              help="A slice: the grid over two states (by index from 1 or by name, e.g. 2,4 or phi,omega), every "
+                   "other state fixed (--fix, else 0); coverage.png then maps that plane for any n.")
+@click.option("--fix", "fix_text", default=None, metavar="NAME=VALUE,...",
+              help="With --plane: the values of states outside the plane (by index from 1 or name); the others are 0.")
+@click.option("--max-points", "max_points", type=click.IntRange(min=1), default=None,
+              help="Largest number of initial states to evaluate (default 10000; a larger grid is refused with its "
+                   "counts before anything is solved).")
+@click.option("--yes", "yes", is_flag=True, help="Run any grid up to 250000 points (no --max-points limit).")
 @click.option("--points", "points_file", default=None, type=click.Path(dir_okay=False), callback=nonempty_path_callback,
               help='JSON file: {"points": [[..], ..]} or {"polytope": {"H": [[..]], "h": [..]}} (grid points inside).')
 @click.option("--adapt", "adapt_steps", type=click.IntRange(min=1), default=None,
@@ -52,40 +62,78 @@ from amcp_drake.cli.common import (
 @interruptible(lambda kw, exc: f"nothing new written to {kw['out_dir']} (each file is written whole or not at all); "
                "run the command again")
 @bad_input_exits_2
-def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, points_file, adapt_steps, adapt_x0,
-                 update, window, projection, out_dir, no_progress, max_memory, candidate_budget, progress_every):
+def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, plane_text, fix_text, max_points, yes,
+                 points_file, adapt_steps, adapt_x0, update, window, projection, out_dir, no_progress, max_memory,
+                 candidate_budget, progress_every):
     """Feasible fraction of a grid of initial states (QP (20), confirmed by an LP).
 
-    Writes coverage.json (every point, both verdicts, every disagreement) and coverage.png (n <= 2).
-    Exit code 0 when every point's QP verdict is confirmed, 1 on a disagreement (or an undecided QP,
-    a failed LP, a point feasible for Θ but not for Θ_T), 2 on bad input."""
+    Each point costs one QP (20) and one LP (two of each with --adapt). The counts are printed before
+    the grid runs, with a time estimated from a short timed probe; more than --max-points points (10000
+    by default) are refused with exit 2 before anything is solved (--yes lifts the limit). At n > 2, use
+    a slice: --plane I,J grids two states with the others fixed (--fix NAME=VALUE,..., else 0).
+
+    Writes coverage.json (every point, both verdicts, every disagreement, the estimate) and coverage.png
+    (n <= 2, or a slice). Exit code 0 when every point's QP verdict is confirmed, 1 on a disagreement (or
+    an undecided QP, a failed LP, a point feasible for Θ but not for Θ_T), 2 on bad input or a grid above
+    the limit."""
     import numpy as np
 
     from amcp_drake.cli.common import resolve_online
     from amcp_drake.model.errors import ProblemError
+    from amcp_drake.model.state_plane import parse_fixed, parse_plane
     from amcp_drake.offline.design import design
     from amcp_drake.studies.coverage import (
         DEFAULT_GRID,
+        DEFAULT_MAX_POINTS,
+        MAX_POINTS,
         default_box,
+        grid_cost,
         grid_points,
         load_points,
         parse_box,
+        require_within_limit,
         run_coverage,
+        slice_points,
         write_coverage,
     )
 
     if box_text and points_file:
         raise ProblemError("--box, --points", "at most one of them", "both")
+    if plane_text and points_file:
+        raise ProblemError("--plane, --points", "at most one of them (a slice is a grid)", "both")
+    if fix_text and not plane_text:
+        raise ProblemError("--fix", "--plane with it (--fix gives the states outside the plane)", "--fix alone")
+    if max_points is not None and max_points > MAX_POINTS:
+        raise ProblemError("--max-points", f"at most {MAX_POINTS}", str(max_points))
+    limit = MAX_POINTS if yes else (max_points or DEFAULT_MAX_POINTS)
     spec = load_problem_spec(problem_file, example)
     pr = spec.problem
     online = resolve_online(spec, update=update, window=window, projection=projection)
+    plane = parse_plane("--plane", plane_text, pr) if plane_text else None
+    fixed = parse_fixed("--fix", fix_text, pr, plane) if plane else None
+    per_axis = grid or DEFAULT_GRID
     if points_file:
-        points, source = load_points(points_file, pr.n, grid or DEFAULT_GRID)
+        points, source = load_points(points_file, pr.n, per_axis)
         axes = None
+        require_within_limit(grid_cost(len(points), adapt_steps), limit, "--points", f"{source}")
     else:
-        box = parse_box(box_text, pr.n) if box_text else default_box(pr, spec.design.mu_state_bound)
-        points, axes = grid_points(box, grid or DEFAULT_GRID)
-        source = "grid " + " x ".join(f"[{lo:g}, {hi:g}]" for lo, hi in box) + f", {grid or DEFAULT_GRID} per axis"
+        dims = 2 if plane else pr.n
+        require_within_limit(grid_cost(per_axis ** dims, adapt_steps), limit, "--grid",
+                             f"{per_axis} values per axis in {dims} dimensions ({per_axis}^{dims})")
+        if plane:
+            box = _plane_box(box_text, pr, plane, spec.design.mu_state_bound)
+            points, axes = slice_points(box, per_axis, plane, fixed)
+            others = [f"{pr.state_names[i]} = {fixed[i]:g}" for i in range(pr.n) if i not in plane]
+            source = (f"slice {pr.state_names[plane[0]]} x {pr.state_names[plane[1]]} = "
+                      + " x ".join(f"[{lo:g}, {hi:g}]" for lo, hi in box) + f", {per_axis} per axis"
+                      + (f"; {', '.join(others)}" if others else ""))
+        else:
+            box = parse_box(box_text, pr.n) if box_text else default_box(pr, spec.design.mu_state_bound)
+            points, axes = grid_points(box, per_axis)
+            source = "grid " + " x ".join(f"[{lo:g}, {hi:g}]" for lo, hi in box) + f", {per_axis} per axis"
+    cost = grid_cost(len(points), adapt_steps)
+    echo(f"cost: {cost['points']} initial states x {cost['parameter_sets']} parameter set(s) = {cost['qps']} QPs (20) "
+         f"and {cost['lps']} LPs" + (f", plus a closed loop of {adapt_steps} steps" if adapt_steps else ""), err=True)
     if adapt_x0 is not None:
         try:
             adapt_x0 = [float(v) for v in adapt_x0.split(",")]
@@ -104,8 +152,14 @@ def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, po
 
         return tqdm(total=total, desc=label, unit="pt", file=sys.stderr, leave=False)
 
+    def on_estimate(estimate):
+        echo(f"estimate: {1e3 * estimate['probe_s_per_point']:.1f} ms per point (QP + LP, timed on "
+             f"{estimate['probe_points']} points) -> about {_duration(estimate['estimate_s'])} for {estimate['qps']} "
+             "QPs and LPs", err=True)
+
     res = run_coverage(spec, d, points, source=source, axes=axes, adapt_steps=adapt_steps, backend=backend,
-                       formulation=formulation, options=online, adapt_x0=adapt_x0, progress_factory=progress_factory)
+                       formulation=formulation, options=online, adapt_x0=adapt_x0, progress_factory=progress_factory,
+                       plane=plane, fixed=fixed, on_estimate=on_estimate)
     js, png = write_coverage(res, out_dir)
     s = res.summary()
     echo(f"{pr.name}: {s['points']} initial states ({source}); backend {backend}, formulation {formulation}")
@@ -133,5 +187,25 @@ def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, po
             x0 = np.array2string(np.asarray(row["x0"]), precision=4, separator=", ")
             detail = {k: v for k, v in row.items() if k not in ("index", "x0")}
             echo(f"  {kind}: x0 = {x0} {detail}")
-    echo(f"wrote {js}" + (f" and {png}" if png else " (no PNG for n >= 3)"))
+    echo(f"wrote {js}" + (f" and {png}" if png else " (no PNG for n >= 3 without a slice: --plane I,J)"))
     exit_verdict(res.passed)
+
+
+def _plane_box(box_text, problem, plane, state_bound):
+    """The (2, 2) intervals of a slice: from --box (one interval per state, or one per state of the plane),
+    else the state bounds of Z along the plane's states."""
+    from amcp_drake.studies.coverage import default_box, parse_box
+
+    if not box_text:
+        return default_box(problem, state_bound)[list(plane)]
+    if len(box_text.split(",")) == 2:
+        return parse_box(box_text, 2)
+    return parse_box(box_text, problem.n)[list(plane)]
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.1f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.1f} min"
+    return f"{seconds / 3600:.1f} h"

@@ -29,16 +29,29 @@ def _fmt(a) -> str:
     return np.array2string(np.asarray(a), precision=5, suppress_small=True, separator=", ")
 
 
+def _vector_line(name: str, values, verbose: bool) -> str:
+    """``name = [...]`` in full when ``verbose`` or when it has at most 8 entries, else its count and range."""
+    v = np.asarray(values, float)
+    if verbose or v.size <= 8:
+        return f"{name} = {_fmt(v)}"
+    return f"{name}: {v.size} values in [{v.min():.5g}, {v.max():.5g}] (all of them with -v)"
+
+
 @click.command("design")
 @problem_options()
 @backend_option
 @click.option("--json", "as_json", is_flag=True, help="Print the design and checks as JSON.")
+@click.option("-v", "--verbose", is_flag=True,
+              help="Also print P, the vectors w_bar and f_bar and every candidate's full reason.")
 @max_memory_option
 @candidate_budget_option
 @progress_every_option
 @bad_input_exits_2
-def design_cmd(problem_file, example, x0_template, backend, as_json, max_memory, candidate_budget, progress_every):
-    """Compute K, P, X0, w_bar, f_bar, Xf and mu ((11), (14), (16), Appendix A.1) and verify them independently."""
+def design_cmd(problem_file, example, x0_template, backend, as_json, verbose, max_memory, candidate_budget, progress_every):
+    """Compute K, P, X0, w_bar, f_bar, Xf and mu ((11), (14), (16), Appendix A.1) and verify them independently.
+
+    The automatic design prints one line per candidate as it ends (on stderr: what it tried and how it
+    ended); ``-v`` adds P, the vectors w_bar and f_bar and each candidate's full reason to the report."""
     from amcp_drake.offline.checks import verify_design
     from amcp_drake.offline.design import design
 
@@ -55,18 +68,22 @@ def design_cmd(problem_file, example, x0_template, backend, as_json, max_memory,
         if pr.describe_signals():
             echo(f"problem {pr.name}: {pr.describe_signals()}")
         echo(f"K ({d.gain_source}) = {_fmt(d.K)}")
-        echo(f"P = {_fmt(d.P)}")
-        for i, attempt in enumerate((d.info or {}).get("attempts", [])):
-            reason = f" ({attempt['reason']})" if attempt["reason"] else ""
-            echo(f"design attempt {i + 1}: {attempt['label']}: {attempt['outcome']}{reason} [{attempt['seconds']:.1f} s]")
-        echo(f"X0 template: {(d.info or {}).get('x0_template', 'n/a')}")
+        if verbose:
+            echo(f"P = {_fmt(d.P)}")
+        attempts = (d.info or {}).get("attempts", [])
+        if verbose:
+            for i, attempt in enumerate(attempts):
+                reason = f" ({attempt['reason']})" if attempt["reason"] else ""
+                echo(f"design attempt {i + 1}: {attempt['label']}: {attempt['outcome']}{reason} [{attempt['seconds']:.1f} s]")
+        tried = f" (candidate {len(attempts)} of the automatic design)" if attempts else ""
+        echo(f"X0 template: {(d.info or {}).get('x0_template', 'n/a')}{tried}")
         state_units = (d.info or {}).get("state_units")
         if state_units:  # offline/units.py: W's extents were unequal
             echo(f"designed in the state units xi = diag({_fmt(np.asarray(state_units['xi_equals_diag_times_x']))}) x "
                        "(W's extents equalised), mapped back and checked in the file's units")
         echo(f"X0: {len(d.H_x)} facets, {len(d.X0_vertices)} vertices, lambda_bar = {d.lambda_bar:.5f}")
-        echo(f"w_bar = {_fmt(d.w_bar)}")
-        echo(f"f_bar = {_fmt(d.f_bar)}")
+        echo(_vector_line("w_bar", d.w_bar, verbose))
+        echo(_vector_line("f_bar", d.f_bar, verbose))
         terminal = (d.info or {}).get("terminal_set", "recursion")
         echo(f"Xf: {len(d.H_T)} rows, " + (f"recursion of Appendix A.1 ({d.terminal_iterations} iterations)"
                                                  if terminal == "recursion" else "scaled copy of X0 (offline/terminal.py)"))

@@ -7,11 +7,13 @@ states, m inputs, p parameters, horizon N, u facets and v vertices of the tube s
 
 * variables, as built by ``backends/drake_tube.py`` with every row of (15c) (``prune=False``, its
   fallback): (N+1)·n (z) + (N+1) (α) + N·m (v) + N·v·u·(q−p) (the multipliers Λ_N; the other p of
-  each row are solved from (15d), ``backends/multiplier_basis.py``); its default program leaves out
+  each row are solved from (15d), ``backends/multiplier_basis.py``) + N·n (the deviations e_l of the
+  tube centres that (15c) is written in); its default program leaves out
   the rows implied by others on Θ0 (``backends/dominated_rows.py``, not known before the design) and
   is smaller; the cvxpy backend keeps all N·v·u·q multipliers;
-* rows: N·c (15a) + u (15b) + N·v·u (15c) + N·v·u·p ((15d) in cvxpy, Λ_B >= 0 in Drake) + c
-  (terminal set, estimated by c rows; its true size is known only after the design);
+* rows: N·c (15a) + u (15b) + N·v·u (15c) + N·v·u·p ((15d) in cvxpy, Λ_B >= 0 in Drake) + N·n (the
+  rows defining e_l in Drake) + c (terminal set, estimated by c rows; its true size is known only after
+  the design);
 * nonzeros, of the cvxpy form (the larger of the two, so the memory bound holds for both):
   N·c·(n+m+1) + u·(n+1) + N·v·u·(2n+m+2+q) + N·v·u·p·(n+m+1+q) + c·(n+1).
 
@@ -158,8 +160,8 @@ def estimate_run_size(n: int, m: int, p: int, N: int, facets: int, theta_rows: i
     per_step = q * (p + 1) + (N + 1) * (n + 1) + N * m + q * w_rows * window
     if formulation == "plain":
         block = N * nv * u
-        variables = (N + 1) * n + (N + 1) + N * m + block * (q - p)
-        rows = N * c + u + block + block * p + c
+        variables = (N + 1) * n + (N + 1) + N * m + block * (q - p) + N * n
+        rows = N * c + u + block + block * p + N * n + c
         nonzeros = (N * c * (n + m + 1) + u * (n + 1) + block * (2 * n + m + 2 + q) + block * p * (n + m + 1 + q)
                     + c * (n + 1))
         per_step += block * q  # the multipliers Λ of every step

@@ -443,6 +443,10 @@ class DesignOptions:
     * ``x0_lambda``: λ of the contractive template (None: 0.9 for "contractive"; auto tries its list);
       λ₀ of the preimage template's directions (None: 0.97).
     * ``x0_H`` (u, n): the user's X0 for ``"given"``.
+    * ``x0_max_facets``: most rows of the ``"contractive"`` and ``"preimage"`` X0 (their iteration stops
+      as "too complex" past it) and of the ``"mrpi"`` candidates the automatic mode tries; None
+      (default): each template's own cap. The automatic mode first tries every candidate under a
+      smaller cap from n = 4 on (offline/auto.py, docs/decisions.md "X0 templates and the automatic design").
     * ``gain_R_scale`` (>= 1): the gain LMI (16) is solved with R multiplied by this (a lower-gain K,
       whose P still satisfies (16) with the true R); 1 = the LMI of the paper.
     * ``state_units``: ``"normalised"`` (default): the design is computed in the state units where
@@ -466,12 +470,15 @@ class DesignOptions:
     x0_H: np.ndarray | None = None
     gain_R_scale: float = 1.0
     state_units: str = "normalised"
+    x0_max_facets: int | None = None
     terminal_set: str = "auto"
 
     def validate_for(self, problem: Problem) -> DesignOptions:
         """Check values and shapes against ``problem``; return self."""
         if self.x0_facets is not None:
             as_positive_int("design.x0_facets", self.x0_facets, 2 * problem.n)
+        if self.x0_max_facets is not None:
+            as_positive_int("design.x0_max_facets", self.x0_max_facets, 2 * problem.n)
         if self.K is not None:
             object.__setattr__(self, "K", as_matrix("design.K", self.K, rows=problem.m, cols=problem.n))
         if self.P is not None:

@@ -35,6 +35,18 @@ the gains of step 3 (lowest first) and each λ₀ of
 system that designed before keeps its design. A preimage candidate whose tube does not fit Z records
 how far it reaches (``fit_ratio``), and :class:`AutoDesignError` names the closest one.
 
+Two rounds from n = 4 on (:func:`compact_facets`): the simplest X0 that passes is preferred, with the
+facet count as the cost (the tube QP has N·u rows per vertex of Θ and its cross-section's vertices, the
+other cost, grow with the facets: 58 facets have 298 vertices on the cart-pole, 152 have 554). The
+first round runs the order above with every open-ended template capped at :func:`compact_facets`
+(16 n) rows (``design.x0_max_facets``; the contractive and preimage iterations stop as "too complex"
+once they pass it, which costs little) and leaves out the mrpi candidates with more facets; the first
+design passing every check is kept. Only when none passes does the second round run, in the same
+order, the candidates the cap stopped or left out, with their own caps: every candidate that designed
+before still runs, so no system loses its design, and a system whose first passing candidate was
+complex gets a simpler one when any candidate of the order gives one. Below n = 4 there is one round
+(X0 has as many vertices as facets in 2-D, and a larger contractive set gives the larger region).
+
 Each attempt is recorded as (label, outcome, reason, seconds); the returned design carries them in
 ``info["attempts"]``; when none passes, :class:`AutoDesignError` lists them all. Every candidate
 runs under a :class:`~amcp_drake.offline.budget.DesignBudget`: a stage whose size estimate exceeds
@@ -70,6 +82,14 @@ AUTO_FACETS = (12, 16, 20, 24, 32, 48, 64, 96)
 BOUNDED_FIRST_N = 4
 #: Above this dimension the many-facet mrpi candidates of step 4 are not tried.
 MRPI_FACETS_MAX_N = 3
+#: Rows of X0 per state allowed in the first round of the automatic design (:func:`compact_facets`).
+COMPACT_FACETS_PER_STATE = 16
+
+
+def compact_facets(n: int) -> int | None:
+    """The facet cap of the first round of the automatic design at n states: 16 n from n = 4
+    (:data:`BOUNDED_FIRST_N`) on (64 at n = 4), None (a single round) below (module docstring)."""
+    return COMPACT_FACETS_PER_STATE * int(n) if int(n) >= BOUNDED_FIRST_N else None
 
 
 @dataclass(frozen=True)
@@ -85,16 +105,29 @@ class Attempt:
     seconds: float
     fit_ratio: float | None = None
     fit_bound: bool = False
+    brief: str = ""
+    facets: int | None = None
+    vertices: int | None = None
 
     def to_dict(self) -> dict:
         out = {"label": self.label, "outcome": self.outcome, "reason": self.reason, "seconds": round(self.seconds, 3)}
         if self.fit_ratio is not None:
             out["fit_ratio"] = self.fit_ratio
             out["fit_bound"] = self.fit_bound
+        if self.facets is not None:
+            out["facets"] = self.facets
+            out["vertices"] = self.vertices
         return out
 
     def line(self) -> str:
         return f"{self.label}: {self.outcome}" + (f" ({self.reason})" if self.reason else "") + f" [{self.seconds:.1f} s]"
+
+    def short_line(self) -> str:
+        """One line of what was tried and how it ended: the short reason (``brief``), the size of a
+        designed X0, the time; the full reason is in :meth:`line`."""
+        size = f", X0 {self.facets} facets / {self.vertices} vertices" if self.facets is not None else ""
+        why = self.brief or self.reason
+        return f"{self.label}: {self.outcome}" + (f" ({why})" if why else "") + f"{size} [{self.seconds:.1f} s]"
 
 
 class AutoDesignError(DesignError):
@@ -153,10 +186,45 @@ def candidate_options(problem: Problem, options: DesignOptions) -> list[DesignOp
     return out
 
 
+#: Templates whose row count is open-ended: capped by ``design.x0_max_facets`` in a round of the automatic design.
+CAPPED_KINDS = ("contractive", "preimage")
+
+
+def round_caps(problem: Problem, options: DesignOptions) -> list[int | None]:
+    """The facet caps of the rounds of the automatic design, in order (module docstring): the
+    compact cap (:func:`compact_facets`) and then the user's ``design.x0_max_facets`` (None: each
+    template's own cap), or a single round when there is no compact cap or the user's is no larger."""
+    compact = compact_facets(problem.n)
+    user = options.x0_max_facets
+    if compact is None or (user is not None and user <= compact):
+        return [user]
+    return [compact, user]
+
+
+def _in_round(candidate: DesignOptions, cap: int | None, n: int) -> DesignOptions | None:
+    """``candidate`` as it runs in a round with facet cap ``cap``: the open-ended templates capped, an
+    mrpi template with more facets than the cap left out (None); the others as they are."""
+    if cap is None:
+        return candidate
+    if candidate.x0_template in CAPPED_KINDS:
+        return replace(candidate, x0_max_facets=cap)
+    if candidate.x0_template == "mrpi" and candidate.facets_for(n) > cap:
+        return None
+    return candidate
+
+
+def _stopped_by_cap(candidate: DesignOptions, exc: Exception) -> bool:
+    """True when a capped candidate ended because its X0 passed the round's facet cap."""
+    return (candidate.x0_template in CAPPED_KINDS and candidate.x0_max_facets is not None
+            and isinstance(exc, x0_templates.TemplateError) and exc.reason == "too complex")
+
+
 def design_auto(problem: Problem, options: DesignOptions, backend, design_fixed, robust_gain, verify, log=None,
                 budget: DesignBudget | None = None):
     """The first candidate of :func:`candidate_options` whose design passes every check of ``verify``
-    (:func:`~amcp_drake.offline.checks.verify_design`); ``log(line)`` is called after each attempt.
+    (:func:`~amcp_drake.offline.checks.verify_design`), round by round (:func:`round_caps`: from n = 4
+    on the candidates first run capped at :func:`compact_facets` facets); ``log(line)`` is called
+    after each attempt.
 
     ``design_fixed`` and ``robust_gain`` are those of offline/design.py, passed in by
     :func:`~amcp_drake.offline.design.design` (this module sits below design.py: no import cycle).
@@ -166,42 +234,61 @@ def design_auto(problem: Problem, options: DesignOptions, backend, design_fixed,
     budget = budget or unbounded()
     gains: dict = {}
     attempts: list[Attempt] = []
-    candidates = candidate_options(problem, options)
-    for number, candidate in enumerate(candidates, start=1):
-        label = template_label(candidate, dimension=problem.n)
-        cand_budget = budget.for_candidate(f"candidate {number}/{len(candidates)} ({label})")
-        if budget.progress is not None:
-            budget.progress(f"design candidate {number}/{len(candidates)}: {label} ...")
-        start = time.perf_counter()
-        try:
-            key = candidate.gain_R_scale
-            if key not in gains:
-                gains[key] = robust_gain(problem, candidate, be)
-            d = design_fixed(problem, candidate, backend=be, gain=gains[key], budget=cand_budget)
-        except DesignSizeError as exc:
-            _record(attempts, Attempt(label, "too large", _short(exc), time.perf_counter() - start), log, budget)
-            continue
-        except CandidateTimeout as exc:
-            _record(attempts, Attempt(label, "time budget", _short(exc), time.perf_counter() - start), log, budget)
-            continue
-        except DesignError as exc:  # includes TemplateError and TerminalSetError
-            _record(attempts, Attempt(label, "design failed", _short(exc), time.perf_counter() - start,
-                                      getattr(exc, "fit_ratio", None), getattr(exc, "fit_bound", False)), log, budget)
-            continue
-        checks = verify(problem, d, candidate.mu_state_bound)
-        failed = [c for c in checks if not c.passed]
-        if failed:
-            reason = "; ".join(f"{c.name}: {c.status}" + (f" (margin {c.margin:.3g})" if c.margin is not None else "")
-                               for c in failed)
-            _record(attempts, Attempt(label, "check failed", reason, time.perf_counter() - start), log, budget)
-            continue
-        _record(attempts, Attempt(label, "pass", "", time.perf_counter() - start), log, budget)
-        info = dict(d.info)
-        info["x0_template"] = template_label(candidate, len(d.H_x), dimension=problem.n)
-        info["options"] = {"x0_template": candidate.x0_template, "x0_facets": candidate.facets_for(problem.n),
-                           "x0_lambda": candidate.x0_lambda, "gain_R_scale": candidate.gain_R_scale}
-        info["attempts"] = [a.to_dict() for a in attempts]
-        return replace(d, info=info)
+    pending = candidate_options(problem, options)
+    caps = round_caps(problem, options)
+    for round_number, cap in enumerate(caps, start=1):
+        runs = [(c, _in_round(c, cap, problem.n)) for c in pending]
+        later: list[DesignOptions] = [c for c, run in runs if run is None]  # left out of this round
+        runs = [(c, run) for c, run in runs if run is not None]
+        if round_number > 1 and budget.progress is not None:
+            budget.progress(f"design: no candidate with at most {caps[round_number - 2]} facets passed; "
+                            f"{len(runs)} candidate(s) again with " + (f"at most {cap} facets" if cap is not None
+                                                                        else "their own caps"))
+        for original, candidate in runs:
+            label = template_label(candidate, dimension=problem.n)
+            number = len(attempts) + 1
+            cand_budget = budget.for_candidate(f"candidate {number} ({label})")
+            start = time.perf_counter()
+            try:
+                key = candidate.gain_R_scale
+                if key not in gains:
+                    gains[key] = robust_gain(problem, candidate, be)
+                d = design_fixed(problem, candidate, backend=be, gain=gains[key], budget=cand_budget)
+            except DesignSizeError as exc:
+                _record(attempts, Attempt(label, "too large", _short(exc), time.perf_counter() - start,
+                                          brief=_brief(exc)), log, budget)
+                continue
+            except CandidateTimeout as exc:
+                _record(attempts, Attempt(label, "time budget", _short(exc), time.perf_counter() - start,
+                                          brief=_brief(exc)), log, budget)
+                continue
+            except DesignError as exc:  # includes TemplateError and TerminalSetError
+                if _stopped_by_cap(candidate, exc):
+                    later.append(original)
+                _record(attempts, Attempt(label, "design failed", _short(exc), time.perf_counter() - start,
+                                          getattr(exc, "fit_ratio", None), getattr(exc, "fit_bound", False),
+                                          brief=_brief(exc)), log, budget)
+                continue
+            checks = verify(problem, d, candidate.mu_state_bound)
+            failed = [c for c in checks if not c.passed]
+            if failed:
+                reason = "; ".join(f"{c.name}: {c.status}" + (f" (margin {c.margin:.3g})" if c.margin is not None else "")
+                                   for c in failed)
+                brief = ", ".join(c.name for c in failed) + " failed"
+                _record(attempts, Attempt(label, "check failed", reason, time.perf_counter() - start, brief=brief),
+                        log, budget, d)
+                continue
+            _record(attempts, Attempt(label, "pass", "", time.perf_counter() - start), log, budget, d)
+            info = dict(d.info)
+            info["x0_template"] = template_label(candidate, len(d.H_x), dimension=problem.n)
+            info["options"] = {"x0_template": candidate.x0_template, "x0_facets": candidate.facets_for(problem.n),
+                               "x0_lambda": candidate.x0_lambda, "gain_R_scale": candidate.gain_R_scale}
+            info["attempts"] = [a.to_dict() for a in attempts]
+            return replace(d, info=info)
+        order = {id(c): i for i, c in enumerate(pending)}
+        pending = sorted(later, key=lambda c: order[id(c)])  # the documented order, in the next round
+        if not pending:
+            break
     raise AutoDesignError(attempts)
 
 
@@ -226,6 +313,8 @@ def template_label(options: DesignOptions, facets: int | None = None, dimension:
         text = f"{kind}" + (f", {facets} facets" if facets is not None else "")
     if options.gain_R_scale != 1.0 and options.K is None:
         text += f", K from R x {options.gain_R_scale:g}"
+    if facets is None and kind in CAPPED_KINDS and options.x0_max_facets is not None:
+        text += f", at most {options.x0_max_facets} facets"
     return text
 
 
@@ -250,9 +339,26 @@ def _emit(log, attempt: Attempt) -> None:
         log(attempt.line())
 
 
-def _record(attempts: list[Attempt], attempt: Attempt, log, budget: DesignBudget) -> None:
-    """Append ``attempt``, hand it to ``log`` and report its end through the budget's progress callback."""
+def _record(attempts: list[Attempt], attempt: Attempt, log, budget: DesignBudget, designed=None) -> None:
+    """Append ``attempt`` (with the size of ``designed``'s X0 when a design was made), hand it to
+    ``log`` and report its end in one line through the budget's progress callback."""
+    if designed is not None:
+        attempt = replace(attempt, facets=len(designed.H_x), vertices=len(designed.X0_vertices))
     attempts.append(attempt)
     _emit(log, attempt)
     if budget.progress is not None:
-        budget.progress(f"design candidate {len(attempts)}: {attempt.line()}")
+        budget.progress(f"design candidate {len(attempts)}: {attempt.short_line()}")
+
+
+#: Longest short reason of a candidate's line (:meth:`Attempt.short_line`).
+BRIEF_CHARS = 90
+
+
+def _brief(exc: Exception) -> str:
+    """The short reason of a failed candidate: a template's reason and detail, else the message's first
+    sentence, at most :data:`BRIEF_CHARS` characters (the full message is the attempt's ``reason``)."""
+    if isinstance(exc, x0_templates.TemplateError):
+        text = f"{exc.reason}: {exc.detail}"
+    else:
+        text = str(exc).replace("\n", " ").split("; ")[0].split(". ")[0]
+    return text if len(text) <= BRIEF_CHARS else text[:BRIEF_CHARS - 3] + "..."

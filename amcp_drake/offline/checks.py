@@ -12,19 +12,14 @@ import numpy as np
 
 from amcp_drake.model import polytope
 from amcp_drake.model.check_result import CheckResult, judge, not_run
+from amcp_drake.model.claim_table import claim as row_of
 from amcp_drake.model.errors import DesignError
 from amcp_drake.model.problem import Problem
 from amcp_drake.offline.result import OfflineDesign, closed_loop_vertices, regressor_sup
 
-#: Round-off allowed in the eigenvalue check of (16), relative to the size of its terms
-#: (max of ‖A_clᵀPA_cl‖, ‖P‖, ‖Q + KᵀRK‖ over the vertices): forming the matrix and eigvalsh err by
-#: about n·1e-16 of that, so 1e-12 leaves a factor 1e3 for round-off and no room for a violation.
-#: Relative because (16) is homogeneous in the units of x: with x in units 1e3 larger, P and every
-#: eigenvalue are 1e6 smaller, and the former absolute 1e-9 then passed a violation of 1e-3 of ‖P‖
-#: (docs/decisions.md, "Gain LMI (16) on badly scaled systems").
-EIG_TOL_REL = 1e-12
-#: Round-off allowed in set-inclusion checks evaluated at vertices (qhull accuracy ~1e-12).
-VERTEX_TOL = 1e-8
+# Each check's name, statement, tolerance and strictness are its row ``design.<name>`` of the table of claims
+# (model.claim_table; tolerances model.tolerances EIG_TOL_REL, relative to the size of the terms of (16),
+# VERTEX_TOL, OFFLINE_CONSTANTS_TOL; Assumption 8 and (11) strict with tolerance 0).
 #: Most bytes of one array of the Assumption 11 check (a chunk of the vertices of X_f times the rows of
 #: H_x at every vertex of Θ): 16 MiB.
 CHECK_CHUNK_BYTES = 16 * 2**20
@@ -42,17 +37,20 @@ def verify_design(problem: Problem, design: OfflineDesign, mu_state_bound: float
     W_v = problem.w_vertices()
     w_bar = np.max(design.H_x @ W_v.T, axis=1)
     h_bar = np.array([np.max(design.H_x @ Ak @ X0_v.T, axis=1) for Ak in A_cl])
-    checks.append(judge("X0 contractive", "Appendix A.1: lambda_bar = max_k,i [h_bar^k]_i < 1",
-                        1.0 - float(np.max(h_bar)), VERTEX_TOL, f"lambda_bar = {np.max(h_bar):.6f}"))
-    checks.append(judge("X0 robustly invariant", "A_cl(θ)X0 ⊕ W ⊆ X0 for all θ ∈ Θ (h_bar^k + w_bar <= 1)",
-                        1.0 - float(np.max(h_bar + w_bar)), VERTEX_TOL))
-    checks.append(judge("w_bar, f_bar recomputed", "offline constants of Prop. 9 match vertex recomputation",
-                        -max(float(np.max(np.abs(w_bar - design.w_bar))),
-                             float(np.max(np.abs(np.max((problem.F + problem.G @ design.K) @ X0_v.T, axis=1) - design.f_bar)))),
-                        1e-6))
+    checks.append(_judge("design.x0_contractive", 1.0 - float(np.max(h_bar)), f"lambda_bar = {np.max(h_bar):.6f}"))
+    checks.append(_judge("design.x0_robustly_invariant", 1.0 - float(np.max(h_bar + w_bar))))
+    checks.append(_judge("design.w_bar_f_bar_recomputed",
+                         -max(float(np.max(np.abs(w_bar - design.w_bar))),
+                              float(np.max(np.abs(np.max((problem.F + problem.G @ design.K) @ X0_v.T, axis=1) - design.f_bar))))))
     checks.extend(_terminal_set(problem, design, A_cl, X0_v, W_v, w_bar, h_bar))
     checks.append(_mu(problem, design, mu_state_bound))
     return checks
+
+
+def _judge(claim_id: str, margin: float | None, detail: str = "", scale: float = 1.0) -> CheckResult:
+    """``margin`` judged as the claim's row says: its tolerance (times ``scale`` for a relative one), strict or not."""
+    row = row_of(claim_id)
+    return judge(row.name, row.statement, margin, row.tolerance * scale, detail, strict=row.strict)
 
 
 def _terminal_cost(problem: Problem, design: OfflineDesign, A_cl: np.ndarray) -> CheckResult:
@@ -60,14 +58,13 @@ def _terminal_cost(problem: Problem, design: OfflineDesign, A_cl: np.ndarray) ->
     stage = problem.Q + K.T @ problem.R @ K
     worst = max(float(np.max(np.linalg.eigvalsh(Ak.T @ P @ Ak + stage - P))) for Ak in A_cl)
     size = max(max(np.linalg.norm(Ak.T @ P @ Ak, 2) for Ak in A_cl), np.linalg.norm(P, 2), np.linalg.norm(stage, 2))
-    return judge("terminal cost (16)", "A_cl(θ)ᵀ P A_cl(θ) + Q + KᵀRK ⪯ P at every vertex of Θ",
-                 -worst, EIG_TOL_REL * float(size), f"largest eigenvalue {worst:.3e} (terms of size {size:.3e})")
+    return _judge("design.terminal_cost_16", -worst, f"largest eigenvalue {worst:.3e} (terms of size {size:.3e})",
+                  scale=float(size))
 
 
 def _prestabilisation(A_cl: np.ndarray) -> CheckResult:
     radius = max(float(np.max(np.abs(np.linalg.eigvals(Ak)))) for Ak in A_cl)
-    return judge("Assumption 8", "A_cl(θ) Schur stable at every vertex of Θ (spectral radius < 1)",
-                 1.0 - radius, 0.0, f"max spectral radius {radius!r} (must be < 1)", strict=True)
+    return _judge("design.assumption_8", 1.0 - radius, f"max spectral radius {radius!r} (must be < 1)")
 
 
 def _terminal_set(problem, design, A_cl, X0_v, W_v, w_bar, h_bar) -> list[CheckResult]:
@@ -79,8 +76,7 @@ def _terminal_set(problem, design, A_cl, X0_v, W_v, w_bar, h_bar) -> list[CheckR
     separate the same way over x_j. The vertices of X_f are taken in chunks of at most
     :data:`CHECK_CHUNK_BYTES` per array, so the work is (vertices of X_f) × (vertices of Θ) × rows
     and never (vertices of X_f) × (vertices of X0) × (vertices of Θ) × rows."""
-    claim_inv = "Assumption 11: A_cl(θ)({z} ⊕ αX0) ⊕ W ⊆ {z⁺} ⊕ α⁺X0 with (z⁺, α⁺) ∈ X_f, for all θ ∈ Θ"
-    claim_con = "Assumption 11: (x, Kx) ∈ Z for all x ∈ {z} ⊕ αX0, (z, α) ∈ X_f"
+    inv, con = row_of("design.x_f_invariant"), row_of("design.x_f_in_z")
     non_empty = _steady_tube_in_terminal_set(design, w_bar, h_bar)
     H = np.vstack([np.column_stack([design.H_T, design.h_T]), np.r_[np.zeros(problem.n), -1.0]])
     h = np.r_[np.ones(len(design.H_T)), 0.0]
@@ -88,8 +84,8 @@ def _terminal_set(problem, design, A_cl, X0_v, W_v, w_bar, h_bar) -> list[CheckR
         verts = polytope.vertices(H, h)
     except ValueError as exc:
         return [non_empty,
-                not_run("X_f invariant", claim_inv, f"X_f is unbounded or flat, vertices not enumerable: {exc}"),
-                not_run("X_f in Z", claim_con, "X_f vertices not enumerable")]
+                not_run(inv.name, inv.statement, f"X_f is unbounded or flat, vertices not enumerable: {exc}"),
+                not_run(con.name, con.statement, "X_f vertices not enumerable")]
     n = problem.n
     A_cl = np.asarray(A_cl, float)
     X0_v, W_v = np.asarray(X0_v, float), np.asarray(W_v, float)
@@ -123,8 +119,8 @@ def _terminal_set(problem, design, A_cl, X0_v, W_v, w_bar, h_bar) -> list[CheckR
     detail = f"{len(verts)} vertices of X_f, {len(design.H_T)} rows"
     return [
         non_empty,
-        judge("X_f invariant", claim_inv, min(inclusion_margin, member_margin), VERTEX_TOL, detail),
-        judge("X_f in Z", claim_con, con_margin, VERTEX_TOL, detail),
+        _judge(inv.id, min(inclusion_margin, member_margin), detail),
+        _judge(con.id, con_margin, detail),
     ]
 
 
@@ -147,13 +143,12 @@ def _steady_tube_in_terminal_set(design: OfflineDesign, w_bar: np.ndarray, h_bar
     the least fixed point of α ↦ φ(0, α) = max_{k,i} h̄^k_i α + w̄_i (finite when λ̄ < 1). Margin:
     1 − max_i [h_T]_i α_∞ (−inf when λ̄ >= 1). Invariance of X_f implies it (φ iterated from (0, 0)
     stays in X_f and tends to α_∞), so it fails together with "X_f invariant"; it says why."""
-    claim = "Assumption 11: X_f ≠ ∅, i.e. it holds the tube's steady state (0, α_∞), α_∞ = max w̄_i / (1 − h̄^k_i)"
+    row = row_of("design.x_f_non_empty")
     if float(np.max(h_bar)) >= 1.0:
-        return judge("X_f non-empty", claim, float("-inf"), 0.0, "λ̄ >= 1: the tube has no steady state")
+        return judge(row.name, row.statement, float("-inf"), 0.0, "λ̄ >= 1: the tube has no steady state")
     alpha_inf = float(np.max(w_bar[None, :] / (1.0 - h_bar)))
     worst = float(np.max(design.h_T)) * alpha_inf if len(design.h_T) else 0.0
-    return judge("X_f non-empty", claim, 1.0 - worst, VERTEX_TOL,
-                 f"α_∞ = {alpha_inf:.6g}, max h_T α_∞ = {worst:.6g}")
+    return _judge(row.id, 1.0 - worst, f"α_∞ = {alpha_inf:.6g}, max h_T α_∞ = {worst:.6g}")
 
 
 def _mu(problem: Problem, design: OfflineDesign, state_bound: float | None) -> CheckResult:
@@ -161,11 +156,11 @@ def _mu(problem: Problem, design: OfflineDesign, state_bound: float | None) -> C
     region, exact from its vertices when their estimated count allows, else the upper bound of
     :func:`~amcp_drake.offline.result.regressor_upper_bound` (S >= the supremum, so μ S < 1 implies
     μ ‖D(x,u)‖₂² < 1 on the whole region: (11))."""
-    claim = "(11): 1/μ > sup ‖D(x,u)‖₂² over the (x,u) region"
+    row = row_of("design.mu_condition_11")
     try:
         found = regressor_sup(problem, state_bound)
     except (ValueError, DesignError) as exc:
-        return not_run("mu condition (11)", claim, str(exc))
-    return judge("mu condition (11)", claim, 1.0 - design.mu * found.value, 0.0,
-                 f"μ = {design.mu:.6g}, sup ‖D‖² <= {found.value:.6g} over {found.region} ({found.detail}; "
-                 "μ·sup ‖D‖² must be < 1)", strict=True)
+        return not_run(row.name, row.statement, str(exc))
+    return _judge(row.id, 1.0 - design.mu * found.value,
+                  f"μ = {design.mu:.6g}, sup ‖D‖² <= {found.value:.6g} over {found.region} ({found.detail}; "
+                  "μ·sup ‖D‖² must be < 1)")

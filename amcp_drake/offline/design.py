@@ -275,15 +275,21 @@ def _x0(problem: Problem, A_cl: np.ndarray, FGK: np.ndarray, be, options: Design
     if kind == "contractive":
         lam = options.x0_lambda if options.x0_lambda is not None else DEFAULT_X0_LAMBDA
         return x0_templates.contractive_template(FGK, problem.H_w, A_cl, be, lam,
-                                                 max_rows=x0_templates.contractive_max_rows(problem.n), budget=budget)
+                                                 max_rows=_row_cap(x0_templates.contractive_max_rows(problem.n), options),
+                                                 budget=budget)
     if kind == "given":
         return x0_templates.given_template(options.x0_H, problem.H_w, A_cl)
     if kind == "preimage":
         lam = options.x0_lambda if options.x0_lambda is not None else preimage.PREIMAGE_LAMBDAS[0]
         A_nom = problem.A_of(problem.theta_hat0) + problem.B_of(problem.theta_hat0) @ K
         return preimage.preimage_template(FGK, problem.H_w, A_cl, A_nom, be, lam, options.mrpi_max_iter,
-                                          preimage.preimage_max_rows(problem.n), budget=budget)
+                                          _row_cap(preimage.preimage_max_rows(problem.n), options), budget=budget)
     raise ProblemError("design.x0_template", f"one of {list(x0_templates.TEMPLATE_KINDS)}", repr(kind))
+
+
+def _row_cap(own: int, options: DesignOptions) -> int:
+    """The row cap of a template: its own (``own``), lowered to ``design.x0_max_facets`` when that is given."""
+    return own if options.x0_max_facets is None else min(own, int(options.x0_max_facets))
 
 
 def terminal_max_rows(n: int) -> int:

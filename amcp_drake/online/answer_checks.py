@@ -31,46 +31,21 @@ import numpy as np
 from scipy.optimize import nnls
 
 from amcp_drake.model.arrays import all_finite, same_bits
+from amcp_drake.model.tolerances import (
+    PROJECTION_ACTIVE_TOL,
+    PROJECTION_CANDIDATE_RTOL,
+    PROJECTION_KKT_RTOL,
+    PROJECTION_MEMBERSHIP_TOL,
+    SET_NESTED_TOL,
+    SET_POINT_TOL,
+    SET_TOL,
+    TUBE_TOL,
+)
 
-# Separate from the certificate's tolerances (certificate.claims SET_LP_TOL, PROJECTION_TOL;
-# certificate.tube QP_TOL) on purpose: the online layer may not import the certificate (layers in
-# pyproject.toml), and the certificate keeps its own constants so that what the loop accepts never
-# decides what the certificate passes.
-#: Projection: a point may leave the target set by this much on unit rows (θ units). The backends solve
-#: the scaled QP at 1e-10 (violations <= 1e-10 × the scale, ~1e-9 at most on the property suite), and a
-#: slab emptied by round-off (width in [−1e-8, 0)) is answered by its mid-plane, <= 5e-9 outside each row;
-#: 1e-8 covers both and is an order below the certificate's PROJECTION_TOL (1e-7).
-PROJECTION_MEMBERSHIP_TOL = 1e-8
-#: Projection: ‖θ̂ − θ̃‖ may exceed the distance of a known point of S by this much relative to
-#: max(that distance, 1) (round-off of two norms of order 1, plus the solver's 1e-10 gap on the scaled
-#: objective). The floor 1 makes it absolute (θ units, as PROJECTION_MEMBERSHIP_TOL) for short
-#: distances: when θ̃ lies in S and θ̂_{k−1} is 1e-17 from it (the state at the origin, the LMS step
-#: ~0), a relative test failed a solver's 1e-9 round-off by 1e8 (campaign seed 0 #131).
-PROJECTION_CANDIDATE_RTOL = 1e-8
-#: Projection KKT: rows within this of θ̂ (θ units, unit rows) count as active. The membership tolerance
-#: (a point may sit 1e-8 inside a row it should touch) times 10, so thin slabs keep both rows active.
-PROJECTION_ACTIVE_TOL = 1e-7
-#: Projection KKT: ‖θ̃ − θ̂ − Σ_active λ_i [H]_i‖ (λ >= 0, by NNLS) may be this, relative to
-#: max(‖θ̃ − θ̂‖, 1). The residual bounds the variational inequality of the certificate's lms_update
-#: check by residual × diam(S); 1e-7 is that check's PROJECTION_TOL on sets of diameter ~1.
-PROJECTION_KKT_RTOL = 1e-7
-
-#: Set update: h may exceed h_{k−1} by this (unit rows, θ units). The LP (9) at 1e-10 drifts by ~1e-9
-#: (Drake's CLARABEL_LP_OPTIONS); 1e-8 is an order above that and an order below the certificate's
-#: SET_LP_TOL (1e-7) for the nesting claim (10).
-SET_NESTED_TOL = 1e-8
-#: Set update: the dual bound λ_iᵀh̃ + |r_i|·b (b: Θ0's box) may exceed h_i by this (θ units). The LP
-#: at 1e-10 on offsets up to ~1e3 (Δ rows normalised from norms >= 1e-6 give large offsets, but with
-#: multipliers ~0), and the certificate's Lemma 3 check uses 1e-7 (SET_LP_TOL): the same here.
-SET_OUTER_TOL = 1e-7
-#: Set update: a returned maximiser may violate a row of Θ_{k−1} ∩ Δ_k, or miss its offset, by this
-#: (θ units, unit rows): the primal feasibility of the LP at 1e-10 on data of order 1-1e3.
-SET_POINT_TOL = 1e-7
-
-#: Tube QP: constraint rows (15a)-(15d), α >= 0, x_k ∈ X_{0|k} and the terminal set may be violated by
-#: this. The certificate's QP_TOL: Clarabel's default feasibility tolerance is 1e-8 relative to data of
-#: order 1-10; 1e-6 allows that and is far below any violation that matters (bounds of order 0.1-1).
-TUBE_ROW_TOL = 1e-6
+# The gates' tolerances (model.tolerances, section "gates"): each is equal to, or an order below, the tolerance
+# of the claim its answer feeds (model.claim_table.GATES), so an answer that passes is one the certificate
+# accepts, and loosening a gate never loosens a claim. The tube's rows are gated at the claims' TUBE_TOL and the
+# set update's dual outer bound at the Lemma 3 claims' SET_TOL.
 
 # ufunc reductions called directly (``ndarray.max`` reaches the same reduction through a Python wrapper)
 _max = np.maximum.reduce
@@ -239,14 +214,14 @@ def _set_update_rows(h, Lambda, points, H_theta, h_prev, H_data, h_data, theta_b
         head, lam, miss = known  # lam: Λ was finite; miss: the maximisers were finite, of shape (q, p)
     checks = list(head)
     if not _has_shape(Lambda, (q, len(h_tilde))) or (lam is None and not all_finite(Lambda)):
-        checks.append(AnswerCheck("set update outer bound (dual certificate)", float("nan"), SET_OUTER_TOL, ran=False))
+        checks.append(AnswerCheck("set update outer bound (dual certificate)", float("nan"), SET_TOL, ran=False))
     else:
         if lam is None:
             lam = np.maximum(np.asarray(Lambda, float), 0.0)
         residual = H_theta - lam.dot(H_tilde)
         bound = lam.dot(h_tilde) + np.abs(residual).dot(np.asarray(theta_box, float))
         checks.append(AnswerCheck("set update outer bound (dual certificate)", float(_max(bound - h, axis=None)),
-                                  SET_OUTER_TOL))
+                                  SET_TOL))
     if points is None:
         checks.append(AnswerCheck("set update maximisers feasible and tight", float("nan"), SET_POINT_TOL, ran=False))
     elif miss is None and (not _has_shape(points, (q, p)) or not all_finite(points)):
@@ -269,8 +244,8 @@ def check_tube(sol, data, x: np.ndarray, h_theta: np.ndarray, H_theta: np.ndarra
     ``data``: the controller's TubeMPCData; ``h_theta``: (q,) or per-stage (N, q) offsets (26);
     ``H_theta``: Θ_k's rows when they differ from ``data.H_theta`` (exact update (7));
     ``theta_vertices``: vertices of Θ_k for (5b) at the vertices: the vertex form's check of (5b),
-    and in the plain form a check beside (15c)-(15d) (which, each met to TUBE_ROW_TOL, bound (5b)
-    only to about TUBE_ROW_TOL·(1 + ‖θ‖)).
+    and in the plain form a check beside (15c)-(15d) (which, each met to TUBE_TOL, bound (5b)
+    only to about TUBE_TOL·(1 + ‖θ‖)).
     Rows (vertex form of (15a)/(15b)): x^j_l = z_l + α_l x^j, u^j_l = K x^j_l + v_l,
     (15a) F x^j_l + G u^j_l <= 1; (15b) H_x (x_k − z_0) <= α_0; (15c) Λ^j_l h_θ(l) + H_x d^j_l
     − α_{l+1} <= −w̄; (15d) H_x D^j_l = Λ^j_l H_θ, Λ >= 0; terminal H_T z_N + h_T α_N <= 1; α >= 0.
@@ -288,12 +263,12 @@ def check_tube(sol, data, x: np.ndarray, h_theta: np.ndarray, H_theta: np.ndarra
     h_st = np.broadcast_to(h_st, (N, h_st.shape[-1]))
     X = z[:, None, :] + alpha[:, None, None] * Xv[None, :, :]           # (N+1, v, n) tube vertices
     U = X[:N] @ K.T + v[:, None, :]                                       # (N, v, m)
-    checks.append(AnswerCheck("tube alpha >= 0", float(max(0.0, -np.min(alpha))), TUBE_ROW_TOL))
-    checks.append(AnswerCheck("tube x_k in X_0|k (15b)", float(np.max(H_x @ (x - z[0]) - alpha[0])), TUBE_ROW_TOL))
+    checks.append(AnswerCheck("tube alpha >= 0", float(max(0.0, -np.min(alpha))), TUBE_TOL))
+    checks.append(AnswerCheck("tube x_k in X_0|k (15b)", float(np.max(H_x @ (x - z[0]) - alpha[0])), TUBE_TOL))
     checks.append(AnswerCheck("tube constraints (15a)",
-                              float(np.max(X[:N] @ np.asarray(d.F).T + U @ np.asarray(d.G).T - 1.0)), TUBE_ROW_TOL))
+                              float(np.max(X[:N] @ np.asarray(d.F).T + U @ np.asarray(d.G).T - 1.0)), TUBE_TOL))
     checks.append(AnswerCheck("tube terminal set", float(np.max(np.asarray(d.H_T) @ z[N] + np.asarray(d.h_T) * alpha[N]
-                                                                - 1.0)), TUBE_ROW_TOL))
+                                                                - 1.0)), TUBE_TOL))
     A, B = np.asarray(d.A, float), np.asarray(d.B, float)
     base = X[:N] @ np.asarray(d.A0).T + U @ np.asarray(d.B0).T           # (N, v, n): A0 x + B0 u
     D = np.einsum("pab,lvb->lvap", A, X[:N]) + np.einsum("pab,lvb->lvap", B, U)  # (N, v, n, p) regressors
@@ -305,18 +280,18 @@ def check_tube(sol, data, x: np.ndarray, h_theta: np.ndarray, H_theta: np.ndarra
         if Lam.shape != HD.shape[:3] + (H_th.shape[0],) or not np.all(np.isfinite(Lam)):
             checks.append(AnswerCheck(f"tube Lambda finite, shape {HD.shape[:3] + (H_th.shape[0],)}", float("inf"), 0.0))
             return checks
-        checks.append(AnswerCheck("tube Lambda >= 0", float(max(0.0, -np.min(Lam))), TUBE_ROW_TOL))
+        checks.append(AnswerCheck("tube Lambda >= 0", float(max(0.0, -np.min(Lam))), TUBE_TOL))
         lam_h = np.einsum("lvuq,lq->lvu", Lam, h_st)
-        checks.append(AnswerCheck("tube (15c)", float(np.max(lam_h + lhs_fixed - rhs)), TUBE_ROW_TOL))
-        checks.append(AnswerCheck("tube (15d)", float(np.max(np.abs(HD - Lam @ H_th))), TUBE_ROW_TOL))
+        checks.append(AnswerCheck("tube (15c)", float(np.max(lam_h + lhs_fixed - rhs)), TUBE_TOL))
+        checks.append(AnswerCheck("tube (15d)", float(np.max(np.abs(HD - Lam @ H_th))), TUBE_TOL))
         if theta_vertices is None:  # per-stage sets (26) or no vertices: (15c)-(15d) are the checks
             return checks
     if theta_vertices is not None:
         worst = np.einsum("lvup,tp->lvut", HD, np.asarray(theta_vertices, float)).max(axis=3)
         checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float(np.max(worst + lhs_fixed - rhs)),
-                                  TUBE_ROW_TOL))
+                                  TUBE_TOL))
     else:
-        checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float("nan"), TUBE_ROW_TOL, ran=False))
+        checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float("nan"), TUBE_TOL, ran=False))
     return checks
 
 
@@ -470,10 +445,10 @@ class TubeCheck:
         a_N = alpha[:self.N, None]                                           # α_l of (15a), l < N
         rows[self.starts[2]:self.starts[3]] += np.where(a_N >= 0, a_N * self._f_hi, a_N * self._f_lo).reshape(-1)
         worst = np.maximum.reduceat(rows, self.starts).tolist()
-        checks += [AnswerCheck("tube alpha >= 0", max(0.0, worst[0]), TUBE_ROW_TOL),
-                   AnswerCheck("tube x_k in X_0|k (15b)", worst[1], TUBE_ROW_TOL),
-                   AnswerCheck("tube constraints (15a)", worst[2], TUBE_ROW_TOL),
-                   AnswerCheck("tube terminal set", worst[3], TUBE_ROW_TOL)]
+        checks += [AnswerCheck("tube alpha >= 0", max(0.0, worst[0]), TUBE_TOL),
+                   AnswerCheck("tube x_k in X_0|k (15b)", worst[1], TUBE_TOL),
+                   AnswerCheck("tube constraints (15a)", worst[2], TUBE_TOL),
+                   AnswerCheck("tube terminal set", worst[3], TUBE_TOL)]
         # w_l = [z_l | z_{l+1} | α_l | α_{l+1} | v_l | 1] (the indices are valid: "clip" only skips a buffer)
         w = y1.take(self._w_index, out=self._w, mode="clip")
         if sol.Lambda is not None:
@@ -485,7 +460,7 @@ class TubeCheck:
             if theta_vertices is None or len(theta_vertices) == 0:  # per-stage sets (26): (15c)-(15d) only
                 return checks
         elif theta_vertices is None or len(theta_vertices) == 0:
-            checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float("nan"), TUBE_ROW_TOL, ran=False))
+            checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float("nan"), TUBE_TOL, ran=False))
             return checks
         if self._vertices is None or not same_bits(self._vertices, np.asarray(theta_vertices, float)):
             self._tube_rows(theta_vertices)
@@ -494,7 +469,7 @@ class TubeCheck:
         tube = w.dot(self._Ct, out=self._tube_values)
         a_l = w[:, 2 * self.n:2 * self.n + 1]                                # α_l, (N, 1)
         tube += np.where(a_l >= 0, a_l * self._alpha_hi, a_l * self._alpha_lo)
-        checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float(_max(tube, axis=None)), TUBE_ROW_TOL))
+        checks.append(AnswerCheck("tube (5b) at the vertices of Θ_k", float(_max(tube, axis=None)), TUBE_TOL))
         return checks
 
     def _malformed_lambda(self, Lam: np.ndarray, H_theta) -> AnswerCheck | None:
@@ -517,6 +492,6 @@ class TubeCheck:
         lam_h = (Lam.reshape(N, nv * u, q) @ h_st[:, :, None])[..., 0]      # (N, v·u): Λ^j_l h_θ(l)
         w = self._w
         hd = (w @ C15d).reshape(N, nv, u, -1)                                # H_x D^j_l
-        return [AnswerCheck("tube Lambda >= 0", max(0.0, -float(Lam.min())), TUBE_ROW_TOL),
-                AnswerCheck("tube (15c)", float((w @ C15c + lam_h).max()), TUBE_ROW_TOL),
-                AnswerCheck("tube (15d)", float(np.abs(hd - Lam @ H_th).max()), TUBE_ROW_TOL)]
+        return [AnswerCheck("tube Lambda >= 0", max(0.0, -float(Lam.min())), TUBE_TOL),
+                AnswerCheck("tube (15c)", float((w @ C15c + lam_h).max()), TUBE_TOL),
+                AnswerCheck("tube (15d)", float(np.abs(hd - Lam @ H_th).max()), TUBE_TOL)]

@@ -15,7 +15,8 @@ from amcp_drake.model.problem import ProblemSpec
 
 def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: str | None = None,
                  formulation: str = "plain", steps: int | None = None, seed: int | None = None, options=None,
-                 offline=None, progress: bool = False, design_budget=None, simulate=None):
+                 offline=None, progress: bool = False, design_budget=None, simulate=None,
+                 backend_options: dict | None = None):
     """The closed loop of ``spec.scenario`` on ``backend``; returns the Trajectory (a partial one when
     Θ_{k-1} ∩ Δ_k = ∅ stops the run, with ``stop_reason`` saying so).
 
@@ -27,7 +28,9 @@ def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: s
     size is estimated again for the design found and refused above its memory limit
     (:func:`~amcp_drake.model.limits.check_run_size` with the design). ``simulate``: the closed-loop function
     (default :func:`~amcp_drake.online.simulate.simulate`; ``amcp_drake.systems.closed_loop.simulate_in_drake``
-    runs the plant in Drake), called with the same arguments.
+    runs the plant in Drake), called with the same arguments. ``backend_options``: keyword options of the
+    backend's constructor (e.g. ``{"solver_options": {...}}``, the solver's settings for every problem of
+    the run), passed to the controller; ``formulation`` is given on its own.
     """
     from amcp_drake.model.errors import InconsistentDataError, ProblemError
     from amcp_drake.model.limits import check_run_size
@@ -50,8 +53,12 @@ def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: s
         if design_budget is not None:  # the run's size with the design found, before the controller is built
             check_run_size(spec.problem, spec.design, steps, options, design_budget.max_memory_mb, design=offline,
                            formulation=resolved_formulation(formulation, spec.problem, offline, options))
+    backend_options = dict(backend_options or {})
+    if "formulation" in backend_options:
+        raise ProblemError("backend_options", "backend options without 'formulation' (it is its own argument)",
+                           repr(backend_options["formulation"]))
     ctrl = AdaptiveMPC(spec.problem, offline, backend=backend, options=options, formulation=formulation,
-                       max_memory_mb=None if design_budget is None else design_budget.max_memory_mb)
+                       max_memory_mb=None if design_budget is None else design_budget.max_memory_mb, **backend_options)
     try:
         return simulate(ctrl, sc.x0, sc.theta_star_for(steps), steps, sc.disturbance_for(steps), seed=seed,
                         progress=progress, mu_state_bound=spec.design.mu_state_bound)

@@ -250,7 +250,7 @@ def robust_beside(traj, progress=None, by_lp: bool | None = None) -> dict:
     * ``rays``: per direction, the feasible radius of the QP (20) at Θ (robust) and at the adaptive run's
       final Θ_T; Θ_T ⊆ Θ (Lemma 3) makes the adaptive radius at least the robust one. Whether (20) is
       feasible at a state is decided by the LP of :class:`~amcp_drake.certificate.feasible_region.TubeLP`
-      (its slack >= −:data:`~amcp_drake.certificate.premises.LP_TOL`: the same feasible set, one HiGHS LP
+      (its slack >= −:data:`~amcp_drake.model.tolerances.PREMISE_LP_TOL`: the same feasible set, one HiGHS LP
       instead of a QP whose infeasible answers run the whole retry ladder) when the online options leave
       the feasible set of (20) as in (5) (θ* constant, no PE constraint), else by the QP itself
       (``ray_method`` names which; ``by_lp`` forces the choice). ``progress`` (optional) is called with a
@@ -298,10 +298,10 @@ def robust_beside(traj, progress=None, by_lp: bool | None = None) -> dict:
     def feasible_at(h, H):
         if by_lp:
             from amcp_drake.certificate.feasible_region import TubeLP
-            from amcp_drake.certificate.premises import LP_TOL
+            from amcp_drake.model.tolerances import PREMISE_LP_TOL
 
             lp = TubeLP.build(problem, design, np.asarray(design.H_theta if H is None else H, float), h)
-            return lambda x: bool(lp.margin(np.asarray(x, float)) >= -LP_TOL)  # nan (LP failed): infeasible
+            return lambda x: bool(lp.margin(np.asarray(x, float)) >= -PREMISE_LP_TOL)  # nan (LP failed): infeasible
         h_arg = ctrl.stage_offsets(h) if options.d_theta > 0 else h
 
         def ok(x) -> bool:

@@ -26,6 +26,16 @@ A point where the two verdicts differ is a **disagreement** when |t| > :data:`AG
 of that many steps is run from the problem's scenario and the region is evaluated again for the
 learned Θ_T; since Θ_T ⊆ Θ (Lemma 3) every robustly feasible point must stay feasible, and a point
 that does not is reported as a ``monotonicity`` violation.
+
+**Slices** (n > 2, or any n): ``plane = (i, j)`` and ``fixed`` (n values) evaluate the grid over the two
+states i, j with every other state held at its value in ``fixed`` (0 unless given): the region's
+cross-section x_k = fixed_k for k ∉ {i, j}, drawn as a map in that plane (:func:`slice_points`).
+
+**Cost before a grid runs**: each point costs one QP (20) and one LP per parameter set (two sets with
+``adapt_steps``); :func:`grid_cost` counts them before anything is solved, and a run measures a short
+probe (:data:`PROBE_POINTS` points, QP + LP each) to estimate its time before the grid starts.
+``amcp coverage`` refuses more than :data:`DEFAULT_MAX_POINTS` points (exit 2, with the counts) unless
+``--max-points`` or ``--yes`` raises the limit (never above :data:`MAX_POINTS`).
 """
 
 from __future__ import annotations
@@ -50,13 +60,18 @@ from amcp_drake.online.simulate import simulate
 
 #: A QP verdict is confirmed when the LP slack t agrees in sign; within ±AGREEMENT_TOL of the
 #: boundary the two solvers may legitimately differ (Clarabel's and HiGHS's feasibility
-#: tolerances are ~1e-8 on rows of unit norm; the certificate's QP_TOL 1e-6 leaves room for the
+#: tolerances are ~1e-8 on rows of unit norm; the certificate's TUBE_TOL 1e-6 leaves room for the
 #: QP's scaling), so such points are "borderline", listed but not counted as disagreements.
 AGREEMENT_TOL = 1e-6
 #: Default grid resolution per axis.
 DEFAULT_GRID = 21
 #: Largest number of grid points (grid**n) accepted (each point costs one QP and one LP).
 MAX_POINTS = 250_000
+#: Points ``amcp coverage`` evaluates without being asked (``--max-points`` or ``--yes`` for more): 21 per axis
+#: in three dimensions (9 261) pass, a 21-point grid in four (194 481, hours of QPs) is refused.
+DEFAULT_MAX_POINTS = 10_000
+#: Points of the timed probe (QP + LP each) that estimates a grid's time before it runs.
+PROBE_POINTS = 3
 
 ROBUST, ADAPTIVE_ONLY, INFEASIBLE = "robust", "adaptive_only", "infeasible"
 
@@ -114,6 +129,34 @@ def grid_points(box: np.ndarray, grid: int) -> tuple[np.ndarray, list[np.ndarray
     axes = [np.linspace(lo, hi, grid) for lo, hi in box]
     mesh = np.meshgrid(*axes, indexing="ij")
     return np.column_stack([a.reshape(-1) for a in mesh]), axes
+
+
+def slice_points(box: np.ndarray, grid: int, plane: tuple[int, int], fixed: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The grid of a slice: ``grid`` values per axis over the two states of ``plane`` (``box``: their two
+    intervals, (2, 2)), every other state at its value in ``fixed`` (n values). Returns (points (grid², n),
+    the two axes); the first state of the plane varies slowest."""
+    plane_points, axes = grid_points(np.asarray(box, float), grid)
+    points = np.tile(np.asarray(fixed, float), (len(plane_points), 1))
+    points[:, list(plane)] = plane_points
+    return points, axes
+
+
+def grid_cost(points: int, adapt_steps: int | None = None) -> dict:
+    """What a coverage run solves: one QP (20) and one LP per point and parameter set (Θ, and Θ_T with
+    ``adapt_steps``), plus the closed loop of ``adapt_steps`` steps that learns Θ_T."""
+    sets = 2 if adapt_steps else 1
+    return {"points": int(points), "parameter_sets": sets, "qps": int(points) * sets, "lps": int(points) * sets,
+            "closed_loop_steps": int(adapt_steps or 0)}
+
+
+def require_within_limit(cost: dict, limit: int, field: str, what: str) -> None:
+    """ProblemError (exit 2) naming ``field`` with the counts of ``cost`` when it has more than ``limit`` points."""
+    if cost["points"] <= limit:
+        return
+    raise ProblemError(field, f"at most {limit} points without a larger --max-points or --yes (at most {MAX_POINTS})",
+                       f"{what} = {cost['points']} points: {cost['qps']} QPs (20) and {cost['lps']} LPs",
+                       "Pass --max-points N or --yes to run it, or use a slice of two states: --plane I,J "
+                       "[--fix NAME=VALUE,...].")
 
 
 def load_points(path: str | Path, n: int, grid: int) -> tuple[np.ndarray, str]:
@@ -213,10 +256,12 @@ def qp_status(controller: AdaptiveMPC, x0: np.ndarray, H_theta, h_theta, exact: 
 
 
 def evaluate_region(controller: AdaptiveMPC, points: np.ndarray, H_theta, h_theta, exact: bool = False,
-                    progress=None) -> list[PointVerdict]:
+                    progress=None, lp: TubeLP | None = None) -> list[PointVerdict]:
     """QP and LP verdicts at every point for one Θ (``exact``: pass H_θ to the QP, for update "exact").
-    ``progress``: an object with ``update(1)`` (called per point) and optionally ``close()`` (a tqdm bar)."""
-    lp = TubeLP.build(controller.problem, controller.design, np.asarray(H_theta, float), np.asarray(h_theta, float))
+    ``progress``: an object with ``update(1)`` (called per point) and optionally ``close()`` (a tqdm bar);
+    ``lp``: the LP of this Θ when already built."""
+    if lp is None:
+        lp = TubeLP.build(controller.problem, controller.design, np.asarray(H_theta, float), np.asarray(h_theta, float))
     out = []
     for x0 in points:
         out.append(PointVerdict(qp_status(controller, x0, H_theta, h_theta, exact), lp.margin(x0)))
@@ -244,6 +289,16 @@ class CoverageResult:
     adapt_info: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
     design_info: dict = field(default_factory=dict)
+    #: labels of the n states (``name [unit]``; ``x1 … xn`` when unnamed), for the plot's axes
+    labels: list[str] = field(default_factory=list)
+    #: a slice: the two states (0-based) of the grid, and the values of all n states (the plane's are 0)
+    plane: tuple[int, int] | None = None
+    fixed: np.ndarray | None = None
+    #: grid_cost of the run and the probe's measured time (``estimate_s``: the estimated time of the grid)
+    estimate: dict = field(default_factory=dict)
+
+    def label(self, i: int) -> str:
+        return self.labels[i] if self.labels else f"x{i + 1}"
 
     def _fraction(self, verdicts) -> float:
         return float(np.mean([v.feasible for v in verdicts]))
@@ -300,6 +355,10 @@ class CoverageResult:
             "formulation": self.formulation, "agreement_tol": AGREEMENT_TOL,
             "summary": self.summary(), "adapt": self.adapt_info, "timings": self.timings, "design": self.design_info,
             "issues": self.issues(),
+            "estimate": self.estimate,
+            "slice": None if self.plane is None else {
+                "plane": [self.label(i) for i in self.plane], "plane_index": [i + 1 for i in self.plane],
+                "fixed": {self.label(i): float(self.fixed[i]) for i in range(self.n) if i not in self.plane}},
             "points": self.points.tolist(), "axes": None if self.axes is None else [a.tolist() for a in self.axes],
             "classes": self.classes(),
             "robust": [{"qp_status": v.qp_status, "lp_margin": _finite(v.lp_margin)} for v in self.robust],
@@ -340,11 +399,16 @@ def learned_set(spec: ProblemSpec, design: OfflineDesign, steps: int, backend: s
 def run_coverage(spec: ProblemSpec, design: OfflineDesign, points: np.ndarray, source: str = "points",
                  axes: list | None = None, adapt_steps: int | None = None, backend: str = "drake",
                  formulation: str = "vertex", options: OnlineOptions | None = None, adapt_x0=None,
-                 progress_factory: Callable[[int, str], object] | None = None) -> CoverageResult:
+                 progress_factory: Callable[[int, str], object] | None = None, plane: tuple[int, int] | None = None,
+                 fixed=None, on_estimate: Callable[[dict], None] | None = None) -> CoverageResult:
     """The region for Θ (and for the learned Θ_T when ``adapt_steps``); see the module docstring.
 
     ``progress_factory(total, label)`` returns a progress object for :func:`evaluate_region` (e.g. a
-    tqdm bar); ``adapt_x0``: initial state of the adaptive run instead of the scenario's.; ``options``: the online options of the adaptive run (default: the file's, else fixed)."""
+    tqdm bar); ``adapt_x0``: initial state of the adaptive run instead of the scenario's; ``options``: the
+    online options of the adaptive run (default: the file's, else fixed); ``plane``, ``fixed``: the slice
+    the points lie on (recorded and drawn); ``on_estimate(estimate)`` is called after the timed probe of
+    :data:`PROBE_POINTS` points, before the grid runs (``estimate``: :func:`grid_cost` with the probe's
+    seconds per point and ``estimate_s``, the estimated time of all QPs and LPs)."""
     options = options or spec.online or OnlineOptions()
     if options.d_theta > 0:
         raise ProblemError("online.d_theta", "0 for amcp coverage (the region is evaluated for one constant "
@@ -354,14 +418,21 @@ def run_coverage(spec: ProblemSpec, design: OfflineDesign, points: np.ndarray, s
     exact = options.update == "exact"
     ctrl = AdaptiveMPC(pr, design, backend=backend, options=OnlineOptions(update="none"), formulation=formulation)
     t_wall, t_cpu = time.perf_counter(), time.process_time()
+    lp = TubeLP.build(pr, design, np.asarray(design.H_theta, float), np.asarray(design.h_theta0, float))
+    estimate = probe(ctrl, lp, points, design, grid_cost(len(points), adapt_steps))
+    if on_estimate is not None:
+        on_estimate(estimate)
+    t_wall, t_cpu = time.perf_counter(), time.process_time()  # the region itself (the probe is in the estimate)
     bar = progress_factory(len(points), "robust Θ") if progress_factory else None
-    robust = evaluate_region(ctrl, points, design.H_theta, design.h_theta0, False, bar)
+    robust = evaluate_region(ctrl, points, design.H_theta, design.h_theta0, False, bar, lp=lp)
     timings = {"robust_wall_s": time.perf_counter() - t_wall, "robust_cpu_s": time.process_time() - t_cpu}
     result = CoverageResult(problem=pr.name, n=pr.n, points=points, source=source, axes=axes, backend=backend,
                             formulation=formulation, robust=robust, timings=timings,
                             design_info={"x0_facets": len(design.H_x), "lambda_bar": float(design.lambda_bar),
                                          "x0_template": (design.info or {}).get("x0_template"),
-                                         "terminal_rows": len(design.H_T)})
+                                         "terminal_rows": len(design.H_T)},
+                            labels=[pr.state_label(i) for i in range(pr.n)], plane=plane,
+                            fixed=None if fixed is None else np.asarray(fixed, float), estimate=estimate)
     if adapt_steps:
         t_wall, t_cpu = time.perf_counter(), time.process_time()
         H_T, h_T, info = learned_set(spec, design, adapt_steps, backend, formulation, options, adapt_x0)
@@ -374,23 +445,39 @@ def run_coverage(spec: ProblemSpec, design: OfflineDesign, points: np.ndarray, s
     return result
 
 
+def probe(ctrl: AdaptiveMPC, lp: TubeLP, points: np.ndarray, design: OfflineDesign, cost: dict) -> dict:
+    """``cost`` with the measured wall time per point (QP + LP at up to :data:`PROBE_POINTS` points spread over
+    the grid, robust Θ) and ``estimate_s`` = that time × QPs (the closed loop of ``--adapt`` not included)."""
+    picks = sorted({int(round(i)) for i in np.linspace(0, len(points) - 1, min(PROBE_POINTS, len(points)))})
+    start = time.perf_counter()
+    evaluate_region(ctrl, points[picks], design.H_theta, design.h_theta0, False, lp=lp)
+    per_point = (time.perf_counter() - start) / max(len(picks), 1)
+    return {**cost, "probe_points": len(picks), "probe_s_per_point": per_point, "estimate_s": per_point * cost["qps"]}
+
+
 # -- outputs ---------------------------------------------------------------------------------------
 COLOURS = {ROBUST: "#2b8a3e", ADAPTIVE_ONLY: "#f59f00", INFEASIBLE: "#ced4da"}
 LABELS = {ROBUST: "feasible robustly (Θ)", ADAPTIVE_ONLY: "feasible only after adaptation (Θ_T)",
           INFEASIBLE: "infeasible"}
 
 
-def draw_region(result: CoverageResult):
-    """A matplotlib Figure of the region (object API, no pyplot): n = 2 a map of the points, n = 1 a
-    strip; None for n >= 3. Disagreements are marked with a black ×."""
-    if result.n > 2:
+def draw_region(result: CoverageResult, ax=None):
+    """A matplotlib Figure of the region (object API, no pyplot): a map of the points in the plane of a slice
+    (any n) or for n = 2, a strip for n = 1; None for n >= 3 without a slice. Axes carry the states' names
+    and units. Disagreements are marked with a black ×. Drawn into ``ax`` when given (its Figure is
+    returned), as the functions of ``amcp.plots``."""
+    if result.n > 2 and result.plane is None:
         return None
     from matplotlib.figure import Figure
 
     classes = np.array(result.classes())
-    pts = result.points if result.n == 2 else np.column_stack([result.points[:, 0], np.zeros(len(result.points))])
-    fig = Figure(figsize=(6.4, 5.2) if result.n == 2 else (6.4, 2.2))
-    ax = fig.add_subplot(1, 1, 1)
+    plane = result.plane or ((0, 1) if result.n == 2 else None)
+    pts = result.points[:, list(plane)] if plane else np.column_stack([result.points[:, 0], np.zeros(len(result.points))])
+    if ax is None:
+        fig = Figure(figsize=(6.4, 5.2) if plane else (6.4, 2.2), layout="constrained")
+        ax = fig.add_subplot(1, 1, 1)
+    else:
+        fig = ax.figure
     size = max(4.0, min(60.0, 9000.0 / max(len(pts), 1)))
     for kind in (INFEASIBLE, ADAPTIVE_ONLY, ROBUST):
         sel = classes == kind
@@ -400,23 +487,25 @@ def draw_region(result: CoverageResult):
     bad = [row["index"] for row in result.issues()["disagree"]]
     if bad:
         ax.scatter(pts[bad, 0], pts[bad, 1], s=size, marker="x", c="black", label=f"QP/LP disagreement: {len(bad)}")
-    ax.set_xlabel("x1")
-    if result.n == 2:
-        ax.set_ylabel("x2")
+    ax.set_xlabel(result.label(plane[0] if plane else 0))
+    if plane:
+        ax.set_ylabel(result.label(plane[1]))
     else:
         ax.set_yticks([])
     title = f"{result.problem}: feasible set of QP (20), robust {result.summary()['robust_fraction']:.2f}"
     if result.adaptive is not None:
         title += f", after {result.adapt_info.get('steps_run')} steps {result.summary()['adaptive_fraction']:.2f}"
+    if result.plane is not None and result.n > 2:
+        title += "\nslice at " + ", ".join(f"{result.label(i)} = {result.fixed[i]:g}" for i in range(result.n)
+                                           if i not in result.plane)
     ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14 if result.n == 2 else -0.35), ncol=2,
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14 if plane else -0.35), ncol=2,
               frameon=False)
-    fig.tight_layout()
     return fig
 
 
 def write_coverage(result: CoverageResult, out_dir: str | Path) -> tuple[Path, Path | None]:
-    """coverage.json and (n <= 2) coverage.png in ``out_dir``, each written atomically."""
+    """coverage.json and (n <= 2, or a slice) coverage.png in ``out_dir``, each written atomically."""
     import os
     import tempfile
 

@@ -18,7 +18,11 @@ a discrete ``MultibodyPlant`` do. One controller step per period; the output cos
 A step without an input (the QP (20) not solved, or Θ_{k−1} ∩ Δ_k = ∅ recorded as the data contradicting
 Θ and W) ends the run: the event is recorded, the output holds the last applied input, and the update
 returns Drake's "reached termination", so ``Simulator.AdvanceTo`` returns early with that message and the
-partial run stays certifiable (:meth:`AdaptiveMPCSystem.trajectory`).
+partial run stays certifiable (:meth:`AdaptiveMPCSystem.trajectory`). With ``on_inconsistent="reset"`` the
+run goes on instead after an empty Θ_{k−1} ∩ Δ_k: the step is taken again from Θ_k = Θ (the declared set,
+Θ_0), θ̂_{k−1} kept and the contradicting transition dropped (no Δ_k at this step); the steps at which this
+happened are in ``ControllerRun.resets`` and the trajectory's ``meta["theta_resets"]``. The certificate then
+reports ``data_consistency`` failing at the first of them (docs/decisions.md, "Inconsistent data in a Diagram").
 """
 
 from __future__ import annotations
@@ -44,6 +48,9 @@ from amcp_drake.online.state import ControllerState, frozen_array
 DEFAULT_PERIOD = 1.0
 #: ``meta["simulator"]`` of a trajectory whose plant ran in a Drake Diagram.
 DRAKE_SIMULATOR = "drake"
+#: What :class:`AdaptiveMPCSystem` does when Θ_{k−1} ∩ Δ_k is empty: "stop" the run (default) or "reset"
+#: Θ_k to Θ and go on (module docstring).
+ON_INCONSISTENT = ("stop", "reset")
 
 
 @dataclass(frozen=True)
@@ -52,12 +59,14 @@ class ControllerRun:
 
     ``state``: the controller's state before the next step; ``u``: the input held on the output port (zeros
     before the first step); ``records``: the step records so far, as a chain (newest, older chain) so that a
-    step adds one link without copying the run; ``stopped``: why the run ended ("" while it goes on)."""
+    step adds one link without copying the run; ``stopped``: why the run ended ("" while it goes on);
+    ``resets``: the steps at which Θ_{k−1} ∩ Δ_k was empty and Θ_k was reset to Θ (``on_inconsistent="reset"``)."""
 
     state: ControllerState
     u: np.ndarray
     records: tuple | None = None
     stopped: str = ""
+    resets: tuple[int, ...] = ()
 
     def __deepcopy__(self, memo) -> ControllerRun:
         # Drake clones abstract state values (pydrake: copy.deepcopy) when it copies a context or makes an
@@ -89,12 +98,18 @@ class AdaptiveMPCSystem(LeafSystem):
     once and updated in place at every step). ``period``: the sample period of the update (default: the
     problem's sample time ``Problem.dt``, else :data:`DEFAULT_PERIOD`). ``controller``: an AdaptiveMPC to use
     instead of building one (``problem``, ``design``, ``options``, ``backend`` are then taken from it).
+    ``on_inconsistent``: "stop" (default) ends the run when Θ_{k−1} ∩ Δ_k is empty; "reset" goes on from
+    Θ_k = Θ (module docstring).
     """
 
     def __init__(self, problem: Problem | None = None, design: OfflineDesign | None = None,
                  options: OnlineOptions | None = None, backend: str = "drake", *, period: float | None = None,
-                 controller: AdaptiveMPC | None = None, **backend_options: Any) -> None:
+                 controller: AdaptiveMPC | None = None, on_inconsistent: str = "stop",
+                 **backend_options: Any) -> None:
         LeafSystem.__init__(self)
+        if on_inconsistent not in ON_INCONSISTENT:
+            raise ProblemError("on_inconsistent", " or ".join(repr(o) for o in ON_INCONSISTENT), repr(on_inconsistent))
+        self.on_inconsistent = on_inconsistent
         if controller is None:
             if problem is None or design is None:
                 raise ProblemError("AdaptiveMPCSystem", "a problem and its design (or controller=AdaptiveMPC)",
@@ -158,17 +173,37 @@ class AdaptiveMPCSystem(LeafSystem):
         if run.stopped:
             return EventStatus.ReachedTermination(self, run.stopped)
         x = self.measured_state(context)
-        u, nxt, record = self.controller.step_from(run.state, x, on_inconsistent="record")
+        u, nxt, record, reset = self._step(run.state, x)
+        resets = (*run.resets, record.k) if reset else run.resets
         chain = (record, run.records)
         if u is None:
             k = record.k
             why = (f"inconsistent data at step {k}" if is_inconsistent(record)
                    else f"step {k}: status {record.status.value}")
-            state.get_mutable_abstract_state(self._run_index).set_value(replace(run, records=chain, stopped=why))
+            state.get_mutable_abstract_state(self._run_index).set_value(
+                replace(run, records=chain, stopped=why, resets=resets))
             return EventStatus.ReachedTermination(self, f"adaptive MPC stopped: {why}")
         state.get_mutable_abstract_state(self._run_index).set_value(
-            ControllerRun(state=nxt, u=frozen_array(u), records=chain))
+            ControllerRun(state=nxt, u=frozen_array(u), records=chain, resets=resets))
         return EventStatus.Succeeded()
+
+    def _step(self, state: ControllerState, x: np.ndarray):
+        """(u, next state, record, whether Θ_k was reset) of the controller's step at x from ``state``,
+        with the recovery of ``on_inconsistent="reset"`` (module docstring)."""
+        u, nxt, record = self.controller.step_from(state, x, on_inconsistent="record")
+        if u is not None or self.on_inconsistent != "reset" or not is_inconsistent(record):
+            return u, nxt, record, False
+        u, nxt, record = self.controller.step_from(self._reset(state), x, on_inconsistent="record")
+        record.detail = (f"Θ_(k−1) ∩ Δ_k empty at step {record.k}: Θ_k reset to Θ, the transition dropped"
+                         + (f"; {record.detail}" if record.detail else ""))
+        return u, nxt, record, True
+
+    def _reset(self, state: ControllerState) -> ControllerState:
+        """``state`` with Θ_k = Θ (the design's Θ_0) and no previous step (the contradicting transition is
+        dropped, no Δ_k at the step taken from it), θ̂ kept (a point of Θ_{k−1} ⊆ Θ)."""
+        initial = self.controller.initial_state()
+        return state.replace(H_theta=initial.H_theta, h_theta=initial.h_theta, prev=None, window=(),
+                             exact_rows_irredundant=False, checked_vertices=None)
 
     def _calc_u(self, context, output) -> None:
         output.SetFromVector(context.get_abstract_state(self._run_index).get_value().u)
@@ -188,14 +223,18 @@ class AdaptiveMPCSystem(LeafSystem):
         """
         own = self._own(context)
         run = self.run(context)
-        records = run.record_list()
+        records, resets = run.record_list(), run.resets
         if not run.stopped and final_step:
             x = self.measured_state(own)
-            records.append(self.controller.step_from(run.state, x, on_inconsistent="record")[2])
+            last = self._step(run.state, x)
+            records.append(last[2])
+            resets = (*resets, last[2].k) if last[3] else resets
         if not records:
             raise ProblemError("context", "a context in which AdaptiveMPCSystem stepped at least once "
                                "(Simulator.AdvanceTo past t = 0)", "no step recorded")
         info = {"simulator": DRAKE_SIMULATOR, "period": self.period, **(meta or {})}
+        if resets:
+            info["theta_resets"] = list(resets)
         traj = measured_trajectory(self.controller, records, meta=info)
         if (theta_star is None) != (w is None):
             raise ProblemError("theta_star" if theta_star is None else "w",
@@ -210,4 +249,4 @@ class AdaptiveMPCSystem(LeafSystem):
         return replace(traj, theta_star=np.asarray(theta_star, float), w=W[:traj.steps].copy())
 
 
-__all__ = ["AdaptiveMPCSystem", "ControllerRun", "DEFAULT_PERIOD", "DRAKE_SIMULATOR"]
+__all__ = ["AdaptiveMPCSystem", "ControllerRun", "DEFAULT_PERIOD", "DRAKE_SIMULATOR", "ON_INCONSISTENT"]

@@ -19,22 +19,17 @@ from scipy.optimize import linprog
 from amcp_drake.model import polytope
 from amcp_drake.model.check_result import CheckResult, judge
 from amcp_drake.model.status import SolveStatus
+from amcp_drake.model.tolerances import LEMMA5_REL_TOL, PROJECTION_TOL, SET_TOL, TUBE_TOL
 from amcp_drake.online.answers import qp_applied, rejected
 
 from .geometry import delta_set, maxima, regressor, signed_chebyshev_radius, unit_rows, vertices
+from .nversion import second_method
 
-#: Constraint margins of the QP (20) solution, re-evaluated at the vertices of the tube, Θ_k, X0
-#: and W. Clarabel solves (20) to feasibility 1e-8 (relative to the problem scaling); vertex
-#: expansion multiplies residuals by |x^j| <= ~5 and |θ| <= 1.5. Worst margins measured on 150
-#: generated 20-step runs per backend (seed 31): -1.5e-7 (Drake), -3e-10 (cvxpy).
-QP_TOL = 1e-6
-#: Set-membership margins (θ* ∈ Θ_k, Lemma 3), in distance units: the LP (9) is solved to 1e-10
-#: (Clarabel) or by simplex (Drake's CLP fallback, primal tolerance 1e-7). Worst margins measured
-#: on the same runs: θ* ∈ Θ_k -2.2e-8, Lemma 3 -3.9e-8.
-SET_TOL = 1e-7
-#: Lemma 5 compares sums of squares of size up to ~1e3; the projection QP and the recorded
-#: estimates carry round-off ~1e-9 each, so the inequality is checked to 1e-7 relative.
-LEMMA5_REL_TOL = 1e-7
+# Tolerances (model.tolerances, shared with the certificate's claims of the same ids): TUBE_TOL for the
+# constraint margins of the QP (20) solution re-evaluated at the vertices of the tube, Θ_k, X0 and W (worst
+# margins measured on 150 generated 20-step runs per backend, seed 31: -1.5e-7 Drake, -3e-10 cvxpy); SET_TOL
+# for the set-membership margins θ* ∈ Θ_k and Lemma 3 (same runs: -2.2e-8, -3.9e-8); PROJECTION_TOL for
+# θ̂_k ∈ Θ; LEMMA5_REL_TOL for this module's relative form of Lemma 5.
 #: Row norms below this are not rescaled to unit norm (rescaling would amplify the round-off of
 #: the right-hand side 1 + H_w d, ~1e-16, beyond 1e-10).
 UNIT_ROW_MIN_NORM = 1e-6
@@ -104,6 +99,7 @@ def tube_constraint_margins(traj, k: int, w_vertices: np.ndarray | None = None) 
     return out
 
 
+@second_method("recursive_feasibility")
 def recursive_feasibility(traj) -> CheckResult:
     """Theorem 14 (i): 𝔻(x_k, Θ_k) ≠ ∅ at every step k of the run.
 
@@ -117,7 +113,7 @@ def recursive_feasibility(traj) -> CheckResult:
     bad = [r.k for r in traj.records if r.k not in solved]
     if traj.stop_reason != "completed" or bad:
         where = f"steps {bad}" if bad else ""
-        return judge("Theorem 14 (i)", claim, -np.inf, QP_TOL,
+        return judge("Theorem 14 (i)", claim, -np.inf, TUBE_TOL,
                      f"run ended: {traj.stop_reason} {where}; {planned} transitions, {len(traj.records)} records")
     worst, where = np.inf, ""
     for k in _solved(traj):
@@ -125,7 +121,7 @@ def recursive_feasibility(traj) -> CheckResult:
         for name, value in margins.items():
             if not name.startswith("_") and value < worst:
                 worst, where = value, f"step {k}, {name} (Θ_k by {margins['_theta_method']})"
-    return judge("Theorem 14 (i)", claim, worst, QP_TOL, f"worst constraint margin of 𝔻(x_k,Θ_k) at {where}")
+    return judge("Theorem 14 (i)", claim, worst, TUBE_TOL, f"worst constraint margin of 𝔻(x_k,Θ_k) at {where}")
 
 
 def backend_answers(traj) -> CheckResult:
@@ -139,6 +135,7 @@ def backend_answers(traj) -> CheckResult:
                  float(-len(bad)), 0.0, detail)
 
 
+@second_method("theta_star_in_Theta_k")
 def theta_star_in_sets(traj) -> CheckResult:
     """Theorem 14 (ii), first part: θ* ∈ Θ_k for every recorded k (unit rows, distance margin).
     A stop on "inconsistent data" (Θ_{k-1} ∩ Δ_k = ∅) contradicts it: θ* lies in both."""
@@ -149,30 +146,32 @@ def theta_star_in_sets(traj) -> CheckResult:
     worst, at = np.inf, -1
     for r in traj.records:
         H, h = unit_rows(*_theta_k(r))
-        margin = float(np.min(h - H @ traj.theta_star))
+        margin = float(np.min(h - H @ traj.theta_star_at(r.k)))
         if margin < worst:
             worst, at = margin, r.k
     return judge("Theorem 14 (ii) θ*", claim, worst, SET_TOL, f"min distance of θ* inside Θ_k, at step {at}")
 
 
+@second_method("theta_hat_in_Theta")
 def theta_hat_in_prior(traj) -> CheckResult:
     """Theorem 14 (ii), second part: θ̂_k ∈ Θ for every recorded k (the problem's Θ, unit rows)."""
     pr = traj.problem
     H, h = unit_rows(pr.H_theta, pr.h_theta)
     margins = [(float(np.min(h - H @ r.theta_hat)), r.k) for r in traj.records]
     worst, at = min(margins)
-    return judge("Theorem 14 (ii) θ̂", "Theorem 14 (ii): θ̂_k ∈ Θ for all k", worst, SET_TOL,
+    return judge("Theorem 14 (ii) θ̂", "Theorem 14 (ii): θ̂_k ∈ Θ for all k", worst, PROJECTION_TOL,
                  f"min distance of θ̂_k inside Θ, at step {at}")
 
 
+@second_method("state_input_constraints")
 def constraints_satisfied(traj) -> CheckResult:
     """Theorem 14 (iii): F x_k + G u_k <= 1 for every applied input, eq. (4)."""
     pr = traj.problem
     if len(traj.u) == 0:
-        return judge("Theorem 14 (iii)", "Theorem 14 (iii): (x_k, u_k) ∈ Z", None, QP_TOL, "no input was applied")
+        return judge("Theorem 14 (iii)", "Theorem 14 (iii): (x_k, u_k) ∈ Z", None, TUBE_TOL, "no input was applied")
     slack = 1.0 - traj.x[:len(traj.u)] @ pr.F.T - traj.u @ pr.G.T
     k, i = np.unravel_index(np.argmin(slack), slack.shape)
-    return judge("Theorem 14 (iii)", "Theorem 14 (iii): (x_k, u_k) ∈ Z for all k", float(slack[k, i]), QP_TOL,
+    return judge("Theorem 14 (iii)", "Theorem 14 (iii): (x_k, u_k) ∈ Z for all k", float(slack[k, i]), TUBE_TOL,
                  f"min_i (1 − F x_k − G u_k)_i at step {k}, row {i}")
 
 
@@ -182,6 +181,7 @@ def _valid_set(traj, k: int) -> bool:
     return k == 0 or r.set_status is SolveStatus.OPTIMAL
 
 
+@second_method("Theta0_contains_Theta", "Theta_k_nested", "Theta_k_lower_inclusion")
 def set_inclusions(traj) -> CheckResult:
     """Lemma 3, (10): Θ_k ∩ Δ_{k+1} ⊆ Θ_{k+1} ⊆ Θ_k, and its premise Θ ⊆ Θ_0.
 
@@ -234,6 +234,7 @@ def _signed_radius_with_witness(H: np.ndarray, h: np.ndarray, witness: np.ndarra
 
 
 # -- Lemma 5 and (11) -----------------------------------------------------------------------------
+@second_method("mu_precondition")
 def lms_precondition(traj) -> CheckResult:
     """The gain condition used by Lemma 5: μ ‖D(x,u)‖₂² < 1 on Z, eq. (11) (recomputed at the
     vertices of Z, ‖D‖₂ being convex in (x,u)), and μ ‖D_k‖₂² <= 1 at every visited (x_k, u_k)."""
@@ -253,6 +254,7 @@ def lms_precondition(traj) -> CheckResult:
     return judge("(11)", claim, margin, 0.0, detail, strict=strict)
 
 
+@second_method("lemma5")
 def lms_inequality(traj) -> CheckResult:
     """Lemma 5, the exact inequality proved by (13), for every m:
 
@@ -279,6 +281,7 @@ def lms_inequality(traj) -> CheckResult:
 
 
 # -- Proposition 9 --------------------------------------------------------------------------------
+@second_method("tube_contains_state", "tube_contains_next_state", "tube_propagation", "tube_constraints")
 def prediction_tube(traj) -> CheckResult:
     """Proposition 9 ("⇐": (15) implies (5a)-(5c)) on every solved step k:
 
@@ -318,10 +321,11 @@ def prediction_tube(traj) -> CheckResult:
         for name, value in checks.items():
             if value < worst:
                 worst, where = value, f"step {k}: {name}"
-    return judge("Proposition 9", claim, worst, QP_TOL, f"worst margin at {where}")
+    return judge("Proposition 9", claim, worst, TUBE_TOL, f"worst margin at {where}")
 
 
 # -- Assumption 11 --------------------------------------------------------------------------------
+@second_method("design.x_f_non_empty", "design.x_f_invariant", "design.x_f_in_z")
 def terminal_set_invariance(problem, design) -> CheckResult:
     """Assumption 11 for X_f = {(z, α) | H_T z + h_T α <= 1, α >= 0}, without the design's witness:
 
@@ -339,7 +343,7 @@ def terminal_set_invariance(problem, design) -> CheckResult:
     try:
         verts = polytope.vertices(H, h)
     except ValueError as exc:
-        return judge("Assumption 11", claim, -np.inf, QP_TOL, f"X_f is empty, flat or unbounded: {exc}")
+        return judge("Assumption 11", claim, -np.inf, TUBE_TOL, f"X_f is empty, flat or unbounded: {exc}")
     H_x, K = np.asarray(design.H_x, float), np.asarray(design.K, float)
     Xv, Wv, Tv = _x0_vertices(design), _w_vertices(problem), _prior_vertices(problem)
     A_cl = np.array([problem.A_of(t) + problem.B_of(t) @ K for t in Tv])
@@ -364,7 +368,7 @@ def terminal_set_invariance(problem, design) -> CheckResult:
         margin = float(res.x[-1]) if res.status == 0 else -np.inf
         if margin < worst:
             worst, where = margin, f"no successor (z⁺, α⁺) ∈ X_f for X_f vertex {np.round(vert, 6).tolist()}"
-    return judge("Assumption 11", claim, worst, QP_TOL, f"{len(verts)} vertices of X_f; worst: {where}")
+    return judge("Assumption 11", claim, worst, TUBE_TOL, f"{len(verts)} vertices of X_f; worst: {where}")
 
 
 # -- Corollary 16 and (22) ------------------------------------------------------------------------

@@ -74,6 +74,13 @@ def _qp_inputs(edit: Callable[[AdaptiveMPC, np.ndarray, np.ndarray, np.ndarray],
     return _after_init(change)
 
 
+def _deviation_rows() -> str:
+    """The description of the Drake plain form's rows that define the tube centres' deviations e_l (imported on use)."""
+    from amcp_drake.backends.drake_tube import NOMINAL_DEVIATION_FORM
+
+    return NOMINAL_DEVIATION_FORM
+
+
 @contextmanager
 def _drop_drake_constraint(description: str) -> Iterator[None]:
     """Remove every Drake constraint with this description just before it is solved."""
@@ -170,6 +177,9 @@ class Mutant:
 MUTANTS: list[Mutant] = [
     Mutant("tube_lambda_nonneg_dropped", "Λ >= 0 dropped from (15c)-(15d) (the tube QP's multipliers)",
            lambda: _drop_drake_constraint("Lambda >= 0"), backends=("drake",)),
+    Mutant("tube_centre_deviation_dropped", "the rows e_l = z_{l+1} − A_cl(0) z_l − B_0 v_l dropped from the Drake "
+           "plain form ((15c) then binds nothing)", lambda: _drop_drake_constraint(_deviation_rows()),
+           backends=("drake",)),
     Mutant("set_update_lambda_nonneg_dropped", "Λ >= 0 dropped from the set-membership LP (9)",
            lambda: _drop_drake_constraint("(9) Lambda >= 0"), backends=("drake",)),
     Mutant("x_k_not_in_first_tube_set", "(15b) x_k ∈ X_{0|k} dropped", lambda: _drop_drake_constraint("(15b) x_k in X_0|k"),

@@ -31,6 +31,7 @@ from amcp_drake.model.errors import InconsistentDataError
 from amcp_drake.model.options import OnlineOptions
 from amcp_drake.model.problem import ProblemSpec
 from amcp_drake.model.status import SolveStatus
+from amcp_drake.model.tolerances import COST_REL_TOL, PE_BOUND_TOL, PE_LEVEL_TOL, SET_TOL
 from amcp_drake.online.controller import AdaptiveMPC
 from amcp_drake.online.simulate import Trajectory, simulate
 from amcp_drake.studies.random_problems import complete_spec
@@ -38,6 +39,7 @@ from amcp_drake.studies.random_problems import complete_spec
 from . import profiles
 from .cases import Case, Memo
 from .feasible import TubeGeometry, max_ray_length
+from .nversion import second_method
 from .strategies import _grid, designed_problems, disturbances, initial_states, theta_stars
 
 # -- sizes per profile ---------------------------------------------------------------------------------
@@ -61,20 +63,12 @@ def sizes() -> Section4Sizes:
 
 
 # -- tolerances ----------------------------------------------------------------------------------------
-#: (x_k, u_k) ∈ Z and the tube constraints: as claims.QP_TOL.
-Z_TOL = 1e-6
-#: θ*_k ∈ Θ_k and θ*_{k+l} ∈ Θ_{l|k} (unit rows, distance): as claims.SET_TOL.
-SET_TOL = 1e-7
-#: record.cost vs the numpy evaluation of (19): |cost − J| <= COST_REL_TOL·max(1, |J|). Clarabel stops
-#: at a relative duality gap of 1e-8; the epigraph values t_l then exceed the max over the vertices by
-#: at most the gap, and the recorded z, α, v are feasible to 1e-8.
-COST_REL_TOL = 1e-6
-#: PE: λ_min of the realised window Gram >= pe_level − PE_TOL·max(1, pe_level). The first input sits on
-#: a root of the PE quadratic when the constraint binds, and the QP meets the bound on u_0 to ~1e-8
-#: (absolute); dλ_min/du_k <= 2‖ū_k‖ (<= ~10 here).
-PE_TOL = 1e-6
-#: u_k within record.pe_bounds up to this (absolute, times max(1, |bound|)).
-BOUND_TOL = 1e-7
+# model.tolerances, shared with the certificate's claims of the same ids: SET_TOL for θ*_k ∈ Θ_k and
+# θ*_{k+l} ∈ Θ_{l|k} (unit rows, distance); COST_REL_TOL for record.cost vs the numpy evaluation of (19),
+# |cost − J| <= COST_REL_TOL·max(1, |J|) (Clarabel stops at a relative duality gap of 1e-8; the epigraph
+# values t_l then exceed the max over the vertices by at most the gap); PE_LEVEL_TOL for λ_min of the
+# realised window Gram >= pe_level − PE_LEVEL_TOL·max(1, pe_level) (the QP meets the bound on u_0 to ~1e-8,
+# dλ_min/du_k <= 2‖ū_k‖ <= ~10 here); PE_BOUND_TOL for u_k within record.pe_bounds (times max(1, |bound|)).
 #: Coverage thresholds (the brief's): a row of Z "active" when max(F x + G u) > 1 − ACTIVE_MARGIN;
 #: θ*_k "near the boundary" of Θ_k within NEAR_BOUNDARY (distance on unit rows); the PE constraint
 #: "binds" at an enforced step when λ_min <= pe_level·(1 + BINDING_REL).
@@ -395,6 +389,7 @@ def theta_distances(traj) -> np.ndarray:
     return np.array(out)
 
 
+@second_method("theta_star_in_Theta_k")
 def theta_star_in_theta_k(traj) -> CheckResult:
     """Theorem 14 (ii) / Proposition 19: θ*_k ∈ Θ_k at every k; an inconsistent-data stop fails."""
     claim = "θ*_k ∈ Θ_k for all k (Theorem 14 (ii) / Proposition 19)"
@@ -449,6 +444,7 @@ def minmax_cost(design, problem, z, alpha, v, reduce=np.max) -> float:
     return float(np.sum(reduce(stage, axis=1)) + reduce(terminal))
 
 
+@second_method("cost_value")  # of a min–max run
 def minmax_cost_matches(traj, formula=None, cost_of=None) -> CheckResult:
     """record.cost equals (19) evaluated by numpy from the recorded z, α, v at every step.
     ``formula`` (a function of (design, problem, z, alpha, v)) and ``cost_of(record)`` override the
@@ -504,16 +500,17 @@ def pe_realised(traj) -> list[tuple[int, str, float, float]]:
     return out
 
 
+@second_method("pe_level")
 def pe_levels_met(traj, realised=None) -> CheckResult:
     """At every enforced step the realised window Gram of the trajectory's inputs has λ_min >=
-    record.pe_level (up to PE_TOL); ``realised`` overrides :func:`pe_realised` (negative controls)."""
+    record.pe_level (up to PE_LEVEL_TOL); ``realised`` overrides :func:`pe_realised` (negative controls)."""
     rows = pe_realised(traj) if realised is None else realised
     worst, where = np.inf, "no enforced step"
     for k, status, lam, level in rows:
         m = (lam - level) / max(1.0, abs(level)) if np.isfinite(level) else -np.inf
         if m < worst:
             worst, where = m, f"step {k} ({status}): λ_min {lam!r}, record.pe_level {level!r}"
-    return judge("PE level", "λ_min(window Gram) >= record.pe_level at every enforced step", worst, PE_TOL, where)
+    return judge("PE level", "λ_min(window Gram) >= record.pe_level at every enforced step", worst, PE_LEVEL_TOL, where)
 
 
 #: Inputs of a PE run that never enforced the constraint vs the run without PE: the same QPs (20) on
@@ -539,6 +536,7 @@ def same_inputs(traj, reference) -> CheckResult:
                  SAME_INPUT_TOL, "margin = −max_k |u_k − u_k(no PE)|")
 
 
+@second_method("pe_bounds")
 def pe_bounds_respected(traj, bounds_of=None) -> CheckResult:
     """u_k within record.pe_bounds at every step that records bounds; enforced steps record bounds.
     (The status set itself is not checked: it may grow while the PE rule evolves.)"""
@@ -546,7 +544,7 @@ def pe_bounds_respected(traj, bounds_of=None) -> CheckResult:
     for r in traj.records:
         b = r.pe_bounds if bounds_of is None else bounds_of(r)
         if r.pe_status.startswith("enforced") and b is None:
-            return judge("PE bounds", "enforced steps record their bounds", -np.inf, BOUND_TOL, f"step {r.k}")
+            return judge("PE bounds", "enforced steps record their bounds", -np.inf, PE_BOUND_TOL, f"step {r.k}")
         if b is None or r.u is None:
             continue
         lo, hi = b
@@ -555,7 +553,7 @@ def pe_bounds_respected(traj, bounds_of=None) -> CheckResult:
                 (hi - u) / max(1.0, abs(hi)) if np.isfinite(hi) else np.inf)
         if m < worst:
             worst, where = m, f"step {r.k}: u {u!r} in [{lo!r}, {hi!r}]"
-    return judge("PE bounds", "u_k within record.pe_bounds", worst, BOUND_TOL, where)
+    return judge("PE bounds", "u_k within record.pe_bounds", worst, PE_BOUND_TOL, where)
 
 
 def pe_binding_steps(traj) -> int:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from hypothesis import given
 
-from . import claims, profiles
+from . import nversion, profiles
 from .failures import require
 from .suite import CLOSED_LOOP, observe
 
@@ -18,5 +18,5 @@ def test_lemma5_lms_error_energy_is_bounded_for_every_m(case, backend, runner, c
     with μ satisfying (11) on Z and μ‖D_k‖² <= 1 along the run."""
     traj = runner.run(case, backend)
     observe(case, traj, "test_lemma5_lms_error_energy_is_bounded_for_every_m", backend, coverage)
-    require(claims.lms_precondition(traj), test="lemma5", backend=backend, case=case, traj=traj)
-    require(claims.lms_inequality(traj), test="lemma5", backend=backend, case=case, traj=traj)
+    for result in nversion.check(("mu_precondition", "lemma5"), traj):
+        require(result, test="lemma5", backend=backend, case=case, traj=traj)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from hypothesis import given
 
-from . import claims, profiles
+from . import nversion, profiles
 from .failures import require
 from .suite import CLOSED_LOOP, observe
 
@@ -19,4 +19,6 @@ def test_proposition9_tube_contains_every_one_step_image(case, backend, runner, 
     of X_{l|k}, θ of Θ_k, w of W, and (x, Kx + v_l) ∈ Z on X_{l|k}, at every step and l."""
     traj = runner.run(case, backend)
     observe(case, traj, "test_proposition9_tube_contains_every_one_step_image", backend, coverage)
-    require(claims.prediction_tube(traj), test="proposition9", backend=backend, case=case, traj=traj)
+    ids = ("tube_contains_state", "tube_contains_next_state", "tube_propagation", "tube_constraints")
+    for result in nversion.check(ids, traj):
+        require(result, test="proposition9", backend=backend, case=case, traj=traj)

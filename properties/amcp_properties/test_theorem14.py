@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 from hypothesis import given
 
-from . import claims, profiles
+from . import nversion, profiles
 from .failures import require
 from .suite import CLOSED_LOOP, observe
 
@@ -21,7 +21,8 @@ def test_theorem14_i_recursive_feasibility(case, backend, runner, coverage):
     constraint of 𝔻(x_k, Θ_k) when re-checked without the solver's multipliers."""
     traj = runner.run(case, backend)
     observe(case, traj, "test_theorem14_i_recursive_feasibility", backend, coverage)
-    require(claims.recursive_feasibility(traj), test="theorem14_i", backend=backend, case=case, traj=traj)
+    for result in nversion.check("recursive_feasibility", traj):
+        require(result, test="theorem14_i", backend=backend, case=case, traj=traj)
 
 
 @profiles.shared_seed
@@ -31,8 +32,8 @@ def test_theorem14_ii_theta_star_in_theta_k_and_estimate_in_theta(case, backend,
     """θ* ∈ Θ_k for every k (set membership never excludes the true parameter), and θ̂_k ∈ Θ."""
     traj = runner.run(case, backend)
     observe(case, traj, "test_theorem14_ii_theta_star_in_theta_k_and_estimate_in_theta", backend, coverage)
-    require(claims.theta_star_in_sets(traj), test="theorem14_ii", backend=backend, case=case, traj=traj)
-    require(claims.theta_hat_in_prior(traj), test="theorem14_ii", backend=backend, case=case, traj=traj)
+    for result in nversion.check(("theta_star_in_Theta_k", "theta_hat_in_Theta"), traj):
+        require(result, test="theorem14_ii", backend=backend, case=case, traj=traj)
 
 
 @profiles.shared_seed
@@ -42,7 +43,8 @@ def test_theorem14_iii_state_and_input_constraints_hold(case, backend, runner, c
     """F x_k + G u_k <= 1 at every applied input, eq. (4)."""
     traj = runner.run(case, backend)
     observe(case, traj, "test_theorem14_iii_state_and_input_constraints_hold", backend, coverage)
-    require(claims.constraints_satisfied(traj), test="theorem14_iii", backend=backend, case=case, traj=traj)
+    for result in nversion.check("state_input_constraints", traj):
+        require(result, test="theorem14_iii", backend=backend, case=case, traj=traj)
 
 
 #: Minimum fractions of the closed-loop runs that reach the hard cases (both profiles);

@@ -16,15 +16,14 @@ from amcp_drake.model.errors import ProblemError
 from amcp_drake.model.examples import lorenzen2019_spec
 from amcp_drake.model.options import OnlineOptions
 from amcp_drake.model.status import SolveStatus
+from amcp_drake.model.tolerances import SET_TOL
 from amcp_drake.offline.design import design
 from amcp_drake.online.controller import AdaptiveMPC
 from amcp_drake.online.simulate import simulate
 
-#: θ*_k ∈ Θ_k on unit rows, allowed round-off: the LP (9) is solved to ~1e-9 and Δ_k carries a
-#: margin of 1e-6 (controller.DELTA_MARGIN) in the safe direction.
-MEMBERSHIP_TOL = 1e-7
-#: (x_k, u_k) ∈ Z: max(F x + G u − 1) <= this (the QP's feasibility tolerance is ~1e-8).
-Z_TOL = 1e-7
+# θ*_k ∈ Θ_k on unit rows and (x_k, u_k) ∈ Z (max(F x + G u − 1)) are judged at SET_TOL (model.tolerances), the
+# tolerance of the certificate's claims of the same ids: the LP (9) is solved to ~1e-9 and Δ_k carries a margin
+# of 1e-6 (controller.DELTA_MARGIN) in the safe direction; the QP's feasibility tolerance is ~1e-8.
 STEPS = 30
 
 
@@ -80,7 +79,7 @@ def test_proposition19(example, backend, name):
     assert all(r.status is SolveStatus.OPTIMAL for r in traj.records)
     # θ*_k ∈ Θ_k at every k (Proposition 19)
     margins = [_membership_margin(r.H_theta, r.h_theta, traj.theta_star_at(r.k)) for r in traj.records]
-    assert min(margins) >= -MEMBERSHIP_TOL, (name, int(np.argmin(margins)), min(margins))
+    assert min(margins) >= -SET_TOL, (name, int(np.argmin(margins)), min(margins))
     # θ*_{k+l} ∈ Θ_{l|k} for the predicted sets (26) the QP used, and their form min(h_k + l d_θ, h_0)
     for r in traj.records:
         stages = r.h_theta_stages
@@ -89,9 +88,9 @@ def test_proposition19(example, backend, name):
         for l in range(pr.N):
             np.testing.assert_allclose(stages[l], np.minimum(r.h_theta + l * cfg["d_theta"], d.h_theta0), atol=1e-15)
             if r.k + l < len(seq):
-                assert _membership_margin(r.H_theta, stages[l], seq[r.k + l]) >= -MEMBERSHIP_TOL
+                assert _membership_margin(r.H_theta, stages[l], seq[r.k + l]) >= -SET_TOL
     # (x_k, u_k) ∈ Z
-    assert max(pr.in_Z(x, u) for x, u in zip(traj.x, traj.u)) <= Z_TOL
+    assert max(pr.in_Z(x, u) for x, u in zip(traj.x, traj.u)) <= SET_TOL
 
 
 def test_time_invariant_update_loses_drifting_parameter(example, backend):
