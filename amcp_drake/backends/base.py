@@ -160,7 +160,13 @@ class MPCSolution:
 
 @runtime_checkable
 class TubeMPCSolver(Protocol):
-    """A tube MPC QP (20) built once; ``solve`` updates coefficients and solves."""
+    """A tube MPC QP (20) built once; ``solve`` updates coefficients and solves. ``formulation``: the
+    form of (20) it solves ("plain": (15) with the multipliers Λ; "vertex": (5b) at the vertices of Θ_k);
+    ``REFINES``: ``solve`` takes ``refine=True`` (Clarabel's iterative refinement from the first solve,
+    the controller's re-solve of an answer that failed its checks)."""
+
+    formulation: str
+    REFINES: bool
 
     def solve(self, x: np.ndarray, h_theta: np.ndarray, theta_hat: np.ndarray,
               H_theta: np.ndarray | None = None) -> MPCSolution:
@@ -174,9 +180,11 @@ class TubeMPCSolver(Protocol):
 
 @runtime_checkable
 class Backend(Protocol):
-    """One implementation of every optimisation problem of the algorithm."""
+    """One implementation of every optimisation problem of the algorithm; ``formulation``: that of
+    the programs :meth:`tube_mpc` builds ("plain" or "vertex")."""
 
     name: str
+    formulation: str
 
     def robust_gain(self, A_vertices: np.ndarray, B_vertices: np.ndarray, Q: np.ndarray, R: np.ndarray,
                     margin: float) -> GainResult:

@@ -474,6 +474,8 @@ class DrakeTubeMPC:
     #: ``solve(..., refine=True)`` is supported (the controller's first fallback for an answer that
     #: fails its checks, amcp_drake.online.controller).
     REFINES = True
+    #: the formulation of (20) this program solves (the protocol's ``TubeMPCSolver.formulation``)
+    formulation = "plain"
 
     def solve(self, x, h_theta, theta_hat, H_theta=None, u0_bounds=None, refine: bool = False) -> MPCSolution:
         """Solve (20) at x_k with Θ_k = {H_θ θ <= h_theta} and point estimate θ̂_k.

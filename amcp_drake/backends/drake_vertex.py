@@ -77,6 +77,8 @@ class DrakeVertexTubeMPC:
     """QP (20) in vertex form, built once; :meth:`solve` updates x_k, the rows of Θ_k's vertices, θ̂_k."""
 
     formulation = "vertex"
+    #: no ``solve(..., refine=True)``: the vertex form re-solves with iterative refinement itself
+    REFINES = False
 
     def __init__(self, data: TubeMPCData, solver, solver_options: dict | None = None, fast: bool = False) -> None:
         """``solver``: the backend's ``_Solver``; with Clarabel, a copy with

@@ -174,17 +174,17 @@ class AdaptiveMPC:
             R=problem.R, N=problem.N, K=design.K, P=design.P, H_x=design.H_x, X0_vertices=design.X0_vertices,
             w_bar=design.w_bar, f_bar=design.f_bar, H_T=design.H_T, h_T=design.h_T, H_theta=design.H_theta, h_theta0=design.h_theta0,
             cost=self.options.cost)
-        if self.options.cost != "certainty_equivalence" and getattr(self.backend, "formulation", "plain") != "plain":
+        if self.options.cost != "certainty_equivalence" and self.backend.formulation != "plain":
             raise ProblemError("formulation", "'plain' (the min-max cost (19) needs formulation='plain')",
                                repr(self.backend.formulation))
-        if self.options.d_theta > 0 and getattr(self.backend, "formulation", "plain") != "plain":
+        if self.options.d_theta > 0 and self.backend.formulation != "plain":
             raise ProblemError("formulation", "'plain' (time-varying parameters need formulation='plain': the "
                                "predicted sets (26) differ per stage)", repr(self.backend.formulation))
         if self.options.pe_window is not None:
             if problem.m != 1:
                 raise ProblemError("online.pe_window", "None for m > 1 (the PE constraint of Section 4.2 is for "
                                    "a scalar input)", repr(self.options.pe_window))
-            if getattr(self.backend, "formulation", "plain") != "plain":
+            if self.backend.formulation != "plain":
                 raise ProblemError("formulation", "'plain' (the PE constraint needs formulation='plain')",
                                    repr(self.backend.formulation))
         self.mpc = self.backend.tube_mpc(self.data)
@@ -299,7 +299,7 @@ class AdaptiveMPC:
                                                             "intersection is empty")
                 answer, failed, status, cpu = (result.h, result.Lambda), [], result.status, result.solve_time
                 if status is SolveStatus.OPTIMAL:
-                    failed = self._timed_checks(record, check, result.h, result.Lambda, getattr(result, "points", None))
+                    failed = self._timed_checks(record, check, result.h, result.Lambda, result.points)
                     if failed:
                         record.set_status = SolveStatus.INACCURATE
             elif rung.name == "highs_support_lps":
@@ -616,7 +616,7 @@ class AdaptiveMPC:
         if self._other_refused is not None:
             return None
         if self._other_mpc is None:
-            other = "vertex" if getattr(self.backend, "formulation", "plain") == "plain" else "plain"
+            other = "vertex" if self.backend.formulation == "plain" else "plain"
             est = estimate_for(self.problem, None, 1, self.options, design=self.design, formulation=other)
             if est.memory_bytes > self.max_memory_mb * 2**20:
                 self._other_refused = (f"the {other} form's estimated size exceeds the memory limit of "
@@ -646,7 +646,7 @@ class AdaptiveMPC:
                     self._failed_tube_checks(s, first, x, h_arg, H_arg, record)
                 return first, self._attempt(problem, "first", first, failed)
             if rung.name == "refine":
-                if not getattr(self.mpc, "REFINES", False):
+                if not self.mpc.REFINES:
                     return None
                 alt = self.mpc.solve(x, h_arg, s.theta_hat, H_arg, u0_bounds=u0_bounds, refine=True)
                 record.times["solver_refined"] = record.times.get("solver_refined", 0.0) + alt.solver_time
@@ -662,7 +662,7 @@ class AdaptiveMPC:
             failed = (self._failed_tube_checks(s, alt, x, h_arg, H_arg, record)
                       if alt.status is SolveStatus.OPTIMAL else [])
             return alt, self._attempt(problem, rung.name, alt, failed,
-                                      (("formulation", getattr(other, "formulation", "plain")),))
+                                      (("formulation", other.formulation),))
         return attempt
 
     @staticmethod

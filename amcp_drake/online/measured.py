@@ -74,10 +74,10 @@ def measured_trajectory(controller: AdaptiveMPC, records: Sequence[StepRecord], 
         stop = "completed"
     x = np.array([np.asarray(r.x, float) for r in records])
     u = np.array([np.asarray(r.u, float) for r in records[:-1]]).reshape(-1, problem.m)
-    info = {"simulator": USER_LOOP, "formulation": getattr(controller.backend, "formulation", "plain")}
+    info = {"simulator": USER_LOOP, "formulation": controller.backend.formulation}
     return Trajectory(problem=problem, design=controller.design, options=controller.options,
                       backend=controller.backend.name, theta_star=None, x=x, u=u, w=None, records=records,
-                      stop_reason=stop, mu_state_bound=getattr(controller.design, "mu_state_bound", None),
+                      stop_reason=stop, mu_state_bound=controller.design.mu_state_bound,
                       meta={**info, **(meta or {})})
 
 

@@ -331,7 +331,7 @@ def simulate(controller: AdaptiveMPC, x0, theta_star, steps: int, disturbance: s
                                "a point of Theta (Assumption 1 / 17)", f"{th.tolist()}")
     check_theta_rate(theta_star, controller.options.d_theta)
     if mu_state_bound is None:
-        mu_state_bound = getattr(controller.design, "mu_state_bound", None)
+        mu_state_bound = controller.design.mu_state_bound
     W = disturbance_sequence(problem, disturbance, steps, seed)
     controller.reset()
     xs, us, ws, records = [x], [], [], []
@@ -348,7 +348,7 @@ def simulate(controller: AdaptiveMPC, x0, theta_star, steps: int, disturbance: s
                           u=np.array(us).reshape(-1, problem.m), w=np.array(ws).reshape(-1, problem.n),
                           records=records, stop_reason=stop, mu_state_bound=mu_state_bound,
                           meta={"disturbance": disturbance if isinstance(disturbance, str) else "array", "seed": seed,
-                                "formulation": getattr(controller.backend, "formulation", "plain")})
+                                "formulation": controller.backend.formulation})
 
     for k in iterator:
         try:

@@ -125,6 +125,8 @@ class CvxpyVertexTubeMPC:
     """QP (20) in vertex form; :meth:`solve` enumerates Θ_k's vertices, sets parameters, solves."""
 
     formulation = "vertex"
+    #: no ``solve(..., refine=True)``: the vertex form re-solves with iterative refinement itself
+    REFINES = False
 
     def __init__(self, data: TubeMPCData, call, compiled: bool = True, plain_fallback: bool = True) -> None:
         """``call``: the backend's ``SolverCall``; with Clarabel, a copy with
