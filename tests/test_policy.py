@@ -101,3 +101,13 @@ def test_the_step_records_its_attempts_and_renders_its_provenance_from_them(exam
     sets = [a for a in traj.records[1].attempts if a.problem == "set_update"]
     assert [a.rung for a in sets] == ["first"] and sets[0].accepted
     assert answers.of(traj.records[1], "set_update") == answers.entry("set_update", "first")
+
+
+def test_a_projection_without_a_certified_point_is_not_solved_without_a_kind():
+    fn, called = _scripted("projection", {"first": (OPT, "projection in S"), "least_distance": (OPT, "projection in S"),
+                                          "kept_previous_estimate": (NOT_RUN, ""), "chebyshev_centre": (INF, "")})
+    answer, attempts = policy.run(policy.PROJECTION, fn)
+    assert answer is None and called == ["first", "least_distance", "kept_previous_estimate", "chebyshev_centre"]
+    assert policy.answer_entry(policy.PROJECTION, attempts) == answers.entry("projection", "not_solved", "",
+                                                                             "projection in S")
+    assert policy.notes(policy.PROJECTION, attempts, target="Θ_k").endswith("no certified point of Θ_k: step not solved")

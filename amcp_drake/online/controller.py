@@ -452,52 +452,56 @@ class AdaptiveMPC:
             s.theta_hat = theta_tilde
             record.projection_status = SolveStatus.OPTIMAL
             return True
-        result = self.backend.project(theta_tilde, H, h)
-        record.times["projection"] = result.solve_time
-        record.projection_status = result.status
-        t0 = time.process_time()
         candidates = (s.theta_hat,)
-        try:
-            if result.status is SolveStatus.OPTIMAL:
-                checks = answer_checks.check_projection(result.theta, theta_tilde, H, h, candidates)
-                failed = answer_checks.failures(checks)
-                if not failed:
-                    s.theta_hat = np.asarray(result.theta, float)
-                    self._answer(record, "projection", "first")
-                    return True
-                record.projection_status = SolveStatus.INACCURATE
-                note = answer_checks.describe_failures(f"projection (12) onto {target}", checks)
-                why = failed[0].name
-            else:
-                note = f"projection (12) onto {target}: backend status {result.status.value}"
-                why = f"status {result.status.value}"
-            # fallback 1: another solver (least-distance programming by NNLS), checked the same way
-            ldp = polytope.least_distance_point(theta_tilde, H, h)
-            if ldp is not None and not answer_checks.failures(
-                    answer_checks.check_projection(ldp, theta_tilde, H, h, candidates)):
-                s.theta_hat = ldp
-                self._note(record, note + "; fallback: least-distance projection (NNLS, checked)")
-                self._answer(record, "projection", "fallback", "least_distance", why)
-                return True
-            # fallback 2: a certified point of S (any θ̂ in S keeps Theorem 14; Lemma 5 is not claimed
-            # for such a step: the certificate's lms_update skips steps whose projection is not optimal)
-            tol = answer_checks.PROJECTION_MEMBERSHIP_TOL
+        tol = answer_checks.PROJECTION_MEMBERSHIP_TOL
+
+        def checked(rung, theta, cpu=0.0):
+            failed = answer_checks.failures(answer_checks.check_projection(theta, theta_tilde, H, h, candidates))
+            return theta, Attempt("projection", rung, SolveStatus.OPTIMAL, check=failed[0].name if failed else "",
+                                  accepted=not failed, solver_cpu=cpu, failures=tuple(failed))
+
+        def in_S(theta) -> bool:
             Hn, hn = polytope.normalize_rows(H, h)
-            if float(np.max(Hn @ s.theta_hat - hn)) <= tol:
-                self._note(record, note + f"; fallback: kept θ̂_(k−1) (in {target})")
-                self._answer(record, "projection", "fallback", "kept_previous_estimate", why)
-                return True
+            return bool(np.all(np.isfinite(theta))) and float(np.max(Hn @ theta - hn)) <= tol
+
+        def attempt(rung):
+            # the rungs of policy.PROJECTION
+            if rung.name == "first":
+                result = self.backend.project(theta_tilde, H, h)
+                record.times["projection"] = result.solve_time
+                record.projection_status = result.status
+                clock[0] = time.process_time()  # the checks and fallbacks from here: answer_checks_cpu
+                if result.status is not SolveStatus.OPTIMAL:
+                    return None, Attempt("projection", "first", result.status, solver_cpu=result.solve_time)
+                theta, a = checked("first", result.theta, cpu=result.solve_time)
+                if not a.accepted:
+                    record.projection_status = SolveStatus.INACCURATE
+                return np.asarray(theta, float), a
+            if rung.name == "least_distance":
+                ldp = polytope.least_distance_point(theta_tilde, H, h)
+                return (None, Attempt("projection", rung.name, SolveStatus.ERROR)) if ldp is None else checked(rung.name, ldp)
+            if rung.name == "kept_previous_estimate":
+                return None, Attempt("projection", rung.name, SolveStatus.OPTIMAL, accepted=in_S(s.theta_hat))
             centre, radius = polytope.chebyshev_center(H, h)
-            if np.all(np.isfinite(centre)) and float(np.max(Hn @ centre - hn)) <= tol:
-                s.theta_hat = centre
-                self._note(record, note + f"; fallback: Chebyshev centre of {target} (radius {radius:.3g})")
-                self._answer(record, "projection", "fallback", "chebyshev_centre", why)
-                return True
-            self._note(record, note + f"; no certified point of {target}: step not solved")
-            self._answer(record, "projection", "not_solved", "", why)
-            return False
+            ok = in_S(centre)
+            return centre, Attempt("projection", rung.name, SolveStatus.OPTIMAL if ok else SolveStatus.INFEASIBLE,
+                                   accepted=ok, options=(("radius", f"{radius:.3g}"),))
+
+        clock = [time.process_time()]
+        try:
+            theta, attempts = policy.run(policy.PROJECTION, attempt)
         finally:
-            record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - t0
+            record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - clock[0]
+        record.attempts.extend(attempts)
+        note = policy.notes(policy.PROJECTION, attempts, target=target)
+        if note:
+            self._note(record, note)
+        self._entry(record, policy.answer_entry(policy.PROJECTION, attempts))
+        if not attempts[-1].accepted:
+            return False
+        if theta is not None:
+            s.theta_hat = theta
+        return True
 
     # -- (iii) the QP (20), with the PE two-QP procedure of docs/explanation/paper.md §8 when enabled -----------------
     def _solve_qp(self, s: StepState, x, h_arg, H_arg, record: StepRecord):

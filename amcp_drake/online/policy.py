@@ -14,6 +14,8 @@ The rungs of the tube QP (20): the backend's first answer; the same QP solved ag
 refinement (a solver with ``REFINES``: the first try runs without it for speed); the other
 formulation ("plain" <-> "vertex") of the same backend. Of the set update (9): the backend's LP;
 HiGHS' per-row support LPs; Θ_{k−1} kept (always a valid outer set of Θ_{k−1} ∩ Δ_k, and nested (10)).
+Of the projection (12): the backend's QP; the least-distance point by NNLS; θ̂_{k−1}; the Chebyshev
+centre of S.
 """
 
 from __future__ import annotations
@@ -67,6 +69,8 @@ class Policy:
     rungs: tuple[Rung, ...]
     no_answer: frozenset = frozenset()
     status_note: str = "{what}: backend status {status}"
+    #: when no rung answered, the provenance entry's kind is the last fallback tried (else "")
+    names_failed_fallback: bool = True
 
     def rung(self, name: str) -> Rung:
         """The rung called ``name``."""
@@ -100,6 +104,23 @@ SET_UPDATE = Policy(
           accepted="fallback: HiGHS support LPs (checked)"),
      Rung("kept_previous_set", "fallback", "kept_previous_set", after=REASONS,
           accepted="fallback: kept Θ_(k−1) (HiGHS answer failed too)")))
+
+
+#: The projection (12): any status but "optimal" and any failed check go to the least-distance
+#: projection (NNLS, another solver, checked the same way), then to θ̂_{k−1} if it is in S, then to the
+#: Chebyshev centre of S if it is in S (a certified point of S keeps Theorem 14; Lemma 5 is not claimed
+#: for such a step: the certificate's lms_update skips steps whose projection is not optimal).
+PROJECTION = Policy(
+    "projection", "projection (12) onto {target}",
+    (FIRST,
+     Rung("least_distance", "fallback", "least_distance", after=REASONS,
+          accepted="fallback: least-distance projection (NNLS, checked)"),
+     Rung("kept_previous_estimate", "fallback", "kept_previous_estimate", after=REASONS,
+          accepted="fallback: kept θ̂_(k−1) (in {target})"),
+     Rung("chebyshev_centre", "fallback", "chebyshev_centre", after=REASONS,
+          accepted="fallback: Chebyshev centre of {target} (radius {radius})",
+          failed="no certified point of {target}: step not solved")),
+    names_failed_fallback=False)
 
 
 def reason(policy: Policy, first: Attempt) -> str:
@@ -154,15 +175,17 @@ def answer_entry(policy: Policy, attempts: list[Attempt]) -> dict[str, str]:
         # an answer that is no solution ("infeasible"): the backend's own, no fallback
         return answers.entry(policy.problem, "not_solved", first.status.value)
     tried = [a for a in attempts[1:] if a.status is not SolveStatus.NOT_RUN
-             and policy.rung(a.rung).outcome == "fallback"]
+             and policy.rung(a.rung).outcome == "fallback"] if policy.names_failed_fallback else []
     kind = policy.rung(tried[-1].rung).kind_of(tried[-1]) if tried else ""
     return answers.entry(policy.problem, "not_solved", kind, why)
 
 
-def notes(policy: Policy, attempts: list[Attempt], what: str | None = None) -> str:
+def notes(policy: Policy, attempts: list[Attempt], what: str | None = None, **names: str) -> str:
     """The step's note on a problem solved by :func:`run` ("" when the first answer was used, or when it
-    had no fallback): why the first answer was not used, then what the last rung gave."""
-    what = policy.what if what is None else what
+    had no fallback): why the first answer was not used, then what the last rung gave. ``what``: the
+    problem's name (default ``policy.what``); ``names`` and the last attempt's options fill the fields of
+    the texts (``{target}``, ``{radius}``, ``{formulation}``)."""
+    what = (policy.what if what is None else what).format(**names)
     first, last = attempts[0], attempts[-1]
     if first.accepted or len(attempts) == 1:
         return ""
@@ -171,15 +194,15 @@ def notes(policy: Policy, attempts: list[Attempt], what: str | None = None) -> s
         head = answer_checks.describe_failures(what + (rung.head if last.accepted else ""), list(first.failures))
     else:
         head = policy.status_note.format(what=what, status=first.status.value, detail=first.detail)
-    form = last.option("formulation")
+    fields = {**names, "formulation": "", **dict(last.options)}
     if last.accepted:
-        tail = rung.accepted.format(formulation=form)
+        tail = rung.accepted.format(**fields)
     elif last.status is SolveStatus.NOT_RUN:
-        tail = rung.not_run.format(reason=last.check)
+        tail = rung.not_run.format(reason=last.check, **fields)
     else:
         failed = (f"status {last.status.value}" if last.status is not SolveStatus.OPTIMAL
                   else answer_checks.describe_failures("checks", list(last.failures)))
-        tail = rung.failed.format(formulation=form, failed=failed)
+        tail = rung.failed.format(failed=failed, **fields)
     return f"{head}; {tail}" if tail else head
 
 
@@ -192,5 +215,5 @@ def solver_details(attempts: list[Attempt]) -> str:
     return f"{first.detail}; {used.detail}"
 
 
-__all__ = ["PE_CANDIDATE", "REASONS", "SET_UPDATE", "TUBE_QP", "Policy", "Rung", "answer_entry", "failed_check",
+__all__ = ["PE_CANDIDATE", "PROJECTION", "REASONS", "SET_UPDATE", "TUBE_QP", "Policy", "Rung", "answer_entry", "failed_check",
            "notes", "reason", "run", "solver_details"]
