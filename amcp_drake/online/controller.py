@@ -492,11 +492,7 @@ class AdaptiveMPC:
             theta, attempts = policy.run(policy.PROJECTION, attempt)
         finally:
             record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - clock[0]
-        record.attempts.extend(attempts)
-        note = policy.notes(policy.PROJECTION, attempts, target=target)
-        if note:
-            self._note(record, note)
-        self._entry(record, policy.answer_entry(policy.PROJECTION, attempts))
+        self._record_attempts(record, policy.PROJECTION, attempts, target=target)
         if not attempts[-1].accepted:
             return False
         if theta is not None:
@@ -699,11 +695,12 @@ class AdaptiveMPC:
             record.status = SolveStatus.INACCURATE
         return answer
 
-    def _record_attempts(self, record: StepRecord, pol, attempts: list) -> None:
-        """Add ``attempts`` of the problem of ``pol`` to the record, with the note and the provenance entry
-        rendered from them (:mod:`amcp_drake.online.policy`)."""
+    def _record_attempts(self, record: StepRecord, pol, attempts: list, **names: str) -> None:
+        """Add ``attempts`` of the problem of ``pol`` to the record, with the note (``names``: its fields,
+        :func:`~amcp_drake.online.policy.notes`) and the provenance entry rendered from them
+        (:mod:`amcp_drake.online.policy`)."""
         record.attempts.extend(attempts)
-        note = policy.notes(pol, attempts)
+        note = policy.notes(pol, attempts, **names)
         if note:
             self._note(record, note)
         self._entry(record, policy.answer_entry(pol, attempts))
