@@ -31,7 +31,8 @@ def test_the_api_snippet_and_amcp_certify_give_the_same_verdict_and_claims(tmp_p
     api = namespace["cert"].to_dict()
 
     out = tmp_path / "cli"
-    result = CliRunner().invoke(main, ["certify", "--steps", str(STEPS), "--seed", "0", "--out", str(out)],
+    result = CliRunner().invoke(main, ["certify", "--steps", str(STEPS), "--seed", "0", "--out", str(out),
+                                       "--formulation", "plain"],  # the API's AdaptiveMPC default
                                 catch_exceptions=False)
     cli = json.loads((out / "certificate.json").read_text())
 

@@ -262,7 +262,7 @@ ROWS: list[tuple] = [
     ("scenario.steps-huge", problem(set_("scenario.steps", 10**9)), ["design", "{file}"], 2,
      r"scenario\.steps: expected a value <= 100000"),
     ("x0_facets-huge", problem(set_("design.x0_facets", 10**12)), ["design", "{file}"], 2,
-     r"problem size.*design\.x0_facets = 1000000000000"),
+     r"design size.*design\.x0_facets = 1000000000000 facets.*--max-memory"),
     ("d_theta-1e300", problem(set_("online", {"d_theta": 1e300})), ["design", "{file}"], 2,
      r"online\.d_theta: expected a value <= 1e\+09"),
     ("bool-in-theta_hat0", problem(set_("theta_hat0.1", False)), ["design", "{file}"], 2,

@@ -68,17 +68,31 @@ def write_trajectory(data: dict, path: Path) -> Path:
 
 
 # -- exit 0 ------------------------------------------------------------------------------------------
-def test_default_run_certifies_example_1(tmp_path):
-    """No options but --out: Example 1, its scenario (50 steps, seed 0), Drake; every claim holds."""
+MULTIPLIER_CLAIMS = {"multipliers_nonneg", "multipliers_15c", "multipliers_15d"}
+
+
+@pytest.mark.parametrize(("given", "solved", "claims"), [([], "vertex", 33), (["--formulation", "plain"], "plain", 36)])
+def test_default_run_certifies_example_1(tmp_path, given, solved, claims):
+    """No options but --out: Example 1, its scenario (50 steps, seed 0), Drake, the default --formulation
+    auto (the vertex form for Example 1); every claim holds, the three Λ claims listed as not applicable
+    (the vertex form has no multipliers). With --formulation plain the Λ claims are checked and hold."""
     out = tmp_path / "out"
-    result = invoke("--out", out)
+    result = invoke("--out", out, *given)
     assert result.exit_code == 0, result.output
     data = written(out)
     assert data["verdict"] == "pass" and data["passed"] is True
     run = data["run"]
     assert (run["steps"], run["seed"], run["backend"]) == (50, 0, "drake")
     assert run["x0"] == [2.0, 3.0] and run["theta_star"] == [0.8, 0.2, -0.5]
-    assert "CERTIFIED: all 36 claims hold" in result.stdout
+    assert run["formulation"] == solved and (run["formulation_reason"] is None) == bool(given)
+    assert f"CERTIFIED: all {claims} claims hold" in result.stdout and len(data["claims"]) == claims
+    checked = {c["id"] for c in data["claims"]}
+    unclaimed = {c["id"]: c["reason"] for c in run["not_claimed"]}
+    if solved == "plain":
+        assert MULTIPLIER_CLAIMS <= checked and not MULTIPLIER_CLAIMS & set(unclaimed)
+    else:
+        assert not MULTIPLIER_CLAIMS & checked and MULTIPLIER_CLAIMS <= set(unclaimed)
+        assert all(unclaimed[i].startswith("not applicable (vertex form has no multipliers)") for i in MULTIPLIER_CLAIMS)
     for claim in data["claims"]:
         assert claim["id"] in result.stdout
     # the robust baseline beside the run: recorded apart from the claims, its adaptive cost that of the

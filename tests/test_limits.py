@@ -200,7 +200,8 @@ def test_a_campaign_problem_whose_design_is_too_large_is_recorded_as_refused(tmp
 
 
 def test_coverage_refuses_a_design_too_large_for_the_limit():
-    """`amcp coverage --formulation plain` on the quadrotor (no design section): before the design its QP
+    """`amcp coverage --formulation plain --plane 1,2` on the quadrotor (no design section; a slice of 441
+    points, within the point limit): before the design its QP
     is estimated at 13 MiB (the parallelotope's 8 facets and 16 vertices), with the design found (102
     facets, 318 vertices) above the default 2 GiB: exit 2 naming the design's size, before any QP is built."""
     from click.testing import CliRunner
@@ -208,7 +209,7 @@ def test_coverage_refuses_a_design_too_large_for_the_limit():
     from amcp_drake.cli import main
 
     result = CliRunner().invoke(main, ["coverage", "--example", "ji2022_quadrotor", "--formulation", "plain",
-                                       "--no-progress"])
+                                       "--plane", "1,2", "--no-progress"])
     assert result.exit_code == 2, result.output
     assert "problem size with the design found" in result.output and "--max-memory" in result.output
     assert "X0 facets = 102 (318 vertices)" in result.output

@@ -165,7 +165,8 @@ def test_malformed_provenance_is_a_trajectory_error_naming_the_record(example_sp
 def test_amcp_certify_exits_1_naming_the_backend_and_the_check(monkeypatch, tmp_path):
     tb.use_as_drake(monkeypatch, tb.WrongTubeDrake)
     out = tmp_path / "cert"
-    result = CliRunner().invoke(main, ["certify", "--steps", "4", "--out", str(out)], catch_exceptions=False)
+    result = CliRunner().invoke(main, ["certify", "--steps", "4", "--formulation", "plain", "--out", str(out)],
+                                catch_exceptions=False)  # the tampered backend is the plain form's
     assert result.exit_code == 1, result.output
     assert "CERTIFIED: all" in result.output  # the paper's claims hold on the applied answers
     assert "BACKEND CONFORMANCE FAILED: drake" in result.output
@@ -181,7 +182,7 @@ def test_amcp_certify_exits_1_naming_the_backend_and_the_check(monkeypatch, tmp_
 def test_amcp_compare_exits_1_naming_the_step_backend_and_check(monkeypatch, tmp_path, cls, problem, check):
     tb.use_as_drake(monkeypatch, cls)
     out = tmp_path / "compare.json"
-    args = ["compare", "--steps", "3", "--quiet", "--out", str(out)]
+    args = ["compare", "--steps", "3", "--quiet", "--formulation", "plain", "--out", str(out)]  # the plain form tampered
     result = CliRunner().invoke(main, args, catch_exceptions=False)
     assert result.exit_code == 1, result.output
     assert f"drake needed help on its {problem} answer (fallback" in result.output

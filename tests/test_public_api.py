@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 
@@ -41,5 +42,9 @@ def test_run_with_the_vertex_formulation_and_certify_it(tmp_path):
     assert result.exit_code == 0, result.output
     cert = CliRunner().invoke(main, ["certify", "--trajectory", str(tmp_path / "t.json"), "--out", str(tmp_path / "o")])
     assert cert.exit_code == 0, cert.output
-    assert "multipliers" not in cert.output  # the vertex form has no Λ to check, and says so in the docs
     assert "tube_propagation" in cert.output
+    data = json.loads((tmp_path / "o" / "certificate.json").read_text())
+    multipliers = {"multipliers_nonneg", "multipliers_15c", "multipliers_15d"}
+    assert data["run"]["formulation"] == "vertex"  # no Λ to check: listed as not applicable, never as claims
+    assert not multipliers & {c["id"] for c in data["claims"]}
+    assert {c["id"] for c in data["run"]["not_claimed"] if c["reason"].startswith("not applicable")} == multipliers

@@ -686,8 +686,7 @@ def test_a_truncated_store_without_a_write_ahead_log_is_still_refused(tmp_path):
 
 def test_a_long_design_prints_progress_while_it_runs(tmp_path):
     """``amcp design --progress-every 0.5`` of Example 1 with an mrpi template of 160 facets (seconds of work;
-    the limit raised so that the size estimate of the later run does not refuse it before the design): a
-    progress line ("  ... design: <stage> (<t> s CPU)") reaches stderr while the design is still working, shown
+    the memory limit raised for the design's own stages): a progress line ("  ... design: <stage> (<t> s CPU)") reaches stderr while the design is still working, shown
     without a clock: a SIGTERM sent when the first one arrives stops the design before its checks are printed
     (a design that printed its progress only at its end would have finished by then). The interval itself is
     tested with a fake clock in tests/test_scale_design.py."""

@@ -232,14 +232,16 @@ def test_parallelotope_template_is_contractive_and_invariant_by_independent_chec
 
 def test_certify_refuses_a_run_whose_design_is_too_large_before_building_the_controller(tmp_path):
     """The quadrotor's automatic design passes with a 102-facet X0 (318 vertices): the run's estimate with
-    that design exceeds the default limit, so `amcp certify` exits 2 naming the design's size and the
-    option, after the design and before the controller is built; nothing is written."""
+    that design exceeds the default limit in the plain form (15), so `amcp certify --formulation plain`
+    exits 2 naming the design's size and the option, after the design and before the controller is built;
+    nothing is written."""
     from click.testing import CliRunner
 
     from amcp_drake.cli import main
 
     out = tmp_path / "out"
-    result = CliRunner().invoke(main, ["certify", "--example", "ji2022_quadrotor", "--steps", "50", "--out", str(out)])
+    result = CliRunner().invoke(main, ["certify", "--example", "ji2022_quadrotor", "--steps", "50", "--formulation",
+                                       "plain", "--out", str(out)])
     assert result.exit_code == 2, result.output
     assert "problem size with the design found" in result.output and "--max-memory" in result.output
     assert "X0 facets = 102 (318 vertices)" in result.output

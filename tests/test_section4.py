@@ -301,6 +301,7 @@ def test_cli_certify_and_compare_example2_with_its_drifting_theta_star(tmp_path)
     assert len(run["theta_star_sequence"]) == 26 and run["d_theta"] == 0.01 and run["pe_window"] == 3
     assert run["theta_star_sequence"][25][0] < run["theta_star_sequence"][0][0] - 0.05  # it drifts
     assert [c["id"] for c in run["not_claimed"]] == ["lemma5"]
+    assert run["formulation"] == "plain"  # the default auto chooses the plain form: d_θ > 0 and PE need it
     statuses = {c["id"]: c["status"] for c in cert["claims"]}
     assert statuses["theta_star_in_Theta_k"] == statuses["pe_level"] == statuses["pe_bounds"] == "pass"
     assert "not claimed for this run" in res.output
@@ -328,7 +329,8 @@ def test_cli_certify_and_compare_take_the_robust_baseline(tmp_path):
     from amcp_drake.cli import main
 
     out = tmp_path / "cert"
-    res = CliRunner().invoke(main, ["certify", "--update", "none", "--steps", "8", "--out", str(out)])
+    res = CliRunner().invoke(main, ["certify", "--update", "none", "--steps", "8", "--formulation", "plain",
+                                    "--out", str(out)])  # the plain form: every Λ claim made, only the update's not
     assert res.exit_code == 0, res.output
     cert = json.loads((out / "certificate.json").read_text())
     assert cert["run"]["update"] == "none" and cert["verdict"] == "pass"

@@ -19,8 +19,10 @@ the nominal parts [H_x A_cl(0)]_i z_l + [H_x B_0]_i v_l and −[H_x]_i z_{l+1}, 
 every row and are large where X0 is thin (‖[H_x]_i‖ from 4.8 to 146 on ``mass_chain3``, A_cl(0) near I). Written
 with them, the programs of ``mass_chain3``/``mass_chain4`` (n = 6, 8) stalled "AlmostSolved" under
 Clarabel settings that vary by machine (see :data:`NOMINAL_DEVIATION_FORM` and docs/decisions.md). Each
-row of (15c) is divided by ‖[H_x]_i‖ (the distance form of the facet), so that rows of facets of norm 4.8
-and 146 (``mass_chain3``) reach Clarabel at one scale whatever its equilibration does.
+row of (15c) is multiplied by ρ/‖[H_x]_i‖, ρ the median of X0's facet norms, so that rows of facets of norm
+4.8 and 146 (``mass_chain3``) reach Clarabel at one scale whatever its equilibration does, and the program
+does not depend on the state units (a plain 1/‖[H_x]_i‖ brings the rows to the scale of the states: in
+mega units, x̃ = 1e8 x, Clarabel then ended NumericalError at every step).
 
 The full Λ is recovered (kept rows from the solution, left-out rows from their own LPs), so the answer
 checks and certificates re-check (15c), (15d) and Λ >= 0 on every row as before. Each step updates:
@@ -144,6 +146,8 @@ class DrakeTubeMPC:
         FGK = d.F + d.G @ K
         Acl0 = d.A0 + d.B0 @ K
         Acl_i = d.A + d.B @ K  # (p, n, n)
+        #: X0's extent along each state: the unit of the deviation variables (S e_l, see the rows e_l below)
+        self._e_extent = np.max(np.abs(Xv), axis=0)
         self.basis = MultiplierBasis.of(self._padded(H_theta, q))
         keep, self._theta0_h = self._kept_vertices(Acl0, Acl_i)
         lay = self.layout = _Layout(n, m, N, nv, u, q - p, N * int(keep.sum()))
@@ -185,13 +189,17 @@ class DrakeTubeMPC:
         # α >= 0 and Λ_N >= 0
         prog.AddBoundingBoxConstraint(0.0, np.inf, y[lay.a0:lay.a0 + N + 1]).evaluator().set_description("alpha >= 0")
         prog.AddBoundingBoxConstraint(0.0, np.inf, y[lay.L0:lay.e0]).evaluator().set_description("Lambda >= 0")
-        # e_l = z_{l+1} − A_cl(0) z_l − B_0 v_l, the deviations (15c) is written in (module docstring)
+        # e_l = z_{l+1} − A_cl(0) z_l − B_0 v_l, the deviations (15c) is written in (module docstring), held in
+        # units of X0's extent along each state (the variable is S e_l, S = diag(1 / extent)), so that these rows
+        # and (15c), like (15a)-(15b), do not depend on the state units (in x̃ = t x a row in state units mixes
+        # coefficients 1 on z and t·B_0 on v, and Clarabel's answers lost their optimality at t = 1e8)
+        S = np.diag(1.0 / self._e_extent)
         Ae = sp.lil_matrix((N * n, lay.size))
         for l in range(N):
             rows = slice(l * n, (l + 1) * n)
-            Ae[rows, lay.z(l + 1)] = np.eye(n)
-            Ae[rows, lay.z(l)] = -Acl0
-            Ae[rows, lay.v(l)] = -d.B0
+            Ae[rows, lay.z(l + 1)] = S
+            Ae[rows, lay.z(l)] = -S @ Acl0
+            Ae[rows, lay.v(l)] = -S @ np.asarray(d.B0, float)
             Ae[rows, lay.e(l)] = -np.eye(n)
         prog.AddLinearEqualityConstraint(Ae.tocsc(), np.zeros(N * n), y).evaluator().set_description(
             NOMINAL_DEVIATION_FORM)
@@ -279,8 +287,10 @@ class DrakeTubeMPC:
         A.sort_indices()
         self._perm15c = A.data.astype(np.int64) - 1
         self._A15c = A
-        # each row of (15c) divided by ‖[H_x]_i‖ (module docstring): coefficients, multiplier terms and bound
-        self._scale15c = 1.0 / np.linalg.norm(np.asarray(d.H_x, float)[i_all[kept]], axis=1)
+        # each row of (15c) scaled by ρ/‖[H_x]_i‖, ρ the median facet norm (module docstring): the rows reach
+        # Clarabel at one scale, and the program is the same in any state units (x̃ = t x scales every norm by 1/t)
+        norms = np.linalg.norm(np.asarray(d.H_x, float), axis=1)
+        self._scale15c = float(np.median(norms)) / norms[i_all[kept]]
         self._ub15c = -np.asarray(d.w_bar, float)[i_all[kept]] * self._scale15c
         self._lb15c = np.full(rows, -np.inf)
         self._c15c = prog.AddLinearConstraint(self._matrix_15c(np.zeros(basis.q)), self._lb15c, self._ub15c, y
@@ -369,7 +379,7 @@ class DrakeTubeMPC:
         # [H_x A_cl(0)]_i (z_l + α_l x^j) + [H_x B_0]_i v_l − [H_x]_i z_{l+1} = α_l [H_x A_cl(0) x^j]_i − [H_x]_i e_l
         HA0 = H_x @ Acl0
         C = np.concatenate([np.zeros((rows, n)), (HA0 @ Xv.T)[i_of, j_of][:, None], np.zeros((rows, m)),
-                            -H_x[i_of], -np.ones((rows, 1))], axis=1)
+                            -(H_x * self._e_extent)[i_of], -np.ones((rows, 1))], axis=1)
         Gz = np.einsum("ia,pab->ibp", H_x, Acl_i)              # (u, n, p): [H_x]_i A_cl,r
         Gv = np.einsum("ia,pab->ibp", H_x, np.asarray(d.B, float))  # (u, m, p): [H_x]_i B_r
         G = np.zeros((rows, cols.shape[1], Gz.shape[2]))

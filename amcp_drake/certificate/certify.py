@@ -445,4 +445,6 @@ def _run_info(traj: Trajectory, state_bound: float | None) -> dict[str, Any]:
         "mu": traj.design.mu, "mu_region": traj.design.mu_region, "mu_method": traj.design.mu_method,
         "mu_state_bound": state_bound,
         "design_backend": traj.design.backend,
+        "formulation": traj.meta.get("formulation", "plain"),
+        "formulation_reason": traj.meta.get("formulation_reason"),
     }

@@ -32,10 +32,6 @@ from amcp_drake.online.simulate import Trajectory
 #: claims of Theorem 14 and Proposition 9, but not (12) or Lemma 5, which are then not run.
 NO_UPDATE = "none"
 
-GROUP_ASSUMPTIONS = "assumptions"
-GROUP_THEOREM = "theorem14"
-GROUP_SET = "set_membership"
-GROUP_ESTIMATE = "point_estimate"
 
 
 # -- helpers -----------------------------------------------------------------------------------
@@ -119,8 +115,8 @@ def not_applicable(check_id: str, statement: str | None = None) -> CheckResult:
                        {"id": check_id, "group": row.family, "worst_step": None, "per_step": None})
 
 
-def _not_adaptive(check_id: str, name: str, claim: str, group: str = "point_estimate") -> CheckResult:
-    return not_claimed(check_id, name, claim, group, "update mode 'none' is the robust baseline (θ̂_k ≡ θ̂0, no LMS "
+def _not_adaptive(check_id: str, name: str, claim: str) -> CheckResult:
+    return not_claimed(check_id, name, claim, row_of(check_id).family, "update mode 'none' is the robust baseline (θ̂_k ≡ θ̂0, no LMS "
                                                      "update (12))")
 
 
@@ -237,8 +233,7 @@ def mu_precondition(view: RunView, state_bound: float | None) -> CheckResult:
     reports the largest |x_i| visited against that bound.
     """
     if view.traj.options.update == NO_UPDATE:
-        return _not_adaptive("mu_precondition", "μ‖D(x_k,u_k)‖² <= 1", "Lemma 5 precondition: μ‖D(x_k, u_k)‖₂² <= 1",
-                             GROUP_ASSUMPTIONS)
+        return _not_adaptive("mu_precondition", "μ‖D(x_k,u_k)‖² <= 1", "Lemma 5 precondition: μ‖D(x_k, u_k)‖₂² <= 1")
     mu = view.design.mu
     per = {k: 1.0 - mu * float(np.linalg.norm(view.problem.regressor(x, u), 2) ** 2) for k, x, u in view.inputs}
     xmax = max((float(np.max(np.abs(x))) for _, x, _ in view.inputs), default=float("nan"))
@@ -324,7 +319,7 @@ def prior_contains_theta(view: RunView) -> CheckResult:
     """Lemma 3 premise: Θ ⊆ Θ_0 = {H_θ θ <= h_θ0}. Margin: min_i (h_0 − max_{θ∈Θ} [H_0]_i θ) (vertices of Θ)."""
     if not view.records:
         return tag(not_run("Θ ⊆ Θ_0", "Lemma 3 premise: Θ ⊆ Θ_0", "no step recorded"), "Theta0_contains_Theta",
-                   GROUP_SET)
+                   row_of("Theta0_contains_Theta").family)
     r0 = view.records[0]
     H, h = polytope.normalize_rows(r0.H_theta, r0.h_theta)
     verts = view.problem.theta_vertices()
@@ -498,7 +493,7 @@ def lemma5(view: RunView, series: Lemma5Series) -> CheckResult:
         return _not_adaptive("lemma5", "Lemma 5 inequality", "Lemma 5: the ℓ2 bound of the point estimate")
     if view.traj.time_varying:
         return not_claimed("lemma5", "Lemma 5 inequality", "Lemma 5: the ℓ2 bound of the point estimate",
-                           GROUP_ESTIMATE, "θ* varies with k: Section 4.1 claims no ℓ2 bound for the LMS")
+                           row_of("lemma5").family, "θ* varies with k: Section 4.1 claims no ℓ2 bound for the LMS")
     if view.traj.measured:
         return not_applicable("lemma5", "Lemma 5: the ℓ2 bound of the point estimate")
     per = {m: float(series.rhs[m] - series.lhs[m]) for m in range(len(series.lhs))}

@@ -95,7 +95,6 @@ from amcp_drake.certificate.claims import RunView, row_check, theta_vertices
 from amcp_drake.model.check_result import CheckResult
 from amcp_drake.model.tolerances import OPTIMALITY_TOL
 
-GROUP_COST = "cost"
 CLAIM_ID = "qp_optimality"
 
 # OPTIMALITY_TOL (model.tolerances, the row of ``qp_optimality`` in the table of claims) is the judged KKT

@@ -52,8 +52,9 @@ PAPER_RESULTS = (
                 "θ̂_k by the projected LMS update (12) satisfies (1/μ)‖θ̂_{m+1} − θ*‖² + Σ_{k≤m} ‖x̃_{1|k}‖² ≤ "
                 "(1/μ)‖θ̂_0 − θ*‖² + Σ_{k≤m} ‖w_k‖² for every m.", _ids("lemma5"), ("point_estimate",)),
     PaperResult("proposition9", "Proposition 9: the prediction tube",
-                "The recorded tube X_{l|k} = z_{l|k} ⊕ α_{l|k} X0 satisfies (5a)–(5c) with multipliers Λ ≥ 0 of "
-                "(15c), (15d), and ends in the terminal set X_f.", _ids("proposition9"), ("tube",)),
+                "The recorded tube X_{l|k} = z_{l|k} ⊕ α_{l|k} X0 satisfies (5a)–(5c) and ends in the terminal set "
+                "X_f; in the plain form (15) of (20) with multipliers Λ ≥ 0 of (15c), (15d) (the vertex form has "
+                "none: its Λ claims are not applicable).", _ids("proposition9"), ("tube",)),
     PaperResult("qp20", "The controller: QP (20) and its cost",
                 "Every applied input u_k = K x_k + v*_{0|k} (21) comes from a minimiser of (20) with the cost (17) "
                 "or (19).", _ids("qp20"), ("cost",)),

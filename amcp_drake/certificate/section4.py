@@ -26,9 +26,6 @@ from amcp_drake.model.check_result import CheckResult, not_run
 from amcp_drake.model.claim_table import claim as row_of
 from amcp_drake.online.excitation import pe_measure
 
-GROUP_COST = "cost"
-GROUP_EXCITATION = "excitation"
-
 # The claims' tolerances (model.tolerances COST_REL_TOL, PE_LEVEL_TOL, PE_BOUND_TOL, all relative), names and
 # statements are their rows of the table of claims (model.claim_table).
 #: Recorded cost vs the numpy evaluation, relative to max(|J|, COST_SCALE_FLOOR) (absolute below 1).
@@ -169,7 +166,7 @@ def excitation_checks(view: RunView) -> list[CheckResult]:
     if pe_enabled(view):
         if view.problem.m != 1:
             checks.append(tag(not_run("PE window level", "Section 4.2: the PE constraint", "PE needs m = 1"), "pe_level",
-                              GROUP_EXCITATION))
+                              row_of("pe_level").family))
         else:
             checks += [pe_level(view), pe_bounds(view)]
     return checks

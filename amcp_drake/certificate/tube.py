@@ -30,7 +30,6 @@ from amcp_drake.model.claim_table import claim as row_of
 #: vertices of Θ_k times the rows of H_x): 16 MiB.
 PROPAGATION_CHUNK_BYTES = 16 * 2**20
 
-GROUP_TUBE = "tube"
 GROUP_DESIGN = "design"
 
 
@@ -120,6 +119,19 @@ def _propagation_margin(view: RunView, step: _TubeStep, theta_v: np.ndarray | No
     return worst
 
 
+#: The claims about the multipliers Λ of (15c)-(15d).
+MULTIPLIER_CLAIMS = ("multipliers_nonneg", "multipliers_15c", "multipliers_15d")
+#: Why the Λ claims are not made for a run solved in the vertex form.
+VERTEX_FORM_REASON = ("not applicable (vertex form has no multipliers): (20) was solved in the vertex form, (5b) at "
+                      "the vertices of Θ_k (checked by tube_propagation); --formulation plain solves (15) with Λ")
+
+
+def _not_claimed_multiplier(claim_id: str, reason: str) -> CheckResult:
+    """The Λ claim ``claim_id`` (its row of the claim table) listed as not claimed, with ``reason``."""
+    row = row_of(claim_id)
+    return not_claimed(row.id, row.name, row.statement, row.family, reason)
+
+
 def tube_checks(view: RunView) -> list[CheckResult]:
     """Every tube check of Proposition 9 / (5) / (14) / terminal set, one CheckResult each."""
     pr, d, tr = view.problem, view.design, view.traj
@@ -181,15 +193,15 @@ def tube_checks(view: RunView) -> list[CheckResult]:
     ]
     if view.traj.meta.get("formulation") == "vertex":
         # The vertex formulation enforces (5b) at the vertices of Θ_k without multipliers: there is no Λ
-        # to check. (5b) itself is still checked above by vertex enumeration (tube_propagation).
-        return checks
+        # to check, and the certificate lists the Λ claims as not applicable, saying why. (5b) itself is
+        # still checked above by vertex enumeration (tube_propagation).
+        return checks + [_not_claimed_multiplier(cid, VERTEX_FORM_REASON) for cid in MULTIPLIER_CLAIMS]
     if view.solved and not lam_nonneg:
         # every applied answer is the vertex form's (the plain form's answers were rejected and the
         # other formulation answered): no Λ was applied, so no claim about Λ is made for this run
         reason = ("every applied answer of (20) is the vertex form's (no multipliers): the plain form's answers were "
                   "rejected, see solver_answers")
-        return checks + [not_claimed(row.id, row.name, row.statement, row.family, reason)
-                         for row in map(row_of, ("multipliers_nonneg", "multipliers_15c", "multipliers_15d"))]
+        return checks + [_not_claimed_multiplier(cid, reason) for cid in MULTIPLIER_CLAIMS]
     return checks + [
         row_check("multipliers_nonneg", lam_nonneg, "margin = min entry of Λ", none),
         row_check("multipliers_15c", lam_c, "margin = min (−w̄ − Λ^j h_θk − H_x d^j + α_(l+1)); w̄ recomputed from the vertices of W", none),

@@ -22,6 +22,7 @@ from amcp_drake.cli.common import (
     bad_input_exits_2,
     candidate_budget_option,
     design_budget,
+    design_file_option,
     echo,
     exit_verdict,
     formulation_option,
@@ -34,6 +35,7 @@ from amcp_drake.cli.common import (
     prepare_run,
     problem_options,
     progress_every_option,
+    scenario_options,
     seed_option,
     simulate_function,
     simulator_option,
@@ -44,11 +46,13 @@ from amcp_drake.cli.common import (
 
 @click.command("certify")
 @problem_options()
+@design_file_option
 @backend_option
 @click.option("--design-backend", "design_backend", type=click.Choice(["drake", "cvxpy"]), default=None,
               help="Backend of the offline design (default: --backend). A campaign replay names the one the "
                    "campaign used.")
 @formulation_option
+@scenario_options
 @steps_option("Closed-loop steps (default: the scenario's; 50 for Example 1).")
 @seed_option("Seed of the disturbance sequence (default: the scenario's; 0 for Example 1).")
 @click.option("--out", "out_dir", default="amcp-out", show_default=True, type=click.Path(), callback=output_dir_callback,
@@ -67,8 +71,9 @@ from amcp_drake.cli.common import (
 @interruptible(lambda kw, exc: f"nothing written to {kw['out_dir']} (its staging folder was removed); "
                "run the command again")
 @bad_input_exits_2
-def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend, formulation, steps, seed, out_dir,
-                trajectory_file, plane_text, online, max_memory, candidate_budget, progress_every, simulator):
+def certify_cmd(ctx, problem_file, example, x0_template, design_file, backend, design_backend, formulation, x0,
+                theta_star, steps, seed, out_dir, trajectory_file, plane_text, online, max_memory, candidate_budget,
+                progress_every, simulator):
     """Run a closed loop and check every claim of the paper independently.
 
     Runs the adaptive MPC on PROBLEM (default: --example lorenzen2019, x0 = [2, 3],
@@ -91,8 +96,9 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
         from click.core import ParameterSource
 
         run_options = ("backend", "design_backend", "steps", "seed", *ONLINE_OPTION_NAMES, "max_memory", "x0_template",
-                       "candidate_budget", "progress_every", "simulator")
-        given = [f"--{name.replace('_', '-')}" for name in run_options
+                       "candidate_budget", "progress_every", "simulator", "design_file", "x0", "theta_star")
+        flag = {"design_file": "design", "theta_star": "theta-star"}
+        given = [f"--{flag.get(name, name.replace('_', '-'))}" for name in run_options
                  if ctx.get_parameter_source(name) is ParameterSource.COMMANDLINE]
         if given:
             raise ProblemError(", ".join(given), "no run options together with --trajectory (the run is not repeated)",
@@ -100,15 +106,20 @@ def certify_cmd(ctx, problem_file, example, x0_template, backend, design_backend
         traj, spec = _load_trajectory(trajectory_file, problem_file, example)
         plane = _plane(plane_text, traj.problem)
     else:
-        spec, steps, options = prepare_run(problem_file, example, x0_template, steps, online, max_memory,
-                                           "a scenario (x0, theta_star, ...) in the problem file to run",
-                                           "Add a \"scenario\" object, or pass --trajectory.",
-                                           formulation=formulation)
+        if design_file is not None and design_backend is not None:
+            raise ProblemError("--design-backend, --design", "at most one of them (the design file is not designed "
+                               "again)", "both")
+        spec, steps, options, offline = prepare_run(
+            problem_file, example, x0_template, steps, online, max_memory,
+            "a scenario (x0, theta_star, ...) in the problem file to run",
+            "Add a \"scenario\" object, pass --x0 and --theta-star, or pass --trajectory.",
+            formulation=formulation, design_file=design_file, x0=x0, theta_star=theta_star)
         seed = spec.scenario.seed if seed is None else seed
         plane = _plane(plane_text, spec.problem)  # checked before the run
         try:
             traj = _run(spec, backend, steps, seed, formulation, options, design_backend,
-                        design_budget(max_memory, candidate_budget, progress_every=progress_every), simulator)
+                        design_budget(max_memory, candidate_budget, progress_every=progress_every), simulator,
+                        offline)
         except DesignError as exc:
             broken = _assumption_8_broken_by_the_given_gain(exc, spec)
             if broken is None:
@@ -165,15 +176,16 @@ def _with_robust_baseline(traj, cert):
 
 
 def _run(spec, backend: str, steps: int, seed: int, formulation: str = "plain", options=None,
-         design_backend: str | None = None, budget=None, simulator: str = "builtin"):
-    """Offline design, then the closed loop with a progress bar (Drake/cvxpy imported only here); the
-    same path as a campaign run (:func:`amcp_drake.online.replay.run_scenario`), so a replay is exact.
-    ``simulator``: who runs the plant (``--simulator``: builtin or drake)."""
+         design_backend: str | None = None, budget=None, simulator: str = "builtin", offline=None):
+    """Offline design (unless ``offline``, a loaded --design, is given), then the closed loop with a
+    progress bar (Drake/cvxpy imported only here); the same path as a campaign run
+    (:func:`amcp_drake.online.replay.run_scenario`), so a replay is exact. ``simulator``: who runs the
+    plant (``--simulator``: builtin or drake)."""
     from amcp_drake.online.replay import run_scenario
 
     return run_scenario(spec, backend, design_backend=design_backend, formulation=formulation, steps=steps,
                         seed=seed, options=options, progress=True, design_budget=budget,
-                        simulate=simulate_function(simulator))
+                        simulate=simulate_function(simulator), offline=offline)
 
 
 def _assumption_8_broken_by_the_given_gain(exc: Exception, spec) -> str | None:
@@ -232,6 +244,11 @@ def _print(cert, out, problem) -> None:
 
     for line in signals_header(problem):
         echo(f"{problem.name}: {line}")
+    form = cert.run.get("formulation", "plain")
+    reason = cert.run.get("formulation_reason")
+    echo("solved form of (20): " + ("vertex form ((5b) at the vertices of Θ_k, no multipliers: the Λ claims are "
+                                    "not applicable)" if form == "vertex" else "plain form (15), with the multipliers Λ")
+         + (f" [{reason}]" if reason else ""))
     echo(f"how to read the table: {TOLERANCE_RULE}")
     width = 14 if cert.measured else 8  # "not_applicable"
     echo(f"{'claim':32s} {'status':{width}s} {'margin':>11s} {'tolerance':>10s} {'step':>5s}  statement")

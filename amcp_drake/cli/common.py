@@ -69,16 +69,14 @@ def load_problem_spec(problem_file: str | None, example: str | None):
 
 def check_run_size(spec, steps: int, online=None, max_memory_mb: float = DEFAULT_MAX_MEMORY_MB, design=None,
                    formulation: str = "plain"):
-    """Refuse a run whose estimated size exceeds ``--max-memory`` before anything is built, and again with
-    ``design`` (the design found) before the controller is built, for the ``formulation`` of (20) the run
-    uses (:func:`amcp_drake.model.limits.check_run_size`); returns the estimate."""
-    from amcp_drake.model.limits import check_run_size as check
+    """The run-size check of every command that runs the tube QP (20): refuse a run whose estimated size
+    exceeds ``--max-memory``, before the design (``design`` None) and again with the design found before
+    the controller is built, for the form of (20) the run will use (``formulation``, "auto" resolved
+    first: :func:`amcp_drake.online.run_size.check_run_size`); returns the estimate. ``amcp design``
+    builds no run and does not call it."""
+    from amcp_drake.online.run_size import check_run_size as check
 
     online = online if online is not None else spec.online
-    if design is not None and formulation == "auto":
-        from amcp_drake.online.formulation_choice import resolved_formulation
-
-        formulation = resolved_formulation(formulation, spec.problem, design, online)
     return check(spec.problem, spec.design, steps, online, max_memory_mb, design=design, formulation=formulation)
 
 
@@ -168,9 +166,18 @@ def parse_range(option: str, text: str, low: int, high: int) -> tuple[int, ...]:
 max_memory_option = click.option(
     "--max-memory", "max_memory", type=FiniteFloatRange(min=1.0, max=MAX_MEMORY_MB), default=DEFAULT_MAX_MEMORY_MB,
     show_default=True,
-    help="Refuse a run whose estimated size (tube QP nonzeros, recorded steps; docs/problem-format.md, "
-         "'Size limits') exceeds this many MiB, before anything is built; every stage of the offline design is "
-         "sized against the same limit (a design candidate above it is skipped, with the stage named).")
+    help="Refuse a run whose estimated size (tube QP nonzeros in the form of (20) the run uses, recorded steps; "
+         "docs/problem-format.md, 'Size limits') exceeds this many MiB, before anything is built; every stage of "
+         "the offline design is sized against the same limit (a design candidate above it is skipped, with the "
+         "stage named).")
+
+#: ``amcp design``'s --max-memory: the design builds no run, so only its own stages are sized.
+design_max_memory_option = click.option(
+    "--max-memory", "max_memory", type=FiniteFloatRange(min=1.0, max=MAX_MEMORY_MB), default=DEFAULT_MAX_MEMORY_MB,
+    show_default=True,
+    help="Memory limit of the offline design in MiB: every stage of it is sized against this limit before it "
+         "allocates (a candidate above it is skipped, with the stage named). The size of a later run is checked "
+         "by the command that runs it, in the form of (20) it uses.")
 
 
 candidate_budget_option = click.option(
@@ -292,11 +299,97 @@ problem_argument = click.argument("problem_file", metavar="[PROBLEM]", required=
 example_option = click.option("--example", default=None, help="Built-in example (default: lorenzen2019).")
 
 formulation_option = click.option(
-    "--formulation", type=click.Choice(["plain", "vertex", "auto"]), default="plain", show_default=True,
-    help="Tube QP: plain (15) with multipliers Λ (the paper's form; the certificate checks Λ), the exact vertex "
-         "form (same optimum, no Λ), or auto: the vertex form when its size per stage is at most a measured "
-         "multiple of the plain form's, the plain form when an option needs it (docs/decisions.md, 'The formulation of the tube QP'). "
-         "Use auto or vertex from about 4 states on.")
+    "--formulation", type=click.Choice(["auto", "plain", "vertex"]), default="auto", show_default=True,
+    help="Form of the tube QP (20): auto (the default) chooses the exact vertex form when its size per stage is at "
+         "most a measured multiple of the plain form's, else the plain form, and the plain form whenever an option "
+         "needs it (min-max cost, d_theta > 0, PE; docs/decisions.md, 'The formulation of the tube QP'); plain: (15) "
+         "with the multipliers Λ, the paper's form, whose Λ the certificate checks; vertex: (5b) at the vertices "
+         "of Θ_k, the same optimum, no Λ (the certificate lists the Λ claims as not applicable).")
+
+design_file_option = click.option(
+    "--design", "design_file", default=None, type=click.Path(dir_okay=False),
+    help="Use the design saved by 'amcp design PROBLEM --out FILE' instead of designing: refused (exit 2) when it "
+         "was made for another problem (SHA-256 of the canonical problem) or fails any independent check of the "
+         "offline design, which are run again on loading. Nothing is redesigned.")
+
+
+def load_design_file(spec, design_file: str | None, quiet: bool = False):
+    """The OfflineDesign of ``--design`` for ``spec`` (checked: :func:`amcp_drake.offline.design_file.load_design`),
+    or None when no file is given; one line on stderr says it is used."""
+    if design_file is None:
+        return None
+    from amcp_drake.offline.design_file import load_design
+
+    if not str(design_file).strip():
+        raise ProblemError("--design", "the path of a design file", "an empty string")
+    d = load_design(design_file, spec)
+    if not quiet:
+        echo(f"design: {design_file} (problem SHA-256 matches; every design check passes; not redesigned)", err=True)
+    return d
+
+
+def parse_vector(option: str, text: str | None, size: int):
+    """``text`` ("1.5,-2,0") as a float vector of length ``size``, every entry finite; ProblemError naming
+    ``option`` otherwise. None stays None."""
+    import math
+
+    import numpy as np
+
+    if text is None:
+        return None
+    expected = f"{size} finite numbers separated by commas"
+    try:
+        values = [float(part) for part in str(text).split(",")]
+    except ValueError:
+        raise ProblemError(option, expected, repr(text)) from None
+    if len(values) != size:
+        raise ProblemError(option, expected, f"{len(values)} number(s): {text!r}")
+    bad = [v for v in values if not math.isfinite(v)]
+    if bad:
+        raise ProblemError(option, expected, f"{text!r} (not finite: {bad[0]!r})")
+    return np.array(values, dtype=float)
+
+
+def scenario_options(func: Callable) -> Callable:
+    """``--x0`` and ``--theta-star``: the initial state and the true parameter of the run, replacing the
+    problem file's scenario values (:func:`with_scenario`)."""
+    func = click.option("--theta-star", "theta_star", default=None, metavar="T1,T2,...",
+                        help="True parameter θ* of the run (p comma-separated numbers, a point of Θ); default: "
+                             "the problem file's scenario.")(func)
+    return click.option("--x0", "x0", default=None, metavar="X1,X2,...",
+                        help="Initial state of the run (n comma-separated numbers); default: the problem file's "
+                             "scenario.")(func)
+
+
+def with_scenario(spec, x0: str | None, theta_star: str | None):
+    """``spec`` with ``--x0`` / ``--theta-star`` replacing its scenario's x0 / θ* (a constant θ*), each
+    checked (length, finite, θ* ∈ Θ) with errors naming the option. Without a scenario in the file both
+    options make one (50 steps, uniform disturbance, seed 0)."""
+    import dataclasses
+
+    from amcp_drake.model import polytope
+    from amcp_drake.model.problem import THETA_HAT0_TOL, Scenario
+
+    if x0 is None and theta_star is None:
+        return spec
+    pr = spec.problem
+    x0_vec = parse_vector("--x0", x0, pr.n)
+    theta_vec = parse_vector("--theta-star", theta_star, pr.p)
+    if theta_vec is not None:
+        violation = polytope.max_violation(pr.H_theta, pr.h_theta, theta_vec)
+        if violation > THETA_HAT0_TOL:
+            raise ProblemError("--theta-star", "a point of Theta (Assumption 1)", f"{theta_star!r}, outside by {violation:.3g}")
+    sc = spec.scenario
+    if sc is None:
+        if x0_vec is None or theta_vec is None:
+            raise ProblemError("scenario", SCENARIO_EXPECTED, "none", "Add a \"scenario\" object, or pass both --x0 "
+                               "and --theta-star.")
+        scenario = Scenario(x0_vec, theta_vec)
+    else:
+        scenario = dataclasses.replace(sc, x0=sc.x0 if x0_vec is None else x0_vec,
+                                       theta_star=sc.theta_star if theta_vec is None else theta_vec)
+    return dataclasses.replace(spec, scenario=scenario)
+
 
 simulator_option = click.option(
     "--simulator", type=click.Choice(["builtin", "drake"]), default="builtin", show_default=True,
@@ -334,18 +427,18 @@ def section4_options(func):
     """--d-theta, --pe, --pe-level, --cost (Section 4 extensions; defaults: the file's online section)."""
     func = click.option("--cost", type=click.Choice(["certainty_equivalence", "minmax"]), default=None,
                         help="Cost of (20): (17) with θ̂_k, or the min-max cost (19) (default: the file's online "
-                             "section, else certainty_equivalence). minmax needs --formulation plain.")(func)
+                             "section, else certainty_equivalence). minmax is solved in the plain form (auto chooses it).")(func)
     func = click.option("--pe-level", "pe_level", type=click.FloatRange(min=0.0, min_open=True), default=None,
                         help="PE level ρ (default: file, else 0.1).")(func)
     func = click.option("--pe", "pe_window", type=click.IntRange(min=1), default=None,
                         help="Enforce a persistently exciting input over windows of this length (Section 4.2 of the paper, m = 1; "
-                             "default: the file's online section, else off). Needs --formulation plain.")(func)
+                             "default: the file's online section, else off). Solved in the plain form (auto chooses it).")(func)
     return d_theta_option(func)
 
 
 d_theta_option = click.option("--d-theta", "d_theta", type=click.FloatRange(min=0.0), default=None,
                               help="Rate bound d_θ of a time-varying θ* (Section 4.1; default: the problem file's "
-                                   "online section, else 0). Needs --formulation plain.")
+                                   "online section, else 0). Solved in the plain form (auto chooses it).")
 
 
 def resolve_online(spec, **given):
@@ -409,20 +502,28 @@ def require_scenario(spec, expected: str = SCENARIO_EXPECTED, fix: str = ""):
 class RunSetup(NamedTuple):
     """What a closed-loop command has decided before anything is built (:func:`prepare_run`)."""
 
-    spec: object  #: the ProblemSpec (PROBLEM or --example, with --x0-template applied)
+    spec: object  #: the ProblemSpec (PROBLEM or --example, with --x0-template, --x0, --theta-star applied)
     steps: int  #: --steps, else the scenario's
     options: object  #: the OnlineOptions: the file's online section with the options given replacing it
+    design: object = None  #: the OfflineDesign of --design (checked), or None: the command designs
 
 
 def prepare_run(problem_file: str | None, example: str | None, x0_template: str | None, steps: int | None,
                 online: dict, max_memory: float, scenario_expected: str = SCENARIO_EXPECTED,
-                scenario_fix: str = "", formulation: str = "plain") -> RunSetup:
-    """The set-up of ``amcp run``, ``certify`` and ``compare``: load the problem, apply --x0-template,
-    require a scenario, take the steps from it unless --steps is given, resolve the online options,
-    and refuse a run larger than --max-memory (:func:`check_run_size`, for ``formulation``), in this order."""
+                scenario_fix: str = "", formulation: str = "plain", design_file: str | None = None,
+                x0: str | None = None, theta_star: str | None = None) -> RunSetup:
+    """The set-up of ``amcp run``, ``certify`` and ``compare``: load the problem, apply --x0-template
+    (refused together with --design), --x0 and --theta-star, require a scenario, take the steps from it
+    unless --steps is given, resolve the online options, load and check --design, and refuse a run
+    larger than --max-memory (:func:`check_run_size`, for ``formulation``, with the design when one is
+    given), in this order."""
+    if design_file is not None and x0_template is not None:
+        raise ProblemError("--x0-template, --design", "at most one of them (the design file fixes X0)", "both")
     spec = with_x0_template(load_problem_spec(problem_file, example), x0_template)
+    spec = with_scenario(spec, x0, theta_star)
     scenario = require_scenario(spec, scenario_expected, scenario_fix)
     steps = scenario.steps if steps is None else steps
     options = resolve_online(spec, **online)
-    check_run_size(spec, steps, options, max_memory, formulation=formulation)
-    return RunSetup(spec, steps, options)
+    d = load_design_file(spec, design_file)
+    check_run_size(spec, steps, options, max_memory, design=d, formulation=formulation)
+    return RunSetup(spec, steps, options, d)

@@ -10,6 +10,7 @@ import click
 # list and the decorators below only name it, with this command's own defaults and help texts.
 from amcp_drake.cli.common import (
     bad_input_exits_2,
+    design_file_option,
     echo,
     exit_verdict,
     formulation_option,
@@ -18,6 +19,7 @@ from amcp_drake.cli.common import (
     output_file_callback,
     prepare_run,
     problem_options,
+    scenario_options,
     seed_option,
     simulate_function,
     simulator_option,
@@ -27,6 +29,8 @@ from amcp_drake.cli.common import (
 
 @click.command("compare")
 @problem_options()
+@design_file_option
+@scenario_options
 @steps_option("Steps (default: the scenario's).")
 @seed_option("Disturbance seed (default: the scenario's).")
 @click.option("--mode", type=click.Choice(["lockstep", "independent"]), default="lockstep", show_default=True)
@@ -48,8 +52,8 @@ from amcp_drake.cli.common import (
 @max_memory_option
 @simulator_option
 @bad_input_exits_2
-def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_solver, cvxpy_solver, accurate, online,
-                out_file, formulation, allow_fallbacks, quiet, max_memory, simulator):
+def compare_cmd(problem_file, example, x0_template, design_file, x0, theta_star, steps, seed, mode, drake_solver,
+                cvxpy_solver, accurate, online, out_file, formulation, allow_fallbacks, quiet, max_memory, simulator):
     """Compare u, v, cost, h_theta and theta_hat (and report z, alpha) of both backends per step."""
     from amcp_drake.comparison.compare import ACCURATE_CLARABEL, INFORMATIONAL, TOLERANCES, independent, lockstep
     from amcp_drake.model.errors import ProblemError
@@ -62,18 +66,19 @@ def compare_cmd(problem_file, example, x0_template, steps, seed, mode, drake_sol
         raise ProblemError("--simulator", "builtin with --mode lockstep (both controllers are fed one state of amcp's "
                            "simulator; --mode independent runs each closed loop in Drake)", simulator)
 
-    spec, steps, options = prepare_run(problem_file, example, x0_template, steps, online, max_memory,
-                                       formulation=formulation)
+    spec, steps, options, offline = prepare_run(problem_file, example, x0_template, steps, online, max_memory,
+                                                formulation=formulation, design_file=design_file, x0=x0,
+                                                theta_star=theta_star)
     seed = spec.scenario.seed if seed is None else seed
     tolerances = {"solver_options": dict(ACCURATE_CLARABEL)} if accurate else {}
     backend_options = ({"solver": drake_solver, "formulation": formulation, **tolerances},
                        {"solver": cvxpy_solver, "formulation": formulation, **tolerances})
     if mode == "lockstep":
         comp = lockstep(spec, steps, seed, options=options, backend_options=backend_options,
-                        allow_fallbacks=allow_fallbacks)
+                        allow_fallbacks=allow_fallbacks, offline=offline)
     else:
         comp = independent(spec, steps, seed, options=options, backend_options=backend_options,
-                           allow_fallbacks=allow_fallbacks, simulate=simulate_function(simulator))
+                           allow_fallbacks=allow_fallbacks, offline=offline, simulate=simulate_function(simulator))
 
     if not quiet:
         per_step: dict[int, dict[str, float]] = defaultdict(dict)

@@ -13,9 +13,11 @@ from amcp_drake.cli.common import (
     candidate_budget_option,
     check_run_size,
     design_budget,
+    design_file_option,
     echo,
     exit_verdict,
     interruptible,
+    load_design_file,
     load_problem_spec,
     max_memory_option,
     nonempty_path_callback,
@@ -28,9 +30,11 @@ from amcp_drake.cli.common import (
 
 @click.command("coverage")
 @problem_options(x0_template=False)
+@design_file_option
 @backend_option
-@click.option("--formulation", type=click.Choice(["plain", "vertex"]), default="vertex", show_default=True,
-              help="Tube QP: plain (15) with multipliers, or the exact vertex form.")
+@click.option("--formulation", type=click.Choice(["auto", "plain", "vertex"]), default="auto", show_default=True,
+              help="Tube QP: auto (the size rule of --formulation in amcp run), plain (15) with multipliers, or the "
+                   "exact vertex form.")
 @click.option("--grid", type=click.IntRange(min=1), default=None,
               help="Grid values per axis (default 21; with --points FILE holding a polytope, its grid).")
 @click.option("--box", "box_text", default=None, metavar="LO:HI,LO:HI,...",
@@ -62,9 +66,9 @@ from amcp_drake.cli.common import (
 @interruptible(lambda kw, exc: f"nothing new written to {kw['out_dir']} (each file is written whole or not at all); "
                "run the command again")
 @bad_input_exits_2
-def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, plane_text, fix_text, max_points, yes,
-                 points_file, adapt_steps, adapt_x0, update, window, projection, out_dir, no_progress, max_memory,
-                 candidate_budget, progress_every):
+def coverage_cmd(problem_file, example, design_file, backend, formulation, grid, box_text, plane_text, fix_text,
+                 max_points, yes, points_file, adapt_steps, adapt_x0, update, window, projection, out_dir, no_progress,
+                 max_memory, candidate_budget, progress_every):
     """Feasible fraction of a grid of initial states (QP (20), confirmed by an LP).
 
     Each point costs one QP (20) and one LP (two of each with --adapt). The counts are printed before
@@ -82,6 +86,7 @@ def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, pl
     from amcp_drake.model.errors import ProblemError
     from amcp_drake.model.state_plane import parse_fixed, parse_plane
     from amcp_drake.offline.design import design
+    from amcp_drake.online.run_size import run_formulation
     from amcp_drake.studies.coverage import (
         DEFAULT_GRID,
         DEFAULT_MAX_POINTS,
@@ -141,9 +146,13 @@ def coverage_cmd(problem_file, example, backend, formulation, grid, box_text, pl
             raise ProblemError("--adapt-x0", f"{pr.n} numbers separated by commas", repr(adapt_x0)) from None
         if len(adapt_x0) != pr.n:
             raise ProblemError("--adapt-x0", f"{pr.n} numbers separated by commas", f"{len(adapt_x0)} numbers")
-    check_run_size(spec, 1, online, max_memory)
-    d = design(pr, spec.design, backend=backend, budget=design_budget(max_memory, candidate_budget, quiet=no_progress, progress_every=progress_every))
-    check_run_size(spec, 1, online, max_memory, design=d, formulation=formulation)  # the QPs' size with the design found
+    d = load_design_file(spec, design_file, quiet=no_progress)
+    if d is None:
+        check_run_size(spec, 1, online, max_memory, formulation=formulation)
+        d = design(pr, spec.design, backend=backend,
+                   budget=design_budget(max_memory, candidate_budget, quiet=no_progress, progress_every=progress_every))
+    check_run_size(spec, 1, online, max_memory, design=d, formulation=formulation)  # the QPs' size with the design
+    formulation = run_formulation(formulation, pr, d, online)  # auto resolved: every QP of the grid in one form
 
     def progress_factory(total, label):
         if no_progress:

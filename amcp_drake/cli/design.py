@@ -13,12 +13,12 @@ from amcp_drake.cli.common import (
     backend_option,
     bad_input_exits_2,
     candidate_budget_option,
-    check_run_size,
     design_budget,
+    design_max_memory_option,
     echo,
     exit_verdict,
     load_problem_spec,
-    max_memory_option,
+    output_file_callback,
     problem_options,
     progress_every_option,
     with_x0_template,
@@ -43,21 +43,28 @@ def _vector_line(name: str, values, verbose: bool) -> str:
 @click.option("--json", "as_json", is_flag=True, help="Print the design and checks as JSON.")
 @click.option("-v", "--verbose", is_flag=True,
               help="Also print P, the vectors w_bar and f_bar and every candidate's full reason.")
-@max_memory_option
+@click.option("--out", "out_file", type=click.Path(), default=None, callback=output_file_callback,
+              help="Write the design, with the SHA-256 of the canonical problem it belongs to, to this JSON file "
+                   "when every design check passes (run, certify, compare, coverage and baseline reuse it with "
+                   "--design FILE).")
+@design_max_memory_option
 @candidate_budget_option
 @progress_every_option
 @bad_input_exits_2
-def design_cmd(problem_file, example, x0_template, backend, as_json, verbose, max_memory, candidate_budget, progress_every):
+def design_cmd(problem_file, example, x0_template, backend, as_json, verbose, out_file, max_memory, candidate_budget,
+               progress_every):
     """Compute K, P, X0, w_bar, f_bar, Xf and mu ((11), (14), (16), Appendix A.1) and verify them independently.
 
     The automatic design prints one line per candidate as it ends (on stderr: what it tried and how it
-    ended); ``-v`` adds P, the vectors w_bar and f_bar and each candidate's full reason to the report."""
+    ended); ``-v`` adds P, the vectors w_bar and f_bar and each candidate's full reason to the report.
+    ``--out FILE`` saves the design for ``--design FILE`` of the run commands."""
+    from amcp_drake.model.limits import check_design_size
     from amcp_drake.offline.checks import verify_design
     from amcp_drake.offline.design import design
 
     spec = with_x0_template(load_problem_spec(problem_file, example), x0_template)
     pr = spec.problem
-    check_run_size(spec, 1, None, max_memory)  # the design builds the tube QP's sets, not a run
+    check_design_size(pr, spec.design, max_memory)  # the design's own size; it builds no run
     d = design(pr, spec.design, backend=backend, budget=design_budget(max_memory, candidate_budget, progress_every=progress_every))
     checks = verify_design(pr, d, spec.design.mu_state_bound)
     ok = all(c.passed for c in checks)
@@ -97,4 +104,22 @@ def design_cmd(problem_file, example, x0_template, backend, as_json, verbose, ma
             echo(f"{c.name:28s} {c.status:8s} {margin:>12s} {c.tolerance:9.1e}  {c.detail}")
         echo("")
         echo("all design checks pass" if ok else "SOME DESIGN CHECKS FAILED")
+    if out_file is not None:
+        _save(spec, d, out_file, ok)
     exit_verdict(ok)
+
+
+def _save(spec, d, out_file: str, ok: bool) -> None:
+    """Write the design file (offline/design_file.py) when every check passed; say so on stderr."""
+    from amcp_drake.cli.common import write_error
+    from amcp_drake.model.problem_hash import spec_hash
+    from amcp_drake.offline.design_file import save_design
+
+    if not ok:
+        echo(f"design not written to {out_file}: a design check failed", err=True)
+        return
+    try:
+        save_design(spec, d, out_file)
+    except OSError as exc:
+        raise write_error("--out", out_file, exc) from None
+    echo(f"design written to {out_file} (problem SHA-256 {spec_hash(spec)})", err=True)

@@ -43,8 +43,9 @@ def pe_figure_cmd(problem_file, example, backend, seeds, steps, update, pe_windo
     from amcp_drake.studies.pe_figure import run_pe_figure, write_pe_figure
 
     spec = load_problem_spec(problem_file, example)
-    check_run_size(spec, steps, None, max_memory)
+    check_run_size(spec, steps, None, max_memory, formulation="plain")  # the PE constraint is the plain form's
     d = design(spec.problem, spec.design, backend=backend)
+    check_run_size(spec, steps, None, max_memory, design=d, formulation="plain")
 
     def progress(label, seed):
         echo(f"  {label} seed {seed} ...", err=True)

@@ -13,6 +13,7 @@ from amcp_drake.cli.common import (
     candidate_budget_option,
     check_run_size,
     design_budget,
+    design_file_option,
     echo,
     exit_verdict,
     formulation_option,
@@ -23,6 +24,7 @@ from amcp_drake.cli.common import (
     prepare_run,
     problem_options,
     progress_every_option,
+    scenario_options,
     seed_option,
     simulate_function,
     simulator_option,
@@ -33,8 +35,10 @@ from amcp_drake.cli.common import (
 
 @click.command("run")
 @problem_options()
+@design_file_option
 @backend_option
 @formulation_option
+@scenario_options
 @steps_option("Number of steps (default: the problem's scenario).")
 @seed_option("Disturbance seed (default: the scenario's).")
 @click.option("--disturbance", type=click.Choice(["uniform", "vertices", "zero"]), default=None)
@@ -49,17 +53,21 @@ from amcp_drake.cli.common import (
 @interruptible(lambda kw, exc: "the run stopped" + (f"; nothing saved to {kw['save']}" if kw.get("save") else "")
                + "; run the command again")
 @bad_input_exits_2
-def run_cmd(problem_file, example, x0_template, backend, formulation, steps, seed, disturbance, online, every, save,
-            max_memory, candidate_budget, progress_every, simulator):
-    """Design, then run the adaptive MPC closed loop and print one line per step."""
+def run_cmd(problem_file, example, x0_template, design_file, backend, formulation, x0, theta_star, steps, seed,
+            disturbance, online, every, save, max_memory, candidate_budget, progress_every, simulator):
+    """Design (or load --design), then run the adaptive MPC closed loop and print one line per step."""
     from amcp_drake.cli.summary import format_table, step_table
     from amcp_drake.offline.design import design
     from amcp_drake.online.controller import AdaptiveMPC
-    spec, steps, options = prepare_run(problem_file, example, x0_template, steps, online, max_memory,
-                                       formulation=formulation)
+
+    spec, steps, options, d = prepare_run(problem_file, example, x0_template, steps, online, max_memory,
+                                          formulation=formulation, design_file=design_file, x0=x0,
+                                          theta_star=theta_star)
     sc, pr = spec.scenario, spec.problem
-    d = design(pr, spec.design, backend=backend, budget=design_budget(max_memory, candidate_budget, progress_every=progress_every))
-    check_run_size(spec, steps, options, max_memory, design=d, formulation=formulation)
+    if d is None:  # no --design: design, then the run's size with the design found
+        d = design(pr, spec.design, backend=backend,
+                   budget=design_budget(max_memory, candidate_budget, progress_every=progress_every))
+        check_run_size(spec, steps, options, max_memory, design=d, formulation=formulation)
     update = options.update
     ctrl = AdaptiveMPC(pr, d, backend=backend, options=options, formulation=formulation, max_memory_mb=max_memory)
     if ctrl.formulation_choice is not None:

@@ -219,11 +219,14 @@ def _compare_sets(a: OfflineDesign, b: OfflineDesign) -> list[Difference]:
 
 def lockstep(spec: ProblemSpec, steps: int, seed: int, backends=("drake", "cvxpy"), options: OnlineOptions | None = None,
              backend_options: tuple[dict, dict] = ({}, {}), progress: bool = False,
-             compare_offline: bool = True, allow_fallbacks: bool = False) -> Comparison:
-    """Lockstep comparison (module docstring); with ``compare_offline`` the designs too."""
+             compare_offline: bool = True, allow_fallbacks: bool = False, offline: OfflineDesign | None = None) -> Comparison:
+    """Lockstep comparison (module docstring); with ``compare_offline`` the designs too. ``offline``: a
+    design to run both controllers on instead of designing (the designs are then not compared)."""
     pr, sc = spec.problem, spec.scenario
     comp = Comparison("lockstep", (backends[0], backends[1]), allow_fallbacks=allow_fallbacks)
-    if compare_offline:
+    if offline is not None:
+        d = offline
+    elif compare_offline:
         design_diffs, (d, _) = compare_designs(spec, backends)
         comp.differences += design_diffs
     else:
@@ -285,16 +288,20 @@ def _sync(target: AdaptiveMPC, source: AdaptiveMPC) -> None:
 
 def independent(spec: ProblemSpec, steps: int, seed: int, backends=("drake", "cvxpy"),
                 options: OnlineOptions | None = None, backend_options: tuple[dict, dict] = ({}, {}),
-                allow_fallbacks: bool = False, simulate=None) -> Comparison:
-    """Two closed loops, each with its own design, on the same disturbance sequence. ``simulate``: the
-    closed-loop function (default :func:`amcp_drake.online.simulate.simulate`; same arguments)."""
+                allow_fallbacks: bool = False, offline: OfflineDesign | None = None, simulate=None) -> Comparison:
+    """Two closed loops, each with its own design, on the same disturbance sequence; with ``offline``
+    both on that design (not designed, not compared). ``simulate``: the closed-loop function (default
+    :func:`amcp_drake.online.simulate.simulate`; same arguments)."""
     if simulate is None:
         from amcp_drake.online.simulate import simulate
 
     pr, sc = spec.problem, spec.scenario
     comp = Comparison("independent", (backends[0], backends[1]), allow_fallbacks=allow_fallbacks)
-    design_diffs, designs = compare_designs(spec, backends)
-    comp.differences += design_diffs
+    if offline is not None:
+        designs = [offline, offline]
+    else:
+        design_diffs, designs = compare_designs(spec, backends)
+        comp.differences += design_diffs
     W = disturbance_sequence(pr, sc.disturbance_for(steps), steps, seed)
     trajs = [simulate(AdaptiveMPC(pr, dsg, b, options, **bo), sc.x0, sc.theta_star_for(steps), steps, W)
              for dsg, b, bo in zip(designs, backends, backend_options)]

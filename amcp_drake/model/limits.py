@@ -240,6 +240,42 @@ def check_run_size(problem, design_options=None, steps: int = 1, online=None,
                        f"{fix}, or raise the limit with {option} (docs/problem-format.md, 'Size limits').")
 
 
+def design_size_bytes(problem, design_options=None) -> tuple[int, int]:
+    """(facets, bytes): the facets of X0 the design options ask for (``design.x0_facets``, else the rows of
+    a given ``design.x0_H``, else the default template's) and the memory of the arrays of that size the
+    design holds at once: 8 bytes per entry of H_x, of H_x A_cl(θ^k) at each of the t vertices of Θ and of
+    their h̄ rows, 8·u·n·(2 + t) bytes. A lower bound of the design's memory, known before it starts;
+    each stage of the design is sized again, once its inputs are known, by ``offline/budget.py``."""
+    x0_H = getattr(design_options, "x0_H", None)
+    if x0_H is not None:
+        facets = len(np.atleast_2d(x0_H))
+    elif design_options is not None and hasattr(design_options, "facets_for"):
+        facets = design_options.facets_for(problem.n)
+    else:
+        facets = max(8, 2 * problem.n)
+    theta_vertices = max_vertices(len(problem.H_theta), problem.p)
+    try:
+        found = polytope.theta_vertices(problem.H_theta, problem.h_theta)
+        theta_vertices = len(found) if found is not None else theta_vertices
+    except (ValueError, TypeError):
+        pass
+    return int(facets), 8 * int(facets) * problem.n * (2 + int(theta_vertices))
+
+
+def check_design_size(problem, design_options=None, max_memory_mb: float = DEFAULT_MAX_MEMORY_MB,
+                      option: str = "--max-memory") -> int:
+    """Refuse an offline design whose X0 alone (:func:`design_size_bytes`) exceeds ``max_memory_mb``
+    (ProblemError naming ``design.x0_facets``, the estimate and the limit); the check of ``amcp design``,
+    which builds no run. Returns the estimate in bytes."""
+    facets, nbytes = design_size_bytes(problem, design_options)
+    if nbytes <= max_memory_mb * 2**20:
+        return nbytes
+    raise ProblemError("design size (design.x0_facets, design.x0_H)", f"an estimated memory of at most "
+                       f"{max_memory_mb:,g} MiB", f"design.x0_facets = {facets} facets of X0 in n = {problem.n} "
+                       f"dimensions: its rows alone need an estimated {_mib(nbytes)}",
+                       f"Reduce design.x0_facets, or raise the limit with {option}.")
+
+
 # -- redundant rows --------------------------------------------------------------------------------
 def nonredundant_rows(H: np.ndarray, h: np.ndarray, interior: np.ndarray) -> np.ndarray:
     """Indices (ascending) of the rows of {x | H x <= h} not implied by the others; ``interior`` is a

@@ -110,11 +110,5 @@ def resolve_formulation(backend_options: dict, problem, design, options=None) ->
     return resolved, choice
 
 
-def resolved_formulation(formulation: str, problem, design, options=None) -> str:
-    """The form of (20) a run with ``formulation`` ("plain", "vertex" or "auto") uses for this design:
-    "auto" resolved by :func:`choose_formulation` (for the size estimate before the controller is built)."""
-    return choose_formulation(problem, design, options).formulation if formulation == "auto" else formulation
-
-
 __all__ = ["FORMULATION_CHOICES", "VERTEX_SIZE_RATIO", "FormulationChoice", "choose_formulation",
-           "formulation_sizes", "plain_only_reason", "resolve_formulation", "resolved_formulation"]
+           "formulation_sizes", "plain_only_reason", "resolve_formulation"]

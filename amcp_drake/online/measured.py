@@ -33,7 +33,7 @@ import numpy as np
 
 from amcp_drake.model.errors import ProblemError
 from amcp_drake.online.controller import AdaptiveMPC, StepRecord, is_inconsistent
-from amcp_drake.online.simulate import Trajectory
+from amcp_drake.online.simulate import Trajectory, formulation_meta
 
 #: ``meta["simulator"]`` of a trajectory built from a user's loop (the plant that ran is not amcp's).
 USER_LOOP = "user_loop"
@@ -74,7 +74,7 @@ def measured_trajectory(controller: AdaptiveMPC, records: Sequence[StepRecord], 
         stop = "completed"
     x = np.array([np.asarray(r.x, float) for r in records])
     u = np.array([np.asarray(r.u, float) for r in records[:-1]]).reshape(-1, problem.m)
-    info = {"simulator": USER_LOOP, "formulation": controller.backend.formulation}
+    info = {"simulator": USER_LOOP, **formulation_meta(controller)}
     return Trajectory(problem=problem, design=controller.design, options=controller.options,
                       backend=controller.backend.name, theta_star=None, x=x, u=u, w=None, records=records,
                       stop_reason=stop, mu_state_bound=controller.design.mu_state_bound,

@@ -26,17 +26,18 @@ def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: s
     ``design_budget``: the :class:`~amcp_drake.offline.budget.DesignBudget` of the design (memory limit,
     time budget per candidate, progress lines; None: the default limit, silent); with a budget, the run's
     size is estimated again for the design found and refused above its memory limit
-    (:func:`~amcp_drake.model.limits.check_run_size` with the design). ``simulate``: the closed-loop function
-    (default :func:`~amcp_drake.online.simulate.simulate`; ``amcp_drake.systems.closed_loop.simulate_in_drake``
-    runs the plant in Drake), called with the same arguments. ``backend_options``: keyword options of the
-    backend's constructor (e.g. ``{"solver_options": {...}}``, the solver's settings for every problem of
-    the run), passed to the controller; ``formulation`` is given on its own.
+    (:func:`~amcp_drake.online.run_size.check_run_size` with the design, in the form it will use).
+    ``simulate``: the closed-loop function (default :func:`~amcp_drake.online.simulate.simulate`;
+    ``amcp_drake.systems.closed_loop.simulate_in_drake`` runs the plant in Drake), called with the same
+    arguments. ``backend_options``: keyword options of the backend's constructor (e.g.
+    ``{"solver_options": {...}}``, the solver's settings for every problem of the run), passed to the
+    controller; ``formulation`` is given on its own.
     """
     from amcp_drake.model.errors import InconsistentDataError, ProblemError
-    from amcp_drake.model.limits import check_run_size
     from amcp_drake.offline.design import design
     from amcp_drake.online.controller import AdaptiveMPC
-    from amcp_drake.online.formulation_choice import resolved_formulation
+    from amcp_drake.online.run_size import check_run_size
+
     if simulate is None:
         from amcp_drake.online.simulate import simulate
 
@@ -52,7 +53,7 @@ def run_scenario(spec: ProblemSpec, backend: str = "drake", *, design_backend: s
         offline = design(spec.problem, spec.design, backend=design_backend or backend, budget=design_budget)
         if design_budget is not None:  # the run's size with the design found, before the controller is built
             check_run_size(spec.problem, spec.design, steps, options, design_budget.max_memory_mb, design=offline,
-                           formulation=resolved_formulation(formulation, spec.problem, offline, options))
+                           formulation=formulation)
     backend_options = dict(backend_options or {})
     if "formulation" in backend_options:
         raise ProblemError("backend_options", "backend options without 'formulation' (it is its own argument)",

@@ -217,6 +217,16 @@ class Trajectory:
                                   f"({exc})") from None
 
 
+def formulation_meta(controller) -> dict:
+    """The trajectory's record of the form of (20) solved: ``formulation`` ("plain" or "vertex") and, when
+    ``formulation="auto"`` chose it, ``formulation_reason`` (the size rule's sentence)."""
+    meta = {"formulation": controller.backend.formulation}
+    choice = controller.formulation_choice
+    if choice is not None:
+        meta["formulation_reason"] = f"auto: {choice.reason}"
+    return meta
+
+
 def _gunzip(raw: bytes, path: Path) -> bytes:
     """Decompress gzip data; truncated or corrupt data and oversized content raise TrajectoryError."""
     import io
@@ -348,7 +358,7 @@ def simulate(controller: AdaptiveMPC, x0, theta_star, steps: int, disturbance: s
                           u=np.array(us).reshape(-1, problem.m), w=np.array(ws).reshape(-1, problem.n),
                           records=records, stop_reason=stop, mu_state_bound=mu_state_bound,
                           meta={"disturbance": disturbance if isinstance(disturbance, str) else "array", "seed": seed,
-                                "formulation": controller.backend.formulation})
+                                **formulation_meta(controller)})
 
     for k in iterator:
         try:

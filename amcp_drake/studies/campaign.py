@@ -245,11 +245,10 @@ def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure
     of the design's stages (``--max-memory``; None: the default limit); a problem above it is recorded as an
     error naming the stage. ``state_dims``: the state dimensions drawn (:func:`draw_case`)."""
     from amcp_drake.certificate.certify import certify
-    from amcp_drake.model.limits import check_run_size
     from amcp_drake.offline.budget import DEFAULT_CANDIDATE_SECONDS, DesignBudget
     from amcp_drake.offline.design import design
-    from amcp_drake.online.formulation_choice import resolved_formulation
     from amcp_drake.online.replay import run_scenario
+    from amcp_drake.online.run_size import check_run_size
     from amcp_drake.studies.random_problems import DEFAULT_STATE_DIMS, built_scaled
 
     start = time.perf_counter()
@@ -270,7 +269,7 @@ def run_problem(campaign_seed: int, idx: int, backends: tuple[str, ...], failure
         offline = design(spec.problem, spec.design, backend=DESIGN_BACKEND, budget=budget)
         # the run's size with the design found, before the controllers are built (as amcp certify)
         check_run_size(spec.problem, spec.design, spec.scenario.steps, spec.online, budget.max_memory_mb,
-                       design=offline, formulation=resolved_formulation(formulation, spec.problem, offline, spec.online))
+                       design=offline, formulation=formulation)
         trajs = {}
         for backend in backends:
             traj = run_scenario(spec, backend, design_backend=DESIGN_BACKEND, formulation=formulation,

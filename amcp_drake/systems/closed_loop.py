@@ -14,7 +14,7 @@ from pydrake.systems.primitives import LogVectorOutput
 
 from amcp_drake.model.errors import InconsistentDataError, ProblemError
 from amcp_drake.online.controller import AdaptiveMPC
-from amcp_drake.online.simulate import Trajectory, disturbance_sequence
+from amcp_drake.online.simulate import Trajectory, disturbance_sequence, formulation_meta
 from amcp_drake.systems.controller_system import AdaptiveMPCSystem
 from amcp_drake.systems.plant import RecordedDisturbance, drake_plant
 
@@ -97,7 +97,7 @@ def simulate_in_drake(controller: AdaptiveMPC, x0, theta_star, steps: int, distu
     if mu_state_bound is None:
         mu_state_bound = getattr(controller.design, "mu_state_bound", None)
     meta = {"disturbance": disturbance if isinstance(disturbance, str) else "array", "seed": seed,
-            "formulation": getattr(controller.backend, "formulation", "plain")}
+            **formulation_meta(controller)}
     traj = system.trajectory(root, theta_star=theta, w=W, meta=meta)
     traj.mu_state_bound = mu_state_bound
     if traj.stop_reason.startswith("inconsistent data"):

@@ -32,8 +32,8 @@ import numpy as np
 
 from amcp_drake.model.errors import InconsistentDataError
 from amcp_drake.model.limits import DEFAULT_MAX_MEMORY_MB, estimate_for
+from amcp_drake.online import run_size
 from amcp_drake.online.controller import AdaptiveMPC
-from amcp_drake.online.formulation_choice import resolved_formulation
 from amcp_drake.online.simulate import Trajectory, simulate
 from amcp_drake.studies.campaign import LARGE_FORMULATION
 from amcp_drake.studies.random_problems import RandomCase
@@ -74,7 +74,7 @@ def run_formulation(problem, design, options) -> str:
     design above :data:`PLAIN_MAX_N` states): the form its size is estimated for."""
     if problem.n <= PLAIN_MAX_N:
         return "plain"
-    return resolved_formulation(LARGE_FORMULATION, problem, design, options)
+    return run_size.run_formulation(LARGE_FORMULATION, problem, design, options)
 
 
 def controller_for(case: Case, backend: str) -> AdaptiveMPC:
