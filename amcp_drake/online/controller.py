@@ -14,7 +14,6 @@ import numpy as np
 
 from amcp_drake.backends import TubeMPCData, get_backend
 from amcp_drake.backends.base import Attempt
-from amcp_drake.backends.clarabel_retry import RETRIED
 from amcp_drake.model import polytope
 from amcp_drake.model.arrays import all_finite, same_bits, scalar_operand
 from amcp_drake.model.errors import InconsistentDataError, ProblemError
@@ -40,13 +39,6 @@ DELTA_ROW_MIN_NORM = 1e-6
 #: set with interior), Δ_k ⊆ Δ_k^ε keeps Lemma 3 exact, and a disturbance outside W by more than
 #: this distance is still reported as inconsistent data.
 DELTA_MARGIN = 1e-6
-#: Statuses of the tube QP (20) that are no answer for numerical reasons ("inaccurate", a solver
-#: error), reached after the backend's own retries (the same set that starts the Clarabel retry
-#: ladder): the other formulation is tried, as for an "optimal" answer that fails its checks.
-#: "Infeasible" is an answer and is reported as such. Found on massera2017 (n = 3, θ* = −1, cvxpy):
-#: the plain form stalled "AlmostSolved" at a relative gap of 1.15e-7 under every rung of the ladder
-#: while the vertex form solved the same QP; the run used to stop there.
-QP_NO_ANSWER = RETRIED
 #: The exact update (7) removes a row when the backend's support LP over the other rows exceeds the row's
 #: bound by at most this (unit rows, θ units), i.e. removing it enlarges Θ_k by at most this much. The
 #: removed rows are then re-checked (removed_row_excess) at answer_checks.SET_NESTED_TOL = 1e-8; the
@@ -684,7 +676,7 @@ class AdaptiveMPC:
         """The answer of (20) to apply, or None: the rungs of :data:`~amcp_drake.online.policy.TUBE_QP`
         from the first answer ``sol`` (``checked``: it passed the checks already). The step status is
         "inaccurate" when an "optimal" first answer failed a check and its re-solve did not answer, and
-        when an answer of the other formulation replaced one with no answer (:data:`QP_NO_ANSWER`); an
+        when an answer of the other formulation replaced one with no answer (:attr:`policy.TUBE_QP.no_answer <amcp_drake.online.policy.TUBE_QP>`); an
         "infeasible" QP is an answer and has no fallback."""
         answer, attempts = policy.run(policy.TUBE_QP, self._tube_rungs(s, "tube_qp", sol, checked, x, h_arg, H_arg,
                                                                        None, record))

@@ -82,7 +82,10 @@ REFINE = Rung("refine", "resolved", "iterative_refinement", after=("check",),
               accepted="re-solved with iterative refinement (checked)", head=", first try without iterative refinement")
 
 #: The tube QP (20): statuses of :data:`amcp_drake.backends.clarabel_retry.RETRIED` ("inaccurate", a
-#: solver error) are no answer and go to the other formulation; "infeasible" is an answer.
+#: solver error), reached after the backend's own retries, are no answer for numerical reasons and go to
+#: the other formulation, as an "optimal" answer that fails its checks does (the plain form can stall
+#: under every rung of the ladder where the vertex form solves the same QP: docs/decisions.md);
+#: "infeasible" is an answer and is reported as such.
 TUBE_QP = Policy(
     "tube_qp", "tube QP (20)",
     (FIRST, REFINE,
