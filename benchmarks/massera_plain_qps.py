@@ -151,7 +151,7 @@ def closed_loops(example: str, steps: int, seeds) -> int:
 
     from amcp_drake.offline.design import design
     from amcp_drake.online.simulate import disturbance_sequence
-    from amcp_drake.studies.resolves import count_resolves, step_notes
+    from amcp_drake.studies.resolves import count_resolves, step_kinds
 
     spec = get_example(example)
     problem = spec.problem
@@ -179,7 +179,7 @@ def closed_loops(example: str, steps: int, seeds) -> int:
                 u, rec = run["ctrl"].step(run["x"])
                 run["cpu"].append(time.thread_time() - cpu)
                 run["wall"].append(time.perf_counter() - wall)
-                run["notes"].append(step_notes(rec))
+                run["notes"].append(step_kinds(rec))
                 if u is None:
                     run["stop"] = f"step {k}: {rec.status.value}"
                     continue

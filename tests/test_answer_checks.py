@@ -55,10 +55,13 @@ class WrongBackend:
 
 
 class WrongTube:
-    """A tube QP whose "optimal" answers are changed by ``wrong(sol)``."""
+    """A tube QP whose "optimal" answers are changed by ``wrong(sol)``; without ``refine=True``."""
+
+    REFINES = False
 
     def __init__(self, real, wrong):
         self._real, self.wrong, self.calls = real, wrong, 0
+        self.formulation = real.formulation
 
     def solve(self, *args, **kwargs):
         sol = self._real.solve(*args, **kwargs)

@@ -12,7 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 from amcp_drake.cli import main
-from amcp_drake.studies.resolves import RESOLVE_MARKS, count_resolves
+from amcp_drake.studies.resolves import RESOLVE_KINDS, count_resolves, step_kinds
 
 STAT_KEYS = {"median", "p90", "mean", "max", "n"}
 WALL_NAMES = {"set_update", "set_update_solver", "lms", "qp_update", "solver", "total"}
@@ -64,7 +64,7 @@ def test_example_runs_cover_both_backends_formulations_and_x0_sizes(quick_result
             assert r["fast_path"]["daqp"] + r["fast_path"]["fallback"] == 4  # steps 0..3
         else:
             assert r["fast_path"] is None
-        assert set(r["resolves"]) == set(RESOLVE_MARKS) and all(0 <= v <= 4 for v in r["resolves"].values())
+        assert set(r["resolves"]) == set(RESOLVE_KINDS) and all(0 <= v <= 4 for v in r["resolves"].values())
     kinds = {(q["kind"], q.get("backend") or q.get("formulation"), q["x0_facets"]) for q in data["example"]["ratios"]}
     assert kinds == {(k, who, x) for k, who in (("plain/vertex", "drake"), ("plain/vertex", "cvxpy"),
                                                 ("vertex/fast", "drake"), ("cvxpy/drake", "plain"),
@@ -72,13 +72,15 @@ def test_example_runs_cover_both_backends_formulations_and_x0_sizes(quick_result
     assert all(q[key] > 0 for q in data["example"]["ratios"] for key in ("total", "solver", "total_cpu", "solver_cpu"))
 
 
-def test_resolves_are_counted_from_the_messages_the_code_writes(example_spec, example_design, monkeypatch):
-    """The marks of RESOLVE_MARKS match the texts the solvers and the controller write: a real
-    Clarabel retry note, a real step of the reduced plain form outside Θ0 (every row), and the
-    controller's fallback note; a clean step counts nowhere."""
-    from amcp_drake.backends.clarabel_retry import describe
+def test_resolves_are_counted_from_the_attempts_the_code_records(example_spec, example_design, monkeypatch):
+    """The kinds of RESOLVE_KINDS are read from the attempts the solvers and the controller record: a
+    real Clarabel retry, a real step of the reduced plain form outside Θ0 (every row), a controller's
+    fallback, a vertex form's plain fallback; a clean step counts nowhere."""
+    from amcp_drake.backends.base import Attempt
     from amcp_drake.model.options import OnlineOptions
-    from amcp_drake.online.controller import AdaptiveMPC
+    from amcp_drake.model.status import SolveStatus
+    from amcp_drake.online import answers
+    from amcp_drake.online.controller import AdaptiveMPC, StepRecord
 
     ctrl = AdaptiveMPC(example_spec.problem, example_design, backend="drake")
     outside = ctrl.mpc.solve(np.array([1.0, 0.5]), 1.2 * np.asarray(example_design.h_theta0), np.zeros(3))
@@ -99,12 +101,23 @@ def test_resolves_are_counted_from_the_messages_the_code_writes(example_spec, ex
 
     spec, traj, rec, x = _suboptimal_step()
     resolved = _plain(spec, traj, "cvxpy", ACCURATE_10).solve(x, rec.h_theta, rec.theta_hat, rec.H_theta)
-    details = [describe(0), outside.detail, "", "tube QP (20): tube (15c) 2e-06 > 1e-06; fallback: vertex form of (20) (checked)",
-               "plain form (15) fallback: Qhull failed",  # the vertex form's note (drake_vertex._solve_plain)
-               tight_failed.detail, not_compiled.detail, resolved.detail]
-    assert count_resolves(details) == {"clarabel_retry": 1, "refined_resolve": 0, "minmax_default_tolerances": 1,
-                                       "every_row": 1, "plain_fallback": 1, "answer_check_fallback": 1,
-                                       "compiled_route_fallback": 1, "optimality_resolve": 1}
+    ok = SolveStatus.OPTIMAL
+
+    def step(sol=None, inner=(), fallback=False):
+        own = sol.attempts if sol is not None else tuple(Attempt("tube_qp", r, ok) for r in inner)
+        first = Attempt("tube_qp", "first", ok, accepted=not fallback, inner=own)
+        attempts = [first] + ([Attempt("tube_qp", "other_formulation", ok, accepted=True)] if fallback else [])
+        entry = answers.entry("tube_qp", "fallback" if fallback else "first", "vertex_form" if fallback else "",
+                              "tube (15c)" if fallback else "")
+        return step_kinds(StepRecord(k=0, x=np.zeros(1), u=None, status=ok, H_theta=np.eye(1), h_theta=np.ones(1),
+                                     theta_hat=np.zeros(1), answers=[entry], attempts=attempts))
+
+    steps = [step(inner=["clarabel_retry"]), step(outside), step(), step(fallback=True),
+             step(inner=["plain_form"]),  # the vertex form's fall back (drake_vertex._solve_plain)
+             step(tight_failed), step(not_compiled), step(resolved)]
+    assert count_resolves(steps) == {"clarabel_retry": 1, "refined_resolve": 0, "minmax_default_tolerances": 1,
+                                     "every_row": 1, "plain_fallback": 1, "answer_check_fallback": 1,
+                                     "compiled_route_fallback": 1, "optimality_resolve": 1}
 
 
 def stats_cpu_parts_fit(times_ms) -> bool:

@@ -811,7 +811,7 @@ def _ladder_exhausted(monkeypatch):
     tie-break solve, whatever this machine's Clarabel does at the first tries."""
     from amcp_reference.tube_mpc import CvxpyTubeMPC
 
-    monkeypatch.setattr(CvxpyTubeMPC, "_solve", lambda self, problem, refine=False: (SolveStatus.INACCURATE, 0.0, "fake"))
+    monkeypatch.setattr(CvxpyTubeMPC, "_solve", lambda self, problem, refine=False: (SolveStatus.INACCURATE, 0.0, "fake", ()))
 
 
 def test_a_tie_broken_answer_that_moves_the_optimum_is_rejected(monkeypatch):

@@ -1,5 +1,5 @@
 """Steps that needed more than the first solve (amcp_drake.studies.resolves): the controller records
-the QP answer's detail on the step, and the bench and the campaign count the marks in it."""
+the typed attempts of the step, and the bench and the campaign count the kinds in them."""
 
 from __future__ import annotations
 
@@ -7,10 +7,12 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from amcp_drake.backends.base import Attempt
 from amcp_drake.model.options import OnlineOptions
 from amcp_drake.model.status import SolveStatus
+from amcp_drake.online import answers
 from amcp_drake.online.controller import AdaptiveMPC, StepRecord
-from amcp_drake.studies.resolves import count_resolves, step_notes
+from amcp_drake.studies.resolves import count_resolves, step_kinds
 
 
 def _outside_theta0_step(example_spec, example_design, backend):
@@ -26,28 +28,30 @@ def _outside_theta0_step(example_spec, example_design, backend):
 
 def test_the_step_records_its_qp_answers_detail_and_the_every_row_program_is_counted(example_spec, example_design):
     record = _outside_theta0_step(example_spec, example_design, "drake")
-    assert count_resolves([step_notes(record)])["every_row"] == 1   # Θ_k ⊄ Θ0: the reduced program cannot apply
+    assert count_resolves([step_kinds(record)])["every_row"] == 1   # Θ_k ⊄ Θ0: the reduced program cannot apply
 
 
 def test_a_step_inside_theta0_counts_nowhere(example_spec, example_design):
     ctrl = AdaptiveMPC(example_spec.problem, example_design, backend="drake", formulation="plain")
     u, record = ctrl.step(np.asarray(example_spec.scenario.x0, float))
     assert u is not None, record.status
-    assert set(count_resolves([step_notes(record)]).values()) == {0}
+    assert set(count_resolves([step_kinds(record)]).values()) == {0}
 
 
 def test_the_campaign_counts_extra_solves_only_where_they_can_occur():
     from amcp_drake.studies.campaign import _resolve_counts
 
-    def traj(*notes):
-        records = [StepRecord(k=k, x=np.zeros(1), u=None, status=SolveStatus.OPTIMAL, H_theta=np.eye(1),
-                              h_theta=np.ones(1), theta_hat=np.zeros(1), qp_detail=qp, detail=note)
-                   for k, (qp, note) in enumerate(notes)]
-        return SimpleNamespace(records=records)
+    def step(k, inner=(), fallback=False):
+        first = Attempt("tube_qp", "first", SolveStatus.OPTIMAL, accepted=not fallback,
+                        inner=tuple(Attempt("tube_qp", r, SolveStatus.OPTIMAL) for r in inner))
+        attempts = [first] + ([Attempt("tube_qp", "other_formulation", SolveStatus.OPTIMAL, accepted=True)]
+                              if fallback else [])
+        entry = answers.entry("tube_qp", "fallback", "vertex_form", "tube (15c)") if fallback else \
+            answers.entry("tube_qp", "first")
+        return StepRecord(k=k, x=np.zeros(1), u=None, status=SolveStatus.OPTIMAL, H_theta=np.eye(1),
+                          h_theta=np.ones(1), theta_hat=np.zeros(1), answers=[entry], attempts=attempts)
 
-    run = traj(("solved; every row of (15c): Theta_k not inside Theta0", ""), ("solved", ""),
-               ("solved", "tube QP (20): tube (15c) 2e-06 > 1e-06; fallback: vertex form of (20) (checked)"),
-               ("solved; every row of (15c): H_theta changed", ""))
+    run = SimpleNamespace(records=[step(0, ["every_row"]), step(1), step(2, fallback=True), step(3, ["every_row"])])
     drake = _resolve_counts(run, "drake")
     assert drake == {"resolve_clarabel_retry": 0.0, "resolve_refined_resolve": 0.0, "resolve_every_row": 2.0,
                      "resolve_answer_check_fallback": 1.0}

@@ -107,6 +107,35 @@ class TubeMPCData:
 
 
 @dataclass(frozen=True, eq=False)
+class Attempt:
+    """One solve of one problem of a step, as data: ``problem`` (``"tube_qp"``, ``"set_update"``,
+    ``"pe_candidate"``, ...: :data:`amcp_drake.online.answers.PROBLEMS`), ``rung`` (the step of the
+    answer policy that solved it: ``"first"``, ``"refine"``, ``"other_formulation"``, ...:
+    :mod:`amcp_drake.online.policy`), ``options`` (what the rung changed, as (name, value) pairs, e.g.
+    ``(("formulation", "vertex"),)``), ``status`` (the solver's), ``check`` (the name of the first
+    answer check that failed, "" when none failed or none ran), ``accepted`` (this answer was used),
+    ``solver_cpu`` (the solver's time in s), ``failures`` (the failed checks themselves, for the
+    step's notes), ``detail`` (the solver's own account, ``MPCSolution.detail``) and ``inner`` (the
+    backend's own re-solves within this solve, ``MPCSolution.attempts``)."""
+
+    problem: str
+    rung: str
+    status: SolveStatus
+    check: str = ""
+    accepted: bool = False
+    options: tuple[tuple[str, str], ...] = ()
+    solver_cpu: float = 0.0
+    failures: tuple = ()
+    detail: str = ""
+    #: the backend's own re-solves inside this solve (``MPCSolution.attempts``)
+    inner: tuple[Attempt, ...] = ()
+
+    def option(self, name: str, default: str = "") -> str:
+        """The value of option ``name`` of this attempt (``default`` when the rung did not set it)."""
+        return next((v for k, v in self.options if k == name), default)
+
+
+@dataclass(frozen=True, eq=False)
 class MPCSolution:
     """Solution of (20): ``v`` (N, m), ``z`` (N+1, n), ``alpha`` (N+1,), ``Lambda`` (N, v, u, q),
     ``cost`` = J_N of (17) (including the constant term), times in seconds. Arrays are None when
@@ -123,11 +152,21 @@ class MPCSolution:
     update_time: float = 0.0
     infeasible_constraints: tuple[str, ...] = field(default_factory=tuple)
     detail: str = ""
+    #: the backend's own re-solves of this answer after its first solve, in order (the retry ladder, the
+    #: program with every row of (15c), the vertex form's plain fallback, ...): :class:`Attempt` s with
+    #: the answer's status, which ``detail`` describes in words
+    attempts: tuple[Attempt, ...] = ()
 
 
 @runtime_checkable
 class TubeMPCSolver(Protocol):
-    """A tube MPC QP (20) built once; ``solve`` updates coefficients and solves."""
+    """A tube MPC QP (20) built once; ``solve`` updates coefficients and solves. ``formulation``: the
+    form of (20) it solves ("plain": (15) with the multipliers Λ; "vertex": (5b) at the vertices of Θ_k);
+    ``REFINES``: ``solve`` takes ``refine=True`` (Clarabel's iterative refinement from the first solve,
+    the controller's re-solve of an answer that failed its checks)."""
+
+    formulation: str
+    REFINES: bool
 
     def solve(self, x: np.ndarray, h_theta: np.ndarray, theta_hat: np.ndarray,
               H_theta: np.ndarray | None = None) -> MPCSolution:
@@ -141,9 +180,11 @@ class TubeMPCSolver(Protocol):
 
 @runtime_checkable
 class Backend(Protocol):
-    """One implementation of every optimisation problem of the algorithm."""
+    """One implementation of every optimisation problem of the algorithm; ``formulation``: that of
+    the programs :meth:`tube_mpc` builds ("plain" or "vertex")."""
 
     name: str
+    formulation: str
 
     def robust_gain(self, A_vertices: np.ndarray, B_vertices: np.ndarray, Q: np.ndarray, R: np.ndarray,
                     margin: float, tick=None) -> GainResult:
@@ -168,3 +209,9 @@ class Backend(Protocol):
     def tube_mpc(self, data: TubeMPCData) -> TubeMPCSolver:
         """Build the QP (20) once for ``data``."""
         ...
+
+
+def backend_attempts(rungs, status: SolveStatus, problem: str = "tube_qp") -> tuple[Attempt, ...]:
+    """``MPCSolution.attempts`` of the backend's re-solves ``rungs`` ((rung, options) pairs, e.g. from
+    :func:`amcp_drake.backends.clarabel_retry.solve_with_retries`) of an answer of status ``status``."""
+    return tuple(Attempt(problem, rung, status, options=options) for rung, options in rungs)

@@ -64,6 +64,13 @@ CLARABEL_RETRY_LADDER: tuple[dict, ...] = (
 )
 
 
+#: The note and the :class:`~amcp_drake.backends.base.Attempt` rung of the solve after a failed first try.
+REFINE_NOTE = "re-solved with iterative refinement"
+FIRST_RUNG = {REFINE_NOTE: "refine", MINMAX_TIGHT_NOTE: "default_tolerances"}
+#: The rung of the retry ladder (its option sets: ``Attempt.options`` ``(("retry", "<i>"),)``, 1-based).
+LADDER_RUNG = "clarabel_retry"
+
+
 def first_try(minmax: bool, refine: bool, user_options) -> tuple[dict | None, str]:
     """(``first``, ``first_note``) of :func:`solve_with_retries` for the tube QP (20), the same in both
     backends: ``refine`` (the controller's re-solve of an answer that failed its checks): no first try;
@@ -73,44 +80,47 @@ def first_try(minmax: bool, refine: bool, user_options) -> tuple[dict | None, st
         return None, ""
     if minmax:
         return {k: v for k, v in MINMAX_TIGHT.items() if k not in user_options}, MINMAX_TIGHT_NOTE
-    return {k: v for k, v in NO_REFINEMENT.items() if k not in user_options}, "re-solved with iterative refinement"
+    return {k: v for k, v in NO_REFINEMENT.items() if k not in user_options}, REFINE_NOTE
 
 
 def solve_with_retries(solve: Callable[[dict | None], tuple[Any, SolveStatus, float]],
                        first: dict | None = None,
-                       first_note: str = "re-solved with iterative refinement") -> tuple[Any, SolveStatus, float, str]:
+                       first_note: str = REFINE_NOTE) -> tuple[Any, SolveStatus, float, str, tuple]:
     """``solve(extra_options)`` once with ``first`` (when given, e.g. :data:`NO_REFINEMENT` or
     :data:`MINMAX_TIGHT`; ``first_note`` says what the solve after a failed first try is), then
     with None (the backend's own options), then, while its status is in RETRIED, once per rung of
-    the ladder. Returns the last (result, status), the summed solver time and a note for
-    ``MPCSolution.detail``: the rung that ended the retries, "after N Clarabel retries" when none
-    did, or "" when no retry was needed. The caller decides whether the solver is Clarabel (the
-    ladder's settings are Clarabel's)."""
-    spent_first, note = 0.0, ""
+    the ladder. Returns the last (result, status), the summed solver time, a note for
+    ``MPCSolution.detail`` (the rung that ended the retries, "after N Clarabel retries" when none
+    did, or "" when no retry was needed) and the re-solves that ran after the first solve as
+    (rung, options) pairs (:data:`FIRST_RUNG`, :data:`LADDER_RUNG`). The caller decides whether the
+    solver is Clarabel (the ladder's settings are Clarabel's)."""
+    spent_first, note, rungs = 0.0, "", ()
     if first:
         result, status, spent_first = solve(first)
         if status not in RETRIED:
-            return result, status, spent_first, ""
-        note = f"{first_note}; "
+            return result, status, spent_first, "", ()
+        note, rungs = f"{first_note}; ", ((FIRST_RUNG.get(first_note, "default_options"), ()),)
     result, status, elapsed = solve(None)
-    result, status, elapsed, ladder_note = retry_ladder(solve, result, status, elapsed + spent_first)
-    return result, status, elapsed, note + ladder_note if ladder_note else note.rstrip("; ")
+    result, status, elapsed, ladder_note, ladder = retry_ladder(solve, result, status, elapsed + spent_first)
+    return result, status, elapsed, note + ladder_note if ladder_note else note.rstrip("; "), rungs + ladder
 
 
 def retry_ladder(solve: Callable[[dict | None], tuple[Any, SolveStatus, float]], result: Any, status: SolveStatus,
-                 elapsed: float) -> tuple[Any, SolveStatus, float, str]:
+                 elapsed: float) -> tuple[Any, SolveStatus, float, str, tuple]:
     """The ladder alone, after a solve that ended with (``result``, ``status``, ``elapsed``): while the
     status is in RETRIED, ``solve(extra_options)`` once per rung. Returns as :func:`solve_with_retries`,
-    the note "" when no retry was needed. Used by :func:`solve_with_retries` and by the vertex forms,
-    whose first two solves (without, then with iterative refinement) are their own."""
+    the note "" and no rungs when no retry was needed. Used by :func:`solve_with_retries` and by the
+    vertex forms, whose first two solves (without, then with iterative refinement) are their own."""
     if status not in RETRIED:
-        return result, status, elapsed, ""
+        return result, status, elapsed, "", ()
+    rungs = []
     for rung, extra in enumerate(CLARABEL_RETRY_LADDER):
         result, status, spent = solve(extra)
         elapsed += spent
+        rungs.append((LADDER_RUNG, (("retry", str(rung + 1)),)))
         if status not in RETRIED:
-            return result, status, elapsed, describe(rung)
-    return result, status, elapsed, f"after {len(CLARABEL_RETRY_LADDER)} Clarabel retries"
+            return result, status, elapsed, describe(rung), tuple(rungs)
+    return result, status, elapsed, f"after {len(CLARABEL_RETRY_LADDER)} Clarabel retries", tuple(rungs)
 
 
 def describe(rung: int) -> str:

@@ -44,7 +44,7 @@ import numpy as np
 import scipy.sparse as sp
 from pydrake.solvers import MathematicalProgram
 
-from amcp_drake.backends.base import MPCSolution, TubeMPCData
+from amcp_drake.backends.base import Attempt, MPCSolution, TubeMPCData, backend_attempts
 from amcp_drake.backends.clarabel_retry import first_try, solve_with_retries
 from amcp_drake.backends.condensed_cost import CondensedCost
 from amcp_drake.backends.dominated_rows import kept_vertices
@@ -458,10 +458,11 @@ class DrakeTubeMPC:
         if self._all_rows is None:
             self._all_rows = DrakeTubeMPC(self.data, self._solver, prune=False)
         sol = self._all_rows.solve(x, h_theta, theta_hat, H_theta, u0_bounds=u0_bounds, refine=refine)
-        return replace(sol, detail=f"every row of (15c): {why}; {sol.detail}".rstrip("; "))
+        return replace(sol, detail=f"every row of (15c): {why}; {sol.detail}".rstrip("; "),
+                       attempts=(Attempt("tube_qp", "every_row", sol.status), *sol.attempts))
 
     def _solve(self, refine: bool = False):
-        """(result, status, solver time, retry note): Clarabel with the retry ladder of
+        """(result, status, solver time, retry note, re-solves as (rung, options)): Clarabel with the retry ladder of
         :mod:`.clarabel_retry`, any other solver once; ``refine``: Clarabel's iterative refinement
         from the first solve (the backend's own options, no :data:`NO_REFINEMENT` try)."""
         not_solved: list[str] = []  # what each try that did not end "optimal" returned (tries_note)
@@ -474,15 +475,17 @@ class DrakeTubeMPC:
             return result, status, elapsed
 
         if self._solver.name != "clarabel":
-            return (*once(None), "")
+            return (*once(None), "", ())
         # the first try of both backends (clarabel_retry.first_try), then Clarabel's defaults and the ladder
-        result, status, elapsed, note = solve_with_retries(once, *first_try(self.data.minmax, refine,
-                                                                              self._solver.option_values))
-        return result, status, elapsed, "; ".join(t for t in (note, tries_note(not_solved)) if t)
+        result, status, elapsed, note, rungs = solve_with_retries(once, *first_try(self.data.minmax, refine,
+                                                                                     self._solver.option_values))
+        return result, status, elapsed, "; ".join(t for t in (note, tries_note(not_solved)) if t), rungs
 
     #: ``solve(..., refine=True)`` is supported (the controller's first fallback for an answer that
     #: fails its checks, amcp_drake.online.controller).
     REFINES = True
+    #: the formulation of (20) this program solves (the protocol's ``TubeMPCSolver.formulation``)
+    formulation = "plain"
 
     def solve(self, x, h_theta, theta_hat, H_theta=None, u0_bounds=None, refine: bool = False) -> MPCSolution:
         """Solve (20) at x_k with Θ_k = {H_θ θ <= h_theta} and point estimate θ̂_k.
@@ -520,12 +523,12 @@ class DrakeTubeMPC:
             Hv, g, const = self._cost_model.matrices(x, theta_hat)
             self._cost.UpdateCoefficients(2.0 * Hv, 2.0 * g, const, is_convex=True)
         update_time = time.perf_counter() - start
-        result, status, solver_time, detail = self._solve(refine)
+        result, status, solver_time, detail, rungs = self._solve(refine)
         if status is not SolveStatus.OPTIMAL:
             names = infeasible_constraint_names(result, self.prog)
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names,
                                detail=f"{self._solver.describe(result)} ({detail})" if detail
-                               else self._solver.describe(result))
+                               else self._solver.describe(result), attempts=backend_attempts(rungs, status))
         yv = result.get_x_val()[: self.layout.size]  # y first, then the epigraph s of (19) if any
         N, n, m = lay.N, lay.n, lay.m
         z = yv[: lay.a0].reshape(N + 1, n)
@@ -540,4 +543,5 @@ class DrakeTubeMPC:
             cost = minmax_plan_cost(self.data, z, alpha, v)
         else:
             cost = float(vf @ Hv @ vf + 2 * g @ vf + const)
-        return MPCSolution(status, v, z, alpha, Lam, cost, solver_time, update_time, detail=detail)
+        return MPCSolution(status, v, z, alpha, Lam, cost, solver_time, update_time, detail=detail,
+                           attempts=backend_attempts(rungs, status))

@@ -26,12 +26,13 @@ with :data:`~.vertex_form.CLARABEL_OPTIONS` (no iterative refinement); a step th
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 import scipy.sparse as sp
 from pydrake.solvers import MathematicalProgram
 
-from amcp_drake.backends.base import MPCSolution, TubeMPCData
+from amcp_drake.backends.base import Attempt, MPCSolution, TubeMPCData, backend_attempts
 from amcp_drake.backends.clarabel_retry import RETRIED, retry_ladder
 from amcp_drake.backends.condensed_cost import CondensedCost
 from amcp_drake.backends.daqp_fast import DaqpFastPath
@@ -76,6 +77,8 @@ class DrakeVertexTubeMPC:
     """QP (20) in vertex form, built once; :meth:`solve` updates x_k, the rows of Θ_k's vertices, θ̂_k."""
 
     formulation = "vertex"
+    #: no ``solve(..., refine=True)``: the vertex form re-solves with iterative refinement itself
+    REFINES = False
 
     def __init__(self, data: TubeMPCData, solver, solver_options: dict | None = None, fast: bool = False) -> None:
         """``solver``: the backend's ``_Solver``; with Clarabel, a copy with
@@ -259,6 +262,7 @@ class DrakeVertexTubeMPC:
         result, solver_time = self._solver.solve(self.prog)
         status = tried(self._solver, result)
         detail = f"vertex form, {S} vertices of Theta_k{fast_note}"
+        rungs: tuple = ()
         if status is SolveStatus.INACCURATE and self._solver is not self._plain_solver:
             # near-degenerate steps (states at the edge of the feasible set, tight tolerances) can end
             # AlmostSolved without iterative refinement: solve again with the user's settings
@@ -266,21 +270,25 @@ class DrakeVertexTubeMPC:
             status = tried(self._plain_solver, result)
             solver_time += extra
             detail += "; re-solved with iterative refinement"
+            rungs = (("refine", ()),)
         if status in RETRIED and self._plain_solver.name == "clarabel":
             def rung(extra_options):
                 result, elapsed = self._plain_solver.solve(self.prog, extra_options)
                 return result, tried(self._plain_solver, result), elapsed
 
-            result, status, solver_time, note = retry_ladder(rung, result, status, solver_time)
+            result, status, solver_time, note, ladder = retry_ladder(rung, result, status, solver_time)
             detail += f"; {note}"
+            rungs += ladder
         if not_solved:
             detail += f"; {tries_note(not_solved)}"
         if status is not SolveStatus.OPTIMAL:
             names = infeasible_constraint_names(result, self.prog)
             return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names,
-                               detail=f"{self._plain_solver.describe(result)}; {detail}")
+                               detail=f"{self._plain_solver.describe(result)}; {detail}",
+                               attempts=backend_attempts(rungs, status))
         yv = result.get_x_val()  # y is the program's only decision vector, in order
-        return self._solution(yv, Hv, g2, const, solver_time, update_time, detail)
+        return replace(self._solution(yv, Hv, g2, const, solver_time, update_time, detail),
+                       attempts=backend_attempts(rungs, status))
 
     @property
     def fast_path_counts(self) -> dict[str, int] | None:
@@ -324,8 +332,6 @@ class DrakeVertexTubeMPC:
 
     def _solve_plain(self, x, h_theta, theta_hat, H_theta, reason: str) -> MPCSolution:
         """Fallback for a step whose Θ_k vertices cannot be enumerated: the plain form (15)."""
-        from dataclasses import replace
-
         from amcp_drake.backends.drake_tube import DrakeTubeMPC
 
         if self._plain is None:
@@ -335,4 +341,5 @@ class DrakeVertexTubeMPC:
             self._plain = DrakeTubeMPC(replace(self.data, H_theta=np.asarray(H0, float),
                                                h_theta0=self.data.h_theta0 if same else None), self._plain_solver)
         sol = self._plain.solve(x, h_theta, theta_hat, H_theta)
-        return replace(sol, detail=f"plain form (15) fallback: {reason}; {sol.detail}".rstrip("; "))
+        return replace(sol, detail=f"plain form (15) fallback: {reason}; {sol.detail}".rstrip("; "),
+                       attempts=(Attempt("tube_qp", "plain_form", sol.status), *sol.attempts))

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from amcp_drake.backends import TubeMPCData, get_backend
-from amcp_drake.backends.clarabel_retry import RETRIED
+from amcp_drake.backends.base import Attempt
 from amcp_drake.model import polytope
 from amcp_drake.model.arrays import all_finite, same_bits, scalar_operand
 from amcp_drake.model.errors import InconsistentDataError, ProblemError
@@ -22,7 +22,7 @@ from amcp_drake.model.options import OnlineOptions
 from amcp_drake.model.problem import Problem
 from amcp_drake.model.status import SolveStatus
 from amcp_drake.offline.design import OfflineDesign
-from amcp_drake.online import answer_checks, answers
+from amcp_drake.online import answer_checks, answers, policy
 from amcp_drake.online.formulation_choice import resolve_formulation
 from amcp_drake.online.state import ControllerState, StepState
 
@@ -39,13 +39,6 @@ DELTA_ROW_MIN_NORM = 1e-6
 #: set with interior), Δ_k ⊆ Δ_k^ε keeps Lemma 3 exact, and a disturbance outside W by more than
 #: this distance is still reported as inconsistent data.
 DELTA_MARGIN = 1e-6
-#: Statuses of the tube QP (20) that are no answer for numerical reasons ("inaccurate", a solver
-#: error), reached after the backend's own retries (the same set that starts the Clarabel retry
-#: ladder): the other formulation is tried, as for an "optimal" answer that fails its checks.
-#: "Infeasible" is an answer and is reported as such. Found on massera2017 (n = 3, θ* = −1, cvxpy):
-#: the plain form stalled "AlmostSolved" at a relative gap of 1.15e-7 under every rung of the ladder
-#: while the vertex form solved the same QP; the run used to stop there.
-QP_NO_ANSWER = RETRIED
 #: The exact update (7) removes a row when the backend's support LP over the other rows exceeds the row's
 #: bound by at most this (unit rows, θ units), i.e. removing it enlarges Θ_k by at most this much. The
 #: removed rows are then re-checked (removed_row_excess) at answer_checks.SET_NESTED_TOL = 1e-8; the
@@ -135,6 +128,10 @@ class StepRecord:
     #: {"problem", "outcome", "kind", "check"} per problem solved. None: a record without provenance
     #: (a trajectory written before it was recorded), reported as unknown.
     answers: list[dict[str, str]] | None = None
+    #: Every solve of the step's answer policy (:mod:`amcp_drake.online.policy`), in order, as typed
+    #: :class:`~amcp_drake.backends.base.Attempt` s; ``answers``, the policy's part of ``detail`` and
+    #: ``qp_detail`` are rendered from them. Not written to a trajectory file (``answers`` is).
+    attempts: list[Attempt] = field(default_factory=list)
 
 
 class AdaptiveMPC:
@@ -169,17 +166,17 @@ class AdaptiveMPC:
             R=problem.R, N=problem.N, K=design.K, P=design.P, H_x=design.H_x, X0_vertices=design.X0_vertices,
             w_bar=design.w_bar, f_bar=design.f_bar, H_T=design.H_T, h_T=design.h_T, H_theta=design.H_theta, h_theta0=design.h_theta0,
             cost=self.options.cost)
-        if self.options.cost != "certainty_equivalence" and getattr(self.backend, "formulation", "plain") != "plain":
+        if self.options.cost != "certainty_equivalence" and self.backend.formulation != "plain":
             raise ProblemError("formulation", "'plain' (the min-max cost (19) needs formulation='plain')",
                                repr(self.backend.formulation))
-        if self.options.d_theta > 0 and getattr(self.backend, "formulation", "plain") != "plain":
+        if self.options.d_theta > 0 and self.backend.formulation != "plain":
             raise ProblemError("formulation", "'plain' (time-varying parameters need formulation='plain': the "
                                "predicted sets (26) differ per stage)", repr(self.backend.formulation))
         if self.options.pe_window is not None:
             if problem.m != 1:
                 raise ProblemError("online.pe_window", "None for m > 1 (the PE constraint of Section 4.2 is for "
                                    "a scalar input)", repr(self.options.pe_window))
-            if getattr(self.backend, "formulation", "plain") != "plain":
+            if self.backend.formulation != "plain":
                 raise ProblemError("formulation", "'plain' (the PE constraint needs formulation='plain')",
                                    repr(self.backend.formulation))
         self.mpc = self.backend.tube_mpc(self.data)
@@ -273,48 +270,58 @@ class AdaptiveMPC:
         else:
             H_data, h_data = H_delta, h_delta
         H_theta = self.design.H_theta
-        result = self.backend.set_update(H_theta, s.h_theta, H_data, h_data)
-        record.times["set_update"] = result.solve_time
-        record.set_status = result.status
-        if result.status in (SolveStatus.INFEASIBLE, SolveStatus.UNBOUNDED):
-            # confirm emptiness independently before declaring the data inconsistent
-            _, radius = polytope.chebyshev_center(np.vstack([H_theta, H_data]), np.concatenate([s.h_theta, h_data]))
-            if radius == float("-inf"):
-                raise InconsistentDataError(s.k, f"LP (9) status {result.status.value}; scipy confirms the "
-                                                    "intersection is empty")
-        t0 = time.process_time()
-        def check(h, Lam, pts):
-            return self._set_check.check(h, Lam, pts, H_theta, s.h_theta, H_data, h_data, self._theta_box)
+        h_prev = s.h_theta
 
-        if result.status is SolveStatus.OPTIMAL:
-            checks = check(result.h, result.Lambda, getattr(result, "points", None))
-            failed = answer_checks.failures(checks)
-            if not failed:
+        def check(h, Lam, pts):
+            return answer_checks.failures(
+                self._set_check.check(h, Lam, pts, H_theta, h_prev, H_data, h_data, self._theta_box))
+
+        def attempt(rung):
+            # the rungs of policy.SET_UPDATE: the backend's LP, HiGHS' per-row supports of Θ_{k−1} ∩ Δ_k
+            # (another solver, checked the same way), Θ_{k−1} kept (always valid, and nested (10))
+            if rung.name == "first":
+                result = self.backend.set_update(H_theta, h_prev, H_data, h_data)
+                record.times["set_update"] = result.solve_time
+                record.set_status = result.status
+                if result.status in (SolveStatus.INFEASIBLE, SolveStatus.UNBOUNDED):
+                    # confirm emptiness independently before declaring the data inconsistent
+                    _, radius = polytope.chebyshev_center(np.vstack([H_theta, H_data]), np.concatenate([h_prev, h_data]))
+                    if radius == float("-inf"):
+                        raise InconsistentDataError(s.k, f"LP (9) status {result.status.value}; scipy confirms the "
+                                                            "intersection is empty")
+                answer, failed, status, cpu = (result.h, result.Lambda), [], result.status, result.solve_time
+                if status is SolveStatus.OPTIMAL:
+                    failed = self._timed_checks(record, check, result.h, result.Lambda, result.points)
+                    if failed:
+                        record.set_status = SolveStatus.INACCURATE
+            elif rung.name == "highs_support_lps":
+                t0 = time.process_time()
+                sup = polytope.support_certified(np.vstack([H_theta, H_data]), np.concatenate([h_prev, h_data]), H_theta)
                 record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - t0
-                s.h_theta = self._dilate(self._nested(s, result.h), 1)
-                record.set_Lambda = result.Lambda
-                self._answer(record, "set_update", "first")
-                return True
-            record.set_status = SolveStatus.INACCURATE
-            note = answer_checks.describe_failures("set update (9)", checks)
-            why = failed[0].name
-        else:
-            note = f"set update (9): backend status {result.status.value}"
-            why = f"status {result.status.value}"
-        # fallback 1: another solver, the per-row supports of Θ_{k−1} ∩ Δ_k by HiGHS, checked the same way
-        sup = polytope.support_certified(np.vstack([H_theta, H_data]), np.concatenate([s.h_theta, h_data]), H_theta)
-        record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - t0
-        if sup is not None and not answer_checks.failures(check(sup.values, sup.duals, sup.points)):
-            s.h_theta = self._dilate(self._nested(s, sup.values), 1)
-            record.set_Lambda = sup.duals
-            self._note(record, note + "; fallback: HiGHS support LPs (checked)")
-            self._answer(record, "set_update", "fallback", "highs_support_lps", why)
-            return True
-        # fallback 2: keep Θ_{k−1}, always a valid outer set of Θ_{k−1} ∩ Δ_k (and nested, (10))
-        s.h_theta = self._dilate(np.asarray(s.h_theta, float), 1)
-        self._note(record, note + "; fallback: kept Θ_(k−1) (HiGHS answer failed too)")
-        self._answer(record, "set_update", "fallback", "kept_previous_set", why)
+                if sup is None:
+                    return None, Attempt("set_update", rung.name, SolveStatus.ERROR)
+                answer, failed, status, cpu = (sup.values, sup.duals), check(sup.values, sup.duals, sup.points), \
+                    SolveStatus.OPTIMAL, 0.0
+            else:
+                return (None, None), Attempt("set_update", rung.name, SolveStatus.OPTIMAL, accepted=True)
+            return answer, Attempt("set_update", rung.name, status, check=failed[0].name if failed else "",
+                                   accepted=status is SolveStatus.OPTIMAL and not failed, failures=tuple(failed),
+                                   solver_cpu=cpu)
+
+        (h, Lam), attempts = policy.run(policy.SET_UPDATE, attempt)
+        self._record_attempts(record, policy.SET_UPDATE, attempts)
+        s.h_theta = self._dilate(np.asarray(h_prev, float) if h is None else self._nested(s, h), 1)
+        if h is not None:
+            record.set_Lambda = Lam
         return True
+
+    @staticmethod
+    def _timed_checks(record: StepRecord, check, *args) -> list:
+        """``check(*args)``, its CPU time added to ``record.times["answer_checks_cpu"]``."""
+        t0 = time.process_time()
+        failed = check(*args)
+        record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - t0
+        return failed
 
     def _update_exact(self, s: StepState, H_delta, h_delta, record: StepRecord) -> bool:
         """(7) with redundant rows removed by backend LPs (a row goes when the others allow exceeding it
@@ -377,12 +384,17 @@ class AdaptiveMPC:
     def _note(record: StepRecord, text: str) -> None:
         record.detail = f"{record.detail}; {text}" if record.detail else text
 
-    @staticmethod
-    def _answer(record: StepRecord, problem: str, outcome: str, kind: str = "", check: str = "") -> None:
+    @classmethod
+    def _answer(cls, record: StepRecord, problem: str, outcome: str, kind: str = "", check: str = "") -> None:
         """Record how the step's answer of ``problem`` was obtained (:mod:`amcp_drake.online.answers`)."""
+        cls._entry(record, answers.entry(problem, outcome, kind, check))
+
+    @staticmethod
+    def _entry(record: StepRecord, entry: dict[str, str]) -> None:
+        """Append the provenance entry ``entry`` to ``record.answers``."""
         if record.answers is None:  # a record built outside step(), e.g. by a replay of one update
             record.answers = []
-        record.answers.append(answers.entry(problem, outcome, kind, check))
+        record.answers.append(entry)
 
     def _dilate(self, h: np.ndarray, l: int) -> np.ndarray:
         """min(h + l d_θ n, h_θ0), n_i = ‖[H_θ]_i‖: the fixed-shape form of D_l(·) ∩ Θ0 of (25)/(26).
@@ -432,52 +444,52 @@ class AdaptiveMPC:
             s.theta_hat = theta_tilde
             record.projection_status = SolveStatus.OPTIMAL
             return True
-        result = self.backend.project(theta_tilde, H, h)
-        record.times["projection"] = result.solve_time
-        record.projection_status = result.status
-        t0 = time.process_time()
         candidates = (s.theta_hat,)
-        try:
-            if result.status is SolveStatus.OPTIMAL:
-                checks = answer_checks.check_projection(result.theta, theta_tilde, H, h, candidates)
-                failed = answer_checks.failures(checks)
-                if not failed:
-                    s.theta_hat = np.asarray(result.theta, float)
-                    self._answer(record, "projection", "first")
-                    return True
-                record.projection_status = SolveStatus.INACCURATE
-                note = answer_checks.describe_failures(f"projection (12) onto {target}", checks)
-                why = failed[0].name
-            else:
-                note = f"projection (12) onto {target}: backend status {result.status.value}"
-                why = f"status {result.status.value}"
-            # fallback 1: another solver (least-distance programming by NNLS), checked the same way
-            ldp = polytope.least_distance_point(theta_tilde, H, h)
-            if ldp is not None and not answer_checks.failures(
-                    answer_checks.check_projection(ldp, theta_tilde, H, h, candidates)):
-                s.theta_hat = ldp
-                self._note(record, note + "; fallback: least-distance projection (NNLS, checked)")
-                self._answer(record, "projection", "fallback", "least_distance", why)
-                return True
-            # fallback 2: a certified point of S (any θ̂ in S keeps Theorem 14; Lemma 5 is not claimed
-            # for such a step: the certificate's lms_update skips steps whose projection is not optimal)
-            tol = answer_checks.PROJECTION_MEMBERSHIP_TOL
+        tol = answer_checks.PROJECTION_MEMBERSHIP_TOL
+
+        def checked(rung, theta, cpu=0.0):
+            failed = answer_checks.failures(answer_checks.check_projection(theta, theta_tilde, H, h, candidates))
+            return theta, Attempt("projection", rung, SolveStatus.OPTIMAL, check=failed[0].name if failed else "",
+                                  accepted=not failed, solver_cpu=cpu, failures=tuple(failed))
+
+        def in_S(theta) -> bool:
             Hn, hn = polytope.normalize_rows(H, h)
-            if float(np.max(Hn @ s.theta_hat - hn)) <= tol:
-                self._note(record, note + f"; fallback: kept θ̂_(k−1) (in {target})")
-                self._answer(record, "projection", "fallback", "kept_previous_estimate", why)
-                return True
+            return bool(np.all(np.isfinite(theta))) and float(np.max(Hn @ theta - hn)) <= tol
+
+        def attempt(rung):
+            # the rungs of policy.PROJECTION
+            if rung.name == "first":
+                result = self.backend.project(theta_tilde, H, h)
+                record.times["projection"] = result.solve_time
+                record.projection_status = result.status
+                clock[0] = time.process_time()  # the checks and fallbacks from here: answer_checks_cpu
+                if result.status is not SolveStatus.OPTIMAL:
+                    return None, Attempt("projection", "first", result.status, solver_cpu=result.solve_time)
+                theta, a = checked("first", result.theta, cpu=result.solve_time)
+                if not a.accepted:
+                    record.projection_status = SolveStatus.INACCURATE
+                return np.asarray(theta, float), a
+            if rung.name == "least_distance":
+                ldp = polytope.least_distance_point(theta_tilde, H, h)
+                return (None, Attempt("projection", rung.name, SolveStatus.ERROR)) if ldp is None else checked(rung.name, ldp)
+            if rung.name == "kept_previous_estimate":
+                return None, Attempt("projection", rung.name, SolveStatus.OPTIMAL, accepted=in_S(s.theta_hat))
             centre, radius = polytope.chebyshev_center(H, h)
-            if np.all(np.isfinite(centre)) and float(np.max(Hn @ centre - hn)) <= tol:
-                s.theta_hat = centre
-                self._note(record, note + f"; fallback: Chebyshev centre of {target} (radius {radius:.3g})")
-                self._answer(record, "projection", "fallback", "chebyshev_centre", why)
-                return True
-            self._note(record, note + f"; no certified point of {target}: step not solved")
-            self._answer(record, "projection", "not_solved", "", why)
-            return False
+            ok = in_S(centre)
+            return centre, Attempt("projection", rung.name, SolveStatus.OPTIMAL if ok else SolveStatus.INFEASIBLE,
+                                   accepted=ok, options=(("radius", f"{radius:.3g}"),))
+
+        clock = [time.process_time()]
+        try:
+            theta, attempts = policy.run(policy.PROJECTION, attempt)
         finally:
-            record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - t0
+            record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + time.process_time() - clock[0]
+        self._record_attempts(record, policy.PROJECTION, attempts, target=target)
+        if not attempts[-1].accepted:
+            return False
+        if theta is not None:
+            s.theta_hat = theta
+        return True
 
     # -- (iii) the QP (20), with the PE two-QP procedure of docs/explanation/paper.md §8 when enabled -----------------
     def _solve_qp(self, s: StepState, x, h_arg, H_arg, record: StepRecord):
@@ -515,13 +527,18 @@ class AdaptiveMPC:
                 # Clarabel answered a PE-bounded QP with (15c) violated by 0.15) counts as no answer,
                 # so the reduced levels and the fallback to (20) alone still apply
                 what = f"tube QP (20) with PE bound u_0 in [{b[0]:.6g}, {b[1]:.6g}]"
-                sol, failed, resolved = self._checked_or_refined(s, sol, x, h_arg, H_arg, b, record, what)
-                if failed:
-                    self._note(record, answer_checks.describe_failures(what, failed) + "; candidate dropped")
-                    self._answer(record, "pe_candidate", "not_solved", "candidate_dropped", failed[0].name)
+                cand, attempts = policy.run(policy.PE_CANDIDATE, self._tube_rungs(
+                    s, "pe_candidate", sol, False, x, h_arg, H_arg, b, record))
+                record.attempts.extend(attempts)
+                if cand is None:
+                    first = attempts[0]
+                    self._note(record, answer_checks.describe_failures(what, list(first.failures)) + "; candidate dropped")
+                    self._answer(record, "pe_candidate", "not_solved", "candidate_dropped", first.check)
                     continue
-                if resolved:
-                    self._answer(record, "pe_candidate", "resolved", "iterative_refinement", resolved)
+                if cand is not sol:
+                    self._note(record, policy.notes(policy.PE_CANDIDATE, attempts, what))
+                    self._entry(record, policy.answer_entry(policy.PE_CANDIDATE, attempts))
+                sol = cand
                 if best is None or sol.cost < best.cost:
                     best, best_b = sol, b
             if best is not None:
@@ -591,7 +608,7 @@ class AdaptiveMPC:
         if self._other_refused is not None:
             return None
         if self._other_mpc is None:
-            other = "vertex" if getattr(self.backend, "formulation", "plain") == "plain" else "plain"
+            other = "vertex" if self.backend.formulation == "plain" else "plain"
             est = estimate_for(self.problem, None, 1, self.options, design=self.design, formulation=other)
             if est.memory_bytes > self.max_memory_mb * 2**20:
                 self._other_refused = (f"the {other} form's estimated size exceeds the memory limit of "
@@ -604,25 +621,48 @@ class AdaptiveMPC:
             self._other_mpc = get_backend(name, **options).tube_mpc(self.data)
         return self._other_mpc
 
-    def _checked_or_refined(self, s: StepState, sol, x, h_arg, H_arg, u0_bounds, record: StepRecord, what: str):
-        """(answer, failed checks): ``sol`` when it passes the answer checks; else, for a plain-form
-        QP (its solver has ``REFINES``), the same QP solved again with Clarabel's iterative refinement
-        on, when that answer passes (the first try runs without refinement for speed,
-        clarabel_retry.NO_REFINEMENT: the re-solve is part of the solve, like the Clarabel retry
-        ladder: same program, same solver, and the answer applied is a checked one; found by the
-        thorough profile: a first try 1.3e-6 outside (15c) at x_0 on the boundary of the feasible
-        set). ``failed``: the first answer's failed checks when neither passes, else []; ``resolved``: the
-        name of the first answer's failed check when the re-solve answered, else ""."""
-        failed = self._failed_tube_checks(s, sol, x, h_arg, H_arg, record)
-        if not failed or not getattr(self.mpc, "REFINES", False):
-            return sol, failed, ""
-        alt = self.mpc.solve(x, h_arg, s.theta_hat, H_arg, u0_bounds=u0_bounds, refine=True)
-        record.times["solver_refined"] = record.times.get("solver_refined", 0.0) + alt.solver_time
-        if alt.status is SolveStatus.OPTIMAL and not self._failed_tube_checks(s, alt, x, h_arg, H_arg, record):
-            self._note(record, answer_checks.describe_failures(f"{what}, first try without iterative refinement",
-                                                               failed) + "; re-solved with iterative refinement (checked)")
-            return alt, [], failed[0].name
-        return sol, failed, ""
+    def _tube_rungs(self, s: StepState, problem: str, first, checked: bool, x, h_arg, H_arg, u0_bounds,
+                    record: StepRecord):
+        """The function :func:`amcp_drake.online.policy.run` calls for each rung of the tube QP (20)
+        (:data:`~amcp_drake.online.policy.TUBE_QP`, or a PE candidate's
+        :data:`~amcp_drake.online.policy.PE_CANDIDATE`): ``first`` is the answer of the first try
+        (``checked``: it passed the answer checks already); "refine" solves the same QP again with
+        iterative refinement when the backend's program ``REFINES`` (the first try runs without it for
+        speed, clarabel_retry.NO_REFINEMENT; found by the thorough profile: a first try 1.3e-6 outside
+        (15c) at x_0 on the boundary of the feasible set); "other_formulation" solves the other
+        formulation of the same backend (:meth:`_other_formulation`; not run when there is none). Every
+        "optimal" answer is checked (:meth:`_failed_tube_checks`)."""
+        def attempt(rung):
+            if rung.name == "first":
+                failed = [] if checked or first.status is not SolveStatus.OPTIMAL else \
+                    self._failed_tube_checks(s, first, x, h_arg, H_arg, record)
+                return first, self._attempt(problem, "first", first, failed)
+            if rung.name == "refine":
+                if not self.mpc.REFINES:
+                    return None
+                alt = self.mpc.solve(x, h_arg, s.theta_hat, H_arg, u0_bounds=u0_bounds, refine=True)
+                record.times["solver_refined"] = record.times.get("solver_refined", 0.0) + alt.solver_time
+                failed = (self._failed_tube_checks(s, alt, x, h_arg, H_arg, record)
+                          if alt.status is SolveStatus.OPTIMAL else [])
+                return alt, self._attempt(problem, "refine", alt, failed, (("refine", "true"),))
+            other = self._other_formulation()
+            if other is None:
+                because = self._other_refused or "no other formulation for these options"
+                return None, Attempt(problem, rung.name, SolveStatus.NOT_RUN, check=because)
+            alt = other.solve(x, h_arg, s.theta_hat, H_arg)
+            record.times["solver_fallback"] = alt.solver_time
+            failed = (self._failed_tube_checks(s, alt, x, h_arg, H_arg, record)
+                      if alt.status is SolveStatus.OPTIMAL else [])
+            return alt, self._attempt(problem, rung.name, alt, failed,
+                                      (("formulation", other.formulation),))
+        return attempt
+
+    @staticmethod
+    def _attempt(problem: str, rung: str, sol, failed: list, options: tuple = ()) -> Attempt:
+        """The :class:`Attempt` of a solve of (20) whose answer ``sol`` failed the checks ``failed``."""
+        return Attempt(problem, rung, sol.status, check=failed[0].name if failed else "",
+                       accepted=sol.status is SolveStatus.OPTIMAL and not failed, options=options,
+                       solver_cpu=sol.solver_time, failures=tuple(failed), detail=sol.detail, inner=sol.attempts)
 
     def _failed_tube_checks(self, s: StepState, sol, x, h_arg, H_arg, record: StepRecord) -> list:
         """The failed answer checks of ``sol`` (:meth:`_tube_checks`); their CPU time is added to
@@ -633,68 +673,29 @@ class AdaptiveMPC:
         return failed
 
     def _verified_qp(self, s: StepState, sol, checked: bool, x, h_arg, H_arg, record: StepRecord):
-        """The answer of (20) to apply, or None. An "optimal" answer (``checked``: it passed the checks
-        already) that fails a check is first solved again with iterative refinement
-        (:meth:`_checked_or_refined`, plain form); if that fails too, the step status is "inaccurate"
-        and the other formulation is solved and applied if its answer passes the same checks, else the
-        step is not solved (u = None, the controller's answer to an unsolved QP). A QP that ends with
-        no answer for numerical reasons (:data:`QP_NO_ANSWER`, after the backend's retries) goes to
-        the other formulation the same way (status "inaccurate" when its answer is applied); an
+        """The answer of (20) to apply, or None: the rungs of :data:`~amcp_drake.online.policy.TUBE_QP`
+        from the first answer ``sol`` (``checked``: it passed the checks already). The step status is
+        "inaccurate" when an "optimal" first answer failed a check and its re-solve did not answer, and
+        when an answer of the other formulation replaced one with no answer (:attr:`policy.TUBE_QP.no_answer <amcp_drake.online.policy.TUBE_QP>`); an
         "infeasible" QP is an answer and has no fallback."""
-        if sol.status is not SolveStatus.OPTIMAL:
-            if sol.status not in QP_NO_ANSWER:
-                # "infeasible" (or another answer that is no solution): the backend's own answer
-                self._answer(record, "tube_qp", "not_solved", sol.status.value)
-                return None
-            alt = self._other_formulation_answer(
-                s, f"tube QP (20): status {sol.status.value}, no answer ({sol.detail})", f"status {sol.status.value}",
-                x, h_arg, H_arg, record)
-            if alt is not None:
-                record.status = SolveStatus.INACCURATE
-            return alt
-        if checked:
-            self._answer(record, "tube_qp", "first")
-            return sol
-        sol, failed, resolved = self._checked_or_refined(s, sol, x, h_arg, H_arg, None, record, "tube QP (20)")
-        if not failed:
-            if resolved:
-                self._answer(record, "tube_qp", "resolved", "iterative_refinement", resolved)
-            else:
-                self._answer(record, "tube_qp", "first")
-            return sol
-        record.status = SolveStatus.INACCURATE
-        return self._other_formulation_answer(s, answer_checks.describe_failures("tube QP (20)", failed), failed[0].name,
-                                              x, h_arg, H_arg, record)
+        answer, attempts = policy.run(policy.TUBE_QP, self._tube_rungs(s, "tube_qp", sol, checked, x, h_arg, H_arg,
+                                                                       None, record))
+        self._record_attempts(record, policy.TUBE_QP, attempts)
+        record.qp_detail = policy.solver_details(attempts)
+        why = policy.reason(policy.TUBE_QP, attempts[0])
+        if (why == "check" and attempts[-1].rung != "refine") or (why == "no_answer" and answer is not None):
+            record.status = SolveStatus.INACCURATE
+        return answer
 
-    def _other_formulation_answer(self, s: StepState, note: str, why: str, x, h_arg, H_arg, record: StepRecord):
-        """The other formulation's answer of (20) when it passes the answer checks, else None; ``note``
-        (why the first answer is not used) and the outcome are written to ``record.detail``, and the
-        outcome with ``why`` (the first answer's failed check) to ``record.answers``."""
-        spent = 0.0
-        try:
-            other = self._other_formulation()
-            if other is None:
-                because = self._other_refused or "no other formulation for these options"
-                self._note(record, note + f"; {because}: step not solved")
-                self._answer(record, "tube_qp", "not_solved", "", why)
-                return None
-            form = getattr(other, "formulation", "plain")
-            alt = other.solve(x, h_arg, s.theta_hat, H_arg)
-            record.times["solver_fallback"] = alt.solver_time
-            t0 = time.process_time()
-            alt_checks = self._tube_checks(alt, x, h_arg, H_arg, s) if alt.status is SolveStatus.OPTIMAL else None
-            spent += time.process_time() - t0
-            if alt_checks is not None and not answer_checks.failures(alt_checks):
-                self._note(record, note + f"; fallback: {form} form of (20) (checked)")
-                self._answer(record, "tube_qp", "fallback", f"{form}_form", why)
-                return alt
-            failed_too = (f"status {alt.status.value}" if alt_checks is None
-                          else answer_checks.describe_failures("checks", alt_checks))
-            self._note(record, note + f"; fallback {form} form failed ({failed_too}): step not solved")
-            self._answer(record, "tube_qp", "not_solved", f"{form}_form", why)
-            return None
-        finally:
-            record.times["answer_checks_cpu"] = record.times.get("answer_checks_cpu", 0.0) + spent
+    def _record_attempts(self, record: StepRecord, pol, attempts: list, **names: str) -> None:
+        """Add ``attempts`` of the problem of ``pol`` to the record, with the note (``names``: its fields,
+        :func:`~amcp_drake.online.policy.notes`) and the provenance entry rendered from them
+        (:mod:`amcp_drake.online.policy`)."""
+        record.attempts.extend(attempts)
+        note = policy.notes(pol, attempts, **names)
+        if note:
+            self._note(record, note)
+        self._entry(record, policy.answer_entry(pol, attempts))
 
     def _inconsistent(self, record: StepRecord, exc: InconsistentDataError, start: float) -> StepRecord:
         """The record of a step at which Θ_{k−1} ∩ Δ_k is empty (``step(x, on_inconsistent="record")``)."""
@@ -765,16 +766,12 @@ class AdaptiveMPC:
         if self.options.d_theta > 0:
             h_arg = record.h_theta_stages = self.stage_offsets(s.h_theta)
         sol, checked = self._solve_qp(s, x, h_arg, H_arg, record)
-        first = sol
-        record.qp_detail = sol.detail
         record.status = sol.status
         record.times["qp_update"] = sol.update_time
         record.times["solver"] = sol.solver_time
         record.infeasible_constraints = sol.infeasible_constraints
         sol = self._verified_qp(s, sol, checked, x, h_arg, H_arg, record)
         u = None
-        if sol is not None and sol is not first:
-            record.qp_detail = f"{record.qp_detail}; {sol.detail}"
         if sol is not None:
             record.v, record.z, record.alpha, record.Lambda, record.cost = sol.v, sol.z, sol.alpha, sol.Lambda, sol.cost
             u = self.design.K.dot(x) + sol.v[0]

@@ -58,11 +58,11 @@ def plain_only_reason(options) -> str:
     """'' when both forms implement ``options`` (an OnlineOptions), else the option that needs the plain form."""
     if options is None:
         return ""
-    if getattr(options, "cost", "certainty_equivalence") != "certainty_equivalence":
+    if options.cost != "certainty_equivalence":
         return "the min-max cost (19) needs the plain form"
-    if getattr(options, "d_theta", 0.0) > 0:
+    if options.d_theta > 0:
         return "time-varying parameters (26) need the plain form"
-    if getattr(options, "pe_window", None) is not None:
+    if options.pe_window is not None:
         return "the PE constraint needs the plain form"
     return ""
 

@@ -77,7 +77,7 @@ def measured_trajectory(controller: AdaptiveMPC, records: Sequence[StepRecord], 
     info = {"simulator": USER_LOOP, **formulation_meta(controller)}
     return Trajectory(problem=problem, design=controller.design, options=controller.options,
                       backend=controller.backend.name, theta_star=None, x=x, u=u, w=None, records=records,
-                      stop_reason=stop, mu_state_bound=getattr(controller.design, "mu_state_bound", None),
+                      stop_reason=stop, mu_state_bound=controller.design.mu_state_bound,
                       meta={**info, **(meta or {})})
 
 

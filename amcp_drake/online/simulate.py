@@ -220,8 +220,8 @@ class Trajectory:
 def formulation_meta(controller) -> dict:
     """The trajectory's record of the form of (20) solved: ``formulation`` ("plain" or "vertex") and, when
     ``formulation="auto"`` chose it, ``formulation_reason`` (the size rule's sentence)."""
-    meta = {"formulation": getattr(controller.backend, "formulation", "plain")}
-    choice = getattr(controller, "formulation_choice", None)
+    meta = {"formulation": controller.backend.formulation}
+    choice = controller.formulation_choice
     if choice is not None:
         meta["formulation_reason"] = f"auto: {choice.reason}"
     return meta
@@ -246,9 +246,16 @@ def _gunzip(raw: bytes, path: Path) -> bytes:
     return data
 
 
+#: Fields of StepRecord not written to a trajectory file: the typed attempts of the answer policy (the
+#: provenance entries ``answers`` rendered from them are written).
+_NOT_WRITTEN = {"attempts"}
+
+
 def _record_to_dict(r: StepRecord) -> dict[str, Any]:
     out = {}
     for f in fields(StepRecord):
+        if f.name in _NOT_WRITTEN:
+            continue
         value = getattr(r, f.name)
         if isinstance(value, np.ndarray):
             value = value.tolist()
@@ -334,7 +341,7 @@ def simulate(controller: AdaptiveMPC, x0, theta_star, steps: int, disturbance: s
                                "a point of Theta (Assumption 1 / 17)", f"{th.tolist()}")
     check_theta_rate(theta_star, controller.options.d_theta)
     if mu_state_bound is None:
-        mu_state_bound = getattr(controller.design, "mu_state_bound", None)
+        mu_state_bound = controller.design.mu_state_bound
     W = disturbance_sequence(problem, disturbance, steps, seed)
     controller.reset()
     xs, us, ws, records = [x], [], [], []

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from amcp_drake.studies.resolves import count_resolves, step_notes
+from amcp_drake.studies.resolves import count_resolves, step_kinds
 
 #: Formulations the bench knows: the QP (20) forms, plus "fast" = the vertex form with the DAQP fast
 #: path (Drake only): name -> keyword arguments of AdaptiveMPC.
@@ -101,7 +101,7 @@ def lockstep(problem, design, configs: list[tuple[str, str]], x0, theta_star, st
                 except AmcpError as exc:
                     run.status, active[c] = f"error at k={k}: {exc}", False
                     continue
-                notes[c].append(step_notes(rec))
+                notes[c].append(step_kinds(rec))
                 run.v.append(None if rec.v is None else np.asarray(rec.v, float))
                 if u is None:
                     run.status, active[c] = f"{rec.status.value} at k={k}", False

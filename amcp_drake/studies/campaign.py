@@ -200,7 +200,7 @@ def _coverage(traj) -> dict[str, float]:
 
 def _resolve_counts(traj, backend: str, formulation: str = FORMULATION) -> dict[str, float]:
     """How many steps of the run needed more than the first solve, per kind of
-    :data:`amcp_drake.studies.resolves.RESOLVE_MARKS` that can occur in a campaign run: the vertex
+    :data:`amcp_drake.studies.resolves.RESOLVE_KINDS` that can occur in a campaign run: the vertex
     form's fall back to the plain form only with :data:`FORMULATION` "vertex", the reduced plain
     form's fall back to every row of (15c) only in the Drake backend's plain form (the cvxpy plain
     form always has every row), the min–max QP's re-solve at the default tolerances only in a run with
@@ -210,12 +210,12 @@ def _resolve_counts(traj, backend: str, formulation: str = FORMULATION) -> dict[
     the summary shows the fraction of problems with at least one such step (for every_row: how often
     the campaign did not test the reduced program alone). With ``formulation`` "auto" the form the
     controller chose (the trajectory's ``meta["formulation"]``) decides."""
-    from amcp_drake.studies.resolves import count_resolves, step_notes
+    from amcp_drake.studies.resolves import count_resolves, step_kinds
 
     if formulation == "auto":
         formulation = (getattr(traj, "meta", None) or {}).get("formulation", FORMULATION)
 
-    counts = count_resolves([step_notes(r) for r in traj.records])
+    counts = count_resolves([step_kinds(r) for r in traj.records])
     minmax = getattr(getattr(traj, "options", None), "cost", "certainty_equivalence") == "minmax"
     applies = {"plain_fallback": formulation == "vertex", "every_row": formulation == "plain" and backend == "drake",
                "minmax_default_tolerances": minmax,

@@ -25,7 +25,7 @@ from typing import Any
 import cvxpy as cp
 import numpy as np
 
-from amcp_drake.backends.base import MPCSolution, TubeMPCData
+from amcp_drake.backends.base import Attempt, MPCSolution, TubeMPCData, backend_attempts
 from amcp_drake.backends.clarabel_retry import RETRIED, first_try, solve_with_retries
 from amcp_drake.backends.minmax_cost import minmax_plan_cost
 from amcp_drake.model.status import SolveStatus
@@ -335,6 +335,8 @@ class CvxpyTubeMPC:
     #: ``solve(..., refine=True)`` is supported (the controller's first fallback for an answer that
     #: fails its checks, amcp_drake.online.controller).
     REFINES = True
+    #: the formulation of (20) this program solves (the protocol's ``TubeMPCSolver.formulation``)
+    formulation = "plain"
 
     def solve(self, x, h_theta, theta_hat, H_theta=None, u0_bounds=None, refine: bool = False) -> MPCSolution:
         """Solve (20) at x_k with Θ_k = {H_θ θ <= h_theta} and the point estimate θ̂_k.
@@ -385,17 +387,19 @@ class CvxpyTubeMPC:
             form.params["u0_hi"].value = np.where(np.isfinite(hi), hi, U0_INF)
         self._set_parameters(form, x, h_theta, theta_hat)
         update_time = time.perf_counter() - start
-        status, solver_time, detail = self._solve(form.problem, refine)
+        status, solver_time, detail, rungs = self._solve(form.problem, refine)
         checked = u0_bounds is None and h_theta.ndim == 1 and self._vertex_check is not None
         if status in RETRIED and checked and "alpha_weight" in form.params:
-            return self._tie_broken(form, x, h_theta, theta_hat, H_theta, solver_time, update_time, detail)
+            sol = self._tie_broken(form, x, h_theta, theta_hat, H_theta, solver_time, update_time, detail)
+            return replace(sol, attempts=backend_attempts(rungs, sol.status) + sol.attempts)
         if status is not SolveStatus.OPTIMAL:
             names = self._diagnose(x, h_theta, theta_hat) if status is SolveStatus.INFEASIBLE else ()
-            return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names, detail=detail)
+            return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names, detail=detail,
+                               attempts=backend_attempts(rungs, status))
         sol = replace(self._read(form, x, theta_hat), solver_time=solver_time, update_time=update_time, detail=detail)
         if checked:
             sol = self._checked_optimal(sol, form, x, h_theta, theta_hat, H_theta)
-        return sol
+        return replace(sol, attempts=backend_attempts(rungs, sol.status) + sol.attempts)
 
     def _tie_broken(self, form: _Formulation, x, h_theta, theta_hat, H_theta, spent: float, update_time: float,
                     detail: str) -> MPCSolution:
@@ -412,10 +416,12 @@ class CvxpyTubeMPC:
         note = f"{detail}; re-solved with the tie-break {TIE_BREAK_WEIGHT:g}·Σα"
         if status is not SolveStatus.OPTIMAL:
             return MPCSolution(SolveStatus.INACCURATE, None, None, None, None, None, spent + elapsed, update_time,
-                               detail=f"{note}: {status.value}")
+                               detail=f"{note}: {status.value}",
+                               attempts=(Attempt("tube_qp", "tie_break", SolveStatus.INACCURATE),))
         sol = replace(self._read(form, x, theta_hat), solver_time=spent + elapsed, update_time=update_time,
                       detail=note)
-        return self._checked_optimal(sol, form, x, h_theta, theta_hat, H_theta)
+        sol = self._checked_optimal(sol, form, x, h_theta, theta_hat, H_theta)
+        return replace(sol, attempts=(Attempt("tube_qp", "tie_break", sol.status), *sol.attempts))
 
     def _checked_optimal(self, sol: MPCSolution, form: _Formulation, x, h_theta, theta_hat, H_theta) -> MPCSolution:
         """``sol`` when its cost is within :data:`OPTIMALITY_SLACK` gap tolerances of the vertex form's
@@ -436,15 +442,17 @@ class CvxpyTubeMPC:
             return replace(sol, solver_time=sol.solver_time + extra)
         tighter = {"tol_feas": TIGHTER_FEASIBILITY * options["tol_feas"]}
         status, spent, _ = self._call.solve(form.problem, tighter)
+        resolve = Attempt("tube_qp", "tighter_feasibility", status, options=(("tol_feas", f"{tighter['tol_feas']:.0e}"),))
         note = (f"the first answer's cost was {excess:.2e} above the vertex form's optimum (allowed {slack:.1e}); "
                 f"re-solved at tol_feas {tighter['tol_feas']:.0e}")
         if status is SolveStatus.OPTIMAL:
             again = self._read(form, x, theta_hat)
             if again.cost - vertex.cost <= slack:
                 return replace(again, solver_time=sol.solver_time + extra + spent, update_time=sol.update_time,
-                               detail=f"{sol.detail}; {note}")
+                               detail=f"{sol.detail}; {note}", attempts=(*sol.attempts, resolve))
         return MPCSolution(SolveStatus.INACCURATE, None, None, None, None, None, sol.solver_time + extra + spent,
-                           sol.update_time, detail=f"{sol.detail}; {note}: still above (status {status.value})")
+                           sol.update_time, detail=f"{sol.detail}; {note}: still above (status {status.value})",
+                           attempts=(*sol.attempts, replace(resolve, status=SolveStatus.INACCURATE)))
 
     def _read(self, form: _Formulation, x, theta_hat) -> MPCSolution:
         """The answer held by ``form``'s variables after an optimal solve, with its cost: (19) of the plan
@@ -458,8 +466,8 @@ class CvxpyTubeMPC:
         cost = minmax_plan_cost(self.data, z, alpha, v) if self.data.minmax else nominal_cost(self.data, x, theta_hat, v)
         return MPCSolution(SolveStatus.OPTIMAL, v, z, alpha, Lam, cost)
 
-    def _solve(self, problem: cp.Problem, refine: bool = False) -> tuple[SolveStatus, float, str]:
-        """(status, solver time, detail): Clarabel with the retry ladder of
+    def _solve(self, problem: cp.Problem, refine: bool = False) -> tuple[SolveStatus, float, str, tuple]:
+        """(status, solver time, detail, re-solves as (rung, options)): Clarabel with the retry ladder of
         :mod:`amcp_drake.backends.clarabel_retry`, any other solver once; ``refine``: iterative
         refinement from the first solve."""
         def once(extra_options):
@@ -467,11 +475,11 @@ class CvxpyTubeMPC:
             return detail, status, elapsed
 
         if self._call.name != "CLARABEL":
-            return self._call.solve(problem)
+            return (*self._call.solve(problem), ())
         # the first try of both backends (clarabel_retry.first_try), then the user's options and the ladder
         minmax = self.data.minmax
-        detail, status, elapsed, note = solve_with_retries(once, *first_try(minmax, refine, self._call.options))
-        return status, elapsed, f"{detail} ({note})" if note else detail
+        detail, status, elapsed, note, rungs = solve_with_retries(once, *first_try(minmax, refine, self._call.options))
+        return status, elapsed, f"{detail} ({note})" if note else detail, rungs
 
     def _u0_form(self) -> _Formulation:
         """The variant of (20) with the first-input bounds, built on first use for this q."""

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 import cvxpy as cp
 import numpy as np
 
-from amcp_drake.backends.base import MPCSolution, TubeMPCData
+from amcp_drake.backends.base import Attempt, MPCSolution, TubeMPCData, backend_attempts
 from amcp_drake.backends.clarabel_retry import RETRIED, retry_ladder
 from amcp_drake.backends.vertex_form import (
     CLARABEL_OPTIONS,
@@ -125,6 +125,8 @@ class CvxpyVertexTubeMPC:
     """QP (20) in vertex form; :meth:`solve` enumerates Θ_k's vertices, sets parameters, solves."""
 
     formulation = "vertex"
+    #: no ``solve(..., refine=True)``: the vertex form re-solves with iterative refinement itself
+    REFINES = False
 
     def __init__(self, data: TubeMPCData, call, compiled: bool = True, plain_fallback: bool = True) -> None:
         """``call``: the backend's ``SolverCall``; with Clarabel, a copy with
@@ -236,29 +238,35 @@ class CvxpyVertexTubeMPC:
         status, solver_time, detail = self._call.solve(form.problem)
         solver_time += compiled_time
         detail = f"{detail}; vertex form, {len(vertices)} vertices of Theta_k"
+        rungs: tuple = ()
         if form.compiled is not None:  # say why the route did not answer (a user sees why a step is slower)
             reason = form.compiled.reason
             detail += "; compiled route gave no answer, solved through Problem.solve" if reason is None else f"; {reason}"
+            rungs = (("problem_solve", ()),) if reason is None else ()
         if status is SolveStatus.INACCURATE and self._call is not self._plain_call:
             # AlmostSolved without iterative refinement (near-degenerate step): again with the user's settings
             status, extra, _ = self._plain_call.solve(form.problem)
             solver_time += extra
             detail += "; re-solved with iterative refinement"
+            rungs += (("refine", ()),)
         if status in RETRIED and self._plain_call.name == "CLARABEL":
             def once(extra_options):  # a rung of the ladder with the user's settings underneath
                 rung_status, spent, rung_detail = self._plain_call.solve(form.problem, extra_options)
                 return rung_detail, rung_status, spent
 
-            _, status, solver_time, note = retry_ladder(once, None, status, solver_time)
+            _, status, solver_time, note, ladder = retry_ladder(once, None, status, solver_time)
             detail += f"; {note}"
+            rungs += ladder
         if status is not SolveStatus.OPTIMAL:
             names = self._diagnose(x, vertices) if status is SolveStatus.INFEASIBLE else ()
-            return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names, detail=detail)
+            return MPCSolution(status, None, None, None, None, None, solver_time, update_time, names, detail=detail,
+                               attempts=backend_attempts(rungs, status))
         v = np.asarray(form.v.value, float).T.copy()
         z = np.asarray(form.z.value, float).T.copy()
         alpha = np.asarray(form.alpha.value, float).copy()
         cost = nominal_cost(self.data, x, theta_hat, v)
-        return MPCSolution(status, v, z, alpha, None, cost, solver_time, update_time, detail=detail)
+        return MPCSolution(status, v, z, alpha, None, cost, solver_time, update_time, detail=detail,
+                           attempts=backend_attempts(rungs, status))
 
     def _solve_compiled(self, form: _VertexFormulation) -> tuple[tuple[np.ndarray, ...] | None, float]:
         """((v, z, α) or None, Clarabel's solve time) by the compiled route. None when the route is
@@ -308,4 +316,5 @@ class CvxpyVertexTubeMPC:
             H0 = self.H_theta if H_theta is None else np.asarray(H_theta, float)
             self._plain = CvxpyTubeMPC(replace(self.data, H_theta=H0), self._plain_call)
         sol = self._plain.solve(x, h_theta, theta_hat, H_theta)
-        return replace(sol, detail=f"plain form (15) fallback: {reason}; {sol.detail}")
+        return replace(sol, detail=f"plain form (15) fallback: {reason}; {sol.detail}",
+                       attempts=(Attempt("tube_qp", "plain_form", sol.status), *sol.attempts))
