@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import os
 import re
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from tests.browser import NO_CHROMIUM, find_chromium, headless
 from tests.guards import GUARD_SECONDS
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -32,13 +32,6 @@ def site(tmp_path_factory) -> Path:
     return out
 
 
-def _chromium() -> str | None:
-    for name in ("/usr/bin/chromium", "chromium", "chromium-browser", "google-chrome"):
-        if shutil.which(name):
-            return shutil.which(name)
-    return None
-
-
 def test_the_paper_page_marks_every_formula_for_mathjax_and_ships_mathjax(site):
     html = (site / PAGE).read_text(encoding="utf-8")
     assert len(re.findall(r'class="arithmatex"', html)) >= 100
@@ -49,13 +42,11 @@ def test_the_paper_page_marks_every_formula_for_mathjax_and_ships_mathjax(site):
 
 
 def test_the_paper_page_renders_its_formulas_in_headless_chromium(site, tmp_path):
-    chromium = _chromium()
+    chromium = find_chromium()
     if chromium is None:
-        pytest.skip("Chromium is not installed (apt-get install -y chromium); the browser check did not run")
+        pytest.skip(NO_CHROMIUM)
     page = (site / PAGE).resolve().as_uri()
-    base = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-            "--disable-component-update", "--disable-sync", "--no-first-run", "--run-all-compositor-stages-before-draw",
-            "--virtual-time-budget=30000", f"--user-data-dir={tmp_path / 'profile'}"]
+    base = headless(chromium, tmp_path / "profile", "--run-all-compositor-stages-before-draw", "--virtual-time-budget=30000")
     done = subprocess.run([*base, "--dump-dom", page], capture_output=True, text=True, timeout=GUARD_SECONDS)
     assert done.returncode == 0, done.stderr[-2000:]
     dom = done.stdout

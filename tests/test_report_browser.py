@@ -13,7 +13,6 @@ import base64
 import dataclasses
 import json
 import re
-import shutil
 import subprocess
 import xml.etree.ElementTree as ET
 from html.parser import HTMLParser
@@ -28,6 +27,7 @@ from amcp_drake.certificate.report import render_report, write_outputs
 from amcp_drake.certificate.report_plots import PLOTS
 from amcp_drake.model.examples import lorenzen2019_spec
 from amcp_drake.online.simulate import Trajectory
+from tests.browser import NO_CHROMIUM, find_chromium, headless
 from tests.guards import GUARD_SECONDS
 
 STEPS = 6
@@ -48,7 +48,6 @@ EXPECTED_SECTIONS = {
                "design.x_f_invariant", "design.x_f_in_z", "design.mu_condition_11", "design.x0_vertices"],
 }
 SVG = "{http://www.w3.org/2000/svg}"
-CHROMIUM_CANDIDATES = ("/usr/bin/chromium", "chromium", "chromium-browser", "google-chrome")
 
 
 class Elements(HTMLParser):
@@ -185,22 +184,12 @@ def test_failed_and_not_run_claims_are_marked(bundle):
     assert rows["lemma5"]["class"] == "pass"
 
 
-def _chromium() -> str | None:
-    for name in CHROMIUM_CANDIDATES:
-        path = shutil.which(name)
-        if path:
-            return path
-    return None
-
-
 def test_report_renders_in_headless_chromium(bundle, tmp_path):
-    chromium = _chromium()
+    chromium = find_chromium()
     if chromium is None:
-        pytest.skip("Chromium is not installed (apt-get install -y chromium); the browser check did not run")
+        pytest.skip(NO_CHROMIUM)
     report = Path(bundle["out"]) / "report.html"
-    cmd = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-           "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={tmp_path / 'profile'}",
-           "--dump-dom", report.resolve().as_uri()]
+    cmd = headless(chromium, tmp_path / "profile", "--dump-dom", report.resolve().as_uri())
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=GUARD_SECONDS)
     assert done.returncode == 0, done.stderr[-2000:]
     doc = parse(done.stdout)

@@ -14,7 +14,6 @@ from __future__ import annotations
 import base64
 import json
 import re
-import shutil
 import subprocess
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -29,6 +28,7 @@ from amcp_drake.certificate.certify import certify
 from amcp_drake.certificate.report import render_report, write_outputs
 from amcp_drake.certificate.report_plots import SVG_URI_PREFIX
 from amcp_drake.model.problem import DesignOptions, Problem, ProblemSpec
+from tests.browser import NO_CHROMIUM, find_chromium, headless
 from tests.guards import GUARD_SECONDS
 
 SVG = "{http://www.w3.org/2000/svg}"
@@ -237,13 +237,6 @@ def test_certify_bad_plane_exits_2_and_writes_nothing(saved, tmp_path, plane):
 
 
 # -- the browser ----------------------------------------------------------------------------------------------
-def _chromium() -> str | None:
-    for name in ("/usr/bin/chromium", "chromium", "chromium-browser", "google-chrome"):
-        if shutil.which(name):
-            return shutil.which(name)
-    return None
-
-
 def _red_pixels(png: Path) -> int:
     """Pixels close to matplotlib's tab:red (#d62728), the boundary of Z in the tube plot."""
     from PIL import Image
@@ -255,9 +248,9 @@ def _red_pixels(png: Path) -> int:
 def test_headless_chromium_paints_the_svg_tube_plot_of_a_chosen_plane(run, tmp_path):
     """A screenshot of the whole report (tube plot in the plane p, phi) shows the red boundary of Z; the same
     report with that image emptied shows far fewer red pixels (so they come from the tube plot's SVG)."""
-    chromium = _chromium()
+    chromium = find_chromium()
     if chromium is None:
-        pytest.skip("Chromium is not installed (apt-get install -y chromium); the browser check did not run")
+        pytest.skip(NO_CHROMIUM)
     traj, cert = run
     out = write_outputs(tmp_path / "out", traj, cert, plane=(0, 2))
     html = (out / "report.html").read_text(encoding="utf-8")
@@ -268,10 +261,8 @@ def test_headless_chromium_paints_the_svg_tube_plot_of_a_chosen_plane(run, tmp_p
     counts = []
     for page in (out / "report.html", control):
         shot = tmp_path / f"{page.stem}.png"
-        cmd = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-               "--disable-component-update", "--disable-sync", "--no-first-run", "--hide-scrollbars",
-               f"--user-data-dir={tmp_path / 'profile'}", "--window-size=1200,16000", f"--screenshot={shot}",
-               page.resolve().as_uri()]
+        cmd = headless(chromium, tmp_path / "profile", "--hide-scrollbars", "--window-size=1200,16000",
+                       f"--screenshot={shot}", page.resolve().as_uri())
         done = subprocess.run(cmd, capture_output=True, text=True, timeout=GUARD_SECONDS)
         assert done.returncode == 0 and shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", done.stderr[-2000:]
         counts.append(_red_pixels(shot))

@@ -311,11 +311,12 @@ def test_matrix_page_renders_in_headless_chromium(tmp_path):
     """Every cell of solvers.json is in the DOM that Chromium builds from solvers.html, with its verdict."""
     from amcp_drake.studies.solver_matrix.report import to_json, write_outputs
     from amcp_drake.studies.solver_matrix.runner import Cell, MatrixRun
-    from tests.test_report_browser import _chromium, parse
+    from tests.browser import NO_CHROMIUM, find_chromium, headless
+    from tests.test_report_browser import parse
 
-    chromium = _chromium()
+    chromium = find_chromium()
     if chromium is None:
-        pytest.skip("Chromium is not installed (apt-get install -y chromium); the browser check did not run")
+        pytest.skip(NO_CHROMIUM)
     a, b = lp_x_geq_1(), lp_x_geq_1()
     b.id = "second <problem> & 'quotes'"
     configs = ["drake:clarabel", "cvxpy:OSQP"]
@@ -323,9 +324,7 @@ def test_matrix_page_renders_in_headless_chromium(tmp_path):
              Cell(b.id, configs[0], "crash", detail="SIGABRT"), Cell(b.id, configs[1], "timeout")]
     data = to_json(MatrixRun("default", 5.0, configs, [a, b], cells))
     _, page = write_outputs(tmp_path, data)
-    cmd = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-           "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={tmp_path / 'profile'}",
-           "--dump-dom", page.resolve().as_uri()]
+    cmd = headless(chromium, tmp_path / "profile", "--dump-dom", page.resolve().as_uri())
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=GUARD_SECONDS)
     assert done.returncode == 0, done.stderr[-2000:]
     doc = parse(done.stdout)
