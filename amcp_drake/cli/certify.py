@@ -204,14 +204,14 @@ def _assumption_8_broken_by_the_given_gain(exc: Exception, spec) -> str | None:
 def _provenance_inputs(problem_file, example, trajectory_file) -> dict:
     """The input files a certificate records the SHA-256 of: the problem file (a built-in example's packaged
     file when no PROBLEM is given) and the trajectory file certified with --trajectory."""
-    from importlib import resources
+    from amcp_drake.model.examples import example_file
 
     files = {}
     if problem_file:
         files["problem"] = problem_file
     elif example or trajectory_file is None:
-        packaged = resources.files("amcp_drake") / "data" / f"{example or 'lorenzen2019'}.json"
-        if packaged.is_file():
+        packaged = example_file(example or "lorenzen2019")
+        if packaged is not None:
             files["problem"] = packaged
     if trajectory_file:
         files["input_trajectory"] = trajectory_file

@@ -16,8 +16,15 @@ from amcp_drake.model.problem_io import load_spec
 from amcp_drake.model.sls_mpc_2d import SLS_EPS_A_SWEEP, sls_mpc_2d_spec
 
 
+def example_file(name: str):
+    """The packaged problem file ``amcp_drake/data/<name>.json`` a built-in example is loaded from (a copy is in
+    examples/), or None for an example built in code (the SLS-MPC family)."""
+    packaged = resources.files("amcp_drake") / "data" / f"{name}.json"
+    return packaged if name in EXAMPLES and packaged.is_file() else None
+
+
 def _data_spec(name: str) -> ProblemSpec:
-    """The problem file ``amcp_drake/data/<name>.json`` (a copy is in examples/)."""
+    """The problem file :func:`example_file` of ``name``."""
     with resources.as_file(resources.files("amcp_drake") / "data" / f"{name}.json") as path:
         return load_spec(path)
 
